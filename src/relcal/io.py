@@ -1,0 +1,113 @@
+"""Reading YAML with line numbers for error messages, validating it, and writing files atomically."""
+
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Any, TypeVar
+
+import pydantic
+import yaml
+
+from relcal.errors import RelcalError
+
+M = TypeVar("M", bound=pydantic.BaseModel)
+
+
+def _node_at(node: yaml.Node, loc: tuple[Any, ...]) -> yaml.Node:
+    """The deepest YAML node along a pydantic error location."""
+    for key in loc:
+        if isinstance(node, yaml.MappingNode):
+            match = [v for k, v in node.value if k.value == str(key)]
+            if not match:
+                break
+            node = match[0]
+        elif isinstance(node, yaml.SequenceNode) and isinstance(key, int) and key < len(node.value):
+            node = node.value[key]
+        else:
+            break
+    return node
+
+
+def _format_loc(loc: tuple[Any, ...]) -> str:
+    out = ""
+    for key in loc:
+        out += f"[{key}]" if isinstance(key, int) else (f".{key}" if out else str(key))
+    return out or "(top level)"
+
+
+def load_yaml(path: str | Path) -> tuple[Any, yaml.Node | None]:
+    """Parse a YAML file; return the data and its node tree (for line numbers)."""
+    path = Path(path)
+    try:
+        text = path.read_text()
+    except FileNotFoundError:
+        raise RelcalError(f"{path}: file not found") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise RelcalError(f"{path}: cannot read: {exc}") from None
+    try:
+        node = yaml.compose(text, Loader=yaml.SafeLoader)
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        where = f" line {mark.line + 1}" if mark is not None else ""
+        problem = getattr(exc, "problem", None) or str(exc)
+        raise RelcalError(f"{path}{where}: malformed YAML: {problem}") from None
+    return data, node
+
+
+def validate(schema: type[M], data: Any, path: str | Path, node: yaml.Node | None = None) -> M:
+    """Validate ``data`` against a pydantic schema; errors name the file, line and field."""
+    try:
+        return schema.model_validate(data)
+    except pydantic.ValidationError as exc:
+        lines = []
+        for err in exc.errors():
+            loc = tuple(err["loc"])
+            where = ""
+            if node is not None:
+                where = f" line {_node_at(node, loc).start_mark.line + 1}"
+            lines.append(f"{path}{where}: {_format_loc(loc)}: {err['msg']}")
+        raise RelcalError("\n".join(lines)) from None
+
+
+def load_validated(schema: type[M], path: str | Path) -> M:
+    """Load a YAML file and validate it against ``schema``."""
+    data, node = load_yaml(path)
+    return validate(schema, data, path, node)
+
+
+@contextmanager
+def atomic_write(path: str | Path, mode: str = "w") -> Iterator[Any]:
+    """Open a temporary file beside ``path``; rename it over ``path`` only if the block succeeds."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, mode) as handle:
+            yield handle
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def write_text(path: str | Path, text: str) -> None:
+    """Write a text file atomically."""
+    with atomic_write(path) as handle:
+        handle.write(text)
+
+
+def write_json(path: str | Path, data: Any) -> None:
+    """Write JSON atomically, indented, with NaN refused (it is not JSON)."""
+    write_text(path, json.dumps(data, indent=2, allow_nan=False) + "\n")
+
+
+def write_with(path: str | Path, writer: Callable[[Any], None], mode: str = "w") -> None:
+    """Call ``writer(handle)`` on a temporary file and rename it over ``path``."""
+    with atomic_write(path, mode) as handle:
+        writer(handle)
