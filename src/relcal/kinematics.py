@@ -14,7 +14,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from relcal import transforms as tf
-from relcal.model import ANGLE_KINDS, RobotModel
+from relcal.model import ANGLE_KINDS, KINDS, RobotModel
 
 FRAME_COMPONENTS = ("tx", "ty", "tz", "rx", "ry", "rz")
 
@@ -36,9 +36,9 @@ class Layout:
         return len(self.names)
 
     def is_angle(self) -> np.ndarray:
-        """Mask of entries in radians (the others are in metres)."""
+        """Mask of entries in radians (the others are in metres); frame 6-vectors end in radians."""
         return np.array(
-            [k in ANGLE_KINDS or (k in ("base", "tool") and i >= 3) for k, i in self],
+            [k in ANGLE_KINDS or (k not in KINDS and i >= 3) for k, i in self],
             dtype=bool,
         )
 

@@ -239,4 +239,3 @@ def auto_hayati(model: RobotModel, tol_deg: float = 1.0) -> RobotModel:
         parallel = twist < tol
         parallel[0] = False
     return replace(model, hayati=model.hayati | parallel)
-

@@ -1,0 +1,141 @@
+"""Which parameters relative data can identify, judged on the scaled identification Jacobian.
+
+Columns are scaled to unit norm so that metres and radians compare; the rank tolerance is relative
+to the largest singular value of the scaled matrix (DESIGN.md). Null-space directions are reduced
+to sparse combinations and named in words: a rigid motion of the base, a change of the hand-eye
+transform, offsets along parallel axes, or no effect at all.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.linalg
+
+from relcal.kinematics import Layout
+
+DEFAULT_RCOND = 1e-6
+_INVOLVED = 1e-6  # a parameter with a larger share of a null vector is not identifiable alone
+
+
+@dataclass(frozen=True)
+class Combination:
+    """An unidentifiable direction: ``sum(coefficients * parameters)`` has no effect on the data."""
+
+    names: tuple[str, ...]
+    coefficients: tuple[float, ...]  # in SI units (m, rad)
+    is_angle: tuple[bool, ...]
+    reason: str
+
+    def describe(self) -> str:
+        """E.g. ``theta_off[6] +1 deg with a[6] +0.698 mm: acts like ...`` (largest term 1)."""
+        if len(self.names) == 1:
+            return f"{self.names[0]}: {self.reason}"
+        shown = np.array(
+            [np.degrees(c) if a else c * 1e3 for c, a in zip(self.coefficients, self.is_angle)]
+        )
+        shown /= np.abs(shown).max()
+        terms = [
+            f"{n} {c:+.3g} {'deg' if a else 'mm'}"
+            for n, c, a in zip(self.names, shown, self.is_angle, strict=True)
+        ]
+        return f"{' with '.join(terms)} together: {self.reason}"
+
+
+@dataclass(frozen=True)
+class Identifiability:
+    """Singular values of the scaled Jacobian and what they imply."""
+
+    singular_values: np.ndarray  # (P,), descending, of the unit-column Jacobian
+    column_norms: np.ndarray  # (P,) scale of each column
+    rank: int
+    rcond: float
+    identifiable: np.ndarray  # (P,) bool: determined individually by the data
+    subset: np.ndarray  # (rank,) parameter indices chosen by QR with column pivoting
+    null_space: np.ndarray  # (P, P - rank) in original parameter units, columns unit-norm
+    combinations: tuple[Combination, ...]
+
+    @property
+    def condition_number(self) -> float:
+        s = self.singular_values
+        return float(s[0] / s[self.rank - 1]) if self.rank else float("inf")
+
+
+def scaled(jac: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Unit-norm columns and the norms. Columns at round-off level (below 1e-9 of the largest)
+    have no effect: they keep norm 1 so that they stay (numerically) zero."""
+    norms = np.linalg.norm(jac, axis=0)
+    norms = np.where(norms > 1e-9 * norms.max(initial=0.0), norms, 1.0)
+    return jac / norms, norms
+
+
+def sparse_basis(null: np.ndarray, tol: float = 1e-9) -> np.ndarray:
+    """Reduced row echelon form of a null-space basis ``(P, k)``: each column a sparse combination
+    led by its own pivot parameter, normalised to unit norm."""
+    m = null.T.copy()  # (k, P)
+    k, p = m.shape
+    row = 0
+    for col in range(p):
+        if row == k:
+            break
+        pivot = row + int(np.argmax(np.abs(m[row:, col])))
+        if abs(m[pivot, col]) < tol:
+            continue
+        m[[row, pivot]] = m[[pivot, row]]
+        m[row] /= m[row, col]
+        others = np.arange(k) != row
+        m[others] -= np.outer(m[others, col], m[row])
+        row += 1
+    m[np.abs(m) < tol] = 0.0
+    return (m / np.linalg.norm(m, axis=1, keepdims=True)).T
+
+
+def analyse(
+    jac: np.ndarray,
+    layout: Layout,
+    rcond: float = DEFAULT_RCOND,
+    explain=None,
+) -> Identifiability:
+    """Rank, identifiable subset and named null-space combinations of a Jacobian ``(M, P)``.
+
+    ``explain(vector) -> str``, if given, names why a null-space direction (in parameter units)
+    does not change the data; otherwise the generic reason is used.
+    """
+    unit, norms = scaled(jac)
+    _, s, vt = np.linalg.svd(unit, full_matrices=False)
+    tol = rcond * (s[0] if len(s) else 0.0)
+    rank = int(np.sum(s > tol))
+    null_scaled = vt[rank:].T  # (P, k) in scaled coordinates
+    involved = np.linalg.norm(null_scaled, axis=1) > _INVOLVED
+    _, _, piv = scipy.linalg.qr(unit, mode="economic", pivoting=True)
+    subset = np.sort(piv[:rank])
+
+    combos = []
+    angle = layout.is_angle()
+    null = np.zeros((len(norms), 0))
+    if null_scaled.shape[1]:
+        sparse = sparse_basis(null_scaled)
+        null = sparse / norms[:, None]  # back to parameter units
+        null /= np.linalg.norm(null, axis=0)
+        for v_scaled, v in zip(sparse.T, null.T, strict=True):
+            idx = np.flatnonzero(np.abs(v_scaled) > 1e-6)
+            reason = explain(v) if explain else "no effect on the measurements at these poses"
+            combos.append(
+                Combination(
+                    names=tuple(layout.names[i] for i in idx),
+                    coefficients=tuple(float(v[i] / np.max(np.abs(v[idx]))) for i in idx),
+                    is_angle=tuple(bool(angle[i]) for i in idx),
+                    reason=reason,
+                )
+            )
+    return Identifiability(
+        singular_values=s,
+        column_norms=norms,
+        rank=rank,
+        rcond=rcond,
+        identifiable=~involved,
+        subset=subset,
+        null_space=null,
+        combinations=tuple(combos),
+    )

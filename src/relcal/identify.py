@@ -1,0 +1,234 @@
+"""Identification: the published iterated SVD least squares, and Levenberg-Marquardt.
+
+Both take a :class:`~relcal.measurement.Problem` and return a :class:`Result` with the parameter
+estimate (errors relative to the nominal model, SI units), convergence, cost, rank and the
+identifiability analysis at the nominal model.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+import scipy.optimize
+
+from relcal import transforms as tf
+from relcal.errors import RelcalError
+from relcal.identifiability import DEFAULT_RCOND, Identifiability, analyse, scaled
+from relcal.kinematics import pose_jacobian
+from relcal.measurement import Problem, residuals
+
+Method = Literal["published", "lm"]
+
+
+def _final_identifiable(problem: Problem, params: np.ndarray, ident: Identifiability) -> np.ndarray:
+    """Parameters identifiable both at the nominal model and at the estimate.
+
+    Exact symmetries (base motion, hand-eye absorption) are curved in parameter space: a parameter
+    outside the nominal null space can still drift along it at second order, which the null space
+    at the estimate reveals.
+    """
+    _, jac = residuals(problem, params)
+    return ident.identifiable & analyse(jac, problem.full_layout, ident.rcond).identifiable
+
+
+@dataclass(frozen=True)
+class Result:
+    """Outcome of one identification. ``params`` follows ``problem.full_layout``."""
+
+    params: np.ndarray
+    names: tuple[str, ...]
+    converged: bool
+    iterations: int
+    initial_residual_norm: float
+    residual_norm: float
+    n_residuals: int
+    rank: int
+    seconds: float
+    method: str
+    identifiability: Identifiability
+    identifiable: np.ndarray  # (P,) bool, individually determined (nominal and at the estimate)
+
+    @property
+    def unidentifiable(self) -> list[str]:
+        return [c.describe() for c in self.identifiability.combinations]
+
+
+def explainer(problem: Problem):
+    """A function naming why a null-space direction (parameter units) leaves the data unchanged."""
+    model, layout = problem.model, problem.full_layout
+    tip, jac = pose_jacobian(model, problem.q, problem.layout)
+    rot_t = np.swapaxes(tip[:, :3, :3], -1, -2)
+    n_geo = problem.layout.size
+
+    def constant(twists: np.ndarray) -> bool:
+        scale = np.abs(twists).max()
+        return scale > 0 and np.abs(twists - twists.mean(axis=0)).max() < 1e-6 * scale
+
+    def explain(v: np.ndarray) -> str:
+        involved = np.flatnonzero(np.abs(v) > 1e-6 * np.abs(v).max())
+        kinds = {layout.kinds[i] for i in involved}
+        motion = jac @ v[:n_geo]  # (N, 6): tip velocity and angular velocity, base frame
+        if len(involved) == 1 and np.abs(motion).max() < 1e-12:
+            return "has no effect on the tool pose"
+        if kinds == {"d"} and len(involved) > 1:
+            joints = sorted({layout.index[i] + 1 for i in involved})
+            return (
+                f"translations along parallel axes of joints {', '.join(map(str, joints))}: "
+                "only their sum is identifiable (Hayati's beta cures it)"
+            )
+        spatial = motion.copy()
+        spatial[:, :3] -= np.cross(motion[:, 3:], tip[:, :3, 3])
+        if "handeye" not in kinds and constant(spatial):
+            return "acts as a rigid motion of the robot base: cancels in relative measurements"
+        body = np.concatenate([rot_t @ motion[:, :3, None], rot_t @ motion[:, 3:, None]], 1)
+        if "handeye" in kinds or constant(body[..., 0]):
+            if problem.formulation == "invariant":
+                return "acts like a change of the hand-eye transform X, which absorbs it"
+            return "acts like a change of the tool transform"
+        return "linearly dependent at these poses: vary the poses or fix one of them"
+
+    return explain
+
+
+def analyse_problem(problem: Problem, rcond: float = DEFAULT_RCOND) -> Identifiability:
+    """Identifiability of ``problem`` at its nominal model (all errors zero)."""
+    _, jac = residuals(problem, np.zeros(problem.full_layout.size))
+    return analyse(jac, problem.full_layout, rcond, explainer(problem))
+
+
+def _check(problem: Problem) -> None:
+    needed = problem.full_layout.size
+    if problem.n_residuals() < needed:
+        raise RelcalError(
+            f"too few measurements: {problem.n_residuals()} residual rows for {needed} parameters;"
+            " add poses"
+        )
+
+
+def identify_published(
+    problem: Problem,
+    rcond: float = 1e-8,
+    tol: float = 1e-12,
+    max_iter: int = 50,
+    identifiability: Identifiability | None = None,
+) -> Result:
+    """Iterated linear least squares with an SVD pseudo-inverse (Lu & Hayes).
+
+    Each step solves ``A dp = r`` on unit-norm columns with singular values below
+    ``rcond * s_max`` zeroed, and stops when ``|dp|`` (scaled) falls below ``tol`` times the
+    scaled parameter norm (or an absolute 1e-15).
+    """
+    _check(problem)
+    start = time.perf_counter()
+    ident = identifiability or analyse_problem(problem)
+    params = np.zeros(problem.full_layout.size)
+    r, a = residuals(problem, params)
+    initial = float(np.linalg.norm(r))
+    converged, it = False, 0
+    for it in range(1, max_iter + 1):
+        unit, norms = scaled(a)
+        u, s, vt = np.linalg.svd(unit, full_matrices=False)
+        keep = s > rcond * s[0]
+        step = vt[keep].T @ ((u[:, keep].T @ r) / s[keep]) / norms
+        params = params + step
+        previous = np.linalg.norm(r)
+        r, a = residuals(problem, params)
+        size = np.linalg.norm(step * norms)
+        # Negligible correction, or a residual that no longer decreases (at round-off level a
+        # curved exact symmetry can keep a tiny singular value above rcond and move forever).
+        stalled = np.linalg.norm(r) >= previous * (1 - 1e-6) and it > 1
+        if size <= tol * max(np.linalg.norm(params * norms), 1e-3) or stalled:
+            converged = True
+            break
+    return Result(
+        params=params,
+        names=problem.full_layout.names,
+        converged=converged,
+        iterations=it,
+        initial_residual_norm=initial,
+        residual_norm=float(np.linalg.norm(r)),
+        n_residuals=len(r),
+        rank=int(np.sum(keep)),
+        seconds=time.perf_counter() - start,
+        method="published",
+        identifiability=ident,
+        identifiable=_final_identifiable(problem, params, ident),
+    )
+
+
+def identify_lm(
+    problem: Problem,
+    max_nfev: int = 200,
+    identifiability: Identifiability | None = None,
+    loss: str = "linear",
+    f_scale: float = 1.0,
+) -> Result:
+    """Levenberg-Marquardt (trust region) on the identifiable subset with column scaling.
+
+    Parameters outside the QR-pivoted identifiable subset stay at their nominal values.
+    """
+    _check(problem)
+    start = time.perf_counter()
+    ident = identifiability or analyse_problem(problem)
+    subset = ident.subset
+    full = np.zeros(problem.full_layout.size)
+
+    def expand(x: np.ndarray) -> np.ndarray:
+        out = full.copy()
+        out[subset] = x
+        return out
+
+    def fun(x: np.ndarray) -> np.ndarray:
+        return -residuals(problem, expand(x), jacobian=False)
+
+    def jac(x: np.ndarray) -> np.ndarray:
+        return residuals(problem, expand(x))[1][:, subset]
+
+    r0 = residuals(problem, full, jacobian=False)
+    method = "lm" if loss == "linear" else "trf"
+    sol = scipy.optimize.least_squares(
+        fun,
+        np.zeros(len(subset)),
+        jac=jac,
+        method=method,
+        x_scale="jac",
+        loss=loss,
+        f_scale=f_scale,
+        max_nfev=max_nfev,
+        xtol=1e-12,
+        ftol=1e-12,
+        gtol=1e-12,
+    )
+    return Result(
+        params=expand(sol.x),
+        names=problem.full_layout.names,
+        converged=bool(sol.status > 0),
+        iterations=int(sol.nfev),
+        initial_residual_norm=float(np.linalg.norm(r0)),
+        residual_norm=float(np.linalg.norm(sol.fun)),
+        n_residuals=len(r0),
+        rank=len(subset),
+        seconds=time.perf_counter() - start,
+        method=f"lm ({loss} loss)" if loss != "linear" else "lm",
+        identifiability=ident,
+        identifiable=_final_identifiable(problem, expand(sol.x), ident),
+    )
+
+
+def identify(problem: Problem, method: Method = "published", **kwargs) -> Result:
+    """Run the chosen identification method."""
+    if method == "published":
+        return identify_published(problem, **kwargs)
+    if method == "lm":
+        return identify_lm(problem, **kwargs)
+    raise ValueError(f"unknown identification method '{method}': use published or lm")
+
+
+def calibrated_handeye(problem: Problem, result: Result) -> np.ndarray:
+    """The hand-eye transform ``X`` implied by the result (the guess when not estimated)."""
+    if problem.formulation != "invariant":
+        return problem.handeye
+    return problem.handeye @ tf.from_vector(result.params[problem.layout.size :])
