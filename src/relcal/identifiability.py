@@ -33,7 +33,10 @@ class Combination:
         if len(self.names) == 1:
             return f"{self.names[0]}: {self.reason}"
         shown = np.array(
-            [np.degrees(c) if a else c * 1e3 for c, a in zip(self.coefficients, self.is_angle)]
+            [
+                np.degrees(c) if a else c * 1e3
+                for c, a in zip(self.coefficients, self.is_angle, strict=True)
+            ]
         )
         shown /= np.abs(shown).max()
         terms = [

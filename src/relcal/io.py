@@ -1,4 +1,4 @@
-"""Reading YAML with line numbers for error messages, validating it, and writing files atomically."""
+"""YAML with line numbers for error messages, validation, and atomic file writes."""
 
 from __future__ import annotations
 

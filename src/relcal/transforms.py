@@ -48,7 +48,7 @@ def invert(transform: np.ndarray) -> np.ndarray:
 
 
 def from_vector(vec: np.ndarray) -> np.ndarray:
-    """Transforms ``(..., 4, 4)`` from 6-vectors ``(..., 6)`` (translation m, rotation vector rad)."""
+    """Transforms ``(..., 4, 4)`` from 6-vectors ``(..., 6)`` (translation m, rotvec rad)."""
     vec = np.asarray(vec, dtype=float)
     flat = vec.reshape(-1, 6)
     rot = Rotation.from_rotvec(flat[:, 3:]).as_matrix()
