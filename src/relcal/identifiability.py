@@ -74,24 +74,14 @@ def scaled(jac: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def sparse_basis(null: np.ndarray, tol: float = 1e-9) -> np.ndarray:
-    """Reduced row echelon form of a null-space basis ``(P, k)``: each column a sparse combination
-    led by its own pivot parameter, normalised to unit norm."""
-    m = null.T.copy()  # (k, P)
-    k, p = m.shape
-    row = 0
-    for col in range(p):
-        if row == k:
-            break
-        pivot = row + int(np.argmax(np.abs(m[row:, col])))
-        if abs(m[pivot, col]) < tol:
-            continue
-        m[[row, pivot]] = m[[pivot, row]]
-        m[row] /= m[row, col]
-        others = np.arange(k) != row
-        m[others] -= np.outer(m[others, col], m[row])
-        row += 1
-    m[np.abs(m) < tol] = 0.0
-    return (m / np.linalg.norm(m, axis=1, keepdims=True)).T
+    """A sparse basis of the span of ``null`` ``(P, k)``: each column led by its own pivot parameter
+    (chosen by QR with column pivoting, so the pivots are well conditioned), unit-norm columns."""
+    k = null.shape[1]
+    _, _, piv = scipy.linalg.qr(null.T, pivoting=True)
+    basis = np.linalg.solve(null.T[:, piv[:k]], null.T)  # identity in the pivot columns
+    basis[np.abs(basis) < tol] = 0.0
+    basis = basis[np.argsort(piv[:k])]  # ordered by pivot parameter
+    return (basis / np.linalg.norm(basis, axis=1, keepdims=True)).T
 
 
 def analyse(

@@ -1,0 +1,28 @@
+"""Shared fixtures: robots, random configurations, and the real data folder."""
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from relcal.model import get_robot
+
+DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
+
+
+@pytest.fixture
+def rng() -> np.random.Generator:
+    return np.random.default_rng(1234)
+
+
+@pytest.fixture
+def a465():
+    return get_robot("a465")
+
+
+def random_q(model, n: int, rng: np.random.Generator, scale: float = 0.9) -> np.ndarray:
+    """Random configurations inside the joint limits (or +-pi where unlimited)."""
+    lo = np.where(np.isfinite(model.lower), model.lower, -np.pi)
+    hi = np.where(np.isfinite(model.upper), model.upper, np.pi)
+    mid, half = (lo + hi) / 2, (hi - lo) / 2 * scale
+    return rng.uniform(mid - half, mid + half, (n, model.n_joints))
