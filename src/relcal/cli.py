@@ -1,4 +1,4 @@
-"""The ``relcal`` command line. Each subcommand parses its options and calls the library.
+"""The ``relcal`` command line. Subcommands live in :mod:`relcal.commands`.
 
 Exit codes: 0 success, 1 the run finished but a check failed (e.g. no convergence), 2 bad input
 (the message names the file and field), 130 interrupted.
@@ -12,69 +12,8 @@ from collections.abc import Callable, Sequence
 
 import numpy as np
 
+from relcal.commands import register_all
 from relcal.errors import RelcalError
-
-EPILOG_SIMULATE = """\
-examples:
-  relcal simulate --robot a465                       # both published runs, random errors
-  relcal simulate --robot a465 --measure pose --formulation invariant --noise 0.05,0.01
-  relcal simulate --robot puma560 --errors errors.yaml --json out.json
-"""
-
-
-def _robot_arg(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument(
-        "--robot", default="a465", help="built-in robot name or model YAML path (default a465)"
-    )
-    parser.add_argument(
-        "--hayati",
-        choices=("off", "auto"),
-        default="off",
-        help="add Hayati's beta to joints whose axis is parallel to the previous one (auto)",
-    )
-
-
-def _load_robot(args: argparse.Namespace):
-    from relcal.model import auto_hayati, get_robot
-
-    model = get_robot(args.robot)
-    return auto_hayati(model) if args.hayati == "auto" else model
-
-
-def cmd_simulate(args: argparse.Namespace) -> int:
-    from relcal.io import write_json
-    from relcal.kinematics import make_layout
-    from relcal.simulate import Noise, format_table, load_errors, simulate
-
-    model = _load_robot(args)
-    noise = Noise.parse(args.noise) if args.noise else Noise()
-    errors = load_errors(args.errors, make_layout(model)) if args.errors else None
-    measures = [args.measure] if args.measure else ["position", "pose"]
-    runs = []
-    for measure in measures:
-        sim = simulate(
-            model,
-            formulation=args.formulation,
-            measure=measure,
-            n_poses=args.poses,
-            noise=noise,
-            seed=args.seed,
-            errors=errors,
-            method=args.method,
-            pairing=args.pairs,
-        )
-        runs.append(sim)
-        if not args.quiet:
-            what = "position only" if measure == "position" else "position and orientation"
-            print(
-                f"\n{model.name}: relative {what}, {args.formulation} formulation, "
-                f"{len(sim.problem.q)} poses, {args.pairs} pairs, {sim.result.method} solver"
-            )
-            print(format_table(sim))
-    if args.json:
-        reports = [s.report() for s in runs]
-        write_json(args.json, reports[0] if len(reports) == 1 else {"runs": reports})
-    return 0 if all(s.result.converged for s in runs) else 1
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -84,33 +23,12 @@ def build_parser() -> argparse.ArgumentParser:
         epilog="exit codes: 0 ok, 1 finished but did not converge, 2 bad input, 130 interrupted",
     )
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
-
-    sim = sub.add_parser(
-        "simulate",
-        help="reproduce the published simulation on a robot with known errors",
-        description="Synthesise geometric errors, measure relative poses in simulation, identify "
-        "them and print specified versus identified errors per joint.",
-        epilog=EPILOG_SIMULATE,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-    )
-    _robot_arg(sim)
-    sim.add_argument("--measure", choices=("position", "pose"), help="one run only (default both)")
-    sim.add_argument("--formulation", choices=("published", "invariant"), default="published")
-    sim.add_argument("--method", choices=("published", "lm"), default="published")
-    sim.add_argument("--pairs", choices=("consecutive", "star", "all"), default="consecutive")
-    sim.add_argument("--poses", type=int, default=60, help="number of poses (default 60)")
-    sim.add_argument("--noise", help="POS_MM,ORI_DEG[,JOINT_DEG] standard deviations")
-    sim.add_argument("--seed", type=int, default=0)
-    sim.add_argument("--errors", help="YAML file of specified errors (default: random)")
-    sim.add_argument("--json", help="write the results as JSON to this file")
-    sim.add_argument("--quiet", action="store_true", help="print nothing but errors")
-    sim.set_defaults(func=cmd_simulate)
+    register_all(sub)
     return parser
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = build_parser()
-    args = parser.parse_args(argv)
+    args = build_parser().parse_args(argv)
     func: Callable[[argparse.Namespace], int] = args.func
     try:
         with np.errstate(all="ignore"):
