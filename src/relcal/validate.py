@@ -1,0 +1,116 @@
+"""Validation on held-out samples: relative pose errors before and after calibration.
+
+Errors are those of the problem's own formulation, evaluated on pairs of held-out samples with the
+nominal parameters (before) and the identified ones (after).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from relcal.identify import Result, identify
+from relcal.measurement import PairStrategy, Problem, make_pairs, residuals
+
+
+def pair_errors(problem: Problem, params: np.ndarray) -> np.ndarray:
+    """Per-pair (or per-pose for ``absolute``) errors ``(P, 6)``: position (m), rotation (rad).
+
+    With position-only measurements the rotation columns are NaN.
+    """
+    r = residuals(replace(problem, measure="pose"), params, jacobian=False).reshape(-1, 6)
+    if problem.measure == "position":
+        r[:, 3:] = np.nan
+    return r
+
+
+def stats(errors: np.ndarray) -> dict[str, dict[str, float]]:
+    """Mean, RMS, standard deviation, 95th percentile and maximum of the error norms, position in
+    mm and orientation in degrees."""
+    out = {}
+    for key, cols, scale in (
+        ("position_mm", slice(0, 3), 1e3),
+        ("orientation_deg", slice(3, 6), None),
+    ):
+        norms = np.linalg.norm(errors[:, cols], axis=1)
+        norms = norms * 1e3 if scale else np.degrees(norms)
+        if np.all(np.isnan(norms)) or len(norms) == 0:
+            continue
+        out[key] = {
+            "mean": float(np.mean(norms)),
+            "rms": float(np.sqrt(np.mean(norms**2))),
+            "std": float(np.std(norms)),
+            "p95": float(np.percentile(norms, 95)),
+            "max": float(np.max(norms)),
+        }
+    return out
+
+
+@dataclass(frozen=True)
+class Validation:
+    """Held-out errors before (nominal) and after (identified), per pair and summarised."""
+
+    pairs: np.ndarray  # (P, 2) sample indices into the full data set
+    before: np.ndarray  # (P, 6)
+    after: np.ndarray  # (P, 6)
+
+    def summary(self) -> dict:
+        return {
+            "n_pairs": len(self.pairs),
+            "before": stats(self.before),
+            "after": stats(self.after),
+        }
+
+    def improvement(self) -> float:
+        """Ratio of position RMS before to after."""
+        b, a = stats(self.before), stats(self.after)
+        return b["position_mm"]["rms"] / max(a["position_mm"]["rms"], 1e-300)
+
+
+def subset(problem: Problem, samples: np.ndarray, pairing: PairStrategy = "all") -> Problem:
+    """The problem restricted to some samples, re-paired among themselves."""
+    samples = np.asarray(samples)
+    return replace(
+        problem,
+        q=problem.q[samples],
+        poses=problem.poses[samples],
+        pairs=make_pairs(len(samples), pairing),
+    )
+
+
+def held_out(
+    problem: Problem, result: Result, samples: np.ndarray, pairing: PairStrategy = "all"
+) -> Validation:
+    """Errors on pairs among ``samples`` (which the identification did not use)."""
+    test = subset(problem, samples, pairing)
+    zero = np.zeros_like(result.params)
+    return Validation(
+        pairs=np.asarray(samples)[test.pair_indices()],
+        before=pair_errors(test, zero),
+        after=pair_errors(test, result.params),
+    )
+
+
+def split(n_samples: int, fraction: float, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """Random training and held-out sample indices (held-out share ``fraction``)."""
+    order = np.random.default_rng(seed).permutation(n_samples)
+    n_test = max(2, int(round(fraction * n_samples)))
+    return np.sort(order[n_test:]), np.sort(order[:n_test])
+
+
+def k_fold(
+    problem: Problem,
+    k: int = 5,
+    seed: int = 0,
+    method: str = "lm",
+    pairing: PairStrategy = "consecutive",
+) -> list[Validation]:
+    """Identify on k-1 folds and validate on the remaining one, for each fold."""
+    order = np.random.default_rng(seed).permutation(len(problem.q))
+    out = []
+    for fold in np.array_split(order, k):
+        train = np.setdiff1d(order, fold)
+        result = identify(subset(problem, train, pairing), method)
+        out.append(held_out(problem, result, np.sort(fold)))
+    return out
