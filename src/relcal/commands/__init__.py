@@ -8,7 +8,7 @@ from __future__ import annotations
 import argparse
 import importlib
 
-COMMANDS = ["simulate"]
+COMMANDS = ["simulate", "calibrate", "imports"]
 
 
 def register_all(sub: argparse._SubParsersAction) -> None:

@@ -1,0 +1,83 @@
+"""The results document of a calibration (JSON): every number with its unit."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from relcal.export import calibrated_model
+from relcal.identify import calibrated_handeye
+from relcal.model import model_to_dict
+from relcal.pipeline import Calibration
+from relcal.transforms import to_xyz_rpy
+
+
+def parameter_rows(cal: Calibration, std: np.ndarray | None = None) -> list[dict]:
+    """One row per parameter: name, unit, nominal value, identified error, standard deviation,
+    identifiable. Lengths in mm, angles in degrees (the units people read)."""
+    layout = cal.problem.full_layout
+    angle = layout.is_angle()
+    model = cal.problem.model
+    rows = []
+    for k, (kind, index) in enumerate(layout):
+        nominal = (
+            float(model.geometric(kind)[index])
+            if kind in ("theta_off", "a", "d", "alpha", "beta")
+            else 0.0
+        )
+        scale = np.degrees(1.0) if angle[k] else 1e3
+        ok = bool(cal.result.identifiable[k])
+        rows.append(
+            {
+                "name": layout.names[k],
+                "unit": "deg" if angle[k] else "mm",
+                "nominal": nominal * scale,
+                "error": float(cal.result.params[k]) * scale if ok else None,
+                "std": float(std[k]) * scale if std is not None and ok else None,
+                "identifiable": ok,
+            }
+        )
+    return rows
+
+
+def results_document(cal: Calibration, std: np.ndarray | None = None) -> dict:
+    """Everything a calibration found, JSON-ready."""
+    r = cal.result
+    layout = cal.problem.layout
+    handeye = calibrated_handeye(cal.problem, r)
+    xyz, rpy = to_xyz_rpy(handeye)
+    m = cal.measurements
+    return {
+        "robot": cal.dataset.model.name,
+        "dataset": str(cal.dataset.root),
+        "settings": cal.settings,
+        "n_samples": len(cal.dataset.ids),
+        "n_used": int(m.ok.sum()),
+        "train_ids": [cal.dataset.ids[i] for i in cal.train],
+        "held_out_ids": [cal.dataset.ids[i] for i in cal.test],
+        "rejected": [
+            {"id": cal.dataset.ids[i], "reason": m.reasons[i]} for i in np.flatnonzero(~m.ok)
+        ],
+        "reprojection_rms_px": {
+            cal.dataset.ids[i]: float(m.rms_px[i]) for i in np.flatnonzero(np.isfinite(m.rms_px))
+        },
+        "identification": {
+            "method": r.method,
+            "converged": r.converged,
+            "iterations": r.iterations,
+            "rank": r.rank,
+            "n_params": len(r.params),
+            "initial_residual_norm": r.initial_residual_norm,
+            "residual_norm": r.residual_norm,
+            "residual_unit": "m and rad (stacked)",
+            "seconds": r.seconds,
+            "singular_values": [float(s) for s in r.identifiability.singular_values],
+            "unidentifiable": r.unidentifiable,
+        },
+        "parameters": parameter_rows(cal, std),
+        "handeye": {
+            "xyz_m": [float(v) for v in xyz],
+            "rpy_deg": [float(np.degrees(v)) for v in rpy],
+        },
+        "validation": cal.validation.summary() if cal.validation is not None else None,
+        "calibrated_model": model_to_dict(calibrated_model(cal.problem.model, layout, r.params)),
+    }
