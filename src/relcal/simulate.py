@@ -53,11 +53,11 @@ class Noise:
 class Setup:
     """Where the board is and how the camera sits on the flange."""
 
-    board_center: np.ndarray = field(default_factory=lambda: np.array([0.55, 0.0, 0.0]))
+    board_center: np.ndarray = field(default_factory=lambda: np.array([0.45, 0.0, 0.0]))
     handeye: np.ndarray = field(
         default_factory=lambda: tf.from_vector(np.array([0.0, 0.04, 0.06, 0.0, 0.0, 0.0]))
     )
-    distance: tuple[float, float] = (0.30, 0.45)  # m, camera to board centre
+    distance: tuple[float, float] = (0.25, 0.40)  # m, camera to board centre
     max_tilt_deg: float = 35.0  # viewing angle from the board normal
 
 
@@ -105,32 +105,35 @@ def look_at(eye: np.ndarray, target: np.ndarray, roll: float) -> np.ndarray:
     return tf.homogeneous(rot, eye)
 
 
-def camera_path(setup: Setup, n_poses: int, rng: np.random.Generator) -> np.ndarray:
-    """Camera poses ``(K, 4, 4)`` in the base frame over a spherical cap above the board: a spiral
-    in viewing direction, with varied distance, aim point and roll."""
-    k = np.arange(n_poses)
+def camera_pose(setup: Setup, k: int, n_poses: int, rng: np.random.Generator) -> np.ndarray:
+    """The k-th of ``n_poses`` camera poses ``(4, 4)`` in the base frame: a golden-angle spiral
+    over a spherical cap above the board, with random distance, aim point and roll."""
     tilt = np.radians(setup.max_tilt_deg) * np.sqrt((k + 0.5) / n_poses)
-    azimuth = k * np.pi * (3 - np.sqrt(5))  # golden angle spiral
-    dist = rng.uniform(*setup.distance, n_poses)
-    poses = []
-    for t, az, r in zip(tilt, azimuth, dist, strict=True):
-        direction = np.array([np.sin(t) * np.cos(az), np.sin(t) * np.sin(az), np.cos(t)])
-        aim = setup.board_center + np.append(rng.uniform(-0.03, 0.03, 2), 0.0)
-        poses.append(look_at(setup.board_center + r * direction, aim, rng.uniform(-1.0, 1.0)))
-    return np.array(poses)
+    azimuth = k * np.pi * (3 - np.sqrt(5))
+    direction = np.array(
+        [np.sin(tilt) * np.cos(azimuth), np.sin(tilt) * np.sin(azimuth), np.cos(tilt)]
+    )
+    eye = setup.board_center + rng.uniform(*setup.distance) * direction
+    aim = setup.board_center + np.append(rng.uniform(-0.03, 0.03, 2), 0.0)
+    return look_at(eye, aim, rng.uniform(-1.0, 1.0))
 
 
-def joint_path(model: RobotModel, camera_poses: np.ndarray, handeye: np.ndarray) -> np.ndarray:
-    """Joint configurations ``(K, n)`` reaching the camera poses with the nominal model, each the
-    solution nearest the previous one; unreachable poses are dropped."""
+def joint_path(
+    model: RobotModel, setup: Setup, n_poses: int, rng: np.random.Generator, tries: int = 10
+) -> np.ndarray:
+    """Joint configurations ``(K, n)`` reaching the spiral of camera poses with the nominal model,
+    each the IK solution nearest the previous one. An unreachable pose is drawn again (new
+    distance, aim and roll) up to ``tries`` times, then skipped."""
     from relcal.ik import solve
 
-    flange = camera_poses @ tf.invert(handeye)
     out: list[np.ndarray] = []
-    for target in flange:
-        q = solve(model, target, q_near=out[-1] if out else None)
-        if q is not None:
-            out.append(q)
+    for k in range(n_poses):
+        for _ in range(tries):
+            flange = camera_pose(setup, k, n_poses, rng) @ tf.invert(setup.handeye)
+            sol = solve(model, flange, q_near=out[-1] if out else None)
+            if sol.converged:
+                out.append(sol.q)
+                break
     return np.array(out)
 
 
@@ -214,7 +217,7 @@ def simulate(
         truth_x = setup.handeye @ tf.from_vector(handeye_error)
     true_model = apply_errors(model, layout, specified)
 
-    q = joint_path(model, camera_path(setup, n_poses, rng), setup.handeye)
+    q = joint_path(model, setup, n_poses, rng)
     if len(q) < 3:
         raise RelcalError(f"only {len(q)} of {n_poses} simulated poses are reachable")
     camera = fk(true_model, q) @ truth_x

@@ -1,0 +1,57 @@
+"""The published simulation end to end: IK on a path in front of the board, identification, the
+table and the JSON document, errors files and bad options."""
+
+import json
+
+import numpy as np
+import pytest
+
+from relcal.cli import main
+from relcal.errors import RelcalError
+from relcal.kinematics import make_layout
+from relcal.simulate import Noise, format_table, load_errors, simulate
+
+
+@pytest.mark.parametrize("formulation", ["published", "invariant"])
+def test_simulation_recovers_identifiable_errors(a465, formulation):
+    sim = simulate(a465, formulation=formulation, measure="pose", n_poses=25, seed=3)
+    r = sim.result
+    assert r.converged and len(sim.problem.q) >= 20
+    ok = r.identifiable
+    rel = np.linalg.norm(r.params[ok] - sim.specified[ok]) / np.linalg.norm(sim.specified[ok])
+    assert rel < 1e-9
+    table = format_table(sim)
+    assert "n/i" in table and "d[1]: acts as a rigid motion" in table
+
+
+def test_cli_writes_the_documented_json(tmp_path, capsys):
+    out = tmp_path / "sim.json"
+    code = main(["simulate", "--measure", "position", "--poses", "20", "--json", str(out)])
+    assert code == 0
+    doc = json.loads(out.read_text())
+    for key in ("rank", "n_params", "unidentifiable", "iterations", "residual_norm", "seconds"):
+        assert key in doc
+    names = [p["name"] for p in doc["parameters"]]
+    assert names[:2] == ["theta_off[1]", "theta_off[2]"] and "d[2]" in names
+    d1 = doc["parameters"][names.index("d[1]")]
+    assert d1["identifiable"] is False and set(d1) >= {"specified", "identified", "unit"}
+    assert "position only" in capsys.readouterr().out
+
+
+def test_errors_file_reproduces_a_given_table(tmp_path, a465):
+    path = tmp_path / "errors.yaml"
+    path.write_text("length_unit: mm\nangle_unit: deg\nerrors:\n  a[2]: 0.4\n  alpha[3]: -0.05\n")
+    errors = load_errors(path, make_layout(a465))
+    names = make_layout(a465).names
+    assert errors[names.index("a[2]")] == pytest.approx(0.4e-3)
+    assert errors[names.index("alpha[3]")] == pytest.approx(np.radians(-0.05))
+    assert np.count_nonzero(errors) == 2
+    path.write_text("errors:\n  b[9]: 1\n")
+    with pytest.raises(RelcalError, match=r"errors\.yaml: errors: unknown parameter\(s\) b\[9\]"):
+        load_errors(path, make_layout(a465))
+
+
+def test_bad_noise_option_is_a_clear_error(capsys):
+    assert main(["simulate", "--noise", "abc"]) == 2
+    assert "--noise 'abc': expected POS_MM,ORI_DEG" in capsys.readouterr().err
+    assert Noise.parse("0.1,0.01,0.001").joints == pytest.approx(np.radians(0.001))
