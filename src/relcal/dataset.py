@@ -183,11 +183,11 @@ def read_samples(
             raise RelcalError(f"{path} line {line_no}: id '{sid}' duplicates line {seen[sid]}")
         seen[sid] = line_no
         ids.append(sid)
-        q.append([_number(path, line_no, c, row[col[c]]) for c in joints])
+        q.append([parse_number(path, line_no, c, row[col[c]]) for c in joints])
         if has_image:
             images.append(path.parent / row[col["image"]].strip())
         else:
-            poses.append([_number(path, line_no, c, row[col[c]]) for c in POSE_COLUMNS])
+            poses.append([parse_number(path, line_no, c, row[col[c]]) for c in POSE_COLUMNS])
     q_arr = _joint_values(path, np.array(q, dtype=float), model, joint_unit)
     pose_arr = None
     if has_pose:
@@ -199,7 +199,8 @@ def read_samples(
     return tuple(ids), q_arr, (tuple(images) if has_image else None), pose_arr
 
 
-def _number(path: Path, line_no: int, column: str, text: str) -> float:
+def parse_number(path: Path, line_no: int, column: str, text: str) -> float:
+    """A finite float from a CSV cell; errors name the file, the line and the column."""
     try:
         value = float(text)
     except ValueError:
