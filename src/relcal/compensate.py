@@ -52,7 +52,7 @@ def compensate(
                 "model's reach or joint limits"
             )
         q_nominal = sol.q
-    sol = solve(calibrated, targets, q_near=q_nominal)
+    sol = solve(calibrated, targets, q_near=q_nominal, seed_model=nominal)
     pos = rot = None
     if q_nominal is not None:
         reached = fk(calibrated, q_nominal)

@@ -7,14 +7,15 @@ transform with the frame-invariant formulation on the identifiable subset, and v
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from relcal.dataset import Dataset
 from relcal.errors import RelcalError
 from relcal.handeye import solve_handeye
-from relcal.identify import Result, identify
+from relcal.identifiability import Identifiability
+from relcal.identify import Result, analyse_problem, identify
 from relcal.kinematics import fk, make_layout
 from relcal.measurement import PairStrategy, Problem, make_pairs
 from relcal.validate import Validation, held_out, split
@@ -46,6 +47,31 @@ def measure(dataset: Dataset, workers: int = 2, progress: bool = True) -> Measur
     from relcal.imaging import measure_dataset_images
 
     return measure_dataset_images(dataset, workers=workers, progress=progress)
+
+
+def check_poses(problem: Problem, dataset: Dataset, seed: int = 0) -> Identifiability:
+    """Identifiability at the dataset's poses; an error if they identify less than generic poses
+    would (the structural null space of this robot and formulation), naming what they miss."""
+    ident = analyse_problem(problem)
+    rng = np.random.default_rng(seed)
+    model = problem.model
+    lo = np.where(np.isfinite(model.lower), model.lower, -np.pi)
+    hi = np.where(np.isfinite(model.upper), model.upper, np.pi)
+    generic = rng.uniform(lo, hi, (max(30, len(problem.q)), model.n_joints))
+    reference = analyse_problem(
+        replace(
+            problem, q=generic, poses=np.broadcast_to(np.eye(4), (len(generic), 4, 4)), pairs=None
+        )
+    )
+    if ident.rank < reference.rank:
+        known = {c.names for c in reference.combinations}
+        extra = [c.describe() for c in ident.combinations if c.names not in known]
+        raise RelcalError(
+            f"{dataset.spec_path}: the poses identify only {ident.rank} of the {reference.rank} "
+            "parameter combinations that varied poses would; vary the joints more. Not "
+            "determined by these poses: " + "; ".join(extra or ["(mixed combinations)"])
+        )
+    return ident
 
 
 @dataclass(frozen=True)
@@ -98,8 +124,9 @@ def calibrate(
         pairs=make_pairs(len(train), pairing),
         handeye=handeye,
     )
+    ident = check_poses(problem, dataset)
     kwargs = {"loss": loss} if method == "lm" else {}
-    result = identify(problem, method, **kwargs)
+    result = identify(problem, method, identifiability=ident, **kwargs)
     validation = None
     if len(test) >= 2:
         full = Problem(dataset.model, layout, dataset.q, poses, "invariant", "pose", None, handeye)
