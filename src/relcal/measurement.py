@@ -64,6 +64,7 @@ class Problem:
     measure: Measure = "pose"
     pairs: np.ndarray | None = None
     handeye: np.ndarray = field(default_factory=lambda: np.eye(4))
+    weights: np.ndarray | None = None  # (6,) per-row factors, e.g. 1/sigma of (t, r) rows
 
     @property
     def full_layout(self) -> Layout:
@@ -127,6 +128,8 @@ def residuals(problem: Problem, params: np.ndarray, jacobian: bool = True):
         if problem.formulation == "published":
             i, j = problem.pair_indices().T
             r, a = r[j] - r[i], a[j] - a[i]
+    if problem.weights is not None:
+        r, a = r * problem.weights, a * problem.weights[:, None]
     r, a = r[:, :rows].reshape(-1), a[:, :rows].reshape(-1, a.shape[-1])
     return (r, a) if jacobian else r
 

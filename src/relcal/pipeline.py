@@ -18,7 +18,9 @@ from relcal.identifiability import Identifiability
 from relcal.identify import Result, analyse_problem, identify
 from relcal.kinematics import fk, make_layout
 from relcal.measurement import PairStrategy, Problem, make_pairs
-from relcal.validate import Validation, held_out, split
+from relcal.validate import Validation, held_out, pair_errors, split
+
+ROBUST_SCALE = 3.0  # residual (in noise standard deviations) where the robust loss bends
 
 
 @dataclass(frozen=True)
@@ -86,6 +88,7 @@ class Calibration:
     train: np.ndarray  # sample indices
     test: np.ndarray
     settings: dict
+    outliers: tuple[str, ...] = ()  # ids of training samples that fit badly
 
 
 def calibrate(
@@ -95,9 +98,14 @@ def calibrate(
     seed: int = 0,
     pairing: PairStrategy = "all",
     method: str = "lm",
-    loss: str = "linear",
+    loss: str = "huber",
+    reject_outliers: bool = True,
 ) -> Calibration:
-    """Identify geometry and hand-eye on the training samples, validate on the held-out ones."""
+    """Identify geometry and hand-eye on the training samples, validate on the held-out ones.
+
+    Training samples whose pairs fit badly after a robust fit are reported as outliers and, with
+    ``reject_outliers``, left out of a second fit.
+    """
     usable = np.flatnonzero(measurements.ok)
     if len(usable) < 4:
         raise RelcalError(
@@ -124,9 +132,19 @@ def calibrate(
         pairs=make_pairs(len(train), pairing),
         handeye=handeye,
     )
-    ident = check_poses(problem, dataset)
-    kwargs = {"loss": loss} if method == "lm" else {}
-    result = identify(problem, method, identifiability=ident, **kwargs)
+    problem, result, sigma = weighted_fit(problem, dataset, method, loss)
+    outliers = outlier_samples(pair_errors(problem, result.params), problem.pair_indices())
+    outlier_ids = tuple(dataset.ids[train[i]] for i in outliers)
+    if reject_outliers and outliers.size:
+        train = np.delete(train, outliers)
+        problem = replace(
+            problem,
+            q=dataset.q[train],
+            poses=poses[train],
+            pairs=make_pairs(len(train), pairing),
+            weights=None,
+        )
+        problem, result, sigma = weighted_fit(problem, dataset, method, loss)
     validation = None
     if len(test) >= 2:
         full = Problem(dataset.model, layout, dataset.q, poses, "invariant", "pose", None, handeye)
@@ -142,4 +160,42 @@ def calibrate(
         "mode": dataset.mode,
         "hayati_joints": [int(i) + 1 for i in np.flatnonzero(dataset.model.hayati)],
     }
-    return Calibration(dataset, measurements, problem, result, validation, train, test, settings)
+    settings["row_sigma"] = {"position_m": float(sigma[0]), "orientation_rad": float(sigma[3])}
+    settings["reject_outliers"] = reject_outliers
+    return Calibration(
+        dataset, measurements, problem, result, validation, train, test, settings, outlier_ids
+    )
+
+
+def weighted_fit(
+    problem: Problem, dataset: Dataset, method: str, loss: str
+) -> tuple[Problem, Result, np.ndarray]:
+    """A least-squares fit gives robust noise levels of the translation and rotation rows; the
+    final fit weights the rows by them (so metres and radians compare) with the chosen loss.
+    Returns the weighted problem, its result and the row noise levels ``(6,)``."""
+    ident = check_poses(problem, dataset)
+    first = identify(problem, "lm", identifiability=ident)
+    sigma = robust_sigma(pair_errors(problem, first.params))
+    problem = replace(problem, weights=1.0 / sigma)
+    kwargs = {"loss": loss, "f_scale": ROBUST_SCALE} if method == "lm" else {}
+    return problem, identify(problem, method, identifiability=ident, **kwargs), sigma
+
+
+def robust_sigma(errors: np.ndarray) -> np.ndarray:
+    """Per-row noise levels ``(6,)``: 1.4826 MAD of the translation and of the rotation rows."""
+    sigma = np.empty(6)
+    for rows in (slice(0, 3), slice(3, 6)):
+        values = errors[:, rows].ravel()
+        mad = 1.4826 * np.median(np.abs(values - np.median(values)))
+        sigma[rows] = max(mad, 1e-12)
+    return sigma
+
+
+def outlier_samples(weighted: np.ndarray, pairs: np.ndarray, threshold: float = 5.0) -> np.ndarray:
+    """Indices of samples whose pairs fit badly: each sample's score is the median normalised
+    error of its pairs; a robust z-score above ``threshold`` flags it."""
+    norms = np.linalg.norm(weighted, axis=1)
+    n = int(pairs.max()) + 1
+    score = np.array([np.median(norms[(pairs == k).any(axis=1)]) for k in range(n)])
+    spread = 1.4826 * np.median(np.abs(score - np.median(score)))
+    return np.flatnonzero((score - np.median(score)) > threshold * max(spread, 1e-12))

@@ -54,6 +54,7 @@ def results_document(cal: Calibration, std: np.ndarray | None = None) -> dict:
         "n_used": int(m.ok.sum()),
         "train_ids": [cal.dataset.ids[i] for i in cal.train],
         "held_out_ids": [cal.dataset.ids[i] for i in cal.test],
+        "outliers": list(cal.outliers),
         "rejected": [
             {"id": cal.dataset.ids[i], "reason": m.reasons[i]} for i in np.flatnonzero(~m.ok)
         ],

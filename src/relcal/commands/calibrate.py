@@ -74,6 +74,7 @@ def run_calibrate(args: argparse.Namespace) -> int:
         pairing=args.pairs,
         method=args.method,
         loss=args.loss,
+        reject_outliers=not args.keep_outliers,
     )
     out = Path(args.out or Path(args.dataset) / "calibration")
     model = calibrated_model(cal.problem.model, cal.problem.layout, cal.result.params)
@@ -108,6 +109,11 @@ def summary_text(doc: dict) -> str:
                     f"RMS {b['rms']:.3f} -> {a['rms']:.3f} {unit}, max {b['max']:.3f} -> "
                     f"{a['max']:.3f} {unit}"
                 )
+    if doc["outliers"]:
+        lines.append(
+            "outliers (their pairs fit badly; left out unless --keep-outliers): "
+            + ", ".join(doc["outliers"])
+        )
     for text in ident["unidentifiable"]:
         lines.append(f"  not identifiable: {text}")
     return "\n".join(lines)
@@ -143,7 +149,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     cp.add_argument(
         "--loss",
         choices=("linear", "huber", "cauchy", "soft_l1"),
-        default="linear",
-        help="robust loss against outliers (lm only)",
+        default="huber",
+        help="loss of the weighted residuals (lm only; default huber, robust to outliers)",
+    )
+    cp.add_argument(
+        "--keep-outliers", action="store_true", help="do not leave detected outliers out of the fit"
     )
     cp.set_defaults(func=run_calibrate)

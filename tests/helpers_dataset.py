@@ -1,0 +1,56 @@
+"""Synthetic dataset folders with poses given directly: a perturbed A465 with known truth."""
+
+from dataclasses import dataclass
+
+import numpy as np
+from conftest import random_q
+from helpers_sim import BOARD, HANDEYE, true_errors
+
+from relcal import transforms as tf
+from relcal.dataset import write_samples
+from relcal.kinematics import apply_errors, fk, make_layout
+from relcal.model import auto_hayati, get_robot
+
+
+@dataclass
+class Synthetic:
+    root: object
+    truth: np.ndarray
+    true_model: object
+    true_handeye: np.ndarray
+    ids: list
+
+
+def synthetic_dataset(root, n=60, noise=(2e-5, 2e-5), outliers=0, seed=0) -> Synthetic:
+    """``n`` samples of a perturbed A465 (Hayati on), pose noise ``(m, rad)``, and ``outliers``
+    samples whose pose is off by 5 mm and 1 deg (a wrongly detected board)."""
+    rng = np.random.default_rng(seed)
+    model = auto_hayati(get_robot("a465"))
+    layout = make_layout(model)
+    truth = true_errors(layout, rng)
+    true_model = apply_errors(model, layout, truth)
+    true_x = HANDEYE @ tf.from_vector(
+        np.concatenate([rng.normal(0, 1e-3, 3), rng.normal(0, 5e-3, 3)])
+    )
+    q = random_q(model, n, rng, scale=0.8)
+    poses = BOARD @ fk(true_model, q) @ true_x
+    delta = np.concatenate([rng.normal(0, noise[0], (n, 3)), rng.normal(0, noise[1], (n, 3))], 1)
+    bad = rng.choice(n, outliers, replace=False)
+    for k in bad:
+        direction = rng.normal(size=6)
+        delta[k] += np.concatenate(
+            [
+                5e-3 * direction[:3] / np.linalg.norm(direction[:3]),
+                np.radians(1.0) * direction[3:] / np.linalg.norm(direction[3:]),
+            ]
+        )
+    poses = poses @ tf.from_vector(delta)
+    root.mkdir(parents=True, exist_ok=True)
+    ids = [f"s{k:03d}" for k in range(n)]
+    (root / "dataset.yaml").write_text(
+        "robot: a465\nhayati: auto\njoint_unit: deg\nhandeye: {xyz: [0, 0.04, 0.06]}\n"
+    )
+    (root / "samples.csv").write_text(
+        write_samples(root / "samples.csv", ids, np.degrees(q), poses=poses)
+    )
+    return Synthetic(root, truth, true_model, true_x, [ids[k] for k in sorted(bad)])
