@@ -21,7 +21,7 @@ from typing import Literal
 import numpy as np
 
 from relcal import transforms as tf
-from relcal.kinematics import Layout, apply_errors, pose_jacobian
+from relcal.kinematics import Layout, apply_errors, fk, pose_jacobian
 from relcal.model import RobotModel
 
 Formulation = Literal["absolute", "published", "invariant"]
@@ -118,32 +118,38 @@ def residuals(problem: Problem, params: np.ndarray, jacobian: bool = True):
     Measurements are stacked measurement by measurement (3 or 6 rows each).
     """
     model, handeye = split_params(problem, params)
-    tip, jac = pose_jacobian(model, problem.q, problem.layout)
+    if jacobian:
+        tip, jac = pose_jacobian(model, problem.q, problem.layout)
+    else:
+        tip, jac = fk(model, problem.q), None
     rows = problem.rows_per_measurement
     if problem.formulation == "invariant":
         r, a = _invariant(problem, tip, jac, handeye)
     else:
-        r = absolute_errors(problem.poses, tip)
-        a = jac
+        r, a = absolute_errors(problem.poses, tip), jac
         if problem.formulation == "published":
             i, j = problem.pair_indices().T
-            r, a = r[j] - r[i], a[j] - a[i]
+            r, a = r[j] - r[i], (a[j] - a[i] if jacobian else None)
     if problem.weights is not None:
-        r, a = r * problem.weights, a * problem.weights[:, None]
-    r, a = r[:, :rows].reshape(-1), a[:, :rows].reshape(-1, a.shape[-1])
-    return (r, a) if jacobian else r
+        r = r * problem.weights
+        a = a * problem.weights[:, None] if jacobian else None
+    r = r[:, :rows].reshape(-1)
+    return (r, a[:, :rows].reshape(-1, a.shape[-1])) if jacobian else r
 
 
 def _invariant(
-    problem: Problem, tip: np.ndarray, jac: np.ndarray, handeye: np.ndarray
-) -> tuple[np.ndarray, np.ndarray]:
-    """Residuals ``(P, 6)`` and Jacobian ``(P, 6, n_geo + 6)`` of the frame-invariant form."""
+    problem: Problem, tip: np.ndarray, jac: np.ndarray | None, handeye: np.ndarray
+) -> tuple[np.ndarray, np.ndarray | None]:
+    """Residuals ``(P, 6)`` and Jacobian ``(P, 6, n_geo + 6)`` (if ``jac`` is given) of the
+    frame-invariant form."""
     i, j = problem.pair_indices().T
     rel = tf.invert(tip[i]) @ tip[j]  # F_i^-1 F_j
     x_inv = tf.invert(handeye)
     model_rel = x_inv @ rel @ handeye
     measured = relative_measurements(problem.poses, problem.pair_indices())
     r = tf.to_vector(tf.invert(model_rel) @ measured)
+    if jac is None:
+        return r, None
 
     # Body-frame twists of each tool pose per parameter: blockdiag(R^T, R^T) J.
     body = tf.rotate_twist(np.swapaxes(tip[:, :3, :3], -1, -2), jac)
