@@ -96,8 +96,8 @@ def summary_text(doc: dict) -> str:
         f"{doc['robot']}: {doc['n_used']} of {doc['n_samples']} samples used, "
         f"{len(doc['held_out_ids'])} held out",
         f"identification: rank {ident['rank']} of {ident['n_params']}, "
-        f"{'converged' if ident['converged'] else 'NOT converged'}, residual "
-        f"{ident['initial_residual_norm']:.3e} -> {ident['residual_norm']:.3e}",
+        f"{'converged' if ident['converged'] else 'NOT converged'}, residual RMS "
+        f"{ident['initial_residual_rms']:.3g} -> {ident['residual_rms']:.3g} noise std",
     ]
     val = doc["validation"]
     if val:
