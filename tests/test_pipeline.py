@@ -35,8 +35,8 @@ def test_calibrate_command_writes_every_output(tmp_path, capsys):
 
 
 def test_planted_outliers_are_reported_and_do_not_spoil_the_result(tmp_path):
-    clean = synthetic_dataset(tmp_path / "clean", n=60, seed=4)
-    dirty = synthetic_dataset(tmp_path / "dirty", n=60, outliers=6, seed=4)
+    clean = synthetic_dataset(tmp_path / "clean", n=40, seed=4)
+    dirty = synthetic_dataset(tmp_path / "dirty", n=40, outliers=4, seed=4)
     ds_clean, ds_dirty = load_dataset(clean.root), load_dataset(dirty.root)
     ref = calibrate(ds_clean, measure(ds_clean), holdout=0.0)
     robust = calibrate(ds_dirty, measure(ds_dirty), holdout=0.0, loss="huber")
