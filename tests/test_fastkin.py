@@ -1,0 +1,92 @@
+"""The compiled FK kernel against the NumPy reference: DH and MDH, Hayati's beta, prismatic
+joints, base and tool, to 1e-12; its sine/cosine; and the ``fk`` backend dispatch."""
+
+import subprocess
+import sys
+from dataclasses import replace
+
+import numpy as np
+import pytest
+from conftest import random_q
+
+pytest.importorskip("numba")
+
+from relcal import fastkin  # noqa: E402
+from relcal import transforms as tf  # noqa: E402
+from relcal.kinematics import fk  # noqa: E402
+from relcal.model import auto_hayati, get_robot, library_names  # noqa: E402
+
+
+def everything(model, rng):
+    """Random betas, a prismatic joint, base and tool: every branch of the kernel."""
+    n = model.n_joints
+    prismatic = np.zeros(n, dtype=bool)
+    prismatic[2] = True
+    return replace(
+        auto_hayati(model),
+        theta_off=rng.normal(0, 0.5, n),
+        beta=rng.normal(0, 0.1, n),
+        prismatic=prismatic,
+        base=tf.from_vector(rng.normal(0, 0.3, 6)),
+        tool=tf.from_vector(rng.normal(0, 0.3, 6)),
+    )
+
+
+@pytest.mark.parametrize("name", ["a465", "puma560", "ur5e", "franka_fr3", "irb120"])
+@pytest.mark.parametrize("variant", ["nominal", "everything"])
+def test_kernel_matches_numpy(name, variant, rng):
+    if name not in library_names():
+        pytest.skip(f"robot {name} not in the library")
+    model = get_robot(name)
+    if variant == "everything":
+        model = everything(model, rng)
+    # More than one block, and a partial last block.
+    q = random_q(model, 2 * fastkin.BLOCK + 37, rng, scale=1.0)
+    np.testing.assert_allclose(
+        fastkin.fk(model, q), fk(model, q, backend="numpy"), rtol=0, atol=1e-12
+    )
+
+
+@pytest.mark.parametrize("convention", ["dh", "mdh"])
+def test_kernel_zero_and_one_configuration(convention, a465):
+    model = replace(a465, convention=convention)
+    assert fastkin.fk(model, np.zeros((0, 6))).shape == (0, 4, 4)
+    q = np.array([0.1, -0.2, 0.3, -0.4, 0.5, -0.6])
+    np.testing.assert_allclose(fastkin.fk(model, q)[0], fk(model, q, "numpy")[0], atol=1e-12)
+
+
+def test_kernel_rejects_wrong_joint_count(a465):
+    with pytest.raises(ValueError, match=r"shape \(N, 6\)"):
+        fastkin.fk(a465, np.zeros((3, 7)))
+
+
+def test_sincos_matches_libm(rng):
+    x = np.concatenate(
+        [
+            rng.uniform(-50, 50, 100_000),
+            np.arange(-40, 41) * np.pi / 4,  # quadrant boundaries
+            [0.0, -0.0, 1e-300, np.pi / 2, -np.pi, 1e4],
+        ]
+    )
+    s, c = fastkin.sin_cos(x)
+    np.testing.assert_allclose(s, np.sin(x), rtol=0, atol=4e-16)
+    np.testing.assert_allclose(c, np.cos(x), rtol=0, atol=4e-16)
+
+
+def test_backends_agree_and_auto_dispatch(a465, rng):
+    q = random_q(a465, 50, rng)
+    reference = fk(a465, q, backend="numpy")
+    np.testing.assert_allclose(fk(a465, q, backend="numba"), reference, atol=1e-12)
+    np.testing.assert_allclose(fk(a465, q), reference, atol=1e-12)
+    with pytest.raises(ValueError, match="unknown FK backend"):
+        fk(a465, q, backend="fortran")
+
+
+def test_small_batches_do_not_import_numba():
+    # Short commands must start without Numba's import (and never trigger a compile).
+    code = (
+        "import sys, numpy as np; from relcal.kinematics import fk; from relcal.model import "
+        "get_robot; fk(get_robot('a465'), np.zeros((500, 6))); print('numba' in sys.modules)"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "False"
