@@ -83,9 +83,15 @@ def run_calibrate(args: argparse.Namespace) -> int:
     write_text(out / "robot.urdf", urdf(model))
     write_text(out / "parameters.csv", parameter_csv(parameter_rows(cal)))
     write_json(out / "results.json", doc)
+    if args.report:
+        from relcal.report import calibration_report
+
+        write_text(args.report, calibration_report(cal, doc))
     if not args.quiet:
         print(summary_text(doc))
         print(f"written: {out}/model.yaml, robot.urdf, parameters.csv, results.json")
+        if args.report:
+            print(f"report: {args.report}")
     return 0 if cal.result.converged else 1
 
 
@@ -155,4 +161,5 @@ def register(sub: argparse._SubParsersAction) -> None:
     cp.add_argument(
         "--keep-outliers", action="store_true", help="do not leave detected outliers out of the fit"
     )
+    cp.add_argument("--report", metavar="FILE", help="write the HTML calibration report to FILE")
     cp.set_defaults(func=run_calibrate)

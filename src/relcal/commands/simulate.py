@@ -50,6 +50,11 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         reports = [s.report() for s in runs]
         write_json(args.json, reports[0] if len(reports) == 1 else {"runs": reports})
+    if args.report:
+        from relcal.io import write_text
+        from relcal.report import simulation_report
+
+        write_text(args.report, simulation_report(runs))
     return 0 if all(s.result.converged for s in runs) else 1
 
 
@@ -109,6 +114,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     sim.add_argument("--seed", type=int, default=0)
     sim.add_argument("--errors", help="YAML file of specified errors (default: random)")
     sim.add_argument("--json", help="write the results as JSON to this file")
+    sim.add_argument("--report", metavar="FILE", help="write an HTML report of the run(s) to FILE")
     sim.add_argument(
         "--images",
         metavar="DIR",
