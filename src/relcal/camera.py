@@ -54,6 +54,11 @@ class Camera:
     height: int | None = None
 
     def __post_init__(self) -> None:
+        for name in ("fx", "fy", "cx", "cy"):
+            object.__setattr__(self, name, float(getattr(self, name)))
+        for name in ("width", "height"):
+            if getattr(self, name) is not None:
+                object.__setattr__(self, name, int(getattr(self, name)))
         object.__setattr__(self, "distortion", tuple(float(k) for k in self.distortion))
         if len(self.distortion) not in (0, 4, 5, 8, 12, 14):
             raise ValueError(

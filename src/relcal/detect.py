@@ -211,12 +211,14 @@ def detect(
 
 
 def _find_chessboard(gray: np.ndarray, board: Board) -> tuple[np.ndarray, np.ndarray] | Rejected:
+    """OpenCV's classic finder with its fast check first (milliseconds, also to reject frames
+    without a board), then the more robust sector-based finder (``findChessboardCornersSB``)."""
     rows, cols = board.grid_shape
-    flags = cv2.CALIB_CB_NORMALIZE_IMAGE
-    ok, corners = cv2.findChessboardCornersSB(gray, (cols, rows), flags=flags)
+    fast = cv2.CALIB_CB_NORMALIZE_IMAGE | cv2.CALIB_CB_FAST_CHECK  # adaptive: seconds if partial
+    ok, corners = cv2.findChessboardCorners(gray, (cols, rows), flags=fast)
     if not ok:
         ok, corners = cv2.findChessboardCornersSB(
-            gray, (cols, rows), flags=flags | cv2.CALIB_CB_EXHAUSTIVE
+            gray, (cols, rows), flags=cv2.CALIB_CB_NORMALIZE_IMAGE
         )
     if not ok or corners is None:
         return Rejected(

@@ -45,7 +45,9 @@ def texture_density(
     corners = np.array([[x0, y0, 0, 1], [x1, y0, 0, 1], [x1, y1, 0, 1], [x0, y1, 0, 1.0]])
     T_camera_board = np.linalg.inv(T_board_camera)
     depth = (corners @ T_camera_board.T)[:, 2]
-    nearest = max(float(depth.min()), 1e-3)
+    if not np.any(depth > 0):
+        return 1024.0  # the board is behind the camera: nothing will be sampled
+    nearest = max(float(depth[depth > 0].min()), 1e-3)
     wanted = supersample * max(camera.fx, camera.fy) / nearest
     area = (x1 - x0) * (y1 - y0)
     wanted = min(wanted, np.sqrt(_MAX_TEXTURE_PIXELS / area))
