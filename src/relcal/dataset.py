@@ -171,6 +171,8 @@ def read_samples(
             f"{path} line 1: header: expected either an 'image' column or the pose columns "
             f"{', '.join(POSE_COLUMNS)} (exactly one of the two)"
         )
+    if len(rows) < 2:
+        raise RelcalError(f"{path}: no samples after the header line")
     col = {h: i for i, h in enumerate(header)}
     ids, q, images, poses, seen = [], [], [], [], {}
     for line_no, row in enumerate(rows[1:], start=2):
