@@ -146,7 +146,8 @@ def detect(
         8-bit (or 16-bit) grey or BGR image.
     board : Board
     max_side : int
-        OpenCV's finders run on a copy at most this many pixels wide and high.
+        OpenCV's finders run on a copy shrunk by an integer factor to at most this many pixels
+        wide and high.
     min_points : int
         ChArUco views with fewer corners are rejected (other boards must be seen whole).
 
@@ -156,12 +157,14 @@ def detect(
     """
     gray = to_gray(image)
     height, width = gray.shape
-    scale = min(1.0, max_side / max(height, width))
+    factor = int(np.ceil(max(height, width) / max_side))  # integer: fast, exact pixel mapping
     small = gray
-    if scale < 1.0:
-        size = (max(1, round(width * scale)), max(1, round(height * scale)))
-        small = cv2.resize(gray, size, interpolation=cv2.INTER_AREA)
-        scale = size[0] / width
+    if factor > 1:
+        size = (width // factor, height // factor)
+        small = cv2.resize(
+            gray[: size[1] * factor, : size[0] * factor], size, interpolation=cv2.INTER_AREA
+        )
+    scale = 1.0 / factor
     if board.type == "chessboard":
         found = _find_chessboard(small, board)
     elif board.type == "charuco":
@@ -428,13 +431,15 @@ def _candidates(grid: np.ndarray) -> list[np.ndarray]:
 
 
 def _sample(gray: np.ndarray, xy: np.ndarray) -> np.ndarray:
-    """Bilinear grey levels at points ``(N, 2)`` (3x3 box average)."""
-    blurred = cv2.blur(gray, (3, 3)).astype(np.float32)
-    m = xy.astype(np.float32).reshape(1, -1, 2)
-    out = cv2.remap(
-        blurred, m[..., 0], m[..., 1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE
-    )
-    return out.ravel().astype(float)
+    """Mean grey level ``(N,)`` of the 3x3 pixels around each point ``(N, 2)``."""
+    height, width = gray.shape
+    u = np.clip(np.rint(xy[:, 0]).astype(int), 1, width - 2)
+    v = np.clip(np.rint(xy[:, 1]).astype(int), 1, height - 2)
+    total = np.zeros(len(xy))
+    for dv in (-1, 0, 1):
+        for du in (-1, 0, 1):
+            total += gray[v + dv, u + du]
+    return total / 9.0
 
 
 def _chessboard_order(gray: np.ndarray, grid: np.ndarray) -> np.ndarray:
@@ -485,17 +490,15 @@ def _rt_to_T(rvec: np.ndarray, tvec: np.ndarray) -> np.ndarray:
 
 
 def _pose_vector_jacobian(rvec: np.ndarray, tvec: np.ndarray) -> np.ndarray:
-    """d to_vector(T_board_camera) / d(tvec, rvec), ``(6, 6)``, by central differences."""
-    x0 = np.concatenate([np.ravel(tvec), np.ravel(rvec)])
-    jac = np.empty((6, 6))
-    for k in range(6):
-        h = 1e-7
-        xp, xm = x0.copy(), x0.copy()
-        xp[k] += h
-        xm[k] -= h
-        vp = tf.to_vector(_rt_to_T(xp[3:], xp[:3]))
-        vm = tf.to_vector(_rt_to_T(xm[3:], xm[:3]))
-        jac[:, k] = (vp - vm) / (2 * h)
+    """d to_vector(T_board_camera) / d(tvec, rvec), ``(6, 6)``, for OpenCV's board-to-camera
+    ``rvec, tvec``: the camera position is ``-R^T t`` and its rotation vector is ``-rvec``."""
+    rot, drot = cv2.Rodrigues(np.asarray(rvec, float).reshape(3, 1))  # drot: (3, 9) dR/dr_k
+    t = np.ravel(tvec)
+    jac = np.zeros((6, 6))
+    jac[:3, :3] = -rot.T
+    for k in range(3):
+        jac[:3, 3 + k] = -drot[k].reshape(3, 3).T @ t
+    jac[3:, 3:] = -np.eye(3)
     return jac
 
 
