@@ -117,17 +117,18 @@ class PoseResult:
 
 
 def to_gray(image: np.ndarray) -> np.ndarray:
-    """8-bit single-channel copy of a grey, BGR or BGRA image (16-bit scaled down)."""
+    """8-bit single-channel copy of a grey, BGR or BGRA image. Other depths (12/16-bit integers,
+    floats) are scaled so that their brightest pixel becomes 255."""
     img = np.asarray(image)
     if img.ndim == 3 and img.shape[2] == 1:
         img = img[:, :, 0]
     if img.ndim == 3:
         code = cv2.COLOR_BGRA2GRAY if img.shape[2] == 4 else cv2.COLOR_BGR2GRAY
         img = cv2.cvtColor(img, code)
-    if img.dtype == np.uint16:
-        img = (img >> 8).astype(np.uint8)
-    elif img.dtype != np.uint8:
-        img = np.clip(img, 0, 255).astype(np.uint8)
+    if img.dtype != np.uint8:
+        values = img.astype(np.float64)
+        top = float(np.max(values)) if values.size else 0.0
+        img = np.clip(np.rint(values * (255.0 / top if top > 0 else 1.0)), 0, 255).astype(np.uint8)
     return np.ascontiguousarray(img)
 
 
@@ -683,8 +684,10 @@ def measure_images(
 ) -> list[ImageResult]:
     """Detect the board (and estimate the pose, given a camera) in many image files.
 
-    Runs in a pool of ``workers`` processes (spawned, one OpenCV thread each); ``workers <= 1``
-    runs in this process. A tqdm progress bar is shown unless ``progress`` is False.
+    Runs in a pool of ``workers`` processes (spawned, one OpenCV thread each: OpenCV is not
+    fork-safe); ``workers <= 1`` runs in this process. A script that calls this with workers
+    needs the usual ``if __name__ == "__main__":`` guard. A tqdm progress bar is shown unless
+    ``progress`` is False.
 
     Returns
     -------
