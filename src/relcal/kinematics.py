@@ -83,12 +83,12 @@ def apply_errors(model: RobotModel, layout: Layout, errors: np.ndarray) -> Robot
             arrays[kind][i] += e
         elif kind in frames:
             frames[kind][i] += e
-    return replace(
-        model,
-        **arrays,
-        base=model.base @ tf.from_vector(frames["base"]),
-        tool=model.tool @ tf.from_vector(frames["tool"]),
-    )
+    moved = {
+        frame: getattr(model, frame) @ tf.from_vector(vec)
+        for frame, vec in frames.items()
+        if vec.any()
+    }
+    return replace(model, **arrays, **moved)
 
 
 def _joint_values(model: RobotModel, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -100,17 +100,29 @@ def _joint_values(model: RobotModel, q: np.ndarray) -> tuple[np.ndarray, np.ndar
 
 
 def _link_transforms(model: RobotModel, q: np.ndarray) -> np.ndarray:
-    """Joint transforms ``A_i``, shape ``(N, n, 4, 4)``."""
+    """Joint transforms ``A_i``, shape ``(N, n, 4, 4)``.
+
+    The constant part ``Rx(alpha) Ry(beta)`` is formed once; ``Rz(theta)`` only mixes two of its
+    rows (DH, applied before) or columns (MDH, after), written out element-wise.
+    """
     theta, d = _joint_values(model, q)
+    c, s = np.cos(theta)[..., None], np.sin(theta)[..., None]
     rc = tf.rot_x(model.alpha) @ tf.rot_y(model.beta)  # (n, 3, 3)
-    rz = tf.rot_z(theta)  # (N, n, 3, 3)
-    if model.convention == "dh":
-        rot = rz @ rc
-        trans = np.stack([model.a * np.cos(theta), model.a * np.sin(theta), d], axis=-1)
-    else:
-        rot = rc @ rz
-        trans = model.a[:, None] * rc[:, :, 0] + d[..., None] * rc[:, :, 2]
-    return tf.homogeneous(rot, trans)
+    out = np.zeros((*theta.shape, 4, 4))
+    out[..., 3, 3] = 1.0
+    if model.convention == "dh":  # Rz(theta) Tz(d) Tx(a) [Rx(alpha) Ry(beta)]
+        out[..., 0, :3] = c * rc[:, 0] - s * rc[:, 1]
+        out[..., 1, :3] = s * rc[:, 0] + c * rc[:, 1]
+        out[..., 2, :3] = rc[:, 2]
+        out[..., 0, 3] = model.a * c[..., 0]
+        out[..., 1, 3] = model.a * s[..., 0]
+        out[..., 2, 3] = d
+    else:  # [Rx(alpha) Ry(beta)] Tx(a) Rz(theta) Tz(d)
+        out[..., :3, 0] = c * rc[..., 0] + s * rc[..., 1]
+        out[..., :3, 1] = c * rc[..., 1] - s * rc[..., 0]
+        out[..., :3, 2] = rc[..., 2]
+        out[..., :3, 3] = model.a[:, None] * rc[..., 0] + d[..., None] * rc[..., 2]
+    return out
 
 
 def forward_frames(model: RobotModel, q: np.ndarray) -> np.ndarray:
@@ -167,11 +179,49 @@ def fk(model: RobotModel, q: np.ndarray, backend: Backend = "auto") -> np.ndarra
     return out @ model.tool
 
 
-def _columns(kind: str, axis: np.ndarray, point: np.ndarray, tip: np.ndarray) -> np.ndarray:
-    """Base-frame columns ``(N, 6)``: (velocity of the tip, angular velocity) per unit parameter."""
-    if kind == "translation":
-        return np.concatenate([axis, np.zeros_like(axis)], axis=-1)
-    return np.concatenate([np.cross(axis, tip - point), axis], axis=-1)
+_ROTATIONS = ("theta_off", "alpha", "beta")  # the other joint kinds translate
+
+
+def _joint_screws(model: RobotModel, frames: np.ndarray, theta: np.ndarray) -> dict:
+    """For each joint parameter kind, the axis and a point on it ``(N, n, 3)`` (base frame) that a
+    unit change of the parameter of each joint rotates about or translates along."""
+    rot, origin = frames[:, :-1, :3, :3], frames[:, :-1, :3, 3]  # frame before each joint
+    after = frames[:, 1:, :3]  # frame after each joint
+    if model.convention == "dh":  # Rz(theta) Tz(d) Tx(a) Rx(alpha) Ry(beta)
+        c, s = np.cos(theta)[..., None], np.sin(theta)[..., None]
+        x_axis = rot[..., 0] * c + rot[..., 1] * s  # x after Rz(theta)
+        link_origin = after[..., 3]
+        return {
+            "theta_off": (rot[..., 2], origin),
+            "d": (rot[..., 2], origin),
+            "a": (x_axis, origin),
+            "alpha": (x_axis, link_origin),
+            "beta": (after[..., 1], link_origin),
+        }
+    # Modified DH: Rx(alpha) Ry(beta) Tx(a) Rz(theta) Tz(d).
+    ca, sa = np.cos(model.alpha)[:, None], np.sin(model.alpha)[:, None]
+    y_alpha = rot[..., 1] * ca + rot[..., 2] * sa  # y after Rx(alpha)
+    x_ab = np.einsum("nikl,il->nik", rot, (tf.rot_x(model.alpha) @ tf.rot_y(model.beta))[..., 0])
+    joint_origin = origin + model.a[:, None] * x_ab
+    return {
+        "alpha": (rot[..., 0], origin),
+        "beta": (y_alpha, origin),
+        "a": (x_ab, origin),
+        "theta_off": (after[..., 2], joint_origin),  # Rz(theta) keeps z: the joint axis
+        "d": (after[..., 2], joint_origin),
+    }
+
+
+def _cross(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """``u x v`` over the last axis (``np.cross`` costs more on small batches)."""
+    return np.stack(
+        [
+            u[..., 1] * v[..., 2] - u[..., 2] * v[..., 1],
+            u[..., 2] * v[..., 0] - u[..., 0] * v[..., 2],
+            u[..., 0] * v[..., 1] - u[..., 1] * v[..., 0],
+        ],
+        axis=-1,
+    )
 
 
 def pose_jacobian(
@@ -182,46 +232,37 @@ def pose_jacobian(
     Rows are the tool position change (m) and the small rotation (rad), both in the base frame,
     per unit change of each parameter of ``layout``: ``F(p + dp) ~ (I + [J dp]) F(p)`` with the
     rotation part acting about the tool point.
+
+    Each parameter moves the tool by a unit screw: a translation along an axis (column
+    ``(axis, 0)``) or a rotation about an axis through a point (``(axis x (tip - point), axis)``).
+    All axes and points are gathered per parameter kind, then the columns are formed at once.
     """
     frames = forward_frames(model, q)
     theta, _ = _joint_values(model, q)
     tip_pose = frames[:, -1] @ model.tool
     tip = tip_pose[:, :3, 3]
-    jac = np.empty((frames.shape[0], 6, layout.size))
-    rot_ab = tf.rot_x(model.alpha) @ tf.rot_y(model.beta)  # (n, 3, 3)
-    for k, (kind, i) in enumerate(layout):
-        if kind in ("base", "tool"):
-            pose = np.broadcast_to(model.base, tip_pose.shape) if kind == "base" else tip_pose
-            axis = pose[:, :3, i % 3]
-            motion = "translation" if i < 3 else "rotation"
-            jac[:, :, k] = _columns(motion, axis, pose[:, :3, 3], tip)
-            continue
-        if kind not in ("theta_off", "a", "d", "alpha", "beta"):
-            raise ValueError(f"parameter kind '{kind}' is not a kinematic parameter")
-        prev = frames[:, i]
-        rot, origin = prev[:, :3, :3], prev[:, :3, 3]
-        if model.convention == "dh":
-            c, s = np.cos(theta[:, i]), np.sin(theta[:, i])
-            x_axis = rot[:, :, 0] * c[:, None] + rot[:, :, 1] * s[:, None]  # x after Rz(theta)
-            link_origin = frames[:, i + 1, :3, 3]
-            table = {
-                "theta_off": ("rotation", rot[:, :, 2], origin),
-                "d": ("translation", rot[:, :, 2], origin),
-                "a": ("translation", x_axis, origin),
-                "alpha": ("rotation", x_axis, link_origin),
-                "beta": ("rotation", frames[:, i + 1, :3, 1], link_origin),
-            }
+    n_conf = len(tip)
+    screws = _joint_screws(model, frames, theta)
+    kinds, index = np.array(layout.kinds), np.array(layout.index, dtype=int)
+    axes = np.empty((n_conf, layout.size, 3))
+    points = np.empty((n_conf, layout.size, 3))
+    rotation = np.empty(layout.size, dtype=bool)
+    for kind in dict.fromkeys(layout.kinds):
+        cols, idx = np.flatnonzero(kinds == kind), index[kinds == kind]
+        if kind in screws:
+            axis, point = screws[kind]
+            axes[:, cols], points[:, cols] = axis[:, idx], point[:, idx]
+            rotation[cols] = kind in _ROTATIONS
+        elif kind in ("base", "tool"):  # 6-vector of a small motion in the frame itself
+            pose = model.base[None] if kind == "base" else tip_pose
+            axes[:, cols] = np.swapaxes(pose[:, :3, idx % 3], -1, -2)
+            points[:, cols] = pose[:, None, :3, 3]
+            rotation[cols] = idx >= 3
         else:
-            rx = rot @ tf.rot_x(model.alpha[i])
-            rab = rot @ rot_ab[i]
-            joint_origin = origin + model.a[i] * rab[:, :, 0]
-            table = {
-                "alpha": ("rotation", rot[:, :, 0], origin),
-                "beta": ("rotation", rx[:, :, 1], origin),
-                "a": ("translation", rab[:, :, 0], origin),
-                "theta_off": ("rotation", rab[:, :, 2], joint_origin),
-                "d": ("translation", rab[:, :, 2], joint_origin),
-            }
-        motion, axis, point = table[kind]
-        jac[:, :, k] = _columns(motion, axis, point, tip)
+            raise ValueError(f"parameter kind '{kind}' is not a kinematic parameter")
+    jac = np.zeros((n_conf, 6, layout.size))
+    lever = _cross(axes[:, rotation], tip[:, None] - points[:, rotation])
+    jac[:, :3, rotation] = np.swapaxes(lever, -1, -2)
+    jac[:, 3:, rotation] = np.swapaxes(axes[:, rotation], -1, -2)
+    jac[:, :3, ~rotation] = np.swapaxes(axes[:, ~rotation], -1, -2)
     return tip_pose, jac

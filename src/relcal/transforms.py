@@ -1,7 +1,9 @@
 """Rigid transforms as 4x4 homogeneous matrices, batched over leading axes.
 
 A pose error or small motion is a 6-vector ``(tx, ty, tz, rx, ry, rz)``: translation in metres,
-then a rotation vector in radians. Rotation-vector conversions use SciPy's ``Rotation``.
+then a rotation vector in radians. Rotation-vector conversions are closed-form (Rodrigues' formula
+and its inverse, robust near 0 and pi): SciPy's ``Rotation`` costs tens of microseconds per call,
+which the small batches of an identification pay many times.
 """
 
 from __future__ import annotations
@@ -50,17 +52,69 @@ def invert(transform: np.ndarray) -> np.ndarray:
 def from_vector(vec: np.ndarray) -> np.ndarray:
     """Transforms ``(..., 4, 4)`` from 6-vectors ``(..., 6)`` (translation m, rotvec rad)."""
     vec = np.asarray(vec, dtype=float)
-    flat = vec.reshape(-1, 6)
-    rot = Rotation.from_rotvec(flat[:, 3:]).as_matrix()
-    return homogeneous(rot, flat[:, :3]).reshape(*vec.shape[:-1], 4, 4)
+    return homogeneous(exp_rotation(vec[..., 3:]), vec[..., :3])
 
 
 def to_vector(transform: np.ndarray) -> np.ndarray:
     """6-vectors ``(..., 6)`` (translation m, rotation vector rad) of transforms ``(..., 4, 4)``."""
     transform = np.asarray(transform, dtype=float)
-    flat = transform.reshape(-1, 4, 4)
-    rv = Rotation.from_matrix(flat[:, :3, :3]).as_rotvec()
-    return np.concatenate([flat[:, :3, 3], rv], axis=1).reshape(*transform.shape[:-2], 6)
+    return np.concatenate([transform[..., :3, 3], log_rotation(transform[..., :3, :3])], axis=-1)
+
+
+def exp_rotation(rotvec: np.ndarray) -> np.ndarray:
+    """Rotation matrices ``(..., 3, 3)`` of rotation vectors ``(..., 3)`` (Rodrigues' formula)."""
+    w = np.asarray(rotvec, dtype=float)
+    angle2 = np.einsum("...i,...i->...", w, w)
+    angle = np.sqrt(angle2)
+    small = angle < 1e-4  # Taylor series there: exact to round-off, no 0/0
+    safe = np.where(small, 1.0, angle)
+    # R = cos(t) I + a [w] + b w w^T with a = sin(t)/t, b = (1 - cos t)/t^2 = 2 sin^2(t/2)/t^2.
+    a = np.where(small, 1 - angle2 / 6, np.sin(safe) / safe)
+    b = np.where(small, 0.5 - angle2 / 24, 2 * (np.sin(safe / 2) / safe) ** 2)
+    return (
+        np.cos(angle)[..., None, None] * np.eye(3)
+        + a[..., None, None] * skew(w)
+        + b[..., None, None] * (w[..., :, None] * w[..., None, :])
+    )
+
+
+def log_rotation(rotation: np.ndarray) -> np.ndarray:
+    """Rotation vectors ``(..., 3)`` (angle in [0, pi]) of rotation matrices ``(..., 3, 3)``.
+
+    The angle is ``atan2(sin, cos)`` from the skew part and the trace. Up to 90 degrees the axis
+    comes from the skew part ``R - R^T = 2 sin(t) [n]``; beyond, where that part vanishes towards
+    pi, from the symmetric part (:func:`_axis_near_pi`).
+    """
+    r = np.asarray(rotation, dtype=float)
+    skew_part = np.stack(
+        [r[..., 2, 1] - r[..., 1, 2], r[..., 0, 2] - r[..., 2, 0], r[..., 1, 0] - r[..., 0, 1]],
+        axis=-1,
+    )  # 2 sin(t) n
+    sin_t = 0.5 * np.sqrt(np.einsum("...i,...i->...", skew_part, skew_part))
+    cos_t = 0.5 * (r[..., 0, 0] + r[..., 1, 1] + r[..., 2, 2] - 1)
+    angle = np.arctan2(sin_t, cos_t)
+    # t / (2 sin t), with its series 1/2 + t^2/12 where sin t is tiny (only used for t < pi/2).
+    tiny = sin_t < 1e-6
+    factor = np.where(tiny, 0.5 + angle**2 / 12, angle / (2 * np.where(tiny, 1.0, sin_t)))
+    out = factor[..., None] * skew_part
+    far = cos_t < 0
+    if np.any(far):
+        out[far] = angle[far, None] * _axis_near_pi(r[far], skew_part[far], cos_t[far])
+    return out
+
+
+def _axis_near_pi(r: np.ndarray, skew_part: np.ndarray, cos_t: np.ndarray) -> np.ndarray:
+    """Unit axes ``(K, 3)`` of rotations ``(K, 3, 3)`` turning more than 90 degrees.
+
+    ``(R + R^T) / 2 - cos(t) I = (1 - cos t) n n^T``: its column with the largest diagonal entry is
+    ``n`` up to a positive scale, accurate up to pi; the sign follows the skew part ``2 sin(t) n``.
+    """
+    sym = 0.5 * (r + np.swapaxes(r, -1, -2)) - cos_t[:, None, None] * np.eye(3)
+    rows = np.arange(len(r))
+    k = np.argmax(np.diagonal(sym, axis1=-2, axis2=-1), axis=-1)
+    column = sym[rows, :, k]  # (1 - cos t) n_k n
+    axis = column / np.linalg.norm(column, axis=-1, keepdims=True)
+    return np.where(skew_part[rows, k, None] < 0, -axis, axis)
 
 
 def from_xyz_rpy(xyz: np.ndarray, rpy: np.ndarray) -> np.ndarray:
@@ -94,6 +148,9 @@ def adjoint(transform: np.ndarray) -> np.ndarray:
 
 def skew(vec: np.ndarray) -> np.ndarray:
     """Cross-product matrices ``(..., 3, 3)`` of vectors ``(..., 3)``."""
+    vec = np.asarray(vec, dtype=float)
     x, y, z = vec[..., 0], vec[..., 1], vec[..., 2]
-    o = np.zeros_like(x)
-    return np.stack([o, -z, y, z, o, -x, -y, x, o], axis=-1).reshape(*vec.shape[:-1], 3, 3)
+    out = np.zeros((*vec.shape[:-1], 3, 3))
+    out[..., 0, 1], out[..., 0, 2], out[..., 1, 2] = -z, y, -x
+    out[..., 1, 0], out[..., 2, 0], out[..., 2, 1] = z, -y, x
+    return out
