@@ -30,6 +30,7 @@ from relcal.validate import pair_errors, stats
 
 BEFORE, AFTER, SPECIFIED, BAD = "#b0b8c1", "#1f6feb", "#e8833a", "#cf222e"
 DPI = 110
+FIG_WIDTH = 9.0  # inches: 990 px, shown unscaled in the 1014 px wide sections
 QUANTITIES = {
     "position": ("relative position error", "mm", "position_mm"),
     "orientation": ("relative orientation error", "deg", "orientation_deg"),
@@ -235,7 +236,7 @@ def singular_value_figure(ident: Identifiability, title: str = "") -> Figure:
     s = np.asarray(ident.singular_values, dtype=float)
     tol = ident.rcond * s[0]
     floor = s[0] * 1e-17
-    fig = Figure(figsize=(9.6, 3.6), layout="constrained")
+    fig = Figure(figsize=(FIG_WIDTH, 3.6), layout="constrained")
     ax = fig.add_subplot()
     index = np.arange(1, len(s) + 1)
     ax.bar(index, np.maximum(s, floor), color=np.where(s > tol, AFTER, BAD), width=0.7)
@@ -274,7 +275,7 @@ def histogram_figure(before: np.ndarray, after: np.ndarray, where: str) -> Figur
     """Histograms of per-pair error norms before and after, one panel per measured quantity,
     logarithmic bins so that both distributions show."""
     b, a = _norms(before), _norms(after)
-    fig = Figure(figsize=(9.6, 3.4), layout="constrained")
+    fig = Figure(figsize=(FIG_WIDTH, 3.4), layout="constrained")
     axes = fig.subplots(1, len(b), squeeze=False)[0]
     for ax, key in zip(axes, b, strict=True):
         label, unit, _ = QUANTITIES[key]
@@ -292,7 +293,7 @@ def histogram_figure(before: np.ndarray, after: np.ndarray, where: str) -> Figur
 def per_pair_figure(before: np.ndarray, after: np.ndarray, where: str) -> Figure:
     """Error norm of every pair before and after (log scale), one panel per quantity."""
     b, a = _norms(before), _norms(after)
-    fig = Figure(figsize=(9.6, 2.5 + 2.1 * len(b)), layout="constrained")
+    fig = Figure(figsize=(FIG_WIDTH, 2.5 + 2.1 * len(b)), layout="constrained")
     axes = fig.subplots(len(b), 1, squeeze=False, sharex=True)[:, 0]
     x = np.arange(1, len(before) + 1)
     for ax, key in zip(axes, b, strict=True):
@@ -314,7 +315,7 @@ def parameter_figure(sim: Simulation) -> Figure:
     unidentifiable parameters are marked ``n/i``."""
     layout, result = sim.layout, sim.result
     angle = layout.is_angle()
-    fig = Figure(figsize=(9.6, 6.4), layout="constrained")
+    fig = Figure(figsize=(FIG_WIDTH, 6.4), layout="constrained")
     axes = fig.subplots(2, 1)
     for ax, is_angle, unit in ((axes[0], False, "mm"), (axes[1], True, "deg")):
         idx = np.flatnonzero(angle == is_angle)
