@@ -73,6 +73,20 @@ def scaled(jac: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return jac / norms, norms
 
 
+def _rank_and_involved(s: np.ndarray, vt: np.ndarray, rcond: float) -> tuple[int, np.ndarray]:
+    """Numerical rank from singular values ``s`` and the mask of parameters with a share of the
+    null space (rows of ``vt`` beyond the rank), both in scaled coordinates."""
+    rank = int(np.sum(s > rcond * (s[0] if len(s) else 0.0)))
+    return rank, np.linalg.norm(vt[rank:], axis=0) > _INVOLVED
+
+
+def identifiable_mask(jac: np.ndarray, rcond: float = DEFAULT_RCOND) -> np.ndarray:
+    """The ``identifiable`` mask of :func:`analyse` alone (one SVD, no QR or null-space naming)."""
+    unit, _ = scaled(jac)
+    _, s, vt = np.linalg.svd(unit, full_matrices=False)
+    return ~_rank_and_involved(s, vt, rcond)[1]
+
+
 def sparse_basis(null: np.ndarray, tol: float = 1e-9) -> np.ndarray:
     """A sparse basis of the span of ``null`` ``(P, k)``: each column led by its own pivot parameter
     (chosen by QR with column pivoting, so the pivots are well conditioned), unit-norm columns."""
@@ -97,10 +111,8 @@ def analyse(
     """
     unit, norms = scaled(jac)
     _, s, vt = np.linalg.svd(unit, full_matrices=False)
-    tol = rcond * (s[0] if len(s) else 0.0)
-    rank = int(np.sum(s > tol))
+    rank, involved = _rank_and_involved(s, vt, rcond)
     null_scaled = vt[rank:].T  # (P, k) in scaled coordinates
-    involved = np.linalg.norm(null_scaled, axis=1) > _INVOLVED
     _, _, piv = scipy.linalg.qr(unit, mode="economic", pivoting=True)
     subset = np.sort(piv[:rank])
 

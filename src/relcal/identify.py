@@ -7,6 +7,7 @@ identifiability analysis at the nominal model.
 
 from __future__ import annotations
 
+import functools
 import time
 from dataclasses import dataclass
 from typing import Literal
@@ -16,22 +17,31 @@ import scipy.optimize
 
 from relcal import transforms as tf
 from relcal.errors import RelcalError
-from relcal.identifiability import DEFAULT_RCOND, Identifiability, analyse, scaled
+from relcal.identifiability import (
+    DEFAULT_RCOND,
+    Identifiability,
+    analyse,
+    identifiable_mask,
+    scaled,
+)
 from relcal.kinematics import pose_jacobian
 from relcal.measurement import Problem, residuals
 
 Method = Literal["published", "lm"]
 
 
-def _final_identifiable(problem: Problem, params: np.ndarray, ident: Identifiability) -> np.ndarray:
+def _final_identifiable(
+    problem: Problem, params: np.ndarray, ident: Identifiability, jac: np.ndarray | None = None
+) -> np.ndarray:
     """Parameters identifiable both at the nominal model and at the estimate.
 
     Exact symmetries (base motion, hand-eye absorption) are curved in parameter space: a parameter
     outside the nominal null space can still drift along it at second order, which the null space
-    at the estimate reveals.
+    at the estimate reveals. ``jac``: the Jacobian at ``params`` if the caller has it.
     """
-    _, jac = residuals(problem, params)
-    return ident.identifiable & analyse(jac, problem.full_layout, ident.rcond).identifiable
+    if jac is None:
+        _, jac = residuals(problem, params)
+    return ident.identifiable & identifiable_mask(jac, ident.rcond)
 
 
 @dataclass(frozen=True)
@@ -59,9 +69,14 @@ class Result:
 def explainer(problem: Problem):
     """A function naming why a null-space direction (parameter units) leaves the data unchanged."""
     model, layout = problem.model, problem.full_layout
-    tip, jac = pose_jacobian(model, problem.q, problem.layout)
-    rot_t = np.swapaxes(tip[:, :3, :3], -1, -2)
     n_geo = problem.layout.size
+
+    @functools.cache
+    def kinematics() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Tip poses, pose Jacobian and tip rotations transposed at the nominal model (computed
+        on the first explanation only: problems without a null space never need them)."""
+        tip, jac = pose_jacobian(model, problem.q, problem.layout)
+        return tip, jac, np.swapaxes(tip[:, :3, :3], -1, -2)
 
     def constant(twists: np.ndarray) -> bool:
         scale = np.abs(twists).max()
@@ -70,6 +85,7 @@ def explainer(problem: Problem):
     def explain(v: np.ndarray) -> str:
         involved = np.flatnonzero(np.abs(v) > 1e-6 * np.abs(v).max())
         kinds = {layout.kinds[i] for i in involved}
+        tip, jac, rot_t = kinematics()
         motion = jac @ v[:n_geo]  # (N, 6): tip velocity and angular velocity, base frame
         if len(involved) == 1 and np.abs(motion).max() < 1e-12:
             return "has no effect on the tool pose"
@@ -93,9 +109,13 @@ def explainer(problem: Problem):
     return explain
 
 
-def analyse_problem(problem: Problem, rcond: float = DEFAULT_RCOND) -> Identifiability:
-    """Identifiability of ``problem`` at its nominal model (all errors zero)."""
-    _, jac = residuals(problem, np.zeros(problem.full_layout.size))
+def analyse_problem(
+    problem: Problem, rcond: float = DEFAULT_RCOND, jac: np.ndarray | None = None
+) -> Identifiability:
+    """Identifiability of ``problem`` at its nominal model (all errors zero); ``jac``: the
+    identification Jacobian there, if the caller has it already."""
+    if jac is None:
+        _, jac = residuals(problem, np.zeros(problem.full_layout.size))
     return analyse(jac, problem.full_layout, rcond, explainer(problem))
 
 
@@ -123,9 +143,9 @@ def identify_published(
     """
     _check(problem)
     start = time.perf_counter()
-    ident = identifiability or analyse_problem(problem)
     params = np.zeros(problem.full_layout.size)
     r, a = residuals(problem, params)
+    ident = identifiability or analyse_problem(problem, jac=a)
     initial = float(np.linalg.norm(r))
     converged, it = False, 0
     for it in range(1, max_iter + 1):
@@ -155,7 +175,7 @@ def identify_published(
         seconds=time.perf_counter() - start,
         method="published",
         identifiability=ident,
-        identifiable=_final_identifiable(problem, params, ident),
+        identifiable=_final_identifiable(problem, params, ident, jac=a),
     )
 
 
@@ -172,9 +192,14 @@ def identify_lm(
     """
     _check(problem)
     start = time.perf_counter()
-    ident = identifiability or analyse_problem(problem)
-    subset = ident.subset
     full = np.zeros(problem.full_layout.size)
+    if identifiability is None:
+        r0, a0 = residuals(problem, full)
+        ident = analyse_problem(problem, jac=a0)
+    else:
+        ident, r0 = identifiability, residuals(problem, full, jacobian=False)
+    subset = ident.subset
+    last: dict = {}  # the latest full Jacobian, usually taken at the solution
 
     def expand(x: np.ndarray) -> np.ndarray:
         out = full.copy()
@@ -185,9 +210,9 @@ def identify_lm(
         return -residuals(problem, expand(x), jacobian=False)
 
     def jac(x: np.ndarray) -> np.ndarray:
-        return residuals(problem, expand(x))[1][:, subset]
+        last["x"], last["jac"] = x.copy(), residuals(problem, expand(x))[1]
+        return last["jac"][:, subset]
 
-    r0 = residuals(problem, full, jacobian=False)
     method = "lm" if loss == "linear" else "trf"
     sol = scipy.optimize.least_squares(
         fun,
@@ -214,7 +239,12 @@ def identify_lm(
         seconds=time.perf_counter() - start,
         method=f"lm ({loss} loss)" if loss != "linear" else "lm",
         identifiability=ident,
-        identifiable=_final_identifiable(problem, expand(sol.x), ident),
+        identifiable=_final_identifiable(
+            problem,
+            expand(sol.x),
+            ident,
+            jac=last["jac"] if np.array_equal(last.get("x"), sol.x) else None,
+        ),
     )
 
 
