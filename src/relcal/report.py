@@ -19,7 +19,7 @@ from dataclasses import replace
 import matplotlib
 import numpy as np
 from matplotlib.figure import Figure
-from matplotlib.ticker import FuncFormatter, NullFormatter
+from matplotlib.ticker import FuncFormatter, MaxNLocator, NullFormatter
 
 from relcal import __version__
 from relcal.identifiability import Identifiability
@@ -146,6 +146,7 @@ thead th { background:#f0f3f6; border-bottom:1px solid var(--line); font-weight:
 tbody tr:nth-child(even) { background:#fafbfc; }
 table.num td:not(:first-child), table.num th:not(:first-child) { text-align:right;
   font-variant-numeric:tabular-nums; }
+table.ids td:first-child { width:200px; }
 td code, p code, li code { font-size:13px; }
 .badge { display:inline-block; padding:0 8px; border-radius:10px; font-size:12.5px;
   font-weight:600; }
@@ -241,7 +242,14 @@ def singular_value_figure(ident: Identifiability, title: str = "") -> Figure:
     index = np.arange(1, len(s) + 1)
     ax.bar(index, np.maximum(s, floor), color=np.where(s > tol, AFTER, BAD), width=0.7)
     ax.axhline(tol, color="#444", ls="--", lw=1)
-    ax.text(len(s) + 0.6, tol, f"  tolerance {ident.rcond:g} × s_max", va="bottom", ha="right")
+    ax.text(
+        len(s) + 0.6,
+        tol * 2,
+        f"rank tolerance {ident.rcond:g} × s_max",
+        va="bottom",
+        ha="right",
+        bbox={"fc": "white", "ec": "none", "pad": 1.5},
+    )
     ax.set(yscale="log", xlim=(0.3, len(s) + 0.7), xlabel="index (descending)")
     ax.set_ylabel("singular value")
     ax.set_ylim(floor / 3, s[0] * 4)
@@ -283,6 +291,7 @@ def histogram_figure(before: np.ndarray, after: np.ndarray, where: str) -> Figur
         ax.hist(b[key], bins=bins, color=BEFORE, label="before (nominal model)")
         ax.hist(a[key], bins=bins, color=AFTER, alpha=0.85, label="after (calibrated)")
         ax.set(xscale="log", xlabel=f"{label} ({unit})", ylabel="pairs")
+        ax.yaxis.set_major_locator(MaxNLocator(integer=True))
         _plain_log_ticks(ax.xaxis, bins)
         ax.set_title(f"{label.capitalize()}, {where}")
         _finish(ax)
@@ -526,14 +535,15 @@ def _rejected(doc: dict) -> tuple[str, str, Html]:
     kept = not doc["settings"].get("reject_outliers", True)
     parts: list[object] = []
     if rejected:
-        parts.append(_table(["sample", "reason"], [[r["id"], r["reason"]] for r in rejected]))
+        rows = [[r["id"], r["reason"]] for r in rejected]
+        parts.append(_table(["sample", "reason"], rows, "ids"))
     else:
         parts.append(Html('<p class="none">none: every sample gave a camera pose</p>'))
     parts.append(Html("<h3>Outliers</h3>"))
     if outliers:
         why = "kept in the fit (--keep-outliers)" if kept else "left out of the final fit"
         rows = [[o, f"its pairs fit badly after a robust fit; {why}"] for o in outliers]
-        parts.append(_table(["sample", "reason"], rows))
+        parts.append(_table(["sample", "reason"], rows, "ids"))
     else:
         parts.append(Html('<p class="none">none</p>'))
     return _section("rejected", "Rejected images", *parts)
