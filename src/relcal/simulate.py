@@ -137,6 +137,26 @@ def joint_path(
     return np.array(out)
 
 
+def place_board(model: RobotModel, probes: int = 8) -> Setup:
+    """A board placement in front of ``model`` where the camera path is reachable: the default
+    if most of ``probes`` spiral poses are, else the best of a few placements scaled to the
+    robot's size (distance along x and height relative to the base)."""
+
+    def reachable(setup: Setup) -> int:
+        return len(joint_path(model, setup, probes, np.random.default_rng(0), tries=1))
+
+    default = Setup()
+    if reachable(default) >= 0.75 * probes:
+        return default
+    reach = float(np.abs(model.a).sum() + np.abs(model.d).sum())
+    candidates = [
+        Setup(board_center=np.array([f * reach, 0.0, g * reach]))
+        for f in (0.35, 0.5, 0.65)
+        for g in (-0.4, -0.2, 0.0, 0.2)
+    ]
+    return max([default, *candidates], key=reachable)
+
+
 @dataclass(frozen=True)
 class Simulation:
     """A simulated calibration: the truth, the problem solved, and its result."""
@@ -202,12 +222,13 @@ def simulate(
     errors: np.ndarray | None = None,
     method: Method = "published",
     pairing: PairStrategy = "consecutive",
-    setup: Setup = Setup(),
+    setup: Setup | None = None,
     **identify_kwargs,
 ) -> Simulation:
     """Run the published simulation once. ``errors`` follows ``make_layout(model)`` (random if
     None); the invariant formulation also gets a random hand-eye error of about 1 mm / 0.5 deg."""
     rng = np.random.default_rng(seed)
+    setup = setup or place_board(model)
     layout = make_layout(model)
     specified = random_errors(layout, rng) if errors is None else np.asarray(errors, float)
     handeye_error = np.zeros(0)
