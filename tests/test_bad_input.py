@@ -223,3 +223,17 @@ def test_28_dataset_names_a_missing_robot_file(capsys, tmp_path):
 @pytest.mark.parametrize("argv", [["simulate", "--poses", "2"]])
 def test_29_too_few_simulated_poses(capsys, argv):
     run_bad(capsys, argv, "simulated poses")
+
+
+def test_30_negative_board_size(capsys, tmp_path):
+    argv = ["board", "--type", "chessboard", "--rows", "7", "--columns", "10", "--square", "-0.02"]
+    run_bad(capsys, [*argv, "--out", tmp_path / "b.pdf"], "square: Input should be greater than 0")
+    assert not (tmp_path / "b.pdf").exists()
+
+
+def test_31_board_yaml_with_a_negative_spacing(capsys, tmp_path):
+    spec = tmp_path / "board.yaml"
+    spec.write_text("type: circles\nrows: 10\ncolumns: 10\nspacing: -0.0254\n")
+    run_bad(
+        capsys, ["board", "--spec", spec, "--out", tmp_path / "b.pdf"], "board.yaml line 4: spacing"
+    )

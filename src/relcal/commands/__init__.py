@@ -8,7 +8,7 @@ from __future__ import annotations
 import argparse
 import importlib
 
-COMMANDS = ["simulate", "calibrate", "imports", "compensate"]
+COMMANDS = ["simulate", "calibrate", "imports", "compensate", "board"]
 
 
 def register_all(sub: argparse._SubParsersAction) -> None:
