@@ -378,9 +378,7 @@ def _accuracy_cards(before: dict, after: dict, label: str) -> list[tuple[str, st
             factor = b / a if a > 0 else float("inf")
             cards.append(
                 (
-                    f"held-out {name.split()[1]} error, RMS"
-                    if label.startswith("held")
-                    else f"training {name.split()[1]} error, RMS",
+                    f"{label.split()[0]} {name.split()[1]} error, RMS",
                     f"{b:.3g} → {a:.3g} {unit}",
                     f"{label}: {factor:.1f}× smaller after calibration",
                 )
@@ -394,7 +392,7 @@ def _fit_cards(cal: Calibration, doc: dict) -> list[tuple[str, str, str]]:
         (
             "identification",
             "converged" if r.converged else "NOT converged",
-            f"{r.method}, {r.iterations} iterations; residual "
+            f"{r.method}, {r.iterations} iterations; weighted residual "
             f"{r.initial_residual_norm:.3g} → {r.residual_norm:.3g}",
         ),
         (
@@ -415,9 +413,13 @@ def _stats_table(before: dict, after: dict) -> Html:
     keys = [q for q in QUANTITIES.values() if q[2] in before]
     head = [""] + [f"{n.split()[1]} {w} ({u})" for n, u, _ in keys for w in ("before", "after")]
     rows = []
-    for stat, label in (("mean", "mean"), ("rms", "RMS"), ("p95", "95th percentile")):
+    for stat, label in (
+        ("mean", "mean"),
+        ("rms", "RMS"),
+        ("p95", "95th percentile"),
+        ("max", "max"),
+    ):
         rows.append([label] + [_fmt(s[k][stat]) for _, _, k in keys for s in (before, after)])
-    rows.append(["max"] + [_fmt(s[k]["max"]) for _, _, k in keys for s in (before, after)])
     ratio = ["improvement (RMS before / after)"]
     for _, _, k in keys:
         ratio += [_fmt(before[k]["rms"] / max(after[k]["rms"], 1e-300), ".1f") + "×", ""]
