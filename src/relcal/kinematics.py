@@ -9,6 +9,7 @@ transforms as 6-vectors of small motions in their own frames (``base.tx`` ... ``
 
 from __future__ import annotations
 
+import functools
 import importlib.util
 import sys
 from dataclasses import dataclass, replace
@@ -99,6 +100,15 @@ def _joint_values(model: RobotModel, q: np.ndarray) -> tuple[np.ndarray, np.ndar
     return theta, d
 
 
+def _twist_rotations(model: RobotModel) -> np.ndarray:
+    """``Rx(alpha_i) Ry(beta_i)`` per joint, ``(n, 3, 3)``, written out."""
+    ca, sa = np.cos(model.alpha), np.sin(model.alpha)
+    cb, sb = np.cos(model.beta), np.sin(model.beta)
+    zero = np.zeros_like(ca)
+    rows = [cb, zero, sb, sa * sb, ca, -sa * cb, -ca * sb, sa, ca * cb]
+    return np.stack(rows, axis=-1).reshape(-1, 3, 3)
+
+
 def _link_transforms(model: RobotModel, q: np.ndarray) -> np.ndarray:
     """Joint transforms ``A_i``, shape ``(N, n, 4, 4)``.
 
@@ -107,7 +117,7 @@ def _link_transforms(model: RobotModel, q: np.ndarray) -> np.ndarray:
     """
     theta, d = _joint_values(model, q)
     c, s = np.cos(theta)[..., None], np.sin(theta)[..., None]
-    rc = tf.rot_x(model.alpha) @ tf.rot_y(model.beta)  # (n, 3, 3)
+    rc = _twist_rotations(model)  # (n, 3, 3)
     out = np.zeros((*theta.shape, 4, 4))
     out[..., 3, 3] = 1.0
     if model.convention == "dh":  # Rz(theta) Tz(d) Tx(a) [Rx(alpha) Ry(beta)]
@@ -179,37 +189,34 @@ def fk(model: RobotModel, q: np.ndarray, backend: Backend = "auto") -> np.ndarra
     return out @ model.tool
 
 
+_JOINT_KINDS = ("theta_off", "a", "d", "alpha", "beta")
 _ROTATIONS = ("theta_off", "alpha", "beta")  # the other joint kinds translate
 
 
-def _joint_screws(model: RobotModel, frames: np.ndarray, theta: np.ndarray) -> dict:
-    """For each joint parameter kind, the axis and a point on it ``(N, n, 3)`` (base frame) that a
-    unit change of the parameter of each joint rotates about or translates along."""
+def _joint_screws(
+    model: RobotModel, frames: np.ndarray, theta: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Axes and points on them ``(N, 5 n, 3)`` (base frame) that a unit change of each joint
+    parameter rotates about or translates along, ordered kind by kind as ``_JOINT_KINDS``."""
     rot, origin = frames[:, :-1, :3, :3], frames[:, :-1, :3, 3]  # frame before each joint
     after = frames[:, 1:, :3]  # frame after each joint
     if model.convention == "dh":  # Rz(theta) Tz(d) Tx(a) Rx(alpha) Ry(beta)
         c, s = np.cos(theta)[..., None], np.sin(theta)[..., None]
+        z_axis = rot[..., 2]
         x_axis = rot[..., 0] * c + rot[..., 1] * s  # x after Rz(theta)
         link_origin = after[..., 3]
-        return {
-            "theta_off": (rot[..., 2], origin),
-            "d": (rot[..., 2], origin),
-            "a": (x_axis, origin),
-            "alpha": (x_axis, link_origin),
-            "beta": (after[..., 1], link_origin),
-        }
-    # Modified DH: Rx(alpha) Ry(beta) Tx(a) Rz(theta) Tz(d).
-    ca, sa = np.cos(model.alpha)[:, None], np.sin(model.alpha)[:, None]
-    y_alpha = rot[..., 1] * ca + rot[..., 2] * sa  # y after Rx(alpha)
-    x_ab = np.einsum("nikl,il->nik", rot, (tf.rot_x(model.alpha) @ tf.rot_y(model.beta))[..., 0])
-    joint_origin = origin + model.a[:, None] * x_ab
-    return {
-        "alpha": (rot[..., 0], origin),
-        "beta": (y_alpha, origin),
-        "a": (x_ab, origin),
-        "theta_off": (after[..., 2], joint_origin),  # Rz(theta) keeps z: the joint axis
-        "d": (after[..., 2], joint_origin),
-    }
+        # theta_off, a, d, alpha, beta
+        axes = (z_axis, x_axis, z_axis, x_axis, after[..., 1])
+        points = (origin, origin, origin, link_origin, link_origin)
+    else:  # modified DH: Rx(alpha) Ry(beta) Tx(a) Rz(theta) Tz(d)
+        ca, sa = np.cos(model.alpha)[:, None], np.sin(model.alpha)[:, None]
+        y_alpha = rot[..., 1] * ca + rot[..., 2] * sa  # y after Rx(alpha)
+        x_ab = np.einsum("nikl,il->nik", rot, _twist_rotations(model)[..., 0])
+        joint_origin = origin + model.a[:, None] * x_ab
+        z_axis = after[..., 2]  # Rz(theta) keeps z: the joint axis
+        axes = (z_axis, x_ab, z_axis, rot[..., 0], y_alpha)
+        points = (joint_origin, origin, joint_origin, origin, origin)
+    return np.concatenate(axes, axis=1), np.concatenate(points, axis=1)
 
 
 def _cross(u: np.ndarray, v: np.ndarray) -> np.ndarray:
@@ -224,6 +231,28 @@ def _cross(u: np.ndarray, v: np.ndarray) -> np.ndarray:
     )
 
 
+@functools.lru_cache(maxsize=64)
+def _slots(layout: Layout, n_joints: int) -> tuple[np.ndarray, ...]:
+    """Where each parameter's screw is found: joint parameters index the ``(kind, joint)`` table
+    of :func:`_joint_screws` flattened (kind-major); frame parameters name their component."""
+    kinds, index = np.array(layout.kinds), np.array(layout.index, dtype=int)
+    joint = np.isin(kinds, _JOINT_KINDS)
+    if np.any(~joint & ~np.isin(kinds, ("base", "tool"))):
+        bad = kinds[~joint & ~np.isin(kinds, ("base", "tool"))][0]
+        raise ValueError(f"parameter kind '{bad}' is not a kinematic parameter")
+    table = np.array([_JOINT_KINDS.index(k) if j else 0 for k, j in zip(kinds, joint, strict=True)])
+    rotation = np.where(joint, np.isin(kinds, _ROTATIONS), index >= 3)
+    return (
+        np.flatnonzero(joint),
+        table[joint] * n_joints + index[joint],
+        np.flatnonzero(kinds == "base"),
+        index[kinds == "base"] % 3,
+        np.flatnonzero(kinds == "tool"),
+        index[kinds == "tool"] % 3,
+        rotation,
+    )
+
+
 def pose_jacobian(
     model: RobotModel, q: np.ndarray, layout: Layout
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -235,34 +264,27 @@ def pose_jacobian(
 
     Each parameter moves the tool by a unit screw: a translation along an axis (column
     ``(axis, 0)``) or a rotation about an axis through a point (``(axis x (tip - point), axis)``).
-    All axes and points are gathered per parameter kind, then the columns are formed at once.
+    All axes and points are gathered first, then the columns are formed at once.
     """
     frames = forward_frames(model, q)
     theta, _ = _joint_values(model, q)
     tip_pose = frames[:, -1] @ model.tool
     tip = tip_pose[:, :3, 3]
-    n_conf = len(tip)
-    screws = _joint_screws(model, frames, theta)
-    kinds, index = np.array(layout.kinds), np.array(layout.index, dtype=int)
-    axes = np.empty((n_conf, layout.size, 3))
-    points = np.empty((n_conf, layout.size, 3))
-    rotation = np.empty(layout.size, dtype=bool)
-    for kind in dict.fromkeys(layout.kinds):
-        cols, idx = np.flatnonzero(kinds == kind), index[kinds == kind]
-        if kind in screws:
-            axis, point = screws[kind]
-            axes[:, cols], points[:, cols] = axis[:, idx], point[:, idx]
-            rotation[cols] = kind in _ROTATIONS
-        elif kind in ("base", "tool"):  # 6-vector of a small motion in the frame itself
-            pose = model.base[None] if kind == "base" else tip_pose
-            axes[:, cols] = np.swapaxes(pose[:, :3, idx % 3], -1, -2)
-            points[:, cols] = pose[:, None, :3, 3]
-            rotation[cols] = idx >= 3
-        else:
-            raise ValueError(f"parameter kind '{kind}' is not a kinematic parameter")
-    jac = np.zeros((n_conf, 6, layout.size))
-    lever = _cross(axes[:, rotation], tip[:, None] - points[:, rotation])
-    jac[:, :3, rotation] = np.swapaxes(lever, -1, -2)
-    jac[:, 3:, rotation] = np.swapaxes(axes[:, rotation], -1, -2)
-    jac[:, :3, ~rotation] = np.swapaxes(axes[:, ~rotation], -1, -2)
-    return tip_pose, jac
+    joint_cols, joint_slots, base_cols, base_axes, tool_cols, tool_axes, rotation = _slots(
+        layout, model.n_joints
+    )
+    screw_axes, screw_points = _joint_screws(model, frames, theta)  # (N, 5 n, 3) each
+    axes = np.empty((len(tip), layout.size, 3))
+    points = np.empty((len(tip), layout.size, 3))
+    axes[:, joint_cols] = screw_axes[:, joint_slots]
+    points[:, joint_cols] = screw_points[:, joint_slots]
+    # Base and tool 6-vectors are small motions in their own frames.
+    axes[:, base_cols] = model.base[:3, base_axes].T
+    points[:, base_cols] = model.base[:3, 3]
+    axes[:, tool_cols] = np.swapaxes(tip_pose[:, :3, tool_axes], -1, -2)
+    points[:, tool_cols] = tip[:, None]
+    jac = np.zeros((len(tip), layout.size, 6))  # transposed while filled
+    jac[:, rotation, :3] = _cross(axes[:, rotation], tip[:, None] - points[:, rotation])
+    jac[:, rotation, 3:] = axes[:, rotation]
+    jac[:, ~rotation, :3] = axes[:, ~rotation]
+    return tip_pose, np.ascontiguousarray(np.swapaxes(jac, -1, -2))

@@ -144,18 +144,19 @@ def _invariant(
     frame-invariant form."""
     i, j = problem.pair_indices().T
     rel = tf.invert(tip[i]) @ tip[j]  # F_i^-1 F_j
-    x_inv = tf.invert(handeye)
-    model_rel = x_inv @ rel @ handeye
+    model_rel = tf.invert(handeye) @ rel @ handeye
+    model_rel_inv = tf.invert(model_rel)
     measured = relative_measurements(problem.poses, problem.pair_indices())
-    r = tf.to_vector(tf.invert(model_rel) @ measured)
+    r = tf.to_vector(model_rel_inv @ measured)
     if jac is None:
         return r, None
 
-    # Body-frame twists of each tool pose per parameter: blockdiag(R^T, R^T) J.
-    body = tf.rotate_twist(np.swapaxes(tip[:, :3, :3], -1, -2), jac)
-    # Relative motion G = F_i^-1 F_j perturbed to G exp(body_j - Ad(G^-1) body_i), seen from X.
-    delta = body[j] - tf.adjoint(tf.invert(rel)) @ body[i]
-    geo = tf.adjoint(x_inv) @ delta
+    # Spatial twists (about the base origin) of each tool pose per parameter: the Jacobian gives
+    # the tip's velocity, so v_0 = v_tip - w x tip.
+    spatial = jac.copy()
+    spatial[:, :3] += tf.skew(tip[:, :3, 3]) @ jac[:, 3:]  # + tip x w
+    # F_k -> exp(S_k) F_k makes X^-1 F_i^-1 F_j X -> model_rel exp(Ad((F_j X)^-1) (S_j - S_i)).
+    geo = tf.adjoint(tf.invert(tip[j] @ handeye)) @ (spatial[j] - spatial[i])
     # Hand-eye X -> X exp(xi): model_rel -> model_rel exp(xi - Ad(model_rel^-1) xi).
-    he = np.eye(6) - tf.adjoint(tf.invert(model_rel))
+    he = np.eye(6) - tf.adjoint(model_rel_inv)
     return r, np.concatenate([geo, he], axis=-1)
