@@ -70,3 +70,13 @@ def test_same_seed_same_numbers(tmp_path):
         assert main(["calibrate", str(syn.root), "--out", str(tmp_path / f"o{k}"), "--quiet"]) == 0
     a, b = (json.loads((tmp_path / f"o{k}/results.json").read_text()) for k in range(2))
     assert _without_timing(a) == _without_timing(b)
+
+
+def test_outputs_get_the_usual_file_mode(tmp_path):
+    import os
+
+    path = tmp_path / "results.json"
+    write_text(path, "{}\n")
+    mask = os.umask(0)
+    os.umask(mask)
+    assert path.stat().st_mode & 0o777 == 0o666 & ~mask
