@@ -11,7 +11,7 @@ from conftest import random_q
 
 pytest.importorskip("numba")
 
-from relcal import fastkin  # noqa: E402
+from relcal import fastkin, kinematics  # noqa: E402
 from relcal import transforms as tf  # noqa: E402
 from relcal.kinematics import fk  # noqa: E402
 from relcal.model import auto_hayati, get_robot, library_names  # noqa: E402
@@ -80,6 +80,9 @@ def test_backends_agree_and_auto_dispatch(a465, rng):
     np.testing.assert_allclose(fk(a465, q), reference, atol=1e-12)
     with pytest.raises(ValueError, match="unknown FK backend"):
         fk(a465, q, backend="fortran")
+    # "auto" decides by batch size only, so every process rounds a given call the same way.
+    assert not kinematics._use_fast("auto", kinematics._LOAD_MIN - 1)
+    assert kinematics._use_fast("auto", kinematics._LOAD_MIN)
 
 
 def test_small_batches_do_not_import_numba():

@@ -128,6 +128,23 @@ def _check(problem: Problem) -> None:
         )
 
 
+def _truncated_svd_solve(
+    matrix: np.ndarray, rhs: np.ndarray, rcond: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """``pinv(matrix) rhs`` with singular values below ``rcond * s_max`` zeroed, and the mask of
+    kept singular values.
+
+    The SVD is taken of the triangular factor of ``[matrix | rhs]`` (a QR without forming Q): it
+    has the singular values of ``matrix``, its last column is ``Q^T rhs``, and for tall matrices
+    it costs about half of the SVD of ``matrix`` itself.
+    """
+    n = matrix.shape[1]
+    tri = np.linalg.qr(np.column_stack([matrix, rhs]), mode="r")
+    u, s, vt = np.linalg.svd(tri[:n, :n])
+    keep = s > rcond * s[0]
+    return vt[keep].T @ ((u[:, keep].T @ tri[:n, n]) / s[keep]), keep
+
+
 def identify_published(
     problem: Problem,
     rcond: float = 1e-8,
@@ -150,9 +167,8 @@ def identify_published(
     converged, it = False, 0
     for it in range(1, max_iter + 1):
         unit, norms = scaled(a)
-        u, s, vt = np.linalg.svd(unit, full_matrices=False)
-        keep = s > rcond * s[0]
-        step = vt[keep].T @ ((u[:, keep].T @ r) / s[keep]) / norms
+        step, keep = _truncated_svd_solve(unit, r, rcond)
+        step = step / norms
         params = params + step
         previous = np.linalg.norm(r)
         r, a = residuals(problem, params)

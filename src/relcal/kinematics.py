@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import functools
 import importlib.util
-import sys
 from dataclasses import dataclass, replace
 from typing import Literal
 
@@ -147,7 +146,7 @@ def forward_frames(model: RobotModel, q: np.ndarray) -> np.ndarray:
 
 
 Backend = Literal["auto", "numpy", "numba"]
-_LOAD_MIN = 20_000  # configurations that pay for loading the kernel (import 0.3 s, compile 2 s)
+_LOAD_MIN = 50_000  # configurations that pay for loading the kernel (~0.5 s; compiling ~3 s)
 
 
 def _fast_available() -> bool:
@@ -163,8 +162,8 @@ def _use_fast(backend: Backend, n_conf: int) -> bool:
         return True
     if backend != "auto":
         raise ValueError(f"unknown FK backend '{backend}': use auto, numpy or numba")
-    if "relcal.fastkin" in sys.modules:  # loaded: faster from a single configuration on
-        return True
+    # By batch size alone, not by whether the kernel happens to be loaded: the same call gives
+    # the same round-off in every process (worker pools must agree with a serial run).
     return n_conf >= _LOAD_MIN and _fast_available()
 
 
@@ -173,9 +172,9 @@ def fk(model: RobotModel, q: np.ndarray, backend: Backend = "auto") -> np.ndarra
 
     ``backend="numpy"`` is the reference implementation; ``"numba"`` the compiled kernel of
     :mod:`relcal.fastkin` (same result to round-off, 20-50 times faster on large batches);
-    ``"auto"`` takes the kernel when it is already loaded, or when Numba is installed and the batch
-    is large enough to pay for loading it (small batches alone never import Numba, so short
-    commands start quickly).
+    ``"auto"`` takes the kernel when Numba is installed and the batch is large enough to pay for
+    loading it (``_LOAD_MIN`` configurations): small batches never import Numba, so short commands
+    start quickly.
     """
     q = np.atleast_2d(np.asarray(q, dtype=float))
     if _use_fast(backend, q.shape[0]):
@@ -253,6 +252,41 @@ def _slots(layout: Layout, n_joints: int) -> tuple[np.ndarray, ...]:
     )
 
 
+def _screws(
+    model: RobotModel, q: np.ndarray, layout: Layout
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Tool poses ``(N, 4, 4)``, and per parameter of ``layout`` the unit screw it moves the tool
+    by: axes and points on them ``(N, P, 3)`` in the base frame, and which ones rotate ``(P,)``
+    (the others translate along their axis)."""
+    frames = forward_frames(model, q)
+    theta, _ = _joint_values(model, q)
+    tip_pose = frames[:, -1] @ model.tool
+    joint_cols, joint_slots, base_cols, base_axes, tool_cols, tool_axes, rotation = _slots(
+        layout, model.n_joints
+    )
+    screw_axes, screw_points = _joint_screws(model, frames, theta)  # (N, 5 n, 3) each
+    axes = np.empty((len(tip_pose), layout.size, 3))
+    points = np.empty((len(tip_pose), layout.size, 3))
+    axes[:, joint_cols] = screw_axes[:, joint_slots]
+    points[:, joint_cols] = screw_points[:, joint_slots]
+    # Base and tool 6-vectors are small motions in their own frames.
+    axes[:, base_cols] = model.base[:3, base_axes].T
+    points[:, base_cols] = model.base[:3, 3]
+    axes[:, tool_cols] = np.swapaxes(tip_pose[:, :3, tool_axes], -1, -2)
+    points[:, tool_cols] = tip_pose[:, None, :3, 3]
+    return tip_pose, axes, points, rotation
+
+
+def _columns(axes: np.ndarray, moments: np.ndarray, rotation: np.ndarray) -> np.ndarray:
+    """Twist columns ``(N, 6, P)``: ``(moment, axis)`` for rotations, ``(axis, 0)`` for
+    translations."""
+    out = np.zeros((axes.shape[0], axes.shape[1], 6))  # transposed while filled
+    out[:, rotation, :3] = moments
+    out[:, rotation, 3:] = axes[:, rotation]
+    out[:, ~rotation, :3] = axes[:, ~rotation]
+    return np.ascontiguousarray(np.swapaxes(out, -1, -2))
+
+
 def pose_jacobian(
     model: RobotModel, q: np.ndarray, layout: Layout
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -264,27 +298,21 @@ def pose_jacobian(
 
     Each parameter moves the tool by a unit screw: a translation along an axis (column
     ``(axis, 0)``) or a rotation about an axis through a point (``(axis x (tip - point), axis)``).
-    All axes and points are gathered first, then the columns are formed at once.
     """
-    frames = forward_frames(model, q)
-    theta, _ = _joint_values(model, q)
-    tip_pose = frames[:, -1] @ model.tool
-    tip = tip_pose[:, :3, 3]
-    joint_cols, joint_slots, base_cols, base_axes, tool_cols, tool_axes, rotation = _slots(
-        layout, model.n_joints
-    )
-    screw_axes, screw_points = _joint_screws(model, frames, theta)  # (N, 5 n, 3) each
-    axes = np.empty((len(tip), layout.size, 3))
-    points = np.empty((len(tip), layout.size, 3))
-    axes[:, joint_cols] = screw_axes[:, joint_slots]
-    points[:, joint_cols] = screw_points[:, joint_slots]
-    # Base and tool 6-vectors are small motions in their own frames.
-    axes[:, base_cols] = model.base[:3, base_axes].T
-    points[:, base_cols] = model.base[:3, 3]
-    axes[:, tool_cols] = np.swapaxes(tip_pose[:, :3, tool_axes], -1, -2)
-    points[:, tool_cols] = tip[:, None]
-    jac = np.zeros((len(tip), layout.size, 6))  # transposed while filled
-    jac[:, rotation, :3] = _cross(axes[:, rotation], tip[:, None] - points[:, rotation])
-    jac[:, rotation, 3:] = axes[:, rotation]
-    jac[:, ~rotation, :3] = axes[:, ~rotation]
-    return tip_pose, np.ascontiguousarray(np.swapaxes(jac, -1, -2))
+    tip_pose, axes, points, rotation = _screws(model, q, layout)
+    tip = tip_pose[:, None, :3, 3]
+    return tip_pose, _columns(axes, _cross(axes[:, rotation], tip - points[:, rotation]), rotation)
+
+
+def spatial_jacobian(
+    model: RobotModel, q: np.ndarray, layout: Layout
+) -> tuple[np.ndarray, np.ndarray]:
+    """Poses ``F(q)`` ``(N, 4, 4)`` and the spatial twists ``(N, 6, P)`` of the parameters.
+
+    The same motion as :func:`pose_jacobian` with the velocity taken at the base origin instead
+    of the tool point: ``F(p + dp) ~ exp([S dp]) F(p)``; a rotation about an axis through a point
+    is ``(point x axis, axis)``. It does not depend on the tool point, which relative
+    measurements (that difference two poses) exploit.
+    """
+    tip_pose, axes, points, rotation = _screws(model, q, layout)
+    return tip_pose, _columns(axes, _cross(points[:, rotation], axes[:, rotation]), rotation)

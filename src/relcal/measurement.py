@@ -21,7 +21,7 @@ from typing import Literal
 import numpy as np
 
 from relcal import transforms as tf
-from relcal.kinematics import Layout, apply_errors, fk, pose_jacobian
+from relcal.kinematics import Layout, apply_errors, fk, pose_jacobian, spatial_jacobian
 from relcal.model import RobotModel
 
 Formulation = Literal["absolute", "published", "invariant"]
@@ -118,7 +118,9 @@ def residuals(problem: Problem, params: np.ndarray, jacobian: bool = True):
     Measurements are stacked measurement by measurement (3 or 6 rows each).
     """
     model, handeye = split_params(problem, params)
-    if jacobian:
+    if jacobian and problem.formulation == "invariant":
+        tip, jac = spatial_jacobian(model, problem.q, problem.layout)
+    elif jacobian:
         tip, jac = pose_jacobian(model, problem.q, problem.layout)
     else:
         tip, jac = fk(model, problem.q), None
@@ -138,23 +140,19 @@ def residuals(problem: Problem, params: np.ndarray, jacobian: bool = True):
 
 
 def _invariant(
-    problem: Problem, tip: np.ndarray, jac: np.ndarray | None, handeye: np.ndarray
+    problem: Problem, tip: np.ndarray, spatial: np.ndarray | None, handeye: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray | None]:
-    """Residuals ``(P, 6)`` and Jacobian ``(P, 6, n_geo + 6)`` (if ``jac`` is given) of the
-    frame-invariant form."""
+    """Residuals ``(P, 6)`` and Jacobian ``(P, 6, n_geo + 6)`` of the frame-invariant form, the
+    latter if the spatial twists of the parameters (:func:`spatial_jacobian`) are given."""
     i, j = problem.pair_indices().T
     rel = tf.invert(tip[i]) @ tip[j]  # F_i^-1 F_j
     model_rel = tf.invert(handeye) @ rel @ handeye
     model_rel_inv = tf.invert(model_rel)
     measured = relative_measurements(problem.poses, problem.pair_indices())
     r = tf.to_vector(model_rel_inv @ measured)
-    if jac is None:
+    if spatial is None:
         return r, None
 
-    # Spatial twists (about the base origin) of each tool pose per parameter: the Jacobian gives
-    # the tip's velocity, so v_0 = v_tip - w x tip.
-    spatial = jac.copy()
-    spatial[:, :3] += tf.skew(tip[:, :3, 3]) @ jac[:, 3:]  # + tip x w
     # F_k -> exp(S_k) F_k makes X^-1 F_i^-1 F_j X -> model_rel exp(Ad((F_j X)^-1) (S_j - S_i)).
     geo = tf.adjoint(tf.invert(tip[j] @ handeye)) @ (spatial[j] - spatial[i])
     # Hand-eye X -> X exp(xi): model_rel -> model_rel exp(xi - Ad(model_rel^-1) xi).

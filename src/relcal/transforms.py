@@ -8,6 +8,8 @@ which the small batches of an identification pay many times.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from scipy.spatial.transform import Rotation
 
@@ -64,6 +66,8 @@ def to_vector(transform: np.ndarray) -> np.ndarray:
 def exp_rotation(rotvec: np.ndarray) -> np.ndarray:
     """Rotation matrices ``(..., 3, 3)`` of rotation vectors ``(..., 3)`` (Rodrigues' formula)."""
     w = np.asarray(rotvec, dtype=float)
+    if w.shape == (3,):  # one vector (a hand-eye or frame update): plain floats cost far less
+        return _exp_rotation_one(*w.tolist())
     angle2 = np.einsum("...i,...i->...", w, w)
     angle = np.sqrt(angle2)
     small = angle < 1e-4  # Taylor series there: exact to round-off, no 0/0
@@ -75,6 +79,24 @@ def exp_rotation(rotvec: np.ndarray) -> np.ndarray:
         np.cos(angle)[..., None, None] * np.eye(3)
         + a[..., None, None] * skew(w)
         + b[..., None, None] * (w[..., :, None] * w[..., None, :])
+    )
+
+
+def _exp_rotation_one(x: float, y: float, z: float) -> np.ndarray:
+    """:func:`exp_rotation` of one vector, the same formula on Python floats."""
+    angle2 = x * x + y * y + z * z
+    angle = math.sqrt(angle2)
+    if angle < 1e-4:
+        a, b = 1 - angle2 / 6, 0.5 - angle2 / 24
+    else:
+        a, b = math.sin(angle) / angle, 2 * (math.sin(angle / 2) / angle) ** 2
+    c = math.cos(angle)
+    return np.array(
+        [
+            [c + b * x * x, b * x * y - a * z, b * x * z + a * y],
+            [b * x * y + a * z, c + b * y * y, b * y * z - a * x],
+            [b * x * z - a * y, b * y * z + a * x, c + b * z * z],
+        ]
     )
 
 
