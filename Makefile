@@ -27,6 +27,7 @@ test: $(STAMP) chromium
 	$(PY) -m pytest
 
 bench: $(STAMP)
+	$(PY) -m pip install -q -e '.[dev,bench]'
 	$(PY) bench/run.py
 
 clean:

@@ -1,0 +1,507 @@
+"""relcal benchmarks: one table, every row measured in this run, each against a peer and a goal.
+
+Rows (``python bench/run.py``, or ``make bench``, which installs the ``bench`` extra first):
+
+- batched forward kinematics, configurations per second on one core, 6 joints (A465, DH) and
+  7 joints (Franka FR3, modified DH): relcal's compiled kernel against Pinocchio
+  (``pin.forwardKinematics`` + the tool frame, in a Python loop over configurations), the
+  Robotics Toolbox for Python (``DHRobot.fkine`` on the batch) and relcal's own NumPy reference;
+- identification Jacobian rows per second: the analytic ``residuals(problem, p)`` against
+  2-point finite differences of the residual;
+- one identification of 100 poses (6 joints + hand-eye, full pose, frame-invariant formulation,
+  consecutive pairs): ``identify_published`` and ``identify_lm`` against
+  ``scipy.optimize.least_squares`` with a 2-point finite-difference Jacobian on the same problem;
+- start-up costs: the FK kernel's first call with an empty and with a filled Numba cache, and a
+  whole ``relcal simulate`` command;
+- rows of optional modules ``bench/<name>.py`` listed in ``OPTIONAL_MODULES``, each with
+  ``run() -> list[dict]`` (keys ``task``, ``value``, ``unit``, ``peer``, ``ratio``; optional
+  ``peer_name``, ``goal``, ``goal_ratio``); a missing module is reported, not fatal.
+
+BLAS runs single-threaded (set before NumPy loads) so that "one core" holds for every row and
+small matrix factorisations do not pay for thread hand-offs. In-process timings are the least CPU
+time over several repeats (one thread, so the one-core time, robust to other processes sharing
+the machine); start-up rows are wall times of fresh processes. Goals are checked here, never by
+timed assertions in the tests.
+"""
+
+from __future__ import annotations
+
+import os
+
+for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
+
+import argparse  # noqa: E402
+import importlib  # noqa: E402
+import json  # noqa: E402
+import subprocess  # noqa: E402
+import sys  # noqa: E402
+import tempfile  # noqa: E402
+import time  # noqa: E402
+from dataclasses import dataclass, replace  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import numpy as np  # noqa: E402
+import scipy.optimize  # noqa: E402
+
+HERE = Path(__file__).resolve().parent
+ROOT = HERE.parent
+sys.path.insert(0, str(HERE))
+
+from relcal import transforms as tf  # noqa: E402
+from relcal.identify import analyse_problem, identify_lm, identify_published  # noqa: E402
+from relcal.kinematics import fk, make_layout  # noqa: E402
+from relcal.measurement import Problem, make_pairs, residuals, split_params  # noqa: E402
+from relcal.model import RobotModel, get_robot, library_names  # noqa: E402
+
+#: Benchmark modules other engineers add under bench/ (``run() -> list[dict]``), in table order.
+OPTIONAL_MODULES = ("images", "montecarlo")
+
+FK_GOAL = 5e6  # configurations per second on one core
+ID_GOAL_MS = 10.0  # one identification of 100 poses
+PEER_RATIO_GOAL = 3.0  # at least this many times ahead of each peer
+
+
+@dataclass
+class Row:
+    task: str
+    value: float | None
+    unit: str
+    peer: str = "-"
+    peer_value: float | None = None
+    goal: str = "-"
+    met: bool | None = None  # None: informational, no goal
+    note: str = ""
+
+    @property
+    def ratio(self) -> float | None:
+        if self.value is None or not self.peer_value:
+            return None
+        faster_is_less = self.unit in ("ms", "s")
+        return self.peer_value / self.value if faster_is_less else self.value / self.peer_value
+
+
+def best_time(fn, repeat: int = 5, number: int = 1, budget: float = 20.0) -> float:
+    """Least CPU time of one call over ``repeat`` rounds of ``number`` calls (after a warm-up),
+    stopping early once ``budget`` seconds are spent.
+
+    Everything timed this way runs on one thread, so CPU time is the one-core time; unlike wall
+    time it does not count the moments other processes hold the core on a shared machine.
+    """
+    fn()
+    best, spent = np.inf, 0.0
+    for _ in range(repeat):
+        start = time.process_time()
+        for _ in range(number):
+            fn()
+        elapsed = time.process_time() - start
+        best, spent = min(best, elapsed / number), spent + elapsed
+        if spent > budget:
+            break
+    return best
+
+
+def random_q(model: RobotModel, n: int, rng: np.random.Generator) -> np.ndarray:
+    lo = np.where(np.isfinite(model.lower), model.lower, -np.pi)
+    hi = np.where(np.isfinite(model.upper), model.upper, np.pi)
+    return rng.uniform(lo, hi, (n, model.n_joints))
+
+
+# --- forward kinematics ----------------------------------------------------------------------
+
+
+def seven_joint_model() -> RobotModel:
+    """The Franka FR3 from the library, or the same published MDH table built here."""
+    if "franka_fr3" in library_names():
+        return get_robot("franka_fr3")
+    a465 = get_robot("a465")
+    n, h = 7, np.pi / 2
+    return replace(
+        a465,
+        name="Franka Research 3 (bench copy)",
+        convention="mdh",
+        theta_off=np.zeros(n),
+        d=np.array([0.333, 0, 0.316, 0, 0.384, 0, 0]),
+        a=np.array([0, 0, 0, 0.0825, -0.0825, 0, 0.088]),
+        alpha=np.array([0, -h, h, h, -h, h, h]),
+        beta=np.zeros(n),
+        prismatic=np.zeros(n, dtype=bool),
+        hayati=np.zeros(n, dtype=bool),
+        lower=np.full(n, -2.8),
+        upper=np.full(n, 2.8),
+        joint_names=tuple(f"joint{i + 1}" for i in range(n)),
+        tool=tf.from_vector(np.array([0, 0, 0.107, 0, 0, 0])),
+    )
+
+
+def _pre_post(model: RobotModel, i: int) -> tuple[np.ndarray, np.ndarray]:
+    """``A_i = pre Rz(q_i) post`` (revolute joints)."""
+
+    def rot(kind: str, angle: float) -> np.ndarray:
+        return tf.homogeneous(getattr(tf, f"rot_{kind}")(angle), np.zeros(3))
+
+    def trans(x=0.0, z=0.0) -> np.ndarray:
+        return tf.homogeneous(np.eye(3), np.array([x, 0.0, z]))
+
+    a, d, alpha, beta = model.a[i], model.d[i], model.alpha[i], model.beta[i]
+    if model.convention == "dh":
+        return rot("z", model.theta_off[i]), trans(z=d) @ trans(x=a) @ rot("x", alpha) @ rot(
+            "y", beta
+        )
+    pre = rot("x", alpha) @ rot("y", beta) @ trans(x=a) @ rot("z", model.theta_off[i])
+    return pre, trans(z=d)
+
+
+def pinocchio_fk(model: RobotModel):
+    """``f(q) -> (N, 4, 4)`` with Pinocchio: a chain of revolute-z joints with placements,
+    ``forwardKinematics`` and the tool frame per configuration, as a Python user would call it."""
+    import pinocchio as pin
+
+    if model.prismatic.any():
+        raise ValueError("bench builds revolute chains only")
+    pm = pin.Model()
+    parent, post_prev = 0, model.base
+    for i in range(model.n_joints):
+        pre, post = _pre_post(model, i)
+        placement = pin.SE3(post_prev @ pre)
+        parent = pm.addJoint(parent, pin.JointModelRZ(), placement, f"j{i + 1}")
+        post_prev = post
+    frame = pm.addFrame(
+        pin.Frame("tool", parent, pin.SE3(post_prev @ model.tool), pin.FrameType.OP_FRAME)
+    )
+    data = pm.createData()
+
+    def run(q: np.ndarray) -> np.ndarray:
+        out = np.empty((len(q), 4, 4))
+        for k, qk in enumerate(q):
+            pin.forwardKinematics(pm, data, qk)
+            out[k] = pin.updateFramePlacement(pm, data, frame).homogeneous
+        return out
+
+    return run
+
+
+def rtb_fk(model: RobotModel):
+    """``f(q) -> (N, 4, 4)`` with the Robotics Toolbox for Python: ``DHRobot.fkine(q_batch)``."""
+    import roboticstoolbox as rtb
+    from spatialmath import SE3
+
+    if model.prismatic.any() or np.any(model.beta):
+        raise ValueError("bench builds revolute chains without Hayati's beta only")
+    link = rtb.RevoluteDH if model.convention == "dh" else rtb.RevoluteMDH
+    links = [
+        link(d=model.d[i], a=model.a[i], alpha=model.alpha[i], offset=model.theta_off[i])
+        for i in range(model.n_joints)
+    ]
+    robot = rtb.DHRobot(links, base=SE3(model.base, check=False), tool=SE3(model.tool, check=False))
+
+    def run(q: np.ndarray) -> np.ndarray:
+        return np.asarray(robot.fkine(q).A).reshape(len(q), 4, 4)
+
+    return run
+
+
+def fk_rows(label: str, model: RobotModel, n_fast: int, n_peer: int) -> list[Row]:
+    """The kernel's rate against the FK goal (peer: relcal's NumPy reference, for scale), then one
+    row per peer library against the ratio goal."""
+    from relcal import fastkin
+
+    q = random_q(model, n_fast, np.random.default_rng(0))
+    reference = fk(model, q[:200], backend="numpy")
+    error = np.abs(fastkin.fk(model, q[:200]) - reference).max()
+    assert error < 1e-12, f"kernel disagrees with the NumPy reference by {error:.2g}"
+    rate = n_fast / best_time(lambda: fastkin.fk(model, q), repeat=7)
+    n_numpy = min(n_fast, 100_000)
+    numpy_rate = n_numpy / best_time(lambda: fk(model, q[:n_numpy], backend="numpy"), repeat=3)
+    task = f"batched FK, {label}"
+    rows = [
+        Row(
+            task,
+            rate,
+            "configs/s",
+            "relcal NumPy reference",
+            numpy_rate,
+            f">= {FK_GOAL / 1e6:g} M/s",
+            rate >= FK_GOAL,
+        )
+    ]
+    for name, build in (("Pinocchio (Python loop)", pinocchio_fk), ("RTB DHRobot.fkine", rtb_fk)):
+        row = Row(task, rate, "configs/s", name, goal=f">= {PEER_RATIO_GOAL:g}x peer")
+        rows.append(row)
+        try:
+            run = build(model)
+        except Exception as exc:  # peer not installed, or cannot represent the model
+            row.note = f"peer unavailable: {type(exc).__name__}: {exc}"[:90]
+            continue
+        sub = q[:n_peer]
+        error = np.abs(run(sub[:50]) - reference[:50]).max()
+        if error > 1e-9:
+            row.note = f"peer disagrees with relcal by {error:.2g}: not timed"
+            continue
+        row.peer_value = n_peer / best_time(lambda r=run, s=sub: r(s), repeat=3)
+        row.met = row.ratio >= PEER_RATIO_GOAL
+    return rows
+
+
+# --- identification ----------------------------------------------------------------------------
+
+HANDEYE = tf.from_vector(np.array([0.0, 0.04, 0.06, 0.05, -0.03, 0.2]))
+BOARD = tf.from_vector(np.array([0.5, 0.1, -0.2, 3.0, 0.1, 0.4]))
+
+
+def identification_problem(n_poses: int = 100, seed: int = 1) -> tuple[Problem, np.ndarray]:
+    """A465 + hand-eye, full pose, invariant formulation, consecutive pairs, known errors."""
+    rng = np.random.default_rng(seed)
+    model = get_robot("a465")
+    layout = make_layout(model)
+    q = random_q(model, n_poses, rng) * 0.9
+    pairs = make_pairs(n_poses)
+    angle = layout.is_angle()
+    truth = np.where(angle, np.radians(rng.uniform(0.01, 0.9, layout.size)), 0.0)
+    truth = np.where(angle, truth, rng.uniform(0.1, 0.9, layout.size) * 1e-3)
+    truth = np.concatenate([truth * rng.choice([-1.0, 1.0], layout.size), rng.normal(0, 1e-3, 6)])
+    shell = Problem(
+        model, layout, q, np.zeros((n_poses, 4, 4)), "invariant", "pose", pairs, HANDEYE
+    )
+    true_model, true_x = split_params(shell, truth)
+    poses = BOARD @ fk(true_model, q, backend="numpy") @ true_x
+    return replace(shell, poses=poses), truth
+
+
+def held_out(problem: Problem, params: np.ndarray, truth: np.ndarray) -> float:
+    """Largest residual of ``params`` on new noise-free pairs (0 when everything identifiable is
+    recovered)."""
+    rng = np.random.default_rng(99)
+    q = random_q(problem.model, 30, rng) * 0.9
+    shell = replace(problem, q=q, pairs=make_pairs(30, "all"))
+    true_model, true_x = split_params(shell, truth)
+    check = replace(shell, poses=BOARD @ fk(true_model, q, backend="numpy") @ true_x)
+    return float(np.abs(residuals(check, params, jacobian=False)).max())
+
+
+def scipy_fd_identification(problem: Problem):
+    """The peer: ``scipy.optimize.least_squares`` (LM, 2-point finite-difference Jacobian) on the
+    same residual and the same identifiable subset (given to it for free), same tolerances."""
+    subset = analyse_problem(problem).subset
+    full = np.zeros(problem.full_layout.size)
+
+    def expand(x):
+        out = full.copy()
+        out[subset] = x
+        return out
+
+    def run():
+        sol = scipy.optimize.least_squares(
+            lambda x: -residuals(problem, expand(x), jacobian=False),
+            np.zeros(len(subset)),
+            jac="2-point",
+            method="lm",
+            x_scale="jac",
+            xtol=1e-12,
+            ftol=1e-12,
+            gtol=1e-12,
+        )
+        return expand(sol.x)
+
+    return run
+
+
+def identification_rows() -> list[Row]:
+    problem, truth = identification_problem()
+    params = np.zeros(problem.full_layout.size)
+    n_rows = problem.n_residuals()
+
+    def finite_differences(h: float = 1e-7):
+        r0 = residuals(problem, params, jacobian=False)
+        jac = np.empty((n_rows, len(params)))
+        for k in range(len(params)):
+            step = params.copy()
+            step[k] += h
+            jac[:, k] = (residuals(problem, step, jacobian=False) - r0) / h
+        return jac
+
+    analytic = n_rows / best_time(lambda: residuals(problem, params), repeat=20, number=5)
+    fd = n_rows / best_time(finite_differences, repeat=5)
+    rows = [
+        Row(
+            "identification Jacobian (same problem): residual + analytic Jacobian",
+            analytic,
+            "rows/s",
+            "finite differences (2-point)",
+            fd,
+            f">= {PEER_RATIO_GOAL:g}x peer",
+        )
+    ]
+    rows[0].met = rows[0].ratio >= PEER_RATIO_GOAL
+
+    peer = scipy_fd_identification(problem)
+    peer_ms = 1e3 * best_time(peer, repeat=3)
+    peer_error = held_out(problem, peer(), truth)
+    task = "identify 100 poses (A465 + hand-eye, pose, invariant, consecutive pairs)"
+    for name, method in (("identify_published", identify_published), ("identify_lm", identify_lm)):
+        result = method(problem)
+        error = held_out(problem, result.params, truth)
+        ms = 1e3 * best_time(lambda m=method: m(problem), repeat=10)
+        row = Row(
+            f"{task}: {name}",
+            ms,
+            "ms",
+            "scipy least_squares, FD Jacobian",
+            peer_ms,
+            f"< {ID_GOAL_MS:g} ms, >= {PEER_RATIO_GOAL:g}x peer",
+            note=f"held-out error {error:.0e}, peer {peer_error:.0e}; "
+            f"{result.iterations} iterations",
+        )
+        row.met = ms < ID_GOAL_MS and row.ratio >= PEER_RATIO_GOAL
+        rows.append(row)
+    return rows
+
+
+# --- start-up ----------------------------------------------------------------------------------
+
+
+def _python(code: str, env: dict | None = None) -> tuple[float, str]:
+    """Wall time and output of a fresh ``python -c code``."""
+    start = time.perf_counter()
+    done = subprocess.run(
+        [sys.executable, "-c", code],
+        check=True,
+        capture_output=True,
+        text=True,
+        env={**os.environ, **(env or {})},
+    )
+    return time.perf_counter() - start, done.stdout.strip()
+
+
+def startup_rows(repeat: int = 2) -> list[Row]:
+    """Extra start-up of the compiled FK path over the NumPy one (fresh processes, least of
+    ``repeat``), with an empty Numba cache (compiles) and a filled one; a whole simulate command."""
+    first_call = (
+        "from relcal.kinematics import fk; from relcal.model import get_robot; import numpy; "
+        "fk(get_robot('a465'), numpy.zeros((1, 6)), backend='{}')"
+    )
+    baseline = min(_python(first_call.format("numpy"))[0] for _ in range(repeat))
+    cold, warm = [], []
+    for _ in range(repeat):
+        with tempfile.TemporaryDirectory() as cache:
+            cold.append(_python(first_call.format("numba"), {"NUMBA_CACHE_DIR": cache})[0])
+            warm.append(_python(first_call.format("numba"), {"NUMBA_CACHE_DIR": cache})[0])
+    seconds, numba_loaded = _python(
+        "import sys; from relcal.cli import main; main(['simulate', '--robot', 'a465', "
+        "'--quiet']); print('numba' in sys.modules)"
+    )
+    note = "imported Numba!" if numba_loaded == "True" else "Numba not imported"
+    return [
+        Row("FK kernel start-up, empty Numba cache (compile)", min(cold) - baseline, "s",
+            note="once per machine and relcal version; over a NumPy first call"),
+        Row("FK kernel start-up, filled Numba cache", min(warm) - baseline, "s",
+            note="Numba import + cache load, over a NumPy first call"),
+        Row("relcal simulate --robot a465, whole command", seconds, "s", note=note),
+    ]  # fmt: skip
+
+
+# --- optional modules --------------------------------------------------------------------------
+
+
+def optional_rows(name: str) -> list[Row]:
+    if not (HERE / f"{name}.py").exists():
+        return [Row(f"bench/{name}.py", None, "-", note="not present yet: rows skipped")]
+    try:
+        module = importlib.import_module(name)
+        found = module.run()
+    except Exception as exc:
+        return [Row(f"bench/{name}.py", None, "-", note=f"failed: {type(exc).__name__}: {exc}")]
+    rows = []
+    for item in found:
+        peer = item.get("peer")
+        goal_ratio = item.get("goal_ratio", PEER_RATIO_GOAL)
+        row = Row(
+            item["task"],
+            item.get("value"),
+            item.get("unit", "-"),
+            item.get("peer_name", "peer" if peer is not None else "-"),
+            peer,
+            item.get("goal", f">= {goal_ratio:g}x peer" if peer is not None else "-"),
+            note=item.get("note", ""),
+        )
+        ratio = item.get("ratio", row.ratio)
+        row.met = item.get("met", None if ratio is None else ratio >= goal_ratio)
+        rows.append(row)
+    return rows
+
+
+# --- table -------------------------------------------------------------------------------------
+
+
+def fmt(value: float | None, unit: str = "") -> str:
+    if value is None:
+        return "-"
+    if unit.endswith("/s") and value >= 1e5:
+        return f"{value / 1e6:.3g} M"
+    return f"{value:.3g}"
+
+
+def table(rows: list[Row]) -> str:
+    head = ("task", "value", "unit", "peer", "peer value", "ratio", "goal", "met? / gap", "notes")
+    body = []
+    for r in rows:
+        if r.met is None:
+            status = "n/a" if r.goal == "-" else "?"
+        else:
+            status = "met" if r.met else "GAP: " + gap(r)
+        ratio = "-" if r.ratio is None else f"{r.ratio:.3g}x"
+        value, peer_value = fmt(r.value, r.unit), fmt(r.peer_value, r.unit)
+        body.append((r.task, value, r.unit, r.peer, peer_value, ratio, r.goal, status, r.note))
+    widths = [max(len(str(x[k])) for x in [head, *body]) for k in range(len(head))]
+    lines = []
+    for k, line in enumerate([head, *body]):
+        cells = [str(c) for c in line]
+        lines.append(" | ".join(c.ljust(w) for c, w in zip(cells, widths, strict=True)).rstrip())
+        if k == 0:
+            lines.append("-+-".join("-" * w for w in widths))
+    return "\n".join(lines)
+
+
+def gap(r: Row) -> str:
+    parts = []
+    if r.unit == "configs/s" and r.value is not None and r.value < FK_GOAL:
+        parts.append(f"{FK_GOAL / r.value:.2g}x short of {FK_GOAL / 1e6:g} M/s")
+    if r.unit == "ms" and r.value is not None and r.value >= ID_GOAL_MS:
+        parts.append(f"{r.value - ID_GOAL_MS:.3g} ms over")
+    if r.ratio is not None and r.ratio < PEER_RATIO_GOAL:
+        parts.append(f"ratio {r.ratio:.3g} < {PEER_RATIO_GOAL:g}")
+    return "; ".join(parts) or "see goal"
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--quick", action="store_true", help="smaller batches, fewer repeats")
+    parser.add_argument("--skip", action="append", default=[], help="optional module to skip")
+    parser.add_argument("--json", type=Path, help="also write the rows as JSON here")
+    args = parser.parse_args(argv)
+    n_fast, n_peer = (200_000, 500) if args.quick else (1_000_000, 3000)
+
+    started = time.perf_counter()
+    rows = identification_rows()
+    rows += fk_rows("6 joints (A465, DH)", get_robot("a465"), n_fast, n_peer)
+    rows += fk_rows("7 joints (Franka FR3, MDH)", seven_joint_model(), n_fast, n_peer)
+    rows += startup_rows()
+    for name in OPTIONAL_MODULES:
+        if name not in args.skip:
+            rows += optional_rows(name)
+
+    load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
+    print(
+        f"relcal bench: {time.perf_counter() - started:.0f} s; one core (BLAS single-threaded), "
+        f"least CPU time of repeats; load average at the end {load:.2f} on {os.cpu_count()} CPUs\n"
+    )
+    print(table(rows))
+    if args.json:
+        args.json.write_text(
+            json.dumps([{**r.__dict__, "ratio": r.ratio} for r in rows], indent=1, default=float)
+        )
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
