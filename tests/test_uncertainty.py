@@ -1,0 +1,190 @@
+"""Noise propagation to relative measurements, parameter covariance (least squares and the
+Cramer-Rao bound), per-pose information, correlation and predicted accuracy."""
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+from conftest import random_q
+from helpers_sim import make_problem
+
+from relcal import transforms as tf
+from relcal.identify import analyse_problem
+from relcal.measurement import make_pairs, residuals
+from relcal.model import auto_hayati
+from relcal.simulate import DEG, MM, Noise
+from relcal.uncertainty import (
+    body_covariance,
+    eliminate,
+    joint_map,
+    noise_map,
+    parameter_covariance,
+    pose_rows,
+    predicted_accuracy,
+    right_jacobian_so3,
+)
+
+NOISE = Noise(0.05 * MM, 0.01 * DEG, 0.002 * DEG)
+CASES = [
+    ("invariant", "pose"),
+    ("invariant", "position"),
+    ("published", "pose"),
+    ("published", "position"),
+    ("absolute", "pose"),
+]
+
+
+@pytest.fixture
+def hayati(a465):
+    return auto_hayati(a465)
+
+
+@pytest.mark.parametrize(("formulation", "measure"), CASES)
+def test_noise_map_is_the_first_order_effect_of_pose_errors(hayati, rng, formulation, measure):
+    problem, truth = make_problem(hayati, formulation, measure, rng, n_poses=8)
+    problem = replace(problem, pairs=make_pairs(8, "all"), weights=np.array([1, 2, 3, 4, 5, 6.0]))
+    eps = rng.normal(0, 1e-7, (8, 6))
+    if formulation == "invariant":  # camera-frame errors of C = W F X
+        moved = problem.poses @ tf.from_vector(eps)
+    else:  # base-frame errors at the tool point
+        moved = problem.poses.copy()
+        moved[:, :3, 3] += eps[:, :3]
+        moved[:, :3, :3] = (
+            tf.from_vector(np.c_[np.zeros((8, 3)), eps[:, 3:]])[:, :3, :3]
+            @ (problem.poses[:, :3, :3])
+        )
+    before = residuals(problem, truth, jacobian=False)
+    after = residuals(replace(problem, poses=moved), truth, jacobian=False)
+    predicted = noise_map(problem, truth) @ eps.ravel()
+    assert np.abs(after - before - predicted).max() < 1e-6 * np.abs(predicted).max()
+
+
+@pytest.mark.parametrize("formulation", ["invariant", "published"])
+def test_joint_errors_act_through_the_joint_jacobian(hayati, rng, formulation):
+    problem, truth = make_problem(hayati, formulation, "pose", rng, n_poses=6)
+    eta = rng.normal(0, 1e-7, problem.q.shape)
+    before = residuals(problem, truth, jacobian=False)
+    after = residuals(replace(problem, q=problem.q + eta), truth, jacobian=False)
+    moved = np.einsum("nij,nj->ni", joint_map(problem, truth), eta)  # modelled pose moves
+    predicted = -noise_map(problem, truth) @ moved.ravel()
+    assert np.abs(after - before - predicted).max() < 1e-6 * np.abs(predicted).max()
+
+
+def test_right_jacobian_and_body_covariance(rng):
+    phi = np.array([0.3, -1.1, 0.7])
+    dphi = rng.normal(0, 1e-7, 3)
+    r0 = tf.from_vector(np.r_[0, 0, 0, phi])
+    r1 = tf.from_vector(np.r_[0, 0, 0, phi + dphi])
+    body = tf.to_vector(tf.invert(r0) @ r1)[3:]
+    np.testing.assert_allclose(body, right_jacobian_so3(phi) @ dphi, rtol=1e-6, atol=1e-14)
+    # A covariance given on to_vector(C) maps to the body frame used by the propagation.
+    vec = np.array([0.4, 0.1, 0.3, 0.3, -1.1, 0.7])
+    pose = tf.from_vector(vec)
+    cov = np.diag([1e-8, 2e-8, 3e-8, 1e-7, 2e-7, 3e-7])
+    samples = rng.multivariate_normal(np.zeros(6), cov, 4000) * 1e-2  # small: linear regime
+    errors = tf.to_vector(tf.invert(pose) @ tf.from_vector(vec + samples))
+    expected = body_covariance(pose[None], cov[None] * 1e-4)[0]
+    np.testing.assert_allclose(np.cov(errors.T), expected, rtol=0.1, atol=0.05 * expected.max())
+
+
+@pytest.mark.parametrize(("formulation", "measure"), [c for c in CASES if c[1] == "pose"])
+def test_cramer_rao_bound_does_not_depend_on_pairing_or_order(hayati, rng, formulation, measure):
+    problem, _ = make_problem(hayati, formulation, measure, rng, n_poses=15)
+    ident = analyse_problem(problem)
+    bounds = []
+    strategies = ["consecutive"] if formulation == "absolute" else ["consecutive", "star", "all"]
+    for pairing in strategies:
+        p = replace(problem, pairs=make_pairs(15, pairing))
+        bounds.append(parameter_covariance(p, NOISE, ident).crb)
+    order = rng.permutation(15)
+    shuffled = replace(problem, q=problem.q[order], poses=problem.poses[order])
+    bounds.append(parameter_covariance(shuffled, NOISE, ident).crb)
+    # The per-pose information with the board pose eliminated gives the same bound.
+    rows, h = pose_rows(problem, NOISE)
+    info = eliminate(np.einsum("nri,nrj->ij", rows, rows), h)
+    s = ident.subset
+    bounds.append(np.linalg.inv(info[np.ix_(s, s)]))
+    d = np.sqrt(np.diag(bounds[0]))
+    for b in bounds[1:]:
+        np.testing.assert_allclose(b / np.outer(d, d), bounds[0] / np.outer(d, d), atol=1e-9)
+
+
+def test_least_squares_is_never_better_than_the_bound_and_equals_it_when_white(hayati, rng):
+    problem, _ = make_problem(hayati, "invariant", "pose", rng, n_poses=15)
+    for pairing in ("consecutive", "star", "all"):
+        unc = parameter_covariance(replace(problem, pairs=make_pairs(15, pairing)), NOISE)
+        assert np.linalg.eigvalsh(unc.least_squares - unc.crb).min() > -1e-12 * unc.crb.max()
+    # Absolute poses with rows weighted by 1/sigma and no joint noise: the noise is white, so
+    # least squares is the efficient estimator.
+    absolute, _ = make_problem(hayati, "absolute", "pose", rng, n_poses=15)
+    white = Noise(NOISE.position, NOISE.orientation, 0.0)
+    w = 1 / np.r_[np.full(3, white.position), np.full(3, white.orientation)]
+    unc = parameter_covariance(replace(absolute, weights=w), white)
+    np.testing.assert_allclose(unc.least_squares, unc.crb, rtol=1e-8, atol=1e-12 * unc.crb.max())
+
+
+def test_covariances_from_the_image_pipeline_replace_the_isotropic_noise(hayati, rng):
+    problem, _ = make_problem(hayati, "invariant", "pose", rng, n_poses=10)
+    iso = Noise(NOISE.position, NOISE.orientation, 0.0)
+    body = np.diag(np.r_[np.full(3, iso.position**2), np.full(3, iso.orientation**2)])
+    # The to_vector(C) covariance whose body-frame image is isotropic.
+    vec = tf.to_vector(problem.poses)
+    g = np.zeros((10, 6, 6))
+    g[:, :3, :3] = np.swapaxes(problem.poses[:, :3, :3], -1, -2)
+    g[:, 3:, 3:] = right_jacobian_so3(vec[:, 3:])
+    g_inv = np.linalg.inv(g)
+    given = g_inv @ body @ np.swapaxes(g_inv, -1, -2)
+    a = parameter_covariance(problem, iso)
+    b = parameter_covariance(problem, Noise(0, 0, 0), covariances=given)
+    np.testing.assert_allclose(b.crb, a.crb, rtol=1e-7, atol=1e-9 * a.crb.max())
+    # Doubling the image noise doubles every standard deviation.
+    c = parameter_covariance(problem, Noise(0, 0, 0), covariances=4 * given)
+    np.testing.assert_allclose(c.crb_std[a.subset], 2 * a.crb_std[a.subset], rtol=1e-7)
+
+
+def test_correlation_and_strongest_pairs(hayati, rng):
+    problem, _ = make_problem(hayati, "invariant", "pose", rng, n_poses=20)
+    unc = parameter_covariance(problem, NOISE)
+    corr = unc.correlation
+    np.testing.assert_allclose(np.diag(corr), 1.0)
+    np.testing.assert_allclose(corr, corr.T)
+    assert np.abs(corr).max() <= 1 + 1e-12
+    top = unc.strongest_correlations(5)
+    assert len(top) == 5
+    magnitudes = [abs(r) for _, _, r in top]
+    assert magnitudes == sorted(magnitudes, reverse=True)
+    i, j = np.triu_indices(len(corr), 1)
+    assert magnitudes[0] == pytest.approx(np.abs(corr[i, j]).max())
+    # Parameters outside the identifiable subset have no standard deviation.
+    assert np.isnan(unc.std[~np.isin(np.arange(len(unc.names)), unc.subset)]).all()
+    assert np.isfinite(unc.std[unc.subset]).all()
+
+
+def test_predicted_accuracy_matches_sampled_parameter_errors(hayati, rng):
+    problem, _ = make_problem(hayati, "invariant", "pose", rng, n_poses=20)
+    unc = parameter_covariance(problem, NOISE)
+    q_val = random_q(hayati, 6, rng)
+    acc = predicted_accuracy(problem, unc, q_val)
+    assert len(acc.pairs) == 15
+    # Sample parameter errors from the covariance and measure the relative-pose errors they
+    # cause between the validation poses (the model's own prediction, nonlinear).
+    shell = replace(
+        problem,
+        q=q_val,
+        poses=np.broadcast_to(np.eye(4), (6, 4, 4)),
+        pairs=make_pairs(6, "all"),
+        weights=None,
+    )
+    reference = residuals(shell, np.zeros(len(unc.names)), jacobian=False).reshape(-1, 6)
+    draws = rng.multivariate_normal(np.zeros(len(unc.subset)), unc.covariance, 400)
+    pos = []
+    for x in draws:
+        params = np.zeros(len(unc.names))
+        params[unc.subset] = x
+        r = residuals(shell, params, jacobian=False).reshape(-1, 6) - reference
+        pos.append(np.linalg.norm(r[:, :3], axis=1))
+    sampled = np.sqrt(np.mean(np.square(pos), axis=0))
+    np.testing.assert_allclose(sampled, acc.position, rtol=0.15)
+    summary = acc.summary()
+    assert summary["position_mm"]["max"] == pytest.approx(acc.position.max() * 1e3)
+    assert summary["orientation_deg"]["mean"] == pytest.approx(np.degrees(acc.orientation).mean())
