@@ -8,7 +8,15 @@ from __future__ import annotations
 import argparse
 import importlib
 
-COMMANDS = ["simulate", "calibrate", "imports", "compensate", "board"]
+COMMANDS = [
+    "simulate",
+    "calibrate",
+    "imports",
+    "compensate",
+    "board",
+    "observability",
+    "study",
+]
 
 
 def register_all(sub: argparse._SubParsersAction) -> None:

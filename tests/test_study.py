@@ -1,0 +1,104 @@
+"""Monte Carlo study: the empirical spread of identified parameters against the prediction, the
+bias test, seeding, and the command line."""
+
+import json
+
+import numpy as np
+import pytest
+import scipy.stats
+from conftest import random_q
+
+from relcal.cli import main
+from relcal.errors import RelcalError
+from relcal.model import auto_hayati
+from relcal.simulate import DEG, MM, Noise
+from relcal.study import format_study, make_scenario, standard_normals, study
+
+NOISE = Noise(0.05 * MM, 0.01 * DEG, 0.0)
+
+
+@pytest.fixture
+def scenario(a465):
+    model = auto_hayati(a465)  # the parallel pair resolved: a well-conditioned subset
+    q = random_q(model, 12, np.random.default_rng(11))
+    return make_scenario(model, q, NOISE, seed=4)
+
+
+def test_standard_normals_are_seeded_per_trial_and_matched_exactly():
+    a = standard_normals(7, 5, 3, "random")
+    b = standard_normals(7, 8, 3, "random")
+    np.testing.assert_array_equal(a, b[:5])  # trial t does not depend on the number of trials
+    z = standard_normals(7, 50, 10, "matched")
+    np.testing.assert_allclose(z.mean(axis=0), 0, atol=1e-12)
+    np.testing.assert_allclose(np.cov(z.T), np.eye(10), atol=1e-12)
+    with pytest.raises(RelcalError, match="more trials than noise dimensions"):
+        standard_normals(7, 10, 10, "matched")
+
+
+def test_monte_carlo_agrees_with_the_cramer_rao_bound(scenario):
+    # 200 trials with the noise-weighted estimator. Matched sampling removes the sampling
+    # scatter of the linear part: what is left is the error of the prediction itself.
+    res = study(scenario, trials=200, seed=1, workers=2, sampling="matched", progress=False)
+    assert res.converged.all()
+    assert len(res.subset) == 24
+    assert np.all(np.abs(res.ratio - 1) < 0.10), res.ratio  # every estimated parameter
+    assert np.all(np.abs(res.ratio - 1) < 0.02)  # in fact much closer
+    assert np.abs(res.bias_t).max() < 0.5  # no bias beyond a fraction of a standard error
+    # The noise-free estimate recovers every individually identifiable parameter exactly.
+    ok = res.predicted.identifiable
+    np.testing.assert_allclose(res.reference[ok], res.truth[ok], atol=1e-12)
+    text = format_study(res)
+    assert "predicted = Cramer-Rao bound" in text and "(unbiased)" in text
+
+
+def test_independent_trials_scatter_as_the_sampling_distribution_says(scenario):
+    res = study(scenario, trials=200, seed=2, workers=2, progress=False)
+    k = len(res.subset)
+    # Each ratio within its 99.9 % interval (Bonferroni over the parameters), and the mean
+    # squared ratio (over correlated parameters) within a few percent of one.
+    dof = res.trials - 1
+    lo, hi = np.sqrt(scipy.stats.chi2.ppf([0.0005 / k, 1 - 0.0005 / k], dof) / dof)
+    assert np.all((res.ratio > lo) & (res.ratio < hi)), res.ratio
+    assert abs(res.overall_ratio - 1) < 0.08
+    chi2, p = res.bias_test()  # unbiased: the mean error is consistent with zero
+    assert p > 0.001, (chi2, p)
+
+
+def test_least_squares_spread_matches_its_sandwich_covariance(scenario):
+    res = study(
+        scenario,
+        trials=100,
+        seed=3,
+        workers=2,
+        estimator="least_squares",
+        sampling="matched",
+        progress=False,
+    )
+    assert np.all(np.abs(res.ratio - 1) < 0.02), res.ratio
+    # Least squares on consecutive pairs is less efficient than the weighted estimator.
+    ls, crb = res.predicted.least_squares_std[res.subset], res.predicted.crb_std[res.subset]
+    assert np.all(ls >= crb * (1 - 1e-9)) and np.max(ls / crb) > 1.2
+
+
+def test_results_do_not_depend_on_the_number_of_workers(scenario):
+    one = study(scenario, trials=4, seed=5, workers=1, progress=False)
+    two = study(scenario, trials=4, seed=5, workers=2, progress=False, chunk=1)
+    # Same noise per trial; only round-off differs (BLAS threads) within the solver tolerance.
+    np.testing.assert_allclose(one.estimates, two.estimates, rtol=0, atol=1e-10)
+
+
+def test_command_line_study(tmp_path, capsys):
+    out = tmp_path / "study.json"
+    code = main(
+        ["study", "--robot", "a465", "--hayati", "auto", "--poses", "10", "--trials", "12"]
+        + ["--noise", "0.05,0.01,0.001", "--json", str(out), "--quiet"]
+    )
+    assert code == 0
+    doc = json.loads(out.read_text())
+    assert doc["trials"] == 12 and doc["converged"] == 12
+    assert doc["estimator"] == "weighted"
+    assert {"name", "predicted_std", "empirical_std", "ratio", "bias_t"} <= set(
+        doc["parameters"][0]
+    )
+    assert main(["study", "--poses", "nonsense.csv", "--trials", "3"]) == 2
+    assert "not a file and not a number" in capsys.readouterr().err
