@@ -16,6 +16,7 @@ COMMANDS = [
     "board",
     "observability",
     "study",
+    "plan",
 ]
 
 

@@ -1,0 +1,170 @@
+"""Pose planning: feasibility checks, fast criteria against direct evaluation, greedy and exchange
+selection, the plan against random feasible sets, and the Monte Carlo confirmation."""
+
+import numpy as np
+import pytest
+
+from relcal import transforms as tf
+from relcal.cli import main
+from relcal.commands.observability import read_joints
+from relcal.errors import RelcalError
+from relcal.model import auto_hayati
+from relcal.plan import (
+    CRITERIA,
+    DEFAULT_NOISE,
+    Constraints,
+    _values,
+    candidates,
+    check,
+    criterion,
+    default_cell,
+    exchange,
+    greedy,
+    information,
+    parse_board,
+    parse_camera,
+    plan,
+    selection_problem,
+    travel_order,
+)
+from relcal.study import make_scenario, study, worst
+
+CELL = dict(center=(0.4, 0.0, 0.0))
+
+
+@pytest.fixture(scope="module")
+def hayati():
+    from relcal.model import get_robot
+
+    return auto_hayati(get_robot("a465"))
+
+
+@pytest.fixture(scope="module")
+def pool(hayati):
+    q, rejected = candidates(hayati, default_cell(), Constraints(), 250, np.random.default_rng(0))
+    return q, rejected
+
+
+def test_candidates_satisfy_every_constraint(hayati, pool):
+    q, rejected = pool
+    assert len(q) == 250
+    masks = check(hayati, default_cell(), q, Constraints())
+    assert all(m.all() for m in masks.values())
+    assert rejected["ik"] > 0 and rejected["board in view"] > 0  # the checks do reject
+
+
+def test_each_constraint_rejects_what_it_should(hayati, pool):
+    q = pool[0][:1].copy()
+    cell, c = default_cell(), Constraints()
+
+    def failing(qq, constraints=c):
+        return {name for name, ok in check(hayati, cell, qq, constraints).items() if not ok[0]}
+
+    assert failing(q) == set()
+    away = q.copy()
+    away[0, 0] += np.pi  # turn the waist: the camera looks elsewhere
+    assert "board in view" in failing(away)
+    wrist = q.copy()
+    wrist[0, 4] = 0.0  # A465 wrist singularity: axes 4 and 6 aligned
+    assert "singularity" in failing(wrist)
+    beyond = q.copy()
+    beyond[0, 1] = hayati.upper[1] + 0.1
+    assert "joint limits" in failing(beyond)
+    assert "distance" in failing(q, Constraints(distance=(0.01, 0.02)))
+    assert "viewing angle" in failing(q, Constraints(max_view_angle_deg=0.01))
+    assert "board in view" in failing(q, Constraints(margin_px=1100))
+    assert "clearance" in failing(q, Constraints(clearance=5.0))
+
+
+def test_fast_criteria_match_direct_evaluation(hayati, pool):
+    info = information(selection_problem(hayati, default_cell(), pool[0]), DEFAULT_NOISE, 0.5)
+    rng = np.random.default_rng(2)
+    add = np.arange(40)
+    for n_set in (0, 3, 29):
+        base = info.total(rng.choice(len(pool[0]), n_set, replace=False))
+        direct = base[None] + np.einsum("nri,nrj->nij", info.rows[add], info.rows[add])
+        for name in CRITERIA:
+            fast = _values(info, base, add, name, n_set + 1)
+            slow = criterion(info, direct, name, n_set + 1)
+            np.testing.assert_allclose(fast, slow, rtol=1e-6)
+
+
+def test_exchange_improves_on_greedy_which_beats_random(hayati, pool):
+    info = information(selection_problem(hayati, default_cell(), pool[0]), DEFAULT_NOISE, 0.5)
+    rng = np.random.default_rng(3)
+    for name in ("worst", "O1", "O3"):
+        g = greedy(info, 20, name)
+        assert len(set(g)) == 20
+        e, _ = exchange(info, g, name)
+        value = {
+            label: float(criterion(info, info.total(idx), name, 20))
+            for label, idx in (("greedy", g), ("exchange", e))
+        }
+        random = [
+            float(criterion(info, info.total(rng.choice(250, 20, replace=False)), name, 20))
+            for _ in range(5)
+        ]
+        assert value["exchange"] >= value["greedy"] > max(random), (name, value, random)
+
+
+def test_planned_poses_beat_random_feasible_sets_and_the_study_confirms_it(hayati, tmp_path):
+    cell = default_cell(**CELL)
+    res = plan(hayati, cell, k=30, n_candidates=1500, random_sets=20, seed=0)
+    assert len(res.q) == 30 and len(res.random) == 20
+    assert check(hayati, cell, res.q, Constraints())["board in view"].all()
+    assert res.improvement >= 2.0, res.improvement  # worst-parameter std vs median random set
+    # Lengths and angles both improve, and so does the predicted accuracy.
+    median = res.random[int(np.argsort([r.worst[1] for r in res.random])[10])]
+    assert res.plan.worst_length[1] < median.worst_length[1]
+    assert res.plan.worst_angle[1] < median.worst_angle[1]
+    assert (
+        res.plan.accuracy.summary()["position_mm"]["p95"]
+        < median.accuracy.summary()["position_mm"]["p95"]
+    )
+    # Monte Carlo: noisy calibrations from the plan and from the median random set.
+    spreads = {}
+    for label, q in (("plan", res.q), ("random", res.random_q)):
+        scenario = make_scenario(hayati, q, DEFAULT_NOISE, seed=6)
+        mc = study(scenario, trials=100, seed=1, workers=2, progress=False)
+        _, predicted, _, empirical = worst(mc, 0.5)
+        assert empirical == pytest.approx(predicted, rel=0.2)
+        spreads[label] = empirical
+    assert spreads["random"] / spreads["plan"] > 1.7, spreads
+
+
+def test_travel_order_is_a_permutation_with_short_moves(pool):
+    q = pool[0][:40]
+    order = travel_order(q)
+    assert sorted(order) == list(range(40))
+    step = np.abs(np.diff(q[order], axis=0)).max(axis=1).sum()
+    assert step < np.abs(np.diff(q, axis=0)).max(axis=1).sum()
+
+
+def test_board_and_camera_arguments(tmp_path):
+    board = parse_board("7x10@20mm")
+    assert (board.rows, board.columns, board.spacing) == (7, 10, pytest.approx(0.02))
+    assert parse_board("5X6@0.03").spacing == 0.03
+    with pytest.raises(RelcalError, match="ROWSxCOLS@SQUARE"):
+        parse_board("seven by ten")
+    cam = parse_camera("2000,2000,640,480,1280,960")
+    assert (cam.fx, cam.width, cam.height) == (2000, 1280, 960)
+    frame = default_cell(board=board, center=(0.5, 0.1, 0.0)).board_pose
+    middle = frame @ np.array([0.08, 0.05, 0.0, 1.0])  # pattern centre of 7x10 squares of 20 mm
+    np.testing.assert_allclose(middle[:3], [0.5, 0.1, 0.0], atol=1e-12)
+    assert frame[:3, 2] @ [0, 0, 1] == pytest.approx(-1)  # z into the table
+    np.testing.assert_allclose(tf.invert(frame) @ frame, np.eye(4), atol=1e-12)
+
+
+def test_command_line_plan(tmp_path, hayati, capsys):
+    out, rnd = tmp_path / "plan.csv", tmp_path / "random.csv"
+    code = main(
+        ["plan", "--robot", "a465", "--hayati", "auto", "--poses", "12", "--candidates", "200"]
+        + ["--random-sets", "3", "--out", str(out), "--random-out", str(rnd)]
+    )
+    assert code == 0
+    text = capsys.readouterr().out
+    assert "12 poses selected from 200 feasible candidates" in text and "x lower" in text
+    q = read_joints(out, hayati, "deg")
+    assert q.shape == (12, 6) and read_joints(rnd, hayati, "deg").shape == (12, 6)
+    assert check(hayati, default_cell(), q, Constraints())["board in view"].all()
+    assert main(["plan", "--board", "7 by 10"]) == 2
