@@ -209,25 +209,30 @@ def identify_lm(
     _check(problem)
     start = time.perf_counter()
     full = np.zeros(problem.full_layout.size)
-    if identifiability is None:
-        r0, a0 = residuals(problem, full)
-        ident = analyse_problem(problem, jac=a0)
-    else:
-        ident, r0 = identifiability, residuals(problem, full, jacobian=False)
+    r0, a0 = residuals(problem, full)
+    ident = identifiability or analyse_problem(problem, jac=a0)
     subset = ident.subset
-    last: dict = {}  # the latest full Jacobian, usually taken at the solution
+    # The latest evaluation, residual and full Jacobian together: the solver asks for the
+    # Jacobian at the point it has just evaluated (the start, then each accepted step), and
+    # both cost little more than the residual alone.
+    last = {"x": np.zeros(len(subset)).tobytes(), "r": r0, "jac": a0}
 
     def expand(x: np.ndarray) -> np.ndarray:
         out = full.copy()
         out[subset] = x
         return out
 
+    def evaluate(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        if last["x"] != x.tobytes():
+            r, a = residuals(problem, expand(x))
+            last.update(x=x.tobytes(), r=r, jac=a)
+        return last["r"], last["jac"]
+
     def fun(x: np.ndarray) -> np.ndarray:
-        return -residuals(problem, expand(x), jacobian=False)
+        return -evaluate(x)[0]
 
     def jac(x: np.ndarray) -> np.ndarray:
-        last["x"], last["jac"] = x.copy(), residuals(problem, expand(x))[1]
-        return last["jac"][:, subset]
+        return evaluate(x)[1][:, subset]
 
     method = "lm" if loss == "linear" else "trf"
     sol = scipy.optimize.least_squares(
@@ -259,7 +264,7 @@ def identify_lm(
             problem,
             expand(sol.x),
             ident,
-            jac=last["jac"] if np.array_equal(last.get("x"), sol.x) else None,
+            jac=last["jac"] if last["x"] == sol.x.tobytes() else None,
         ),
     )
 
