@@ -5,12 +5,15 @@ Rows (``python bench/run.py``, or ``make bench``, which installs the ``bench`` e
 - batched forward kinematics, configurations per second on one core, 6 joints (A465, DH) and
   7 joints (Franka FR3, modified DH): relcal's compiled kernel against Pinocchio
   (``pin.forwardKinematics`` + the tool frame, in a Python loop over configurations), the
-  Robotics Toolbox for Python (``DHRobot.fkine`` on the batch) and relcal's own NumPy reference;
+  Robotics Toolbox for Python (``DHRobot.fkine`` on the batch, and its C-backed
+  ``ETS.fkine``) and relcal's own NumPy reference;
 - identification Jacobian rows per second: the analytic ``residuals(problem, p)`` against
   2-point finite differences of the residual;
 - one identification of 100 poses (6 joints + hand-eye, full pose, frame-invariant formulation,
-  consecutive pairs): ``identify_published`` and ``identify_lm`` against
-  ``scipy.optimize.least_squares`` with a 2-point finite-difference Jacobian on the same problem;
+  consecutive pairs), from exact camera poses and from poses with 0.05 mm / 0.01 deg noise:
+  ``identify_published`` and ``identify_lm`` (identifiability analysis included) against
+  ``scipy.optimize.least_squares`` with a 2-point finite-difference Jacobian on the same problem
+  (given the identifiable subset for free);
 - start-up costs: the FK kernel's first call with an empty and with a filled Numba cache, and a
   whole ``relcal simulate`` command;
 - rows of optional modules ``bench/<name>.py`` listed in ``OPTIONAL_MODULES``, each with
@@ -181,8 +184,7 @@ def pinocchio_fk(model: RobotModel):
     return run
 
 
-def rtb_fk(model: RobotModel):
-    """``f(q) -> (N, 4, 4)`` with the Robotics Toolbox for Python: ``DHRobot.fkine(q_batch)``."""
+def _rtb_robot(model: RobotModel):
     import roboticstoolbox as rtb
     from spatialmath import SE3
 
@@ -193,12 +195,20 @@ def rtb_fk(model: RobotModel):
         link(d=model.d[i], a=model.a[i], alpha=model.alpha[i], offset=model.theta_off[i])
         for i in range(model.n_joints)
     ]
-    robot = rtb.DHRobot(links, base=SE3(model.base, check=False), tool=SE3(model.tool, check=False))
+    return rtb.DHRobot(links, base=SE3(model.base, check=False), tool=SE3(model.tool, check=False))
 
-    def run(q: np.ndarray) -> np.ndarray:
-        return np.asarray(robot.fkine(q).A).reshape(len(q), 4, 4)
 
-    return run
+def rtb_dh_fk(model: RobotModel):
+    """``f(q) -> (N, 4, 4)`` with the Robotics Toolbox for Python: ``DHRobot.fkine(q_batch)``."""
+    robot = _rtb_robot(model)
+    return lambda q: np.asarray(robot.fkine(q).A).reshape(len(q), 4, 4)
+
+
+def rtb_ets_fk(model: RobotModel):
+    """The toolbox's fastest path: the robot as an elementary transform sequence, whose
+    ``fkine(q_batch)`` runs in its C extension."""
+    ets = _rtb_robot(model).ets()
+    return lambda q: np.asarray(ets.fkine(q).A).reshape(len(q), 4, 4)
 
 
 def fk_rows(label: str, model: RobotModel, n_fast: int, n_peer: int) -> list[Row]:
@@ -225,7 +235,12 @@ def fk_rows(label: str, model: RobotModel, n_fast: int, n_peer: int) -> list[Row
             rate >= FK_GOAL,
         )
     ]
-    for name, build in (("Pinocchio (Python loop)", pinocchio_fk), ("RTB DHRobot.fkine", rtb_fk)):
+    peers = (
+        ("Pinocchio (Python loop)", pinocchio_fk),
+        ("RTB DHRobot.fkine (batch)", rtb_dh_fk),
+        ("RTB ETS.fkine (batch, C)", rtb_ets_fk),
+    )
+    for name, build in peers:
         row = Row(task, rate, "configs/s", name, goal=f">= {PEER_RATIO_GOAL:g}x peer")
         rows.append(row)
         try:
@@ -249,8 +264,14 @@ HANDEYE = tf.from_vector(np.array([0.0, 0.04, 0.06, 0.05, -0.03, 0.2]))
 BOARD = tf.from_vector(np.array([0.5, 0.1, -0.2, 3.0, 0.1, 0.4]))
 
 
-def identification_problem(n_poses: int = 100, seed: int = 1) -> tuple[Problem, np.ndarray]:
-    """A465 + hand-eye, full pose, invariant formulation, consecutive pairs, known errors."""
+NOISE = (0.05e-3, np.radians(0.01))  # camera pose noise per axis: 0.05 mm, 0.01 deg
+
+
+def identification_problem(
+    n_poses: int = 100, seed: int = 1, noisy: bool = False
+) -> tuple[Problem, np.ndarray]:
+    """A465 + hand-eye, full pose, invariant formulation, consecutive pairs, known errors; camera
+    poses exact or with ``NOISE``."""
     rng = np.random.default_rng(seed)
     model = get_robot("a465")
     layout = make_layout(model)
@@ -265,6 +286,9 @@ def identification_problem(n_poses: int = 100, seed: int = 1) -> tuple[Problem, 
     )
     true_model, true_x = split_params(shell, truth)
     poses = BOARD @ fk(true_model, q, backend="numpy") @ true_x
+    if noisy:
+        sigma = np.repeat(NOISE, 3)
+        poses = poses @ tf.from_vector(rng.normal(0.0, 1.0, (n_poses, 6)) * sigma)
     return replace(shell, poses=poses), truth
 
 
@@ -307,7 +331,7 @@ def scipy_fd_identification(problem: Problem):
 
 
 def identification_rows() -> list[Row]:
-    problem, truth = identification_problem()
+    problem, _ = identification_problem()
     params = np.zeros(problem.full_layout.size)
     n_rows = problem.n_residuals()
 
@@ -334,10 +358,18 @@ def identification_rows() -> list[Row]:
     ]
     rows[0].met = rows[0].ratio >= PEER_RATIO_GOAL
 
+    for noisy in (False, True):
+        rows += identify_rows(*identification_problem(noisy=noisy), noisy)
+    return rows
+
+
+def identify_rows(problem: Problem, truth: np.ndarray, noisy: bool) -> list[Row]:
     peer = scipy_fd_identification(problem)
     peer_ms = 1e3 * best_time(peer, repeat=3)
     peer_error = held_out(problem, peer(), truth)
-    task = "identify 100 poses (A465 + hand-eye, pose, invariant, consecutive pairs)"
+    data = "noise 0.05 mm, 0.01 deg" if noisy else "exact data"
+    task = f"identify 100 poses, A465 + hand-eye, pose, invariant, consecutive, {data}"
+    rows = []
     for name, method in (("identify_published", identify_published), ("identify_lm", identify_lm)):
         result = method(problem)
         error = held_out(problem, result.params, truth)
@@ -349,8 +381,8 @@ def identification_rows() -> list[Row]:
             "scipy least_squares, FD Jacobian",
             peer_ms,
             f"< {ID_GOAL_MS:g} ms, >= {PEER_RATIO_GOAL:g}x peer",
-            note=f"held-out error {error:.0e}, peer {peer_error:.0e}; "
-            f"{result.iterations} iterations",
+            note=f"{result.iterations} iterations; held-out error {error:.0e} "
+            f"(peer {peer_error:.0e}) m or rad",
         )
         row.met = ms < ID_GOAL_MS and row.ratio >= PEER_RATIO_GOAL
         rows.append(row)
