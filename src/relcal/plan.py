@@ -737,4 +737,22 @@ def format_plan(res: PlanResult, length_scale: float) -> str:
         "predicted accuracy: RMS error of relative camera poses between validation poses "
         "caused by the parameter uncertainty alone",
     ]
+    if res.random:
+        lines += ["", *_parameter_table(res.plan, median_set, len(res.random))]
     return "\n".join(lines)
+
+
+def _parameter_table(plan_q: Quality, random_q: Quality, n_sets: int) -> list[str]:
+    """Per estimated parameter: predicted std for the plan and the median random set."""
+    a, b = plan_q.uncertainty, random_q.uncertainty
+    lines = [
+        f"{'parameter':<14s} {'unit':>4s} {'plan':>10s} {'random':>10s} {'ratio':>6s}"
+        f"   (predicted std; random = the median of {n_sets} sets)"
+    ]
+    for p in a.subset:
+        scale, unit = (np.degrees(1.0), "deg") if a.is_angle[p] else (1e3, "mm")
+        sa, sb = a.crb_std[p], b.crb_std[p]
+        lines.append(
+            f"{a.names[p]:<14s} {unit:>4s} {sa * scale:>10.4g} {sb * scale:>10.4g} {sb / sa:>6.2f}"
+        )
+    return lines
