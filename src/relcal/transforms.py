@@ -47,8 +47,11 @@ def homogeneous(rotation: np.ndarray, translation: np.ndarray) -> np.ndarray:
 
 def invert(transform: np.ndarray) -> np.ndarray:
     """Inverse of rigid transforms ``(..., 4, 4)`` without a general matrix inverse."""
-    rt = np.swapaxes(transform[..., :3, :3], -1, -2)
-    return homogeneous(rt, -np.einsum("...ij,...j->...i", rt, transform[..., :3, 3]))
+    out = np.zeros(np.shape(transform))
+    out[..., :3, :3] = np.swapaxes(transform[..., :3, :3], -1, -2)
+    out[..., :3, 3] = -np.einsum("...ji,...j->...i", transform[..., :3, :3], transform[..., :3, 3])
+    out[..., 3, 3] = 1.0
+    return out
 
 
 def from_vector(vec: np.ndarray) -> np.ndarray:
