@@ -6,14 +6,21 @@ Exit codes: 0 success, 1 the run finished but a check failed (e.g. no convergenc
 
 from __future__ import annotations
 
-import argparse
-import sys
-from collections.abc import Callable, Sequence
+import os
 
-import numpy as np
+# Small matrices dominate relcal's linear algebra; BLAS threads only add overhead to them (up to
+# tens of times on 2 cores). Set before NumPy loads; a user's own setting wins.
+for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
 
-from relcal.commands import register_all
-from relcal.errors import RelcalError
+import argparse  # noqa: E402
+import sys  # noqa: E402
+from collections.abc import Callable, Sequence  # noqa: E402
+
+import numpy as np  # noqa: E402
+
+from relcal.commands import register_all  # noqa: E402
+from relcal.errors import RelcalError  # noqa: E402
 
 
 def build_parser() -> argparse.ArgumentParser:

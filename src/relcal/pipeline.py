@@ -89,6 +89,7 @@ class Calibration:
     test: np.ndarray
     settings: dict
     outliers: tuple[str, ...] = ()  # ids of training samples that fit badly
+    std: np.ndarray | None = None  # (P,) standard deviations (m, rad); NaN if not estimated
 
 
 def calibrate(
@@ -145,6 +146,7 @@ def calibrate(
             weights=None,
         )
         problem, result, sigma = weighted_fit(problem, dataset, method, loss)
+    std = parameter_std(problem, result, sigma)
     validation = None
     if len(test) >= 2:
         full = Problem(dataset.model, layout, dataset.q, poses, "invariant", "pose", None, handeye)
@@ -163,8 +165,20 @@ def calibrate(
     settings["row_sigma"] = {"position_m": float(sigma[0]), "orientation_rad": float(sigma[3])}
     settings["reject_outliers"] = reject_outliers
     return Calibration(
-        dataset, measurements, problem, result, validation, train, test, settings, outlier_ids
+        dataset, measurements, problem, result, validation, train, test, settings, outlier_ids, std
     )
+
+
+def parameter_std(problem: Problem, result: Result, sigma: np.ndarray) -> np.ndarray:
+    """Standard deviations ``(P,)`` of the estimate: the least-squares covariance of
+    :mod:`relcal.uncertainty` (pair correlations included), with per-pose noise taken as the
+    robust pair noise ``sigma`` over sqrt(2) (each pair carries the noise of two poses)."""
+    from relcal.simulate import Noise
+    from relcal.uncertainty import parameter_covariance
+
+    noise = Noise(position=sigma[0] / np.sqrt(2), orientation=sigma[3] / np.sqrt(2))
+    unc = parameter_covariance(problem, noise, result.identifiability, params=result.params)
+    return unc.std
 
 
 def weighted_fit(

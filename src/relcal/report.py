@@ -23,7 +23,6 @@ from matplotlib.ticker import FuncFormatter, MaxNLocator, NullFormatter
 
 from relcal import __version__
 from relcal.identifiability import Identifiability
-from relcal.measurement import residuals
 from relcal.pipeline import Calibration
 from relcal.simulate import Simulation
 from relcal.validate import pair_errors, stats
@@ -208,20 +207,6 @@ def _flatten(value: object, prefix: str = "") -> list[tuple[str, str]]:
     if isinstance(value, list | tuple):
         return [(prefix, ", ".join(map(str, value)) or "none")]
     return [(prefix, json.dumps(value) if value is None or isinstance(value, bool) else str(value))]
-
-
-def posterior_std(cal: Calibration) -> np.ndarray:
-    """Standard deviations (SI) of the estimated parameters from the fit alone: residual variance
-    times ``(A^T A)^-1`` on the estimated subset (NaN elsewhere), with the fit's row weights."""
-    problem, result = cal.problem, cal.result
-    r, jac = residuals(problem, result.params)
-    subset = result.identifiability.subset
-    a = jac[:, subset]
-    dof = max(len(r) - len(subset), 1)
-    cov = float(r @ r) / dof * np.linalg.pinv(a.T @ a)
-    std = np.full(len(result.params), np.nan)
-    std[subset] = np.sqrt(np.clip(np.diag(cov), 0.0, None))
-    return std
 
 
 # --- plots ---------------------------------------------------------------------------------------
@@ -452,20 +437,11 @@ def _summary(cal: Calibration, doc: dict, errors: tuple) -> tuple[str, str, Html
 
 def _parameter_table(cal: Calibration, doc: dict) -> tuple[Html, str]:
     rows = doc["parameters"]
-    if any(row.get("std") is not None for row in rows):
-        std = [row.get("std") for row in rows]
-        source = "Standard deviations from the results document."
-    else:
-        si = posterior_std(cal)
-        scale = np.where(cal.problem.full_layout.is_angle(), np.degrees(1.0), 1e3)
-        std = [
-            float(s * f) if row["identifiable"] else None
-            for s, f, row in zip(si, scale, rows, strict=True)
-        ]
-        source = (
-            "Standard deviations: a-posteriori least-squares estimate (residual variance × "
-            "(AᵀA)⁻¹ of the weighted fit), linearised at the estimate."
-        )
+    std = [row.get("std") for row in rows]
+    source = (
+        "Standard deviations: least-squares covariance of the fit (pair correlations included), "
+        "with the pose noise estimated robustly from the residuals."
+    )
     body = [
         [
             Html(f"<code>{_text(row['name'])}</code>"),

@@ -11,11 +11,12 @@ from relcal.pipeline import Calibration
 from relcal.transforms import to_xyz_rpy
 
 
-def parameter_rows(cal: Calibration, std: np.ndarray | None = None) -> list[dict]:
+def parameter_rows(cal: Calibration) -> list[dict]:
     """One row per parameter: name, unit, nominal value, identified error, standard deviation,
     identifiable. Lengths in mm, angles in degrees (the units people read)."""
     layout = cal.problem.full_layout
     angle = layout.is_angle()
+    std = cal.std
     model = cal.problem.model
     rows = []
     for k, (kind, index) in enumerate(layout):
@@ -32,14 +33,16 @@ def parameter_rows(cal: Calibration, std: np.ndarray | None = None) -> list[dict
                 "unit": "deg" if angle[k] else "mm",
                 "nominal": nominal * scale,
                 "error": float(cal.result.params[k]) * scale if ok else None,
-                "std": float(std[k]) * scale if std is not None and ok else None,
+                "std": float(std[k]) * scale
+                if std is not None and ok and np.isfinite(std[k])
+                else None,
                 "identifiable": ok,
             }
         )
     return rows
 
 
-def results_document(cal: Calibration, std: np.ndarray | None = None) -> dict:
+def results_document(cal: Calibration) -> dict:
     """Everything a calibration found, JSON-ready."""
     r = cal.result
     layout = cal.problem.layout
@@ -74,7 +77,7 @@ def results_document(cal: Calibration, std: np.ndarray | None = None) -> dict:
             "singular_values": [float(s) for s in r.identifiability.singular_values],
             "unidentifiable": r.unidentifiable,
         },
-        "parameters": parameter_rows(cal, std),
+        "parameters": parameter_rows(cal),
         "handeye": {
             "xyz_m": [float(v) for v in xyz],
             "rpy_deg": [float(np.degrees(v)) for v in rpy],

@@ -62,7 +62,7 @@ def run_calibrate(args: argparse.Namespace) -> int:
     from relcal.io import write_json, write_text
     from relcal.model import dump_model
     from relcal.pipeline import calibrate, measure
-    from relcal.results import parameter_rows, results_document
+    from relcal.results import results_document
 
     dataset = load_dataset(args.dataset)
     m = measure(dataset, workers=args.workers, progress=not args.quiet)
@@ -81,7 +81,7 @@ def run_calibrate(args: argparse.Namespace) -> int:
     doc = results_document(cal)
     write_text(out / "model.yaml", dump_model(model))
     write_text(out / "robot.urdf", urdf(model))
-    write_text(out / "parameters.csv", parameter_csv(parameter_rows(cal)))
+    write_text(out / "parameters.csv", parameter_csv(doc["parameters"]))
     write_json(out / "results.json", doc)
     if args.report:
         from relcal.report import calibration_report
