@@ -1,0 +1,56 @@
+"""Synthetic images end to end: a perturbed A465 photographs a chessboard; the rendered images go
+through detection, pose, identification and validation, and the result is checked against the
+truth with the predicted standard deviations."""
+
+import numpy as np
+import pytest
+
+from relcal.camera import Camera
+from relcal.dataset import load_dataset
+from relcal.model import auto_hayati, get_robot
+from relcal.pipeline import calibrate, measure
+from relcal.synth import write_image_dataset
+
+# Half the linear resolution of the default 2448 x 2048 / 8 mm camera, same field of view, to keep
+# the test fast; `relcal simulate --images` uses the full-size camera.
+CAMERA = Camera(
+    fx=1159.5,
+    fy=1159.5,
+    cx=611.5,
+    cy=511.5,
+    distortion=(-0.08, 0.05, 0.0, 0.0, 0.0),
+    width=1224,
+    height=1024,
+)
+
+
+@pytest.fixture(scope="module")
+def calibration(tmp_path_factory):
+    root = tmp_path_factory.mktemp("images")
+    model = auto_hayati(get_robot("a465"))
+    truth = write_image_dataset(root, model, n_images=40, seed=2, camera=CAMERA, progress=False)
+    dataset = load_dataset(root)
+    measured = measure(dataset, progress=False)
+    return truth, measured, calibrate(dataset, measured, holdout=0.25, seed=0)
+
+
+def test_images_are_posed_and_held_out_error_drops_fivefold(calibration):
+    truth, measured, cal = calibration
+    assert measured.ok.sum() >= 30
+    assert np.nanmax(measured.rms_px) < 0.5
+    val = cal.validation.summary()
+    assert val["before"]["position_mm"]["rms"] > 5 * val["after"]["position_mm"]["rms"]
+    assert val["before"]["orientation_deg"]["rms"] > 5 * val["after"]["orientation_deg"]["rms"]
+
+
+def test_identified_parameters_within_three_predicted_std(calibration):
+    truth, _, cal = calibration
+    n = truth.layout.size
+    ok = cal.result.identifiable[:n]
+    assert ok.sum() >= 15
+    err = cal.result.params[:n][ok] - truth.errors[ok]
+    std = cal.std[:n][ok]
+    assert np.all(np.isfinite(std)) and np.all(std > 0)
+    assert np.all(np.abs(err) < 3 * std), list(
+        zip(np.array(truth.layout.names)[ok], err / std, strict=True)
+    )
