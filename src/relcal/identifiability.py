@@ -135,7 +135,7 @@ def analyse(
             combos.append(
                 Combination(
                     names=tuple(layout.names[i] for i in idx),
-                    coefficients=tuple(float(v[i] / np.max(np.abs(v[idx]))) for i in idx),
+                    coefficients=tuple((v[idx] / np.abs(v[idx]).max()).tolist()),
                     is_angle=tuple(bool(angle[i]) for i in idx),
                     reason=reason,
                 )

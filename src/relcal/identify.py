@@ -72,11 +72,16 @@ def explainer(problem: Problem):
     n_geo = problem.layout.size
 
     @functools.cache
-    def kinematics() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Tip poses, pose Jacobian and tip rotations transposed at the nominal model (computed
-        on the first explanation only: problems without a null space never need them)."""
+    def jacobians() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The parameters' effect on the tool at the nominal model ``(N, 6, P)``: at the tool
+        point in the base frame, as a spatial twist (about the base origin) and as a body twist
+        (in the tool frame). Computed on the first explanation only (problems without a null
+        space never need them), so that each explanation is a few matrix-vector products."""
         tip, jac = pose_jacobian(model, problem.q, problem.layout)
-        return tip, jac, np.swapaxes(tip[:, :3, :3], -1, -2)
+        spatial = jac.copy()
+        spatial[:, :3] += tf.skew(tip[:, :3, 3]) @ jac[:, 3:]  # v_0 = v_tip - w x tip
+        body = tf.rotate_twist(np.swapaxes(tip[:, :3, :3], -1, -2), jac)
+        return jac, spatial, body
 
     def constant(twists: np.ndarray) -> bool:
         scale = np.abs(twists).max()
@@ -85,8 +90,9 @@ def explainer(problem: Problem):
     def explain(v: np.ndarray) -> str:
         involved = np.flatnonzero(np.abs(v) > 1e-6 * np.abs(v).max())
         kinds = {layout.kinds[i] for i in involved}
-        tip, jac, rot_t = kinematics()
-        motion = jac @ v[:n_geo]  # (N, 6): tip velocity and angular velocity, base frame
+        jac, spatial, body = jacobians()
+        geometric = v[:n_geo]
+        motion = jac @ geometric  # (N, 6): tip velocity and angular velocity, base frame
         if len(involved) == 1 and np.abs(motion).max() < 1e-12:
             return "has no effect on the tool pose"
         if kinds == {"d"} and len(involved) > 1:
@@ -95,12 +101,9 @@ def explainer(problem: Problem):
                 f"translations along parallel axes of joints {', '.join(map(str, joints))}: "
                 "only their sum is identifiable (Hayati's beta cures it)"
             )
-        spatial = motion.copy()
-        spatial[:, :3] -= np.cross(motion[:, 3:], tip[:, :3, 3])
-        if "handeye" not in kinds and constant(spatial):
+        if "handeye" not in kinds and constant(spatial @ geometric):
             return "acts as a rigid motion of the robot base: cancels in relative measurements"
-        body = np.concatenate([rot_t @ motion[:, :3, None], rot_t @ motion[:, 3:, None]], 1)
-        if "handeye" in kinds or constant(body[..., 0]):
+        if "handeye" in kinds or constant(body @ geometric):
             if problem.formulation == "invariant":
                 return "acts like a change of the hand-eye transform X, which absorbs it"
             return "acts like a change of the tool transform"
