@@ -95,7 +95,7 @@ def test_08_dataset_yaml_bad_mode(capsys, tmp_path):
 def test_09_samples_file_missing(capsys, tmp_path):
     root = write_dataset(tmp_path / "d")
     (root / "samples.csv").unlink()
-    run_bad(capsys, ["calibrate", root], "samples.csv: samples file not found")
+    run_bad(capsys, ["calibrate", root], "samples.csv: file not found")
 
 
 def test_10_wrong_joint_count(capsys, tmp_path):
@@ -186,7 +186,7 @@ def test_22_header_without_pose_or_image(capsys, tmp_path):
 def test_23_empty_samples_file(capsys, tmp_path):
     root = write_dataset(tmp_path / "d")
     (root / "samples.csv").write_text("\n")
-    run_bad(capsys, ["calibrate", root], "samples.csv: empty")
+    run_bad(capsys, ["calibrate", root], "samples.csv: empty; expected a header line")
 
 
 def test_24_errors_file_with_unknown_parameter(capsys, tmp_path):

@@ -21,7 +21,6 @@ users whose poses come from another pipeline or a tracker.
 
 from __future__ import annotations
 
-import csv
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal
@@ -32,7 +31,7 @@ from scipy.spatial.transform import Rotation
 
 from relcal import transforms as tf
 from relcal.errors import RelcalError
-from relcal.io import load_yaml, validate
+from relcal.io import load_yaml, read_table, validate
 from relcal.model import RobotModel, auto_hayati, get_robot, model_from_dict
 
 POSE_COLUMNS = ("x", "y", "z", "qx", "qy", "qz", "qw")
@@ -142,17 +141,7 @@ def read_samples(
     path: Path, model: RobotModel, joint_unit: str
 ) -> tuple[tuple[str, ...], np.ndarray, tuple[Path, ...] | None, np.ndarray | None]:
     """Parse the samples table; errors name the file, the line and the column."""
-    try:
-        with open(path, newline="") as handle:
-            rows = list(csv.reader(handle))
-    except FileNotFoundError:
-        raise RelcalError(f"{path}: samples file not found") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise RelcalError(f"{path}: cannot read: {exc}") from None
-    rows = [r for r in rows if r and any(c.strip() for c in r)]
-    if not rows:
-        raise RelcalError(f"{path}: empty; expected a header line and one line per sample")
-    header = [h.strip() for h in rows[0]]
+    header, data = read_table(path, "sample")
     n = model.n_joints
     joints = [f"q{i + 1}" for i in range(n)]
     has_image = "image" in header
@@ -171,11 +160,9 @@ def read_samples(
             f"{path} line 1: header: expected either an 'image' column or the pose columns "
             f"{', '.join(POSE_COLUMNS)} (exactly one of the two)"
         )
-    if len(rows) < 2:
-        raise RelcalError(f"{path}: no samples after the header line")
     col = {h: i for i, h in enumerate(header)}
     ids, q, images, poses, seen = [], [], [], [], {}
-    for line_no, row in enumerate(rows[1:], start=2):
+    for line_no, row in enumerate(data, start=2):
         if len(row) != len(header):
             raise RelcalError(
                 f"{path} line {line_no}: {len(row)} fields, expected {len(header)} as in the header"

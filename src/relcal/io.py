@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import csv
 import json
 import os
 import tempfile
@@ -38,6 +39,27 @@ def _format_loc(loc: tuple[Any, ...]) -> str:
     for key in loc:
         out += f"[{key}]" if isinstance(key, int) else (f".{key}" if out else str(key))
     return out or "(top level)"
+
+
+def read_table(path: str | Path, what: str) -> tuple[list[str], list[list[str]]]:
+    """The stripped header and the data rows of a CSV file (blank lines dropped).
+
+    ``what`` names one data row in messages (``"sample"``, ``"target"``); a file without a header
+    and at least one data row is an error naming the file.
+    """
+    path = Path(path)
+    try:
+        with open(path, newline="") as handle:
+            rows = [r for r in csv.reader(handle) if r and any(c.strip() for c in r)]
+    except FileNotFoundError:
+        raise RelcalError(f"{path}: file not found") from None
+    except (OSError, UnicodeDecodeError, csv.Error) as exc:
+        raise RelcalError(f"{path}: cannot read: {exc}") from None
+    if not rows:
+        raise RelcalError(f"{path}: empty; expected a header line and one line per {what}")
+    if len(rows) < 2:
+        raise RelcalError(f"{path}: no {what}s after the header line")
+    return [h.strip() for h in rows[0]], rows[1:]
 
 
 def load_yaml(path: str | Path) -> tuple[Any, yaml.Node | None]:

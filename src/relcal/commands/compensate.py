@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import csv
 import sys
 from pathlib import Path
 
@@ -29,15 +28,9 @@ def read_targets(path: Path, model, joint_unit: str):
     from relcal import transforms as tf
     from relcal.dataset import POSE_COLUMNS, parse_number
     from relcal.errors import RelcalError
+    from relcal.io import read_table
 
-    try:
-        with open(path, newline="") as handle:
-            rows = [r for r in csv.reader(handle) if r and any(c.strip() for c in r)]
-    except OSError as exc:
-        raise RelcalError(f"{path}: cannot read: {exc}") from None
-    if len(rows) < 2:
-        raise RelcalError(f"{path}: expected a header line and at least one target")
-    header = [h.strip() for h in rows[0]]
+    header, data = read_table(path, "target")
     joints = [f"q{i + 1}" for i in range(model.n_joints)]
     cols = list(POSE_COLUMNS) if set(POSE_COLUMNS) <= set(header) else joints
     if not set(cols) <= set(header) or "id" not in header:
@@ -47,7 +40,7 @@ def read_targets(path: Path, model, joint_unit: str):
         )
     idx = [header.index(c) for c in cols]
     ids, values = [], []
-    for line, row in enumerate(rows[1:], start=2):
+    for line, row in enumerate(data, start=2):
         if len(row) != len(header):
             raise RelcalError(f"{path} line {line}: {len(row)} fields, expected {len(header)}")
         ids.append(row[header.index("id")].strip())

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import csv
 from pathlib import Path
 
 import numpy as np
@@ -26,15 +25,9 @@ def read_joints(path: Path, model, joint_unit: str) -> np.ndarray:
     """Joint values ``(N, n)`` (rad, m) from a CSV with ``q1..qn`` columns."""
     from relcal.dataset import parse_number
     from relcal.errors import RelcalError
+    from relcal.io import read_table
 
-    try:
-        with open(path, newline="") as handle:
-            rows = [r for r in csv.reader(handle) if r and any(c.strip() for c in r)]
-    except OSError as exc:
-        raise RelcalError(f"{path}: cannot read: {exc}") from None
-    if len(rows) < 2:
-        raise RelcalError(f"{path}: expected a header line and one line per pose")
-    header = [h.strip() for h in rows[0]]
+    header, data = read_table(path, "pose")
     joints = [f"q{i + 1}" for i in range(model.n_joints)]
     missing = [c for c in joints if c not in header]
     if missing:
@@ -44,7 +37,7 @@ def read_joints(path: Path, model, joint_unit: str) -> np.ndarray:
         )
     idx = [header.index(c) for c in joints]
     values = []
-    for line, row in enumerate(rows[1:], start=2):
+    for line, row in enumerate(data, start=2):
         if len(row) != len(header):
             raise RelcalError(f"{path} line {line}: {len(row)} fields, expected {len(header)}")
         values.append(
