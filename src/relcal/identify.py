@@ -172,13 +172,19 @@ def identify_published(
         unit, norms = scaled(a)
         step, keep = _truncated_svd_solve(unit, r, rcond)
         step = step / norms
+        previous = (params, r, a)
         params = params + step
-        previous = np.linalg.norm(r)
         r, a = residuals(problem, params)
+        if np.linalg.norm(r) > np.linalg.norm(previous[1]):
+            # The linearisation no longer holds (with noise, typically a weakly determined
+            # direction such as nearly parallel axes): keep the better estimate and stop there.
+            params, r, a = previous
+            converged = True
+            break
         size = np.linalg.norm(step * norms)
         # Negligible correction, or a residual that no longer decreases (at round-off level a
         # curved exact symmetry can keep a tiny singular value above rcond and move forever).
-        stalled = np.linalg.norm(r) >= previous * (1 - 1e-6) and it > 1
+        stalled = np.linalg.norm(r) >= np.linalg.norm(previous[1]) * (1 - 1e-6) and it > 1
         if size <= tol * max(np.linalg.norm(params * norms), 1e-3) or stalled:
             converged = True
             break
