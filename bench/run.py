@@ -451,7 +451,7 @@ def optional_rows(name: str) -> list[Row]:
             item["task"],
             item.get("value"),
             item.get("unit", "-"),
-            item.get("peer_name", "peer" if peer is not None else "-"),
+            item.get("peer_name", f"see bench/{name}.py" if peer is not None else "-"),
             peer,
             item.get("goal", f">= {goal_ratio:g}x peer" if peer is not None else "-"),
             note=item.get("note", ""),

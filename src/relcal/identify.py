@@ -30,6 +30,29 @@ from relcal.measurement import Problem, residuals
 Method = Literal["published", "lm"]
 
 
+@functools.cache
+def _blas_threads():
+    from threadpoolctl import ThreadpoolController
+
+    return ThreadpoolController()  # created once, after NumPy and SciPy have loaded their BLAS
+
+
+def one_blas_thread(function):
+    """Run ``function`` with BLAS/LAPACK on one thread.
+
+    Identification factorises tall, narrow matrices (hundreds of rows, tens of columns) many
+    times: OpenBLAS's threads cost more than they gain there, up to six times slower on a busy
+    two-core machine. The limit holds only during the call.
+    """
+
+    @functools.wraps(function)
+    def limited(*args, **kwargs):
+        with _blas_threads().limit(limits=1, user_api="blas"):
+            return function(*args, **kwargs)
+
+    return limited
+
+
 def _final_identifiable(
     problem: Problem, params: np.ndarray, ident: Identifiability, jac: np.ndarray | None = None
 ) -> np.ndarray:
@@ -112,6 +135,7 @@ def explainer(problem: Problem):
     return explain
 
 
+@one_blas_thread
 def analyse_problem(
     problem: Problem, rcond: float = DEFAULT_RCOND, jac: np.ndarray | None = None
 ) -> Identifiability:
@@ -148,6 +172,7 @@ def _truncated_svd_solve(
     return vt[keep].T @ ((u[:, keep].T @ tri[:n, n]) / s[keep]), keep
 
 
+@one_blas_thread
 def identify_published(
     problem: Problem,
     rcond: float = 1e-8,
@@ -204,6 +229,7 @@ def identify_published(
     )
 
 
+@one_blas_thread
 def identify_lm(
     problem: Problem,
     max_nfev: int = 200,
