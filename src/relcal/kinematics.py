@@ -171,16 +171,20 @@ def fk(model: RobotModel, q: np.ndarray, backend: Backend = "auto") -> np.ndarra
     """Flange/tool poses in the base frame ``F(q)``, shape ``(N, 4, 4)`` for ``q`` of ``(N, n)``.
 
     ``backend="numpy"`` is the reference implementation; ``"numba"`` the compiled kernel of
-    :mod:`relcal.fastkin` (same result to round-off, 20-50 times faster on large batches);
+    :mod:`relcal.fastkin` (same result to round-off, about 40 times faster on large batches);
     ``"auto"`` takes the kernel when Numba is installed and the batch is large enough to pay for
     loading it (``_LOAD_MIN`` configurations): small batches never import Numba, so short commands
     start quickly.
     """
     q = np.atleast_2d(np.asarray(q, dtype=float))
     if _use_fast(backend, q.shape[0]):
-        from relcal import fastkin
-
-        return fastkin.fk(model, q)
+        try:
+            from relcal import fastkin
+        except Exception as exc:  # e.g. Numba finds no writable cache directory
+            if backend == "numba":
+                raise RelcalError(f"the compiled FK kernel could not be loaded: {exc}") from exc
+        else:
+            return fastkin.fk(model, q)
     links = _link_transforms(model, q)
     out = np.broadcast_to(model.base, (links.shape[0], 4, 4))
     for i in range(links.shape[1]):
