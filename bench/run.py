@@ -22,9 +22,10 @@ Rows (``python bench/run.py``, or ``make bench``, which installs the ``bench`` e
 
 BLAS runs single-threaded (set before NumPy loads) so that "one core" holds for every row and
 small matrix factorisations do not pay for thread hand-offs. In-process timings are the least CPU
-time over several repeats (one thread, so the one-core time, robust to other processes sharing
-the machine); start-up rows are wall times of fresh processes. Goals are checked here, never by
-timed assertions in the tests.
+time of repeats spread over about 1.5 s each (one thread, so the one-core time; the least of a
+spread-out series lets bursts of load from other processes on a shared machine pass); start-up
+rows are wall times of fresh processes. Goals are checked here, never by timed assertions in the
+tests.
 """
 
 from __future__ import annotations
@@ -84,22 +85,21 @@ class Row:
         return self.peer_value / self.value if faster_is_less else self.value / self.peer_value
 
 
-def best_time(fn, repeat: int = 5, number: int = 1, budget: float = 20.0) -> float:
-    """Least CPU time of one call over ``repeat`` rounds of ``number`` calls (after a warm-up),
-    stopping early once ``budget`` seconds are spent.
+def best_time(fn, seconds: float = 1.5, min_repeat: int = 3, max_repeat: int = 200) -> float:
+    """Least CPU time of one call of ``fn`` (after a warm-up), repeating for about ``seconds``.
 
     Everything timed this way runs on one thread, so CPU time is the one-core time; unlike wall
-    time it does not count the moments other processes hold the core on a shared machine.
+    time it does not count the moments other processes hold the core. Repeating over a window of
+    time rather than a fixed count lets a short burst of load on a shared machine (which also
+    slows the CPU time of a process whose core is shared) pass.
     """
     fn()
-    best, spent = np.inf, 0.0
-    for _ in range(repeat):
-        start = time.process_time()
-        for _ in range(number):
-            fn()
-        elapsed = time.process_time() - start
-        best, spent = min(best, elapsed / number), spent + elapsed
-        if spent > budget:
+    best, start = np.inf, time.perf_counter()
+    for k in range(max_repeat):
+        before = time.process_time()
+        fn()
+        best = min(best, time.process_time() - before)
+        if k + 1 >= min_repeat and time.perf_counter() - start > seconds:
             break
     return best
 
@@ -220,9 +220,9 @@ def fk_rows(label: str, model: RobotModel, n_fast: int, n_peer: int) -> list[Row
     reference = fk(model, q[:200], backend="numpy")
     error = np.abs(fastkin.fk(model, q[:200]) - reference).max()
     assert error < 1e-12, f"kernel disagrees with the NumPy reference by {error:.2g}"
-    rate = n_fast / best_time(lambda: fastkin.fk(model, q), repeat=7)
+    rate = n_fast / best_time(lambda: fastkin.fk(model, q))
     n_numpy = min(n_fast, 100_000)
-    numpy_rate = n_numpy / best_time(lambda: fk(model, q[:n_numpy], backend="numpy"), repeat=3)
+    numpy_rate = n_numpy / best_time(lambda: fk(model, q[:n_numpy], backend="numpy"))
     task = f"batched FK, {label}"
     rows = [
         Row(
@@ -253,7 +253,7 @@ def fk_rows(label: str, model: RobotModel, n_fast: int, n_peer: int) -> list[Row
         if error > 1e-9:
             row.note = f"peer disagrees with relcal by {error:.2g}: not timed"
             continue
-        row.peer_value = n_peer / best_time(lambda r=run, s=sub: r(s), repeat=3)
+        row.peer_value = n_peer / best_time(lambda r=run, s=sub: r(s))
         row.met = row.ratio >= PEER_RATIO_GOAL
     return rows
 
@@ -344,8 +344,8 @@ def identification_rows() -> list[Row]:
             jac[:, k] = (residuals(problem, step, jacobian=False) - r0) / h
         return jac
 
-    analytic = n_rows / best_time(lambda: residuals(problem, params), repeat=20, number=5)
-    fd = n_rows / best_time(finite_differences, repeat=5)
+    analytic = n_rows / best_time(lambda: residuals(problem, params))
+    fd = n_rows / best_time(finite_differences)
     rows = [
         Row(
             "identification Jacobian (same problem): residual + analytic Jacobian",
@@ -365,7 +365,7 @@ def identification_rows() -> list[Row]:
 
 def identify_rows(problem: Problem, truth: np.ndarray, noisy: bool) -> list[Row]:
     peer = scipy_fd_identification(problem)
-    peer_ms = 1e3 * best_time(peer, repeat=3)
+    peer_ms = 1e3 * best_time(peer)
     peer_error = held_out(problem, peer(), truth)
     data = "noise 0.05 mm, 0.01 deg" if noisy else "exact data"
     task = f"identify 100 poses, A465 + hand-eye, pose, invariant, consecutive, {data}"
@@ -373,7 +373,7 @@ def identify_rows(problem: Problem, truth: np.ndarray, noisy: bool) -> list[Row]
     for name, method in (("identify_published", identify_published), ("identify_lm", identify_lm)):
         result = method(problem)
         error = held_out(problem, result.params, truth)
-        ms = 1e3 * best_time(lambda m=method: m(problem), repeat=10)
+        ms = 1e3 * best_time(lambda m=method: m(problem))
         row = Row(
             f"{task}: {name}",
             ms,
@@ -507,7 +507,7 @@ def gap(r: Row) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--quick", action="store_true", help="smaller batches, fewer repeats")
+    parser.add_argument("--quick", action="store_true", help="smaller FK batches and peer loops")
     parser.add_argument("--skip", action="append", default=[], help="optional module to skip")
     parser.add_argument("--json", type=Path, help="also write the rows as JSON here")
     args = parser.parse_args(argv)
