@@ -237,3 +237,8 @@ def test_31_board_yaml_with_a_negative_spacing(capsys, tmp_path):
     run_bad(
         capsys, ["board", "--spec", spec, "--out", tmp_path / "b.pdf"], "board.yaml line 4: spacing"
     )
+
+
+def test_32_unknown_held_out_sample_id(capsys, tmp_path):
+    root = write_dataset(tmp_path / "d", n=12)
+    run_bad(capsys, ["calibrate", root, "--holdout-ids", "s1,nope"], "held-out sample id(s) nope")

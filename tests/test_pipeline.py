@@ -64,3 +64,19 @@ def test_real_positioner_calibration(tmp_path):
     assert after < 1.1 * before
     names = [c for c in cal.result.unidentifiable]
     assert any("theta_off[1]" in c and "rigid motion" in c for c in names)
+
+
+def test_named_validation_set_and_k_fold_cross_validation(tmp_path):
+    syn = synthetic_dataset(tmp_path / "d", n=24)
+    out = tmp_path / "out"
+    argv = ["calibrate", str(syn.root), "--out", str(out), "--quiet", "--kfold", "3"]
+    assert main([*argv, "--holdout-ids", "s001,s005,s009,s013"]) == 0
+    doc = json.loads((out / "results.json").read_text())
+    assert doc["held_out_ids"] == ["s001", "s005", "s009", "s013"]
+    pairs = doc["validation"]["pairs"]
+    assert len(pairs) == 6 and pairs[0]["ids"] == ["s001", "s005"]
+    assert all(p["after_mm"] < p["before_mm"] for p in pairs)
+    cv = doc["cross_validation"]
+    assert cv["k"] == 3 and cv["pooled"]["n_pairs"] == 3 * 28  # 8 held out per fold: 28 pairs
+    pooled = cv["pooled"]
+    assert pooled["before"]["position_mm"]["rms"] > 5 * pooled["after"]["position_mm"]["rms"]

@@ -7,6 +7,7 @@ transform with the frame-invariant formulation on the identifiable subset, and v
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -18,7 +19,7 @@ from relcal.identifiability import Identifiability
 from relcal.identify import Result, analyse_problem, identify
 from relcal.kinematics import fk, make_layout
 from relcal.measurement import PairStrategy, Problem, make_pairs
-from relcal.validate import Validation, held_out, pair_errors, split
+from relcal.validate import Validation, folds, held_out, pair_errors, split
 
 ROBUST_SCALE = 3.0  # residual (in noise standard deviations) where the robust loss bends
 
@@ -49,6 +50,33 @@ def measure(dataset: Dataset, workers: int = 2, progress: bool = True) -> Measur
     from relcal.imaging import measure_dataset_images
 
     return measure_dataset_images(dataset, workers=workers, progress=progress)
+
+
+def _sample_indices(dataset: Dataset, ids: Sequence[str]) -> np.ndarray:
+    where = {sid: k for k, sid in enumerate(dataset.ids)}
+    unknown = [sid for sid in ids if sid not in where]
+    if unknown:
+        raise RelcalError(
+            f"held-out sample id(s) {', '.join(unknown[:5])} are not in {dataset.spec_path.parent}"
+        )
+    return np.array(sorted(where[sid] for sid in ids), dtype=int)
+
+
+def cross_validate(
+    dataset: Dataset, measurements: Measurements, k: int = 5, seed: int = 0, **options
+) -> list[Calibration]:
+    """k-fold cross-validation: each fold of the usable samples held out once."""
+    usable = np.flatnonzero(measurements.ok)
+    return [
+        calibrate(
+            dataset,
+            measurements,
+            seed=seed,
+            holdout_ids=[dataset.ids[i] for i in usable[f]],
+            **options,
+        )
+        for f in folds(len(usable), k, seed)
+    ]
 
 
 def check_poses(problem: Problem, dataset: Dataset, seed: int = 0) -> Identifiability:
@@ -101,11 +129,13 @@ def calibrate(
     method: str = "lm",
     loss: str = "huber",
     reject_outliers: bool = True,
+    holdout_ids: Sequence[str] | None = None,
 ) -> Calibration:
     """Identify geometry and hand-eye on the training samples, validate on the held-out ones.
 
     Training samples whose pairs fit badly after a robust fit are reported as outliers and, with
-    ``reject_outliers``, left out of a second fit.
+    ``reject_outliers``, left out of a second fit. ``holdout_ids`` names the validation samples
+    (instead of a random share ``holdout``).
     """
     usable = np.flatnonzero(measurements.ok)
     if len(usable) < 4:
@@ -113,7 +143,11 @@ def calibrate(
             f"{dataset.spec_path}: only {len(usable)} usable samples; at least 4 are needed "
             "(and many more for a useful calibration)"
         )
-    if holdout > 0:
+    if holdout_ids is not None:
+        test = _sample_indices(dataset, holdout_ids)
+        train = np.setdiff1d(usable, test)
+        test = np.intersect1d(usable, test)
+    elif holdout > 0:
         train_idx, test_idx = split(len(usable), holdout, seed)
         train, test = usable[train_idx], usable[test_idx]
     else:

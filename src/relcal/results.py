@@ -42,6 +42,30 @@ def parameter_rows(cal: Calibration) -> list[dict]:
     return rows
 
 
+def validation_document(cal: Calibration) -> dict | None:
+    """Held-out summary and the error of every held-out pair before and after (mm, deg)."""
+    val = cal.validation
+    if val is None:
+        return None
+    ids = cal.dataset.ids
+
+    def norms(errors: np.ndarray, cols: slice, scale: float) -> list[float | None]:
+        values = np.linalg.norm(errors[:, cols], axis=1) * scale
+        return [None if np.isnan(v) else float(v) for v in values]
+
+    columns = {
+        "before_mm": norms(val.before, slice(0, 3), 1e3),
+        "after_mm": norms(val.after, slice(0, 3), 1e3),
+        "before_deg": norms(val.before, slice(3, 6), np.degrees(1.0)),
+        "after_deg": norms(val.after, slice(3, 6), np.degrees(1.0)),
+    }
+    pairs = [
+        {"ids": [ids[i], ids[j]], **{key: col[k] for key, col in columns.items()}}
+        for k, (i, j) in enumerate(val.pairs)
+    ]
+    return {**val.summary(), "pairs": pairs}
+
+
 def results_document(cal: Calibration) -> dict:
     """Everything a calibration found, JSON-ready."""
     r = cal.result
@@ -82,6 +106,6 @@ def results_document(cal: Calibration) -> dict:
             "xyz_m": [float(v) for v in xyz],
             "rpy_deg": [float(np.degrees(v)) for v in rpy],
         },
-        "validation": cal.validation.summary() if cal.validation is not None else None,
+        "validation": validation_document(cal),
         "calibrated_model": model_to_dict(calibrated_model(cal.problem.model, layout, r.params)),
     }

@@ -10,7 +10,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from relcal.identify import Result, identify
+from relcal.identify import Result
 from relcal.measurement import PairStrategy, Problem, make_pairs, residuals
 
 
@@ -99,18 +99,7 @@ def split(n_samples: int, fraction: float, seed: int = 0) -> tuple[np.ndarray, n
     return np.sort(order[n_test:]), np.sort(order[:n_test])
 
 
-def k_fold(
-    problem: Problem,
-    k: int = 5,
-    seed: int = 0,
-    method: str = "lm",
-    pairing: PairStrategy = "consecutive",
-) -> list[Validation]:
-    """Identify on k-1 folds and validate on the remaining one, for each fold."""
-    order = np.random.default_rng(seed).permutation(len(problem.q))
-    out = []
-    for fold in np.array_split(order, k):
-        train = np.setdiff1d(order, fold)
-        result = identify(subset(problem, train, pairing), method)
-        out.append(held_out(problem, result, np.sort(fold)))
-    return out
+def folds(n_samples: int, k: int, seed: int = 0) -> list[np.ndarray]:
+    """``k`` disjoint held-out index sets covering all samples (shuffled with ``seed``)."""
+    order = np.random.default_rng(seed).permutation(n_samples)
+    return [np.sort(f) for f in np.array_split(order, k)]

@@ -66,19 +66,24 @@ def run_calibrate(args: argparse.Namespace) -> int:
 
     dataset = load_dataset(args.dataset)
     m = measure(dataset, workers=args.workers, progress=not args.quiet)
+    options = {
+        "pairing": args.pairs,
+        "method": args.method,
+        "loss": args.loss,
+        "reject_outliers": not args.keep_outliers,
+    }
+    holdout_ids = _ids(args.holdout_ids) if args.holdout_ids else None
     cal = calibrate(
-        dataset,
-        m,
-        holdout=args.holdout,
-        seed=args.seed,
-        pairing=args.pairs,
-        method=args.method,
-        loss=args.loss,
-        reject_outliers=not args.keep_outliers,
+        dataset, m, holdout=args.holdout, seed=args.seed, holdout_ids=holdout_ids, **options
     )
     out = Path(args.out or Path(args.dataset) / "calibration")
     model = calibrated_model(cal.problem.model, cal.problem.layout, cal.result.params)
     doc = results_document(cal)
+    if args.kfold:
+        from relcal.pipeline import cross_validate
+
+        folds = cross_validate(dataset, m, k=args.kfold, seed=args.seed, **options)
+        doc["cross_validation"] = cross_validation_summary(folds)
     write_text(out / "model.yaml", dump_model(model))
     write_text(out / "robot.urdf", urdf(model))
     write_text(out / "parameters.csv", parameter_csv(doc["parameters"]))
@@ -93,6 +98,34 @@ def run_calibrate(args: argparse.Namespace) -> int:
         if args.report:
             print(f"report: {args.report}")
     return 0 if cal.result.converged else 1
+
+
+def _ids(text: str) -> list[str]:
+    """Sample ids from ``a,b,c`` or ``@file`` (one id per line)."""
+    if text.startswith("@"):
+        from relcal.errors import RelcalError
+
+        try:
+            lines = Path(text[1:]).read_text().splitlines()
+        except OSError as exc:
+            raise RelcalError(f"--holdout-ids {text}: cannot read: {exc}") from None
+        return [line.strip() for line in lines if line.strip()]
+    return [t.strip() for t in text.split(",") if t.strip()]
+
+
+def cross_validation_summary(folds) -> dict:
+    """Held-out errors per fold and pooled over all folds (each sample held out once)."""
+    import numpy as np
+
+    from relcal.validate import stats
+
+    before = np.concatenate([f.validation.before for f in folds if f.validation])
+    after = np.concatenate([f.validation.after for f in folds if f.validation])
+    return {
+        "k": len(folds),
+        "folds": [f.validation.summary() if f.validation else None for f in folds],
+        "pooled": {"n_pairs": len(before), "before": stats(before), "after": stats(after)},
+    }
 
 
 def summary_text(doc: dict) -> str:
@@ -119,6 +152,14 @@ def summary_text(doc: dict) -> str:
         lines.append(
             "outliers (their pairs fit badly; left out unless --keep-outliers): "
             + ", ".join(doc["outliers"])
+        )
+    cv = doc.get("cross_validation")
+    if cv:
+        pooled = cv["pooled"]
+        b, a = pooled["before"]["position_mm"], pooled["after"]["position_mm"]
+        lines.append(
+            f"{cv['k']}-fold cross-validation over {pooled['n_pairs']} held-out pairs: position "
+            f"RMS {b['rms']:.3f} -> {a['rms']:.3f} mm"
         )
     for text in ident["unidentifiable"]:
         lines.append(f"  not identifiable: {text}")
@@ -150,6 +191,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     _common(cp)
     cp.add_argument("--holdout", type=float, default=0.25, help="held-out share (default 0.25)")
     cp.add_argument("--seed", type=int, default=0, help="seed of the held-out split")
+    cp.add_argument(
+        "--holdout-ids", help="validation samples by id: 'a,b,c' or '@file' (one id per line)"
+    )
+    cp.add_argument(
+        "--kfold", type=int, metavar="K", help="also run K-fold cross-validation (results.json)"
+    )
     cp.add_argument("--pairs", choices=("consecutive", "star", "all"), default="all")
     cp.add_argument("--method", choices=("lm", "published"), default="lm")
     cp.add_argument(
