@@ -109,15 +109,21 @@ def _twist_rotations(model: RobotModel) -> np.ndarray:
 
 
 def _link_transforms(model: RobotModel, q: np.ndarray) -> np.ndarray:
-    """Joint transforms ``A_i``, shape ``(N, n, 4, 4)``.
+    """Joint transforms ``A_i``, shape ``(N, n, 4, 4)``."""
+    theta, d = _joint_values(model, q)
+    return _links(model, np.cos(theta), np.sin(theta), d)
+
+
+def _links(model: RobotModel, c: np.ndarray, s: np.ndarray, d: np.ndarray) -> np.ndarray:
+    """Joint transforms ``A_i`` ``(N, n, 4, 4)`` from ``cos``/``sin`` of the total joint angles
+    and the total offsets ``d`` ``(N, n)``.
 
     The constant part ``Rx(alpha) Ry(beta)`` is formed once; ``Rz(theta)`` only mixes two of its
     rows (DH, applied before) or columns (MDH, after), written out element-wise.
     """
-    theta, d = _joint_values(model, q)
-    c, s = np.cos(theta)[..., None], np.sin(theta)[..., None]
+    c, s = c[..., None], s[..., None]
     rc = _twist_rotations(model)  # (n, 3, 3)
-    out = np.zeros((*theta.shape, 4, 4))
+    out = np.zeros((*d.shape, 4, 4))
     out[..., 3, 3] = 1.0
     if model.convention == "dh":  # Rz(theta) Tz(d) Tx(a) [Rx(alpha) Ry(beta)]
         out[..., 0, :3] = c * rc[:, 0] - s * rc[:, 1]
@@ -134,15 +140,23 @@ def _link_transforms(model: RobotModel, q: np.ndarray) -> np.ndarray:
     return out
 
 
-def forward_frames(model: RobotModel, q: np.ndarray) -> np.ndarray:
-    """Frames ``base A_1 ... A_i`` for i = 0..n, shape ``(N, n + 1, 4, 4)`` (tool not applied)."""
-    links = _link_transforms(model, q)
+def _chain(model: RobotModel, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Frames ``base A_1 ... A_i`` for i = 0..n ``(N, n + 1, 4, 4)``, with ``cos`` and ``sin`` of
+    the total joint angles ``(N, n)`` (the Jacobian needs them again)."""
+    theta, d = _joint_values(model, q)
+    c, s = np.cos(theta), np.sin(theta)
+    links = _links(model, c, s, d)
     n_conf, n = links.shape[:2]
     frames = np.empty((n_conf, n + 1, 4, 4))
     frames[:, 0] = model.base
     for i in range(n):
         frames[:, i + 1] = frames[:, i] @ links[:, i]
-    return frames
+    return frames, c, s
+
+
+def forward_frames(model: RobotModel, q: np.ndarray) -> np.ndarray:
+    """Frames ``base A_1 ... A_i`` for i = 0..n, shape ``(N, n + 1, 4, 4)`` (tool not applied)."""
+    return _chain(model, q)[0]
 
 
 Backend = Literal["auto", "numpy", "numba"]
@@ -197,14 +211,15 @@ _ROTATIONS = ("theta_off", "alpha", "beta")  # the other joint kinds translate
 
 
 def _joint_screws(
-    model: RobotModel, frames: np.ndarray, theta: np.ndarray
+    model: RobotModel, frames: np.ndarray, c: np.ndarray, s: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
     """Axes and points on them ``(N, 5 n, 3)`` (base frame) that a unit change of each joint
-    parameter rotates about or translates along, ordered kind by kind as ``_JOINT_KINDS``."""
+    parameter rotates about or translates along, ordered kind by kind as ``_JOINT_KINDS``;
+    ``c``, ``s``: cosine and sine of the total joint angles."""
     rot, origin = frames[:, :-1, :3, :3], frames[:, :-1, :3, 3]  # frame before each joint
     after = frames[:, 1:, :3]  # frame after each joint
     if model.convention == "dh":  # Rz(theta) Tz(d) Tx(a) Rx(alpha) Ry(beta)
-        c, s = np.cos(theta)[..., None], np.sin(theta)[..., None]
+        c, s = c[..., None], s[..., None]
         z_axis = rot[..., 2]
         x_axis = rot[..., 0] * c + rot[..., 1] * s  # x after Rz(theta)
         link_origin = after[..., 3]
@@ -262,13 +277,12 @@ def _screws(
     """Tool poses ``(N, 4, 4)``, and per parameter of ``layout`` the unit screw it moves the tool
     by: axes and points on them ``(N, P, 3)`` in the base frame, and which ones rotate ``(P,)``
     (the others translate along their axis)."""
-    frames = forward_frames(model, q)
-    theta, _ = _joint_values(model, q)
+    frames, c, s = _chain(model, q)
     tip_pose = frames[:, -1] @ model.tool
     joint_cols, joint_slots, base_cols, base_axes, tool_cols, tool_axes, rotation = _slots(
         layout, model.n_joints
     )
-    screw_axes, screw_points = _joint_screws(model, frames, theta)  # (N, 5 n, 3) each
+    screw_axes, screw_points = _joint_screws(model, frames, c, s)  # (N, 5 n, 3) each
     axes = np.empty((len(tip_pose), layout.size, 3))
     points = np.empty((len(tip_pose), layout.size, 3))
     axes[:, joint_cols] = screw_axes[:, joint_slots]
