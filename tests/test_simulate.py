@@ -31,6 +31,8 @@ def test_cli_writes_the_documented_json(tmp_path, capsys):
     doc = json.loads(out.read_text())
     for key in ("rank", "n_params", "unidentifiable", "iterations", "residual_norm", "seconds"):
         assert key in doc
+    # The rank counts what is identifiable: one null direction per named combination.
+    assert doc["rank"] == doc["n_params"] - len(doc["unidentifiable"]) <= doc["solver_rank"]
     names = [p["name"] for p in doc["parameters"]]
     assert names[:2] == ["theta_off[1]", "theta_off[2]"] and "d[2]" in names
     d1 = doc["parameters"][names.index("d[1]")]

@@ -184,7 +184,8 @@ class Simulation:
                 "orientation_rad": self.noise.orientation,
                 "joints_rad": self.noise.joints,
             },
-            "rank": r.rank,
+            "rank": r.identifiability.rank,
+            "solver_rank": r.rank,
             "n_params": len(r.params),
             "unidentifiable": r.unidentifiable,
             "iterations": r.iterations,
@@ -331,7 +332,10 @@ def format_table(sim: Simulation) -> str:
             lines.append(f"{layout.names[p]:<14s} {unit:>4s} " + _cell(sim, p, None))
     lines += [
         "",
-        f"rank {r.rank} of {len(r.params)} parameters; {r.n_residuals} measurement rows; "
+        f"rank {r.identifiability.rank} of {len(r.params)} parameters (scaled Jacobian at the "
+        f"nominal model, tolerance {r.identifiability.rcond:g} x the largest singular value); "
+        f"the solver's last step kept {r.rank}",
+        f"{r.n_residuals} measurement rows; "
         f"{'converged' if r.converged else 'NOT converged'} in {r.iterations} iterations, "
         f"{r.seconds * 1e3:.1f} ms",
         f"residual norm {r.initial_residual_norm:.3e} -> {r.residual_norm:.3e} (m and rad)",
@@ -339,6 +343,14 @@ def format_table(sim: Simulation) -> str:
     if r.unidentifiable:
         lines.append("unidentifiable (n/i), with the reason:")
         lines += [f"  - {c}" for c in r.unidentifiable]
+    named = {n for c in r.identifiability.combinations for n in c.names}
+    curved = [n for n, ok in zip(layout.names, r.identifiable, strict=True) if not ok]
+    curved = [n for n in curved if n not in named]
+    if curved:
+        lines.append(
+            f"  - {', '.join(curved)}: drawn into one of these combinations at the estimate "
+            "(the symmetry is curved), so not determined individually"
+        )
     return "\n".join(lines)
 
 
