@@ -17,11 +17,13 @@ from relcal.uncertainty import (
     body_covariance,
     eliminate,
     joint_map,
+    noise_factor,
     noise_map,
     parameter_covariance,
     pose_rows,
     predicted_accuracy,
     right_jacobian_so3,
+    whitener,
 )
 
 NOISE = Noise(0.05 * MM, 0.01 * DEG, 0.002 * DEG)
@@ -107,6 +109,26 @@ def test_cramer_rao_bound_does_not_depend_on_pairing_or_order(hayati, rng, formu
     d = np.sqrt(np.diag(bounds[0]))
     for b in bounds[1:]:
         np.testing.assert_allclose(b / np.outer(d, d), bounds[0] / np.outer(d, d), atol=1e-9)
+
+
+@pytest.mark.parametrize(("formulation", "measure"), CASES)
+def test_covariances_match_the_dense_formulas_on_every_pair(hayati, rng, formulation, measure):
+    problem, _ = make_problem(hayati, formulation, measure, rng, n_poses=12)
+    if formulation != "absolute":
+        problem = replace(problem, pairs=make_pairs(12, "all"))
+    weights = np.array([2.0, 1.0, 3.0, 500.0, 400.0, 300.0])[: problem.rows_per_measurement]
+    problem = replace(problem, weights=np.resize(weights, 6))
+    ident = analyse_problem(problem)
+    unc = parameter_covariance(problem, NOISE, ident)
+    # Dense: Z Z^T is the residual covariance of all 66 pairs, K the least-squares solve.
+    a = residuals(problem, np.zeros(problem.full_layout.size))[1][:, ident.subset]
+    z = noise_factor(problem, NOISE)
+    k = np.linalg.solve(a.T @ a, a.T)
+    wa = whitener(z) @ a
+    d = np.sqrt(np.diag(unc.crb))
+    scale = np.outer(d, d)
+    np.testing.assert_allclose(unc.least_squares / scale, k @ z @ z.T @ k.T / scale, atol=1e-9)
+    np.testing.assert_allclose(unc.crb / scale, np.linalg.inv(wa.T @ wa) / scale, atol=1e-8)
 
 
 def test_least_squares_is_never_better_than_the_bound_and_equals_it_when_white(hayati, rng):

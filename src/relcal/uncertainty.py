@@ -6,7 +6,7 @@ subset and ``e`` the residual noise. The noise comes from the poses: each measur
 ``C_k`` carries a small error ``eps_k`` (6-vector, translation m and rotation rad, in the frame the
 formulation's residuals live in), and each joint reading an error ``eta_k`` that moves the modelled
 pose by ``J_q eta_k``. Relative measurements mix the errors of two poses, so consecutive pairs are
-correlated and all-pairs sets are redundant: ``e = B eps`` with ``B`` (:func:`noise_map`) mapping
+correlated and all-pairs sets are redundant: ``e = B eps`` with ``B`` (:func:`noise_blocks`) mapping
 the ``6 N`` per-pose errors to the ``M`` residual rows, ``Cov(e) = B S B^T`` with ``S`` the
 block-diagonal per-pose covariance (:func:`pose_covariances`).
 
@@ -26,6 +26,8 @@ from dataclasses import dataclass, replace
 from typing import Literal
 
 import numpy as np
+import scipy.sparse
+import scipy.sparse.csgraph
 
 from relcal import transforms as tf
 from relcal.errors import RelcalError
@@ -132,10 +134,12 @@ def joint_map(problem: Problem, params: np.ndarray | None = None) -> np.ndarray:
     return tf.adjoint(tf.invert(handeye)) @ body
 
 
-def noise_map(
+def noise_blocks(
     problem: Problem, params: np.ndarray | None = None, measured: bool = False
-) -> np.ndarray:
-    """``B`` ``(M, 6 N)``: residual rows (with the problem's row weights) per unit per-pose error.
+) -> tuple[np.ndarray, np.ndarray]:
+    """The residual noise per measurement: which poses ``(m, s)`` each of the ``m`` measurements
+    involves (``s`` = 2 for pairs, 1 for absolute poses) and the blocks ``(m, s, r, 6)`` mapping
+    those poses' errors to its ``r`` residual rows (with the problem's row weights).
 
     Frame-invariant pair (i, j): ``eps_j - Ad(M_ij^-1) eps_i`` with ``M_ij`` the relative camera
     motion, modelled at ``params`` or, with ``measured``, the measured ``C_i^-1 C_j`` (closer to
@@ -145,10 +149,11 @@ def noise_map(
     n = len(problem.q)
     params = np.zeros(problem.full_layout.size) if params is None else params
     if problem.formulation == "absolute":
-        blocks = np.zeros((n, 6, n, 6))
-        blocks[np.arange(n), :, np.arange(n), :] = np.eye(6)
+        poses = np.arange(n)[:, None]
+        blocks = np.broadcast_to(np.eye(6), (n, 1, 6, 6))
     else:
         pairs = problem.pair_indices()
+        poses = pairs[:, ::-1]  # (j, i): pose j enters with +I, pose i with the left block
         i, j = pairs.T
         if problem.formulation == "invariant" and measured:
             left = -tf.adjoint(tf.invert(relative_measurements(problem.poses, pairs)))
@@ -159,15 +164,30 @@ def noise_map(
             model_rel = x_inv @ tf.invert(tip[i]) @ tip[j] @ handeye
             left = -tf.adjoint(tf.invert(model_rel))
         else:
-            left = np.broadcast_to(-np.eye(6), (len(pairs), 6, 6))
-        blocks = np.zeros((len(pairs), 6, n, 6))
-        rows = np.arange(len(pairs))
-        blocks[rows, :, j, :] += np.eye(6)
-        blocks[rows, :, i, :] += left
+            left = np.broadcast_to(-np.eye(6), (len(poses), 6, 6))
+        blocks = np.stack([np.broadcast_to(np.eye(6), left.shape), left], axis=1)
     if problem.weights is not None:
-        blocks = blocks * np.asarray(problem.weights, dtype=float)[None, :, None, None]
-    blocks = blocks[:, : problem.rows_per_measurement]
-    return blocks.reshape(-1, 6 * n)
+        blocks = blocks * np.asarray(problem.weights, dtype=float)[None, None, :, None]
+    return poses, blocks[:, :, : problem.rows_per_measurement]
+
+
+def noise_map(
+    problem: Problem, params: np.ndarray | None = None, measured: bool = False
+) -> np.ndarray:
+    """``B`` ``(M, 6 N)``: residual rows per unit per-pose error, dense (small problems), from
+    :func:`noise_blocks`."""
+    poses, blocks = noise_blocks(problem, params, measured)
+    m, slots, r, _ = blocks.shape
+    dense = np.zeros((m, r, len(problem.q), 6))
+    for k in range(slots):
+        dense[np.arange(m), :, poses[:, k], :] += blocks[:, k]
+    return dense.reshape(m * r, -1)
+
+
+def _root(cov: np.ndarray) -> np.ndarray:
+    """Symmetric square roots ``(N, 6, 6)`` of positive semi-definite covariances."""
+    w, v = np.linalg.eigh(cov)
+    return (v * np.sqrt(np.clip(w, 0.0, None))[:, None, :]) @ np.swapaxes(v, -1, -2)
 
 
 def noise_factor(
@@ -177,15 +197,33 @@ def noise_factor(
     params: np.ndarray | None = None,
     measured: bool = False,
 ) -> np.ndarray:
-    """``Z`` ``(M, 6 N)`` with ``Z Z^T`` the covariance of the residual noise (``B S^(1/2)``);
-    ``measured`` as in :func:`noise_map`."""
-    cov = pose_covariances(problem, noise, covariances, params)
-    w, v = np.linalg.eigh(cov)
-    root = (v * np.sqrt(np.clip(w, 0.0, None))[:, None, :]) @ np.swapaxes(v, -1, -2)
+    """``Z`` ``(M, 6 N)`` with ``Z Z^T`` the covariance of the residual noise (``B S^(1/2)``),
+    dense; ``measured`` as in :func:`noise_map`."""
+    root = _root(pose_covariances(problem, noise, covariances, params))
     n = len(problem.q)
     blockdiag = np.zeros((n, 6, n, 6))
     blockdiag[np.arange(n), :, np.arange(n), :] = root
     return noise_map(problem, params, measured) @ blockdiag.reshape(6 * n, 6 * n)
+
+
+def projected_noise_factor(
+    problem: Problem,
+    a: np.ndarray,
+    noise: Noise,
+    covariances: np.ndarray | None = None,
+    params: np.ndarray | None = None,
+) -> np.ndarray:
+    """``A^T Z`` ``(k, 6 N)`` for a Jacobian ``A`` ``(M, k)``, without forming ``Z``: each
+    measurement adds its rows' share to the poses it involves, in ``O(M k)`` time and memory (an
+    all-pairs set of N poses has ``M ~ 3 N^2`` rows, and ``Z`` would hold ``M x 6 N`` numbers)."""
+    poses, blocks = noise_blocks(problem, params)
+    m, slots, r, _ = blocks.shape
+    rows = a.reshape(m, r, -1)
+    out = np.zeros((len(problem.q), a.shape[1], 6))
+    for k in range(slots):
+        np.add.at(out, poses[:, k], np.einsum("mrp,mrc->mpc", rows, blocks[:, k]))
+    root = _root(pose_covariances(problem, noise, covariances, params))
+    return np.concatenate(out @ root, axis=1)
 
 
 def residual_covariance(
@@ -348,6 +386,24 @@ class Uncertainty:
         return [(names[i[o]], names[j[o]], float(corr[i[o], j[o]])) for o in order]
 
 
+def spanning_chain(problem: Problem) -> Problem:
+    """``problem`` on consecutive pairs, when that carries the same information: its pairs connect
+    every pose and each pair's measurement is a function of the chain's (full relative poses, or
+    differences of base-frame errors). The Cramer-Rao bound then needs ``6 (N - 1)`` rows, however
+    many pairs the problem has. Otherwise (absolute poses, relative positions in the camera frame,
+    pairs that leave poses apart) ``problem`` itself."""
+    n = len(problem.q)
+    if problem.formulation == "absolute" or (
+        problem.formulation == "invariant" and problem.measure == "position"
+    ):
+        return problem
+    pairs = problem.pair_indices()
+    graph = scipy.sparse.coo_matrix((np.ones(len(pairs)), tuple(pairs.T)), shape=(n, n))
+    if scipy.sparse.csgraph.connected_components(graph, directed=False)[0] != 1:
+        return problem
+    return replace(problem, pairs=make_pairs(n, "consecutive"))
+
+
 def parameter_covariance(
     problem: Problem,
     noise: Noise,
@@ -379,10 +435,11 @@ def parameter_covariance(
         raise ValueError(f"unknown estimator '{estimator}': use least_squares or weighted")
     _, a = residuals(problem, params)
     a = a[:, subset]
-    z = noise_factor(problem, noise, covariances, params)
-    wa = whitener(z) @ a
+    chain = spanning_chain(problem)
+    a_chain = a if chain is problem else residuals(chain, params)[1][:, subset]
+    wa = whitener(noise_factor(chain, noise, covariances, params)) @ a_chain
     crb = _inverse_scaled(wa.T @ wa)
-    kz = _inverse_scaled(a.T @ a) @ (a.T @ z)
+    kz = _inverse_scaled(a.T @ a) @ projected_noise_factor(problem, a, noise, covariances, params)
     ls = kz @ kz.T
     identifiable = np.zeros(problem.full_layout.size, dtype=bool)
     identifiable[: len(ident.identifiable)] = ident.identifiable  # shorter: hand-eye known
