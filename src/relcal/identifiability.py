@@ -29,7 +29,9 @@ class Combination:
     reason: str
 
     def describe(self) -> str:
-        """E.g. ``theta_off[6] +1 deg with a[6] +0.698 mm: acts like ...`` (largest term 1)."""
+        """E.g. ``theta_off[6] +1 deg with a[6] +0.698 mm together: acts like ...``, in mm and
+        deg, scaled so that the leading parameter (the first one not of the hand-eye transform)
+        moves by one unit; terms below 0.1 % of the largest are left out of the text."""
         if len(self.names) == 1:
             return f"{self.names[0]}: {self.reason}"
         shown = np.array(
@@ -38,10 +40,13 @@ class Combination:
                 for c, a in zip(self.coefficients, self.is_angle, strict=True)
             ]
         )
-        shown /= np.abs(shown).max()
+        lead = next((k for k, n in enumerate(self.names) if not n.startswith("handeye.")), None)
+        shown /= shown[lead] if lead is not None else np.abs(shown).max()
+        big = np.abs(shown) >= 1e-3 * np.abs(shown).max()
         terms = [
             f"{n} {c:+.3g} {'deg' if a else 'mm'}"
-            for n, c, a in zip(self.names, shown, self.is_angle, strict=True)
+            for n, c, a, keep in zip(self.names, shown, self.is_angle, big, strict=True)
+            if keep
         ]
         return f"{' with '.join(terms)} together: {self.reason}"
 
@@ -93,11 +98,16 @@ def identifiable_mask(jac: np.ndarray, rcond: float = DEFAULT_RCOND) -> np.ndarr
     return ~_rank_and_involved(*_singular(unit), rcond)[1]
 
 
-def sparse_basis(null: np.ndarray, tol: float = 1e-9) -> np.ndarray:
+def sparse_basis(
+    null: np.ndarray, tol: float = 1e-9, preference: np.ndarray | None = None
+) -> np.ndarray:
     """A sparse basis of the span of ``null`` ``(P, k)``: each column led by its own pivot parameter
-    (chosen by QR with column pivoting, so the pivots are well conditioned), unit-norm columns."""
+    (chosen by QR with column pivoting, so the pivots are well conditioned), unit-norm columns.
+    ``preference`` ``(P,)`` weighs the pivot choice: a parameter weighted 0.01 leads a column only
+    when the others cannot."""
     k = null.shape[1]
-    _, _, piv = scipy.linalg.qr(null.T, pivoting=True)
+    weight = np.ones(len(null)) if preference is None else preference
+    _, _, piv = scipy.linalg.qr(null.T * weight, pivoting=True)
     basis = np.linalg.solve(null.T[:, piv[:k]], null.T)  # identity in the pivot columns
     basis[np.abs(basis) < tol] = 0.0
     basis = basis[np.argsort(piv[:k])]  # ordered by pivot parameter
@@ -126,7 +136,10 @@ def analyse(
     angle = layout.is_angle()
     null = np.zeros((len(norms), 0))
     if null_scaled.shape[1]:
-        sparse = sparse_basis(null_scaled)
+        # Each combination led by a geometric parameter where possible: "theta_off[2] with a
+        # change of X" reads better than a hand-eye component with several link parameters.
+        hand_eye = np.array([kind == "handeye" for kind in layout.kinds])
+        sparse = sparse_basis(null_scaled, preference=np.where(hand_eye, 1e-2, 1.0))
         null = sparse / norms[:, None]  # back to parameter units
         null /= np.linalg.norm(null, axis=0)
         for v_scaled, v in zip(sparse.T, null.T, strict=True):
