@@ -33,7 +33,7 @@ fy 1360.2, cx 773.1, cy 624.0, k1 -0.144) bring the overall RMS to 0.51 px. Hand
 intrinsics, 5.3 mm / 0.32 deg with the self-calibrated ones, whose free-scale fit puts the square
 at 0.03640 m (nominal 0.036195 m, +0.6 %).
 
-Run time: about 3 s per set with 2 worker processes (1 s of it is starting the workers).
+Run time: about 2 s per set (2 threads).
 """
 
 from dataclasses import replace
