@@ -554,6 +554,15 @@ def board_image(board: Board, px_per_m: float) -> np.ndarray:
     return np.round(image * 255.0).astype(np.uint8)
 
 
+_CAPTION_HEIGHT = 0.022  # m below the board for the caption and the scale bar
+
+
+def sheet_size(board: Board) -> tuple[float, float]:
+    """Width and height (m) of the printable sheet: the board with its margin and the caption."""
+    x0, y0, x1, y1 = board_extent(board)
+    return x1 - x0, y1 - y0 + _CAPTION_HEIGHT
+
+
 def write_printable(board: Board, path: str | Path, dpi: float = 300.0) -> Path:
     """Write the board at true scale as PDF (vector) or PNG (``dpi`` pixels per inch).
 
@@ -580,8 +589,8 @@ def write_printable(board: Board, path: str | Path, dpi: float = 300.0) -> Path:
     if not dpi > 0:
         raise RelcalError(f"{path}: dpi must be positive, got {dpi}")
     x0, y0, x1, y1 = board_extent(board)
-    text_h = 0.022  # m below the board for the caption and the scale bar
-    width, height = x1 - x0, y1 - y0 + text_h
+    width, height = sheet_size(board)
+    text_h = height - (y1 - y0)
     inch = 0.0254
     fig = Figure(figsize=(width / inch, height / inch), dpi=dpi)
     ax = fig.add_axes((0.0, 0.0, 1.0, 1.0))

@@ -44,3 +44,8 @@ def load_robot(args: argparse.Namespace):
 
     model = get_robot(args.robot)
     return auto_hayati(model) if args.hayati == "auto" else model
+
+
+def json_arg(parser: argparse.ArgumentParser, what: str) -> None:
+    """``--json FILE``, shared by every command: ``what`` is the document written."""
+    parser.add_argument("--json", metavar="FILE", help=f"write {what} as JSON to FILE")

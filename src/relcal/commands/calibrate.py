@@ -5,11 +5,13 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from relcal.commands import json_arg
+
 EPILOG = """\
 examples:
-  relcal measure my_dataset                     # camera poses and rejected frames
-  relcal calibrate my_dataset --out results/    # model.yaml, robot.urdf, results.json, ...
-  relcal calibrate my_dataset --holdout 0.3 --loss huber --report report.html
+  relcal measure my_dataset --json measured.json   # camera poses and rejected frames
+  relcal calibrate my_dataset --out results/       # model.yaml, robot.urdf, results.json, ...
+  relcal calibrate my_dataset --holdout 0.3 --loss huber --report report.html --quiet --json r.json
 """
 
 
@@ -33,16 +35,16 @@ def run_measure(args: argparse.Namespace) -> int:
         for i in range(len(ok))
         if ok[i] and m.rms_px[i] == m.rms_px[i]
     }
-    write_json(
-        out / "measurements.json",
-        {
-            "n_samples": len(ok),
-            "n_posed": int(ok.sum()),
-            "rejected": rejected,
-            "reprojection_rms_px": rms,
-            "intrinsics": m.intrinsics_report,
-        },
-    )
+    doc = {
+        "n_samples": len(ok),
+        "n_posed": int(ok.sum()),
+        "rejected": rejected,
+        "reprojection_rms_px": rms,
+        "intrinsics": m.intrinsics_report,
+    }
+    write_json(out / "measurements.json", doc)
+    if args.json:
+        write_json(args.json, doc)
     if not args.quiet:
         print(f"{int(ok.sum())} of {len(ok)} samples posed; written to {out}/poses.csv")
         for r in rejected:
@@ -88,6 +90,8 @@ def run_calibrate(args: argparse.Namespace) -> int:
     write_text(out / "robot.urdf", urdf(model))
     write_text(out / "parameters.csv", parameter_csv(doc["parameters"]))
     write_json(out / "results.json", doc)
+    if args.json:
+        write_json(args.json, doc)
     if args.report:
         from relcal.report import calibration_report
 
@@ -179,6 +183,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         "measure", help="camera poses from a dataset's images", epilog=EPILOG, formatter_class=fmt
     )
     _common(mp)
+    json_arg(mp, "a copy of measurements.json (posed and rejected samples, reprojection RMS)")
     mp.set_defaults(func=run_measure)
     cp = sub.add_parser(
         "calibrate",
@@ -209,4 +214,5 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--keep-outliers", action="store_true", help="do not leave detected outliers out of the fit"
     )
     cp.add_argument("--report", metavar="FILE", help="write the HTML calibration report to FILE")
+    json_arg(cp, "a copy of results.json (parameters, hand-eye, validation, calibrated model)")
     cp.set_defaults(func=run_calibrate)

@@ -5,19 +5,27 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
+
+from relcal.commands import json_arg
+
+if TYPE_CHECKING:
+    from relcal.compensate import Compensation
 
 EPILOG = """\
 examples:
   relcal compensate --model out/model.yaml --targets poses.csv --nominal a465 --out joints.csv
-  relcal compensate --model out/model.yaml --targets program.csv --joint-unit deg
+  relcal compensate --model out/model.yaml --targets program.csv --nominal a465 --joint-unit rad
+  relcal compensate --model out/model.yaml --targets poses.csv --out j.csv --json j.json --quiet
 
 targets: a CSV with a header, either  id,x,y,z,qx,qy,qz,qw  (tool poses in the base frame, m)
          or  id,q1..qn  (a joint program computed with the nominal model)
 output:  id, q1..qn (corrected), converged, dq1..dqn (correction), predicted_position_mm,
          predicted_rotation_deg (what the nominal joints would miss by, per the calibrated model);
          angles in the --joint-unit
+--json:  the same per target (q, dq as lists with joint_units), plus n_targets, n_not_converged
 """
 
 
@@ -61,7 +69,7 @@ def read_targets(path: Path, model, joint_unit: str):
 def run(args: argparse.Namespace) -> int:
     from relcal.compensate import compensate
     from relcal.errors import RelcalError
-    from relcal.io import write_text
+    from relcal.io import write_json, write_text
     from relcal.kinematics import fk
     from relcal.model import get_robot, load_model
 
@@ -84,33 +92,72 @@ def run(args: argparse.Namespace) -> int:
     def angles(q):
         return np.where(calibrated.prismatic, q, np.degrees(q)) if args.joint_unit == "deg" else q
 
-    n = calibrated.n_joints
+    q = angles(comp.q)
+    dq = None if comp.q_nominal is None else q - angles(comp.q_nominal)
+    text = joints_csv(ids, q, comp, dq)
+    if args.out:
+        write_text(args.out, text)
+    else:
+        print(text, end="")
+    if args.json:
+        units = np.where(calibrated.prismatic, "m", args.joint_unit).tolist()
+        inputs = {"model": args.model, "targets_file": args.targets, "nominal": args.nominal}
+        write_json(args.json, {**inputs, **joints_document(ids, q, comp, dq, units)})
+    failed = int((~comp.converged).sum())
+    if failed and not args.quiet:
+        print(f"relcal: {failed} target(s) not reached within joint limits", file=sys.stderr)
+    return 0 if failed == 0 else 1
+
+
+def joints_csv(ids: list[str], q: np.ndarray, comp: Compensation, dq: np.ndarray | None) -> str:
+    """The output CSV: corrected joints ``q`` and corrections ``dq`` (display units) per id."""
+    n = q.shape[1]
     header = ["id", *[f"q{i + 1}" for i in range(n)], "converged"]
-    if comp.q_nominal is not None:
-        header += [f"dq{i + 1}" for i in range(n)] + [
-            "predicted_position_mm",
-            "predicted_rotation_deg",
-        ]
+    if dq is not None:
+        header += [f"dq{i + 1}" for i in range(n)]
+        header += ["predicted_position_mm", "predicted_rotation_deg"]
     lines = [",".join(header)]
     for k, sid in enumerate(ids):
-        cells = [sid, *[f"{v:.10g}" for v in angles(comp.q[k])], str(bool(comp.converged[k]))]
-        if comp.q_nominal is not None:
-            dq = angles(comp.q[k]) - angles(comp.q_nominal[k])
-            cells += [f"{v:.6g}" for v in dq]
+        cells = [sid, *[f"{v:.10g}" for v in q[k]], str(bool(comp.converged[k]))]
+        if dq is not None:
+            cells += [f"{v:.6g}" for v in dq[k]]
             cells += [
                 f"{comp.predicted_position_mm[k]:.6g}",
                 f"{comp.predicted_rotation_deg[k]:.6g}",
             ]
         lines.append(",".join(cells))
-    text = "\n".join(lines) + "\n"
-    if args.out:
-        write_text(args.out, text)
-    else:
-        print(text, end="")
-    failed = int((~comp.converged).sum())
-    if failed:
-        print(f"relcal: {failed} target(s) not reached within joint limits", file=sys.stderr)
-    return 0 if failed == 0 else 1
+    return "\n".join(lines) + "\n"
+
+
+def joints_document(
+    ids: list[str],
+    q: np.ndarray,
+    comp: Compensation,
+    dq: np.ndarray | None,
+    units: list[str],
+) -> dict:
+    """The ``--json`` document: the CSV's content per target (joints in ``units``, one per
+    joint), and a summary. Non-finite numbers become null."""
+
+    def number(v: float) -> float | None:
+        return float(v) if np.isfinite(v) else None
+
+    targets = []
+    for k, sid in enumerate(ids):
+        row = {"id": sid, "q": [number(v) for v in q[k]], "converged": bool(comp.converged[k])}
+        if dq is not None:
+            row["dq"] = [number(v) for v in dq[k]]
+            row["predicted_position_mm"] = number(comp.predicted_position_mm[k])
+            row["predicted_rotation_deg"] = number(comp.predicted_rotation_deg[k])
+        targets.append(row)
+    return {
+        "joint_units": units,
+        "targets": targets,
+        "summary": {
+            "n_targets": len(ids),
+            "n_not_converged": int((~comp.converged).sum()),
+        },
+    }
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -127,4 +174,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--joint-unit", choices=("deg", "rad"), default="deg")
     p.add_argument("--out", help="output CSV (default: standard output)")
+    json_arg(p, "the corrected joints, corrections and a summary")
+    p.add_argument(
+        "--quiet",
+        action="store_true",
+        help="no note about unreached targets on standard error (exit code 1 still tells)",
+    )
     p.set_defaults(func=run)

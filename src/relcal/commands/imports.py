@@ -4,13 +4,38 @@ from __future__ import annotations
 
 import argparse
 
+from relcal.commands import json_arg
+
+EPILOG = """\
+examples:
+  relcal import rct-positioner positioner_kinematic_measurements.yaml --out positioner/
+  relcal import rct-positioner measurements.yaml --out positioner/ --quiet --json import.json
+  relcal calibrate positioner/                    # then calibrate the dataset folder
+"""
+
+# What import_rct_positioner writes into the dataset folder.
+RCT_POSITIONER_FILES = ("dataset.yaml", "samples.csv", "positioner.yaml")
+
 
 def run(args: argparse.Namespace) -> int:
     from relcal.importers import import_rct_positioner
+    from relcal.io import write_json
 
     out = import_rct_positioner(args.file, args.out)
+    if args.json:
+        n_samples = len((out / "samples.csv").read_text().splitlines()) - 1  # after the header
+        write_json(
+            args.json,
+            {
+                "format": args.format,
+                "source": args.file,
+                "dataset": str(out),
+                "files": [str(out / name) for name in RCT_POSITIONER_FILES],
+                "n_samples": n_samples,
+            },
+        )
     if not args.quiet:
-        print(f"dataset written to {out} (dataset.yaml, samples.csv, positioner.yaml)")
+        print(f"dataset written to {out} ({', '.join(RCT_POSITIONER_FILES)})")
     return 0
 
 
@@ -20,12 +45,12 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="convert robot_cal_tools measurements into a dataset folder",
         description="Convert ROS-Industrial robot_cal_tools' positioner kinematic measurements "
         "(joint angles + camera-to-target poses) into a relcal dataset folder.",
-        epilog="example:\n  relcal import rct-positioner positioner_kinematic_measurements.yaml "
-        "--out positioner/\n  relcal calibrate positioner/",
+        epilog=EPILOG,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument("format", choices=("rct-positioner",), help="input format")
     p.add_argument("file", help="input file")
     p.add_argument("--out", required=True, help="dataset folder to write")
-    p.add_argument("--quiet", action="store_true")
+    json_arg(p, "the list of files written and the number of samples")
+    p.add_argument("--quiet", action="store_true", help="print nothing but errors")
     p.set_defaults(func=run)

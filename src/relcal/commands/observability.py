@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from relcal.commands import load_robot, robot_args
+from relcal.commands import json_arg, load_robot, robot_args
 
 EPILOG = """\
 examples:
@@ -155,6 +155,6 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="simulated validation poses for the predicted accuracy (0: skip; default 30)",
     )
     p.add_argument("--rcond", type=float, default=1e-6, help="relative rank tolerance")
-    p.add_argument("--json", help="write the report as JSON to this file")
+    json_arg(p, "the report")
     p.add_argument("--quiet", action="store_true", help="print nothing but errors")
     p.set_defaults(func=run)

@@ -6,7 +6,7 @@ import argparse
 
 import numpy as np
 
-from relcal.commands import load_robot, robot_args
+from relcal.commands import json_arg, load_robot, robot_args
 from relcal.commands.observability import add_noise_arg
 
 EPILOG = """\
@@ -159,6 +159,6 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--out", help="write the planned joint configurations to this CSV")
     p.add_argument("--random-out", help="write the median random set to this CSV")
     p.add_argument("--joint-unit", choices=("deg", "rad"), default="deg")
-    p.add_argument("--json", help="write the plan and the comparison as JSON to this file")
+    json_arg(p, "the plan and the comparison")
     p.add_argument("--quiet", action="store_true", help="print nothing but errors")
     p.set_defaults(func=run)

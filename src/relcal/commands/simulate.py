@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from relcal.commands import load_robot, robot_args
+from relcal.commands import json_arg, load_robot, robot_args
 
 EPILOG_SIMULATE = """\
 examples:
@@ -113,7 +113,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     sim.add_argument("--noise", help="POS_MM,ORI_DEG[,JOINT_DEG] standard deviations")
     sim.add_argument("--seed", type=int, default=0)
     sim.add_argument("--errors", help="YAML file of specified errors (default: random)")
-    sim.add_argument("--json", help="write the results as JSON to this file")
+    json_arg(sim, "the results")
     sim.add_argument("--report", metavar="FILE", help="write an HTML report of the run(s) to FILE")
     sim.add_argument(
         "--images",

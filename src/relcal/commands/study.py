@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from relcal.commands import load_robot, robot_args
+from relcal.commands import json_arg, load_robot, robot_args
 from relcal.commands.observability import add_noise_arg, read_joints, simulated_joints
 
 EPILOG = """\
@@ -116,6 +116,6 @@ def register(sub: argparse._SubParsersAction) -> None:
         default=0.5,
         help="angles count as the displacement this far away (m) in the worst-parameter line",
     )
-    p.add_argument("--json", help="write the comparison as JSON to this file")
+    json_arg(p, "the comparison")
     p.add_argument("--quiet", action="store_true", help="no progress bar, print nothing")
     p.set_defaults(func=run)
