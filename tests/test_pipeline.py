@@ -70,6 +70,11 @@ def test_real_positioner_calibration(tmp_path):
     leads = sorted(n for c in absorbed for n in c.names if not n.startswith("handeye."))
     assert leads == ["a[2]", "alpha[2]", "d[2]", "theta_off[2]"]
     assert all(c.describe().split(" with ")[0].endswith(("+1 deg", "+1 mm")) for c in absorbed)
+    # X is estimated whole and absorbs them: the link stays nominal in the exported model.
+    estimated = {cal.result.names[i] for i in cal.result.identifiability.subset}
+    assert estimated == {"a[1]", "alpha[1]"} | {
+        f"handeye.{c}" for c in ("tx", "ty", "tz", "rx", "ry", "rz")
+    }
 
 
 def test_named_validation_set_and_k_fold_cross_validation(tmp_path):

@@ -129,7 +129,13 @@ def analyse(
     s, vt = _singular(unit)
     rank, involved = _rank_and_involved(s, vt, rcond)
     null_scaled = vt[rank:].T  # (P, k) in scaled coordinates
-    _, _, piv = scipy.linalg.qr(unit, mode="economic", pivoting=True)
+    # The hand-eye transform is estimated whole where it can be: the link parameters it absorbs
+    # (the leads of the combinations below) stay at nominal, so the exported model changes only
+    # what the data determine.
+    hand_eye = np.array([kind == "handeye" for kind in layout.kinds])
+    _, _, piv = scipy.linalg.qr(
+        unit * np.where(hand_eye, 10.0, 1.0), mode="economic", pivoting=True
+    )
     subset = np.sort(piv[:rank])
 
     combos = []
@@ -138,7 +144,6 @@ def analyse(
     if null_scaled.shape[1]:
         # Each combination led by a geometric parameter where possible: "theta_off[2] with a
         # change of X" reads better than a hand-eye component with several link parameters.
-        hand_eye = np.array([kind == "handeye" for kind in layout.kinds])
         sparse = sparse_basis(null_scaled, preference=np.where(hand_eye, 1e-2, 1.0))
         null = sparse / norms[:, None]  # back to parameter units
         null /= np.linalg.norm(null, axis=0)
