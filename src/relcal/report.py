@@ -394,13 +394,16 @@ def _fit_cards(cal: Calibration, doc: dict) -> list[tuple[str, str, str]]:
     ]
 
 
-def _stats_table(before: dict, after: dict) -> Html:
+def _stats_table(before: dict, after: dict, interval: dict | None = None) -> Html:
+    """Statistics before and after; ``interval``: the held-out ``rms_ratio`` (after / before,
+    bootstrap over samples), shown as the 95 % interval of the improvement."""
     keys = [q for q in QUANTITIES.values() if q[2] in before]
     head = [""] + [f"{n.split()[1]} {w} ({u})" for n, u, _ in keys for w in ("before", "after")]
     rows = []
     for stat, label in (
         ("mean", "mean"),
         ("rms", "RMS"),
+        ("median", "median"),
         ("p95", "95th percentile"),
         ("max", "max"),
     ):
@@ -408,7 +411,17 @@ def _stats_table(before: dict, after: dict) -> Html:
     ratio = ["improvement (RMS before / after)"]
     for _, _, k in keys:
         ratio += [_fmt(before[k]["rms"] / max(after[k]["rms"], 1e-300), ".1f") + "×", ""]
-    return _table(head, [*rows, ratio], "num")
+    rows.append(ratio)
+    if interval:
+        row = ["95 % interval of the improvement (bootstrap over held-out samples)"]
+        for _, _, k in keys:
+            lo, hi = interval[k]["ci95"]
+            row += [
+                f"{_fmt(1 / max(hi, 1e-300), '.2f')}× – {_fmt(1 / max(lo, 1e-300), '.2f')}×",
+                "",
+            ]
+        rows.append(row)
+    return _table(head, rows, "num")
 
 
 def _summary(cal: Calibration, doc: dict, errors: tuple) -> tuple[str, str, Html]:
@@ -421,7 +434,7 @@ def _summary(cal: Calibration, doc: dict, errors: tuple) -> tuple[str, str, Html
         _cards(_accuracy_cards(b, a, label), "wide"),
         _cards(_fit_cards(cal, doc)),
         _p(sentence),
-        _stats_table(b, a),
+        _stats_table(b, a, (doc.get("validation") or {}).get("rms_ratio")),
         Html(
             "<p>Convergence: "
             + _badge(converged, "converged", "not converged")

@@ -25,25 +25,62 @@ def pair_errors(problem: Problem, params: np.ndarray) -> np.ndarray:
     return r
 
 
+_KINDS = (("position_mm", slice(0, 3), 1e3), ("orientation_deg", slice(3, 6), None))
+
+
+def _norms(errors: np.ndarray, cols: slice, scale: float | None) -> np.ndarray:
+    norms = np.linalg.norm(errors[:, cols], axis=1)
+    return norms * scale if scale else np.degrees(norms)
+
+
 def stats(errors: np.ndarray) -> dict[str, dict[str, float]]:
-    """Mean, RMS, standard deviation, 95th percentile and maximum of the error norms, position in
-    mm and orientation in degrees."""
+    """Mean, RMS, standard deviation, median, 95th percentile and maximum of the error norms,
+    position in mm and orientation in degrees."""
     out = {}
-    for key, cols, scale in (
-        ("position_mm", slice(0, 3), 1e3),
-        ("orientation_deg", slice(3, 6), None),
-    ):
-        norms = np.linalg.norm(errors[:, cols], axis=1)
-        norms = norms * 1e3 if scale else np.degrees(norms)
+    for key, cols, scale in _KINDS:
+        norms = _norms(errors, cols, scale)
         if np.all(np.isnan(norms)) or len(norms) == 0:
             continue
         out[key] = {
             "mean": float(np.mean(norms)),
             "rms": float(np.sqrt(np.mean(norms**2))),
             "std": float(np.std(norms)),
+            "median": float(np.median(norms)),
             "p95": float(np.percentile(norms, 95)),
             "max": float(np.max(norms)),
         }
+    return out
+
+
+def ratio_interval(
+    pairs: np.ndarray,
+    before: np.ndarray,
+    after: np.ndarray,
+    n_boot: int = 2000,
+    seed: int = 0,
+) -> dict[str, dict[str, float]]:
+    """The ratio of RMS after to RMS before, with a 95 % interval from a paired bootstrap over
+    the held-out *samples* (each pair counts as often as both its samples are drawn).
+
+    Pairs share samples (``n`` samples make ``n (n - 1) / 2`` pairs), so resampling pairs would
+    pretend far more independent evidence than there is.
+    """
+    samples, index = np.unique(pairs, return_inverse=True)
+    index = index.reshape(pairs.shape)
+    rng = np.random.default_rng(seed)
+    draws = rng.integers(0, len(samples), (n_boot, len(samples)))
+    counts = np.zeros((n_boot, len(samples)))
+    np.add.at(counts, (np.arange(n_boot)[:, None], draws), 1.0)
+    weight = counts[:, index[:, 0]] * counts[:, index[:, 1]]  # (n_boot, P)
+    out = {}
+    for key, cols, scale in _KINDS:
+        b2, a2 = _norms(before, cols, scale) ** 2, _norms(after, cols, scale) ** 2
+        if np.all(np.isnan(b2)) or len(b2) == 0:
+            continue
+        boot = np.sqrt((weight @ a2) / np.maximum(weight @ b2, 1e-300))
+        lo, hi = np.percentile(boot[weight.sum(axis=1) > 0], [2.5, 97.5])
+        ratio = np.sqrt(a2.sum() / max(b2.sum(), 1e-300))
+        out[key] = {"after_over_before": float(ratio), "ci95": [float(lo), float(hi)]}
     return out
 
 
@@ -58,8 +95,10 @@ class Validation:
     def summary(self) -> dict:
         return {
             "n_pairs": len(self.pairs),
+            "n_samples": len(np.unique(self.pairs)),
             "before": stats(self.before),
             "after": stats(self.after),
+            "rms_ratio": ratio_interval(self.pairs, self.before, self.after),
         }
 
     def improvement(self) -> float:

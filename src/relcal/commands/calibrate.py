@@ -121,14 +121,18 @@ def cross_validation_summary(folds) -> dict:
     """Held-out errors per fold and pooled over all folds (each sample held out once)."""
     import numpy as np
 
-    from relcal.validate import stats
+    from relcal.validate import Validation
 
-    before = np.concatenate([f.validation.before for f in folds if f.validation])
-    after = np.concatenate([f.validation.after for f in folds if f.validation])
+    done = [f.validation for f in folds if f.validation]
+    pooled = Validation(
+        pairs=np.concatenate([v.pairs for v in done]),
+        before=np.concatenate([v.before for v in done]),
+        after=np.concatenate([v.after for v in done]),
+    )
     return {
         "k": len(folds),
         "folds": [f.validation.summary() if f.validation else None for f in folds],
-        "pooled": {"n_pairs": len(before), "before": stats(before), "after": stats(after)},
+        "pooled": pooled.summary(),
     }
 
 
@@ -147,10 +151,14 @@ def summary_text(doc: dict) -> str:
         for key, unit in (("position_mm", "mm"), ("orientation_deg", "deg")):
             if key in val["before"]:
                 b, a = val["before"][key], val["after"][key]
+                ratio = val["rms_ratio"][key]
+                lo, hi = ratio["ci95"]
                 lines.append(
                     f"held-out relative {key.split('_')[0]} error over {val['n_pairs']} pairs: "
-                    f"RMS {b['rms']:.3f} -> {a['rms']:.3f} {unit}, max {b['max']:.3f} -> "
-                    f"{a['max']:.3f} {unit}"
+                    f"RMS {b['rms']:.3f} -> {a['rms']:.3f} {unit} "
+                    f"(x{ratio['after_over_before']:.3g}, 95% interval {lo:.3g}..{hi:.3g} over "
+                    f"the {val['n_samples']} samples), "
+                    f"median {b['median']:.3f} -> {a['median']:.3f} {unit}"
                 )
     if doc["outliers"]:
         lines.append(
@@ -161,9 +169,11 @@ def summary_text(doc: dict) -> str:
     if cv:
         pooled = cv["pooled"]
         b, a = pooled["before"]["position_mm"], pooled["after"]["position_mm"]
+        lo, hi = pooled["rms_ratio"]["position_mm"]["ci95"]
         lines.append(
             f"{cv['k']}-fold cross-validation over {pooled['n_pairs']} held-out pairs: position "
-            f"RMS {b['rms']:.3f} -> {a['rms']:.3f} mm"
+            f"RMS {b['rms']:.3f} -> {a['rms']:.3f} mm "
+            f"(95% interval of the ratio {lo:.3g}..{hi:.3g})"
         )
     for text in ident["unidentifiable"]:
         lines.append(f"  not identifiable: {text}")
