@@ -8,7 +8,8 @@ consecutive pairs, and the command's default noise (0.05 mm, 0.01 deg per camera
 0.001 deg per joint reading). The trials use ``estimator="least_squares"`` (``identify_lm``, the
 analytic identification Jacobian), so that the peer solves exactly the same problem.
 
-Two rows, both measured in this run (wall times, ``time.perf_counter``, least of ``REPEATS``):
+Two rows, both measured in this run (wall times, ``time.perf_counter``, the least of a few
+interleaved repeats, so that a burst of load from another process passes):
 
 - one worker against the way a user without relcal would run the same trials: a plain Python
   loop that, per trial, builds the same noisy problem (same seeded noise) and solves it with
@@ -31,13 +32,13 @@ import os
 for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")  # as bench/run.py: one BLAS thread (workers inherit it)
 
+import multiprocessing  # noqa: E402
 import time  # noqa: E402
 
 import numpy as np  # noqa: E402
-import scipy.optimize  # noqa: E402
+from peers import fd_least_squares  # noqa: E402
 
 from relcal.identify import analyse_problem  # noqa: E402
-from relcal.measurement import residuals  # noqa: E402
 from relcal.model import auto_hayati, get_robot  # noqa: E402
 from relcal.simulate import Noise, Setup, joint_path  # noqa: E402
 from relcal.study import (  # noqa: E402
@@ -58,7 +59,8 @@ ESTIMATOR = "least_squares"  # identify_lm: the estimator the finite-difference 
 TRIALS = 200  # row 1: relcal against the peer (the peer takes ~20 ms a trial)
 PARALLEL_TRIALS = 2000  # row 2: long enough for the workers' start-up to be paid back
 WORKERS = 2
-REPEATS = 2
+REPEATS = 2  # row 1 (the peer's loop takes ~5 s)
+PARALLEL_REPEATS = 2  # row 2 (~12 s a pair)
 PARALLEL_GOAL = 1.5
 
 
@@ -96,25 +98,9 @@ def _peer(
     estimates = np.zeros((trials, size))
     for t in range(trials):
         problem = problem_for(sc, *noisy_measurement(sc, clean, z[t]))
-
-        def cost(x: np.ndarray, problem=problem) -> np.ndarray:
-            params = np.zeros(size)
-            params[subset] = x
-            return -residuals(problem, params, jacobian=False)
-
-        sol = scipy.optimize.least_squares(
-            cost,
-            np.zeros(len(subset)),
-            jac="2-point",
-            method="lm",
-            x_scale="jac",
-            xtol=1e-12,
-            ftol=1e-12,
-            gtol=1e-12,
-        )
-        if sol.status <= 0:
-            raise RuntimeError(f"peer trial {t} did not converge: {sol.message}")
-        estimates[t, subset] = sol.x
+        estimates[t], converged = fd_least_squares(problem, subset)
+        if not converged:
+            raise RuntimeError(f"peer trial {t} did not converge")
     return time.perf_counter() - start, estimates
 
 
@@ -149,12 +135,33 @@ def peer_row(sc: Scenario) -> dict:
     }
 
 
+def _burn(n: int) -> float:
+    """Seconds of a pure-Python loop of ``n`` steps."""
+    start, x = time.perf_counter(), 0
+    for i in range(n):
+        x += i * i
+    return time.perf_counter() - start
+
+
+def parallel_capacity(workers: int = WORKERS, n: int = 3_000_000) -> float:
+    """Cores the machine gives ``workers`` busy processes now: ``workers`` times one loop's time
+    alone over the slowest of ``workers`` copies run at once (forked, start-up not counted).
+    A shared virtual machine may give fewer than it has, and it varies by the minute."""
+    if "fork" not in multiprocessing.get_all_start_methods():
+        return float("nan")
+    with multiprocessing.get_context("fork").Pool(workers) as pool:
+        alone = _burn(n)
+        together = max(pool.map(_burn, [n] * workers))
+    return workers * alone / together
+
+
 def parallel_row(sc: Scenario) -> dict:
     """Row 2: ``study()`` over ``WORKERS`` processes against one, same trials."""
-    one, many = np.inf, np.inf
-    for _ in range(REPEATS):
+    one, many, capacity = np.inf, np.inf, []
+    for _ in range(PARALLEL_REPEATS):
         seconds, serial = _relcal(sc, PARALLEL_TRIALS, 1)
         one = min(one, seconds)
+        capacity.append(parallel_capacity())
         seconds, parallel = _relcal(sc, PARALLEL_TRIALS, WORKERS)
         many = min(many, seconds)
     same = np.array_equal(serial.estimates, parallel.estimates)
@@ -169,8 +176,9 @@ def parallel_row(sc: Scenario) -> dict:
         "peer_name": "relcal study, 1 worker",
         "ratio": round(value / peer, 3),
         "goal_ratio": PARALLEL_GOAL,
-        "note": f"parallel speed-up on {os.cpu_count()} CPUs; wall time includes spawning the "
-        f"workers (over an ideal split: {overhead:.2f} s); estimates "
+        "note": f"parallel speed-up; {os.cpu_count()} CPUs, of which {WORKERS} busy processes got "
+        f"{np.mean(capacity):.1f} cores meanwhile (pure-Python check); wall time includes "
+        f"spawning the workers ({overhead:.2f} s over an ideal split); estimates "
         + ("identical to 1 worker" if same else "DIFFER from 1 worker"),
     }
 

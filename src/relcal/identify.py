@@ -236,10 +236,13 @@ def identify_lm(
     identifiability: Identifiability | None = None,
     loss: str = "linear",
     f_scale: float = 1.0,
+    whiten: np.ndarray | None = None,
 ) -> Result:
     """Levenberg-Marquardt (trust region) on the identifiable subset with column scaling.
 
     Parameters outside the QR-pivoted identifiable subset stay at their nominal values.
+    ``whiten`` ``(r, M)`` multiplies the residual rows first (a full noise covariance's inverse
+    root: :func:`relcal.uncertainty.identify_weighted`).
     """
     _check(problem)
     start = time.perf_counter()
@@ -264,10 +267,12 @@ def identify_lm(
         return last["r"], last["jac"]
 
     def fun(x: np.ndarray) -> np.ndarray:
-        return -evaluate(x)[0]
+        r = evaluate(x)[0]
+        return -(r if whiten is None else whiten @ r)
 
     def jac(x: np.ndarray) -> np.ndarray:
-        return evaluate(x)[1][:, subset]
+        a = evaluate(x)[1][:, subset]
+        return a if whiten is None else whiten @ a
 
     method = "lm" if loss == "linear" else "trf"
     sol = scipy.optimize.least_squares(
@@ -283,24 +288,24 @@ def identify_lm(
         ftol=1e-12,
         gtol=1e-12,
     )
+    r, a = evaluate(sol.x)
+    if whiten is not None:
+        label = "lm (noise-weighted)"
+    else:
+        label = f"lm ({loss} loss)" if loss != "linear" else "lm"
     return Result(
         params=expand(sol.x),
         names=problem.full_layout.names,
         converged=bool(sol.status > 0),
         iterations=int(sol.nfev),
         initial_residual_norm=float(np.linalg.norm(r0)),
-        residual_norm=float(np.linalg.norm(sol.fun)),
+        residual_norm=float(np.linalg.norm(r)),
         n_residuals=len(r0),
         rank=len(subset),
         seconds=time.perf_counter() - start,
-        method=f"lm ({loss} loss)" if loss != "linear" else "lm",
+        method=label,
         identifiability=ident,
-        identifiable=_final_identifiable(
-            problem,
-            expand(sol.x),
-            ident,
-            jac=last["jac"] if last["x"] == sol.x.tobytes() else None,
-        ),
+        identifiable=_final_identifiable(problem, expand(sol.x), ident, jac=a),
     )
 
 

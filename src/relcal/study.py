@@ -28,7 +28,6 @@ from dataclasses import dataclass, replace
 from typing import Literal
 
 import numpy as np
-import scipy.stats
 
 from relcal import transforms as tf
 from relcal.errors import RelcalError
@@ -279,6 +278,8 @@ class StudyResult:
         """Interval that the ratio of one parameter falls in with probability ``level`` when the
         prediction is exact and the trials are independent (chi-square with T - 1 dof)."""
         dof = self.trials - 1
+        import scipy.stats  # here: worker processes need not import it
+
         lo, hi = scipy.stats.chi2.ppf([(1 - level) / 2, (1 + level) / 2], dof)
         return float(np.sqrt(lo / dof)), float(np.sqrt(hi / dof))
 
@@ -298,6 +299,8 @@ class StudyResult:
         d = np.sqrt(np.diag(cov))
         b = self.bias / d
         chi2 = float(self.trials * b @ np.linalg.solve(cov / np.outer(d, d), b))
+        import scipy.stats
+
         return chi2, float(scipy.stats.chi2.sf(chi2, len(b)))
 
     @property

@@ -583,57 +583,8 @@ def identify_weighted(
     nominal joint Jacobians; ``whiten`` ``(r, M)`` (from :func:`whitener`) replaces them. Returns
     a :class:`relcal.identify.Result`.
     """
-    import time
+    from relcal.identify import identify_lm
 
-    import scipy.optimize
-
-    from relcal.identifiability import analyse
-    from relcal.identify import Result, analyse_problem
-
-    start = time.perf_counter()
-    ident = identifiability or analyse_problem(problem)
     if whiten is None:
         whiten = whitener(noise_factor(problem, noise, covariances, measured=True))
-    subset = ident.subset
-    full = np.zeros(problem.full_layout.size)
-
-    def expand(x: np.ndarray) -> np.ndarray:
-        out = full.copy()
-        out[subset] = x
-        return out
-
-    def fun(x: np.ndarray) -> np.ndarray:
-        return -(whiten @ residuals(problem, expand(x), jacobian=False))
-
-    def jac(x: np.ndarray) -> np.ndarray:
-        return whiten @ residuals(problem, expand(x))[1][:, subset]
-
-    r0 = residuals(problem, full, jacobian=False)
-    sol = scipy.optimize.least_squares(
-        fun,
-        np.zeros(len(subset)),
-        jac=jac,
-        method="lm",
-        x_scale="jac",
-        max_nfev=max_nfev,
-        xtol=1e-12,
-        ftol=1e-12,
-        gtol=1e-12,
-    )
-    params = expand(sol.x)
-    r, a = residuals(problem, params)
-    at_estimate = analyse(a, problem.full_layout, ident.rcond).identifiable
-    return Result(
-        params=params,
-        names=problem.full_layout.names,
-        converged=bool(sol.status > 0),
-        iterations=int(sol.nfev),
-        initial_residual_norm=float(np.linalg.norm(r0)),
-        residual_norm=float(np.linalg.norm(r)),
-        n_residuals=len(r0),
-        rank=len(subset),
-        seconds=time.perf_counter() - start,
-        method="lm (noise-weighted)",
-        identifiable=ident.identifiable & at_estimate,
-        identifiability=ident,
-    )
+    return identify_lm(problem, max_nfev, identifiability, whiten=whiten)
