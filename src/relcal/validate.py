@@ -25,12 +25,11 @@ def pair_errors(problem: Problem, params: np.ndarray) -> np.ndarray:
     return r
 
 
-_KINDS = (("position_mm", slice(0, 3), 1e3), ("orientation_deg", slice(3, 6), None))
+_KINDS = (("position_mm", slice(0, 3), 1e3), ("orientation_deg", slice(3, 6), 180 / np.pi))
 
 
-def _norms(errors: np.ndarray, cols: slice, scale: float | None) -> np.ndarray:
-    norms = np.linalg.norm(errors[:, cols], axis=1)
-    return norms * scale if scale else np.degrees(norms)
+def _norms(errors: np.ndarray, cols: slice, scale: float) -> np.ndarray:
+    return np.linalg.norm(errors[:, cols], axis=1) * scale
 
 
 def stats(errors: np.ndarray) -> dict[str, dict[str, float]]:
@@ -66,19 +65,26 @@ def ratio_interval(
     pretend far more independent evidence than there is.
     """
     samples, index = np.unique(pairs, return_inverse=True)
-    index = index.reshape(pairs.shape)
-    rng = np.random.default_rng(seed)
-    draws = rng.integers(0, len(samples), (n_boot, len(samples)))
-    counts = np.zeros((n_boot, len(samples)))
+    i, j = index.reshape(pairs.shape).T
+    n = len(samples)
+    draws = np.random.default_rng(seed).integers(0, n, (n_boot, n))
+    counts = np.zeros((n_boot, n))
     np.add.at(counts, (np.arange(n_boot)[:, None], draws), 1.0)
-    weight = counts[:, index[:, 0]] * counts[:, index[:, 1]]  # (n_boot, P)
+
+    def resampled(values: np.ndarray) -> np.ndarray:
+        """``sum_p counts[i_p] counts[j_p] values_p`` per draw, via an ``(n, n)`` table."""
+        table = np.zeros((n, n))
+        np.add.at(table, (i, j), values)
+        return np.einsum("bi,ij,bj->b", counts, table, counts)
+
+    drawn = resampled(np.ones(len(pairs))) > 0  # draws with at least one pair
     out = {}
     for key, cols, scale in _KINDS:
         b2, a2 = _norms(before, cols, scale) ** 2, _norms(after, cols, scale) ** 2
         if np.all(np.isnan(b2)) or len(b2) == 0:
             continue
-        boot = np.sqrt((weight @ a2) / np.maximum(weight @ b2, 1e-300))
-        lo, hi = np.percentile(boot[weight.sum(axis=1) > 0], [2.5, 97.5])
+        boot = np.sqrt(resampled(a2)[drawn] / np.maximum(resampled(b2)[drawn], 1e-300))
+        lo, hi = np.percentile(boot, [2.5, 97.5])
         ratio = np.sqrt(a2.sum() / max(b2.sum(), 1e-300))
         out[key] = {"after_over_before": float(ratio), "ci95": [float(lo), float(hi)]}
     return out
