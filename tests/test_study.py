@@ -8,6 +8,7 @@ import pytest
 import scipy.stats
 from conftest import random_q
 
+import relcal.study
 from relcal.cli import main
 from relcal.errors import RelcalError
 from relcal.model import auto_hayati
@@ -80,11 +81,33 @@ def test_least_squares_spread_matches_its_sandwich_covariance(scenario):
     assert np.all(ls >= crb * (1 - 1e-9)) and np.max(ls / crb) > 1.2
 
 
-def test_results_do_not_depend_on_the_number_of_workers(scenario):
+def test_results_do_not_depend_on_the_number_of_workers(scenario, monkeypatch):
     one = study(scenario, trials=4, seed=5, workers=1, progress=False)
+    monkeypatch.setattr(relcal.study, "WORKER_STARTUP_S", 0.0)  # spawn even for 4 trials
+    spawned = []
+    monkeypatch.setattr(relcal.study, "ProcessPoolExecutor", _recording(spawned))
     two = study(scenario, trials=4, seed=5, workers=2, progress=False, chunk=1)
+    assert spawned == [2]
     # Same noise per trial; only round-off differs (BLAS threads) within the solver tolerance.
     np.testing.assert_allclose(one.estimates, two.estimates, rtol=0, atol=1e-10)
+
+
+def _recording(spawned: list):
+    """``ProcessPoolExecutor`` that records how many workers each pool was given."""
+    from concurrent.futures import ProcessPoolExecutor
+
+    def make(workers, **kwargs):
+        spawned.append(workers)
+        return ProcessPoolExecutor(workers, **kwargs)
+
+    return make
+
+
+def test_short_studies_run_in_this_process(scenario, monkeypatch):
+    spawned = []
+    monkeypatch.setattr(relcal.study, "ProcessPoolExecutor", _recording(spawned))
+    study(scenario, trials=4, seed=5, workers=2, progress=False)
+    assert spawned == []  # 4 trials take far less than starting a worker
 
 
 def test_command_line_study(tmp_path, capsys):
