@@ -52,7 +52,7 @@ def test_planted_outliers_are_reported_and_do_not_spoil_the_result(tmp_path):
 def test_real_positioner_calibration(tmp_path):
     root = import_rct_positioner(
         DATA / "rct_positioner/positioner_kinematic_measurements.yaml", tmp_path / "p"
-    )
+    ).folder
     dataset = load_dataset(root)
     assert len(dataset.ids) == 205 and dataset.mode == "eye_to_hand"
     cal = calibrate(dataset, measure(dataset), holdout=0.25, seed=0)

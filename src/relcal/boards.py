@@ -590,7 +590,7 @@ def write_printable(board: Board, path: str | Path, dpi: float = 300.0) -> Path:
         raise RelcalError(f"{path}: dpi must be positive, got {dpi}")
     x0, y0, x1, y1 = board_extent(board)
     width, height = sheet_size(board)
-    text_h = height - (y1 - y0)
+    text_h = _CAPTION_HEIGHT
     inch = 0.0254
     fig = Figure(figsize=(width / inch, height / inch), dpi=dpi)
     ax = fig.add_axes((0.0, 0.0, 1.0, 1.0))

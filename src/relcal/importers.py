@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 
 import pydantic
@@ -45,7 +46,16 @@ class _RctMeasurements(pydantic.RootModel[dict[str, _Observation]]):
     pass
 
 
-def import_rct_positioner(source: str | Path, out: str | Path) -> Path:
+@dataclass(frozen=True)
+class Imported:
+    """A dataset folder written by an importer."""
+
+    folder: Path
+    files: tuple[Path, ...]  # every file written into it
+    n_samples: int
+
+
+def import_rct_positioner(source: str | Path, out: str | Path) -> Imported:
     """Write a dataset folder (eye-to-hand, poses given) from robot_cal_tools' positioner file."""
     data = load_validated(_RctMeasurements, source).root
     out = Path(out)
@@ -54,8 +64,6 @@ def import_rct_positioner(source: str | Path, out: str | Path) -> Path:
         p = obs.pose
         values = [*obs.target_joints, p.x, p.y, p.z, p.qx, p.qy, p.qz, p.qw]
         lines.append(",".join([key, *(f"{v:.17g}" for v in values)]))
-    write_text(out / "positioner.yaml", POSITIONER_MODEL)
-    write_text(out / "samples.csv", "\n".join(lines) + "\n")
     spec = {
         "robot": "positioner.yaml",
         "hayati": "auto",
@@ -63,5 +71,11 @@ def import_rct_positioner(source: str | Path, out: str | Path) -> Path:
         "joint_unit": "rad",
         "samples": "samples.csv",
     }
-    write_text(out / "dataset.yaml", yaml.safe_dump(spec, sort_keys=False))
-    return out
+    contents = {  # in writing order: dataset.yaml last, once what it names is there
+        "positioner.yaml": POSITIONER_MODEL,
+        "samples.csv": "\n".join(lines) + "\n",
+        "dataset.yaml": yaml.safe_dump(spec, sort_keys=False),
+    }
+    for name, text in contents.items():
+        write_text(out / name, text)
+    return Imported(out, tuple(out / name for name in contents), len(data))

@@ -344,8 +344,9 @@ def format_table(sim: Simulation) -> str:
         lines.append("unidentifiable (n/i), with the reason:")
         lines += [f"  - {c}" for c in r.unidentifiable]
     named = {n for c in r.identifiability.combinations for n in c.names}
-    curved = [n for n, ok in zip(layout.names, r.identifiable, strict=True) if not ok]
-    curved = [n for n in curved if n not in named]
+    curved = [
+        n for n, ok in zip(layout.names, r.identifiable, strict=True) if not ok and n not in named
+    ]
     if curved:
         lines.append(
             f"  - {', '.join(curved)}: drawn into one of these combinations at the estimate "

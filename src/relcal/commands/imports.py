@@ -13,29 +13,26 @@ examples:
   relcal calibrate positioner/                    # then calibrate the dataset folder
 """
 
-# What import_rct_positioner writes into the dataset folder.
-RCT_POSITIONER_FILES = ("dataset.yaml", "samples.csv", "positioner.yaml")
-
 
 def run(args: argparse.Namespace) -> int:
     from relcal.importers import import_rct_positioner
     from relcal.io import write_json
 
-    out = import_rct_positioner(args.file, args.out)
+    done = import_rct_positioner(args.file, args.out)
     if args.json:
-        n_samples = len((out / "samples.csv").read_text().splitlines()) - 1  # after the header
         write_json(
             args.json,
             {
                 "format": args.format,
                 "source": args.file,
-                "dataset": str(out),
-                "files": [str(out / name) for name in RCT_POSITIONER_FILES],
-                "n_samples": n_samples,
+                "dataset": str(done.folder),
+                "files": [str(f) for f in done.files],
+                "n_samples": done.n_samples,
             },
         )
     if not args.quiet:
-        print(f"dataset written to {out} ({', '.join(RCT_POSITIONER_FILES)})")
+        names = ", ".join(f.name for f in done.files)
+        print(f"dataset written to {done.folder} ({names})")
     return 0
 
 
