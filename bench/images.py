@@ -7,7 +7,7 @@ rendered chessboard images.
 Decoding the PNG dominates on clean 5 MP images (~30 ms of ~40 ms each), so both run at about
 the same rate there; the search on a downscaled copy pays off on hard frames: OpenCV's
 full-resolution ``findChessboardCorners`` spends seconds on an image whose board is partly out of
-view, where ``relcal.detect.detect`` rejects it in a fraction of a second.
+view, where ``relcal.vision.detect.detect`` rejects it in a fraction of a second.
 
 Run ``python bench/images.py`` for a table; ``run()`` returns the rows.
 """
@@ -24,10 +24,10 @@ import cv2
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from relcal.boards import Board, board_points
-from relcal.camera import Camera
-from relcal.detect import measure_images
-from relcal.render import look_at, render_board
+from relcal.vision.boards import Board, board_points
+from relcal.vision.camera import Camera
+from relcal.vision.detect import measure_images
+from relcal.vision.render import look_at, render_board
 
 WORKERS = 2
 

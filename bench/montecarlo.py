@@ -1,4 +1,4 @@
-"""Throughput of the Monte Carlo study: trials per second of ``relcal.study.study`` (the function
+"""Throughput of the Monte Carlo study: trials per second of ``study.study`` (the function
 behind ``relcal study``), each trial a seeded noisy simulated calibration identified on the
 identifiable subset.
 
@@ -38,10 +38,11 @@ import time  # noqa: E402
 import numpy as np  # noqa: E402
 from peers import fd_least_squares  # noqa: E402
 
-from relcal.identify import analyse_problem  # noqa: E402
-from relcal.model import auto_hayati, get_robot  # noqa: E402
-from relcal.simulate import Noise, Setup, joint_path  # noqa: E402
-from relcal.study import (  # noqa: E402
+from relcal.calibration.identify import analyse_problem  # noqa: E402
+from relcal.calibration.noise import Noise  # noqa: E402
+from relcal.design.cell import Setup, joint_path  # noqa: E402
+from relcal.robot.model import auto_hayati, get_robot  # noqa: E402
+from relcal.sim.study import (  # noqa: E402
     Scenario,
     StudyResult,
     clean_poses,

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.optimize
 
-from relcal.measurement import Problem, residuals
+from relcal.calibration.measurement import Problem, residuals
 
 
 def fd_least_squares(problem: Problem, subset: np.ndarray) -> tuple[np.ndarray, bool]:

@@ -53,11 +53,11 @@ sys.path.insert(0, str(HERE))
 
 from peers import fd_least_squares  # noqa: E402
 
-from relcal import transforms as tf  # noqa: E402
-from relcal.identify import analyse_problem, identify_lm, identify_published  # noqa: E402
-from relcal.kinematics import fk, make_layout  # noqa: E402
-from relcal.measurement import Problem, make_pairs, residuals, split_params  # noqa: E402
-from relcal.model import RobotModel, get_robot, library_names  # noqa: E402
+from relcal import geometry as tf  # noqa: E402
+from relcal.calibration.identify import analyse_problem, identify_lm, identify_published  # noqa: E402
+from relcal.calibration.measurement import Problem, make_pairs, residuals, split_params  # noqa: E402
+from relcal.robot.kinematics import fk, make_layout  # noqa: E402
+from relcal.robot.model import RobotModel, get_robot, library_names  # noqa: E402
 
 #: Benchmark modules other engineers add under bench/ (``run() -> list[dict]``), in table order.
 OPTIONAL_MODULES = ("images", "montecarlo")
@@ -216,7 +216,7 @@ def rtb_ets_fk(model: RobotModel):
 def fk_rows(label: str, model: RobotModel, n_fast: int, n_peer: int) -> list[Row]:
     """The kernel's rate against the FK goal (peer: relcal's NumPy reference, for scale), then one
     row per peer library against the ratio goal."""
-    from relcal import fastkin
+    from relcal.robot import fastkin
 
     q = random_q(model, n_fast, np.random.default_rng(0))
     reference = fk(model, q[:200], backend="numpy")
@@ -390,7 +390,8 @@ def startup_rows(repeat: int = 2) -> list[Row]:
     """Extra start-up of the compiled FK path over the NumPy one (fresh processes, least of
     ``repeat``), with an empty Numba cache (compiles) and a filled one; a whole simulate command."""
     first_call = (
-        "from relcal.kinematics import fk; from relcal.model import get_robot; import numpy; "
+        "from relcal.robot.kinematics import fk; from relcal.robot.model import get_robot; "
+        "import numpy; "
         "fk(get_robot('a465'), numpy.zeros((1, 6)), backend='{}')"
     )
     baseline = min(_python(first_call.format("numpy"))[0] for _ in range(repeat))

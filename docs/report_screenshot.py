@@ -25,11 +25,12 @@ from helpers_dataset import synthetic_dataset  # noqa: E402
 from helpers_sim import HANDEYE  # noqa: E402
 from test_report_browser import layout, screenshot  # noqa: E402
 
-from relcal import transforms as tf  # noqa: E402
-from relcal.dataset import load_dataset  # noqa: E402
-from relcal.pipeline import calibrate, measure  # noqa: E402
-from relcal.report import calibration_report  # noqa: E402
-from relcal.results import results_document  # noqa: E402
+from relcal import geometry as tf  # noqa: E402
+from relcal.calibration.pipeline import calibrate  # noqa: E402
+from relcal.data.dataset import load_dataset  # noqa: E402
+from relcal.data.imaging import measure  # noqa: E402
+from relcal.reporting.documents import results_document  # noqa: E402
+from relcal.reporting.html import calibration_report  # noqa: E402
 
 SCALE = 0.6
 

@@ -6,10 +6,10 @@ import numpy as np
 from conftest import random_q
 from helpers_sim import BOARD, HANDEYE, true_errors
 
-from relcal import transforms as tf
-from relcal.dataset import write_samples
-from relcal.kinematics import apply_errors, fk, make_layout
-from relcal.model import auto_hayati, get_robot
+from relcal import geometry as tf
+from relcal.data.dataset import write_samples
+from relcal.robot.kinematics import apply_errors, fk, make_layout
+from relcal.robot.model import auto_hayati, get_robot
 
 
 @dataclass

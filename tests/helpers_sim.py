@@ -5,9 +5,9 @@ from dataclasses import replace
 import numpy as np
 from conftest import random_q
 
-from relcal import transforms as tf
-from relcal.kinematics import fk, make_layout
-from relcal.measurement import Problem, make_pairs, residuals, split_params
+from relcal import geometry as tf
+from relcal.calibration.measurement import Problem, make_pairs, residuals, split_params
+from relcal.robot.kinematics import fk, make_layout
 
 HANDEYE = tf.from_vector(np.array([0.0, 0.04, 0.06, 0.05, -0.03, 0.2]))
 BOARD = tf.from_vector(np.array([0.5, 0.1, -0.2, 3.0, 0.1, 0.4]))

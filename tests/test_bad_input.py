@@ -5,10 +5,10 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from relcal import transforms as tf
+from relcal import geometry as tf
 from relcal.cli import main
-from relcal.kinematics import fk
-from relcal.model import get_robot
+from relcal.robot.kinematics import fk
+from relcal.robot.model import get_robot
 
 A465 = get_robot("a465")
 
@@ -207,7 +207,7 @@ def test_26_bad_noise(capsys):
 
 def test_27_compensate_targets_with_bad_quaternion(capsys, tmp_path):
     model = tmp_path / "cal.yaml"
-    from relcal.model import dump_model
+    from relcal.robot.model import dump_model
 
     model.write_text(dump_model(A465))
     targets = tmp_path / "t.csv"

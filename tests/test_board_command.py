@@ -1,7 +1,7 @@
 """``relcal board`` writes a printable sheet and the YAML a dataset can name."""
 
-from relcal.boards import load_board
 from relcal.cli import main
+from relcal.vision.boards import load_board
 
 
 def test_board_command_writes_pdf_and_yaml(tmp_path, capsys):

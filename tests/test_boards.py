@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 from conftest import DATA
 
-from relcal.boards import (
+from relcal.errors import RelcalError
+from relcal.vision.boards import (
     Board,
     board_extent,
     board_image,
@@ -18,7 +19,6 @@ from relcal.boards import (
     reflectance,
     write_printable,
 )
-from relcal.errors import RelcalError
 
 CHESS = Board("chessboard", 7, 10, 0.025)
 CHARUCO = Board("charuco", 7, 5, 0.036195, 0.018256, "DICT_6X6_250")

@@ -9,11 +9,11 @@ import pytest
 from conftest import DATA, random_q
 from helpers_dataset import synthetic_dataset
 
-from relcal.boards import board_extent, load_board
 from relcal.cli import main
-from relcal.dataset import load_dataset
-from relcal.kinematics import apply_errors, make_layout
-from relcal.model import dump_model
+from relcal.data.dataset import load_dataset
+from relcal.robot.kinematics import apply_errors, make_layout
+from relcal.robot.model import dump_model
+from relcal.vision.boards import board_extent, load_board
 
 
 def numbers(doc) -> list[float]:

@@ -9,14 +9,14 @@ from conftest import random_q
 from helpers_dataset import synthetic_dataset
 from helpers_sim import HANDEYE, make_problem
 
-from relcal import transforms as tf
+from relcal import geometry as tf
+from relcal.calibration.compensate import aligned_errors, compensate
+from relcal.calibration.identify import calibrated_handeye, identify
+from relcal.calibration.measurement import split_params
 from relcal.cli import main
-from relcal.compensate import aligned_errors, compensate
-from relcal.export import calibrated_model
-from relcal.identify import calibrated_handeye, identify
-from relcal.kinematics import fk
-from relcal.measurement import split_params
-from relcal.model import auto_hayati, dump_model, get_robot, load_model
+from relcal.robot.export import calibrated_model
+from relcal.robot.kinematics import fk
+from relcal.robot.model import auto_hayati, dump_model, get_robot, load_model
 
 
 def test_compensation_brings_positioning_errors_down(a465, rng, tmp_path):

@@ -15,10 +15,11 @@ import pytest
 from conftest import DATA
 from scipy.spatial.transform import Rotation
 
-from relcal import transforms as tf
-from relcal.boards import Board, board_points
-from relcal.camera import Camera, calibrate_intrinsics, load_camera, save_camera
-from relcal.detect import (
+from relcal import geometry as tf
+from relcal.errors import RelcalError
+from relcal.vision.boards import Board, board_points
+from relcal.vision.camera import Camera, calibrate_intrinsics, load_camera, save_camera
+from relcal.vision.detect import (
     Detection,
     PoseResult,
     Rejected,
@@ -26,8 +27,7 @@ from relcal.detect import (
     estimate_pose,
     measure_images,
 )
-from relcal.errors import RelcalError
-from relcal.render import finish_image, look_at, render_board, render_levels
+from relcal.vision.render import finish_image, look_at, render_board, render_levels
 
 CAMERA = Camera(2400.0, 2402.0, 641.3, 509.2, (-0.12, 0.08, 4e-4, -3e-4, 0.0), 1280, 1024)
 SMALL = Camera(1200.0, 1201.0, 322.4, 254.1, (-0.12, 0.08, 4e-4, -3e-4, 0.0), 640, 512)

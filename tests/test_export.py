@@ -8,10 +8,10 @@ import pytest
 import yourdfpy
 from conftest import random_q
 
-from relcal import transforms as tf
-from relcal.export import calibrated_model, parameter_csv, urdf
-from relcal.kinematics import fk, make_layout
-from relcal.model import auto_hayati, get_robot, library_names
+from relcal import geometry as tf
+from relcal.robot.export import calibrated_model, parameter_csv, urdf
+from relcal.robot.kinematics import fk, make_layout
+from relcal.robot.model import auto_hayati, get_robot, library_names
 
 
 def calibrated(name, rng):

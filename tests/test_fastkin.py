@@ -11,10 +11,10 @@ from conftest import random_q
 
 pytest.importorskip("numba")
 
-from relcal import fastkin, kinematics  # noqa: E402
-from relcal import transforms as tf  # noqa: E402
-from relcal.kinematics import fk  # noqa: E402
-from relcal.model import auto_hayati, get_robot, library_names  # noqa: E402
+from relcal.robot import fastkin, kinematics  # noqa: E402
+from relcal import geometry as tf  # noqa: E402
+from relcal.robot.kinematics import fk  # noqa: E402
+from relcal.robot.model import auto_hayati, get_robot, library_names  # noqa: E402
 
 
 def everything(model, rng):
@@ -88,7 +88,8 @@ def test_backends_agree_and_auto_dispatch(a465, rng):
 def test_small_batches_do_not_import_numba():
     # Short commands must start without Numba's import (and never trigger a compile).
     code = (
-        "import sys, numpy as np; from relcal.kinematics import fk; from relcal.model import "
+        "import sys, numpy as np; from relcal.robot.kinematics import fk; "
+        "from relcal.robot.model import "
         "get_robot; fk(get_robot('a465'), np.zeros((500, 6))); print('numba' in sys.modules)"
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)

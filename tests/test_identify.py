@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 from helpers_sim import held_out_error, make_problem
 
-from relcal.identify import analyse_problem, identify
-from relcal.kinematics import make_layout
-from relcal.model import auto_hayati
+from relcal.calibration.identify import analyse_problem, identify
+from relcal.robot.kinematics import make_layout
+from relcal.robot.model import auto_hayati
 
 CASES = [(f, m) for f in ("published", "invariant") for m in ("position", "pose")]
 

@@ -6,11 +6,11 @@ import numpy as np
 import pytest
 from conftest import random_q
 
-from relcal import ik
-from relcal import transforms as tf
+from relcal import geometry as tf
 from relcal.errors import RelcalError
-from relcal.kinematics import apply_errors, fk, make_layout, pose_jacobian
-from relcal.model import auto_hayati, get_robot
+from relcal.robot import ik
+from relcal.robot.kinematics import apply_errors, fk, make_layout, pose_jacobian
+from relcal.robot.model import auto_hayati, get_robot
 
 LIBRARY = ["a465", "puma560", "ur5e", "franka_fr3", "irb120"]
 CLOSED_FORM = ["a465", "puma560", "irb120"]

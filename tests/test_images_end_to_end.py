@@ -5,11 +5,12 @@ truth with the predicted standard deviations."""
 import numpy as np
 import pytest
 
-from relcal.camera import Camera
-from relcal.dataset import load_dataset
-from relcal.model import auto_hayati, get_robot
-from relcal.pipeline import calibrate, measure
-from relcal.synth import write_image_dataset
+from relcal.calibration.pipeline import calibrate
+from relcal.data.dataset import load_dataset
+from relcal.data.imaging import measure
+from relcal.robot.model import auto_hayati, get_robot
+from relcal.sim.synth import write_image_dataset
+from relcal.vision.camera import Camera
 
 # Half the linear resolution of the default 2448 x 2048 / 8 mm camera, same field of view, to keep
 # the test fast; `relcal simulate --images` uses the full-size camera.

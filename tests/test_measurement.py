@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 from helpers_sim import make_problem, measured_poses
 
-from relcal import transforms as tf
-from relcal.measurement import make_pairs, residuals
+from relcal import geometry as tf
+from relcal.calibration.measurement import make_pairs, residuals
 
 
 def test_pairing_strategies():

@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 
 from relcal.errors import RelcalError
-from relcal.kinematics import fk
-from relcal.model import auto_hayati, dump_model, get_robot, library_names, load_model
+from relcal.robot.kinematics import fk
+from relcal.robot.model import auto_hayati, dump_model, get_robot, library_names, load_model
 
 GOOD = """\
 name: test arm

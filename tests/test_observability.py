@@ -10,19 +10,20 @@ import pytest
 from conftest import random_q
 from helpers_sim import make_problem
 
+from relcal.calibration.measurement import residuals
+from relcal.calibration.noise import Noise
 from relcal.cli import main
-from relcal.kinematics import make_layout
-from relcal.measurement import residuals
-from relcal.model import auto_hayati, model_from_dict
-from relcal.observability import (
+from relcal.design.observability import (
     analyse_formulation,
     format_report,
     observability_indices,
     parallel_pairs,
     report,
 )
-from relcal.simulate import DEG, MM, Noise
-from relcal.study import make_scenario, study
+from relcal.geometry import DEG, MM
+from relcal.robot.kinematics import make_layout
+from relcal.robot.model import auto_hayati, model_from_dict
+from relcal.sim.study import make_scenario, study
 
 NOISE = Noise(0.05 * MM, 0.01 * DEG, 0.001 * DEG)
 
@@ -136,7 +137,7 @@ def test_offsets_along_axes_parallel_to_the_first_are_base_motions(rng):
 
 
 def test_three_parallel_axes_give_two_named_pairs(rng):
-    from relcal.model import get_robot
+    from relcal.robot.model import get_robot
 
     ur5e = get_robot("ur5e")  # joints 2, 3 and 4 parallel
     assert [p.joints for p in parallel_pairs(ur5e)] == [(2, 3), (3, 4)]

@@ -7,10 +7,11 @@ import numpy as np
 from conftest import DATA
 from helpers_dataset import synthetic_dataset
 
+from relcal.calibration.pipeline import calibrate
 from relcal.cli import main
-from relcal.dataset import load_dataset
-from relcal.importers import import_rct_positioner
-from relcal.pipeline import calibrate, measure
+from relcal.data.dataset import load_dataset
+from relcal.data.imaging import measure
+from relcal.data.importers import import_rct_positioner
 
 
 def parameter_error(cal, truth):

@@ -4,12 +4,11 @@ selection, the plan against random feasible sets, and the Monte Carlo confirmati
 import numpy as np
 import pytest
 
-from relcal import transforms as tf
+from relcal import geometry as tf
 from relcal.cli import main
-from relcal.commands.observability import read_joints
-from relcal.errors import RelcalError
-from relcal.model import auto_hayati
-from relcal.plan import (
+from relcal.cli.observability import read_joints
+from relcal.design.cell import default_cell
+from relcal.design.plan import (
     CRITERIA,
     DEFAULT_NOISE,
     Constraints,
@@ -17,7 +16,6 @@ from relcal.plan import (
     candidates,
     check,
     criterion,
-    default_cell,
     exchange,
     greedy,
     information,
@@ -27,14 +25,16 @@ from relcal.plan import (
     selection_problem,
     travel_order,
 )
-from relcal.study import make_scenario, study, worst
+from relcal.errors import RelcalError
+from relcal.robot.model import auto_hayati
+from relcal.sim.study import make_scenario, study, worst
 
 CELL = dict(center=(0.4, 0.0, 0.0))
 
 
 @pytest.fixture(scope="module")
 def hayati():
-    from relcal.model import get_robot
+    from relcal.robot.model import get_robot
 
     return auto_hayati(get_robot("a465"))
 

@@ -8,11 +8,11 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
-from relcal import transforms as tf
+from relcal import geometry as tf
 from relcal.errors import RelcalError
-from relcal.ik import solve
-from relcal.kinematics import apply_errors, fk, make_layout, pose_jacobian
-from relcal.model import get_robot, load_model
+from relcal.robot.ik import solve
+from relcal.robot.kinematics import apply_errors, fk, make_layout, pose_jacobian
+from relcal.robot.model import get_robot, load_model
 
 FAST = settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 angles = st.floats(-np.pi, np.pi, allow_nan=False)
@@ -110,7 +110,7 @@ def test_model_loader_never_crashes(tmp_path, text):
     )
 )
 def test_samples_loader_never_crashes(tmp_path, rows):
-    from relcal.dataset import load_dataset
+    from relcal.data.dataset import load_dataset
 
     (tmp_path / "dataset.yaml").write_text("robot: a465\nhandeye: {xyz: [0, 0, 0.1]}\n")
     header = "id,q1,q2,q3,q4,q5,q6,x,y,z,qx,qy,qz,qw"

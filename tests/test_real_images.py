@@ -45,10 +45,10 @@ from conftest import DATA
 from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
-from relcal import transforms as tf
-from relcal.boards import load_board
-from relcal.camera import calibrate_intrinsics, load_camera
-from relcal.detect import estimate_pose, measure_images
+from relcal import geometry as tf
+from relcal.vision.boards import load_board
+from relcal.vision.camera import calibrate_intrinsics, load_camera
+from relcal.vision.detect import estimate_pose, measure_images
 
 CIRCLES = DATA / "rct_circle_grid_eye_in_hand"
 CHARUCO = DATA / "rct_charuco_eye_to_hand"

@@ -5,9 +5,10 @@ import cv2
 import numpy as np
 import pytest
 
-from relcal.boards import Board, board_points, dots
-from relcal.camera import Camera
-from relcal.render import (
+from relcal.geometry import invert
+from relcal.vision.boards import Board, board_points, dots
+from relcal.vision.camera import Camera
+from relcal.vision.render import (
     BACKGROUND_LEVEL,
     INK_LEVEL,
     PAPER_LEVEL,
@@ -16,7 +17,6 @@ from relcal.render import (
     render_board,
     render_levels,
 )
-from relcal.transforms import invert
 
 # 8 mm lens on a 1280 x 1024 sensor with 4.8 um pixels... scaled down: 640 x 512, f = 1200 px
 CAMERA = Camera(1200.0, 1201.0, 322.4, 254.1, (-0.15, 0.09, 4e-4, -3e-4, 0.0), 640, 512)

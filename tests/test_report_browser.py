@@ -21,12 +21,13 @@ import pytest
 from helpers_dataset import synthetic_dataset
 from helpers_sim import HANDEYE
 
-from relcal import transforms as tf
+from relcal import geometry as tf
+from relcal.calibration.pipeline import calibrate
 from relcal.cli import main
-from relcal.dataset import load_dataset
-from relcal.pipeline import calibrate, measure
-from relcal.report import _flatten, calibration_report
-from relcal.results import results_document
+from relcal.data.dataset import load_dataset
+from relcal.data.imaging import measure
+from relcal.reporting.documents import results_document
+from relcal.reporting.html import _flatten, calibration_report
 
 WIDTH = 1280
 CAL_SECTIONS = {

@@ -3,9 +3,9 @@
 import numpy as np
 import pytest
 
-from relcal.ik import closed_form_problem, has_spherical_wrist
-from relcal.kinematics import fk, forward_frames
-from relcal.model import get_robot, library_names
+from relcal.robot.ik import closed_form_problem, has_spherical_wrist
+from relcal.robot.kinematics import fk, forward_frames
+from relcal.robot.model import get_robot, library_names
 
 LIBRARY = ["a465", "puma560", "ur5e", "franka_fr3", "irb120"]
 DEG = np.pi / 180

@@ -6,7 +6,7 @@ import json
 import pytest
 from helpers_dataset import synthetic_dataset
 
-from relcal import pipeline
+from relcal.calibration import pipeline
 from relcal.cli import main
 from relcal.io import atomic_write, write_text
 

@@ -6,10 +6,11 @@ import json
 import numpy as np
 import pytest
 
+from relcal.calibration.noise import Noise
 from relcal.cli import main
 from relcal.errors import RelcalError
-from relcal.kinematics import make_layout
-from relcal.simulate import Noise, format_table, load_errors, simulate
+from relcal.robot.kinematics import make_layout
+from relcal.sim.simulate import format_table, load_errors, simulate
 
 
 @pytest.mark.parametrize("formulation", ["published", "invariant"])

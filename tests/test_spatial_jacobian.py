@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 from conftest import random_q
 
-from relcal import transforms as tf
-from relcal.kinematics import apply_errors, fk, make_layout, pose_jacobian, spatial_jacobian
-from relcal.model import auto_hayati, get_robot
+from relcal import geometry as tf
+from relcal.robot.kinematics import apply_errors, fk, make_layout, pose_jacobian, spatial_jacobian
+from relcal.robot.model import auto_hayati, get_robot
 
 
 def everything(model, rng):

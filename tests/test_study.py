@@ -8,12 +8,13 @@ import pytest
 import scipy.stats
 from conftest import random_q
 
-import relcal.study
+import relcal.sim.study
+from relcal.calibration.noise import Noise
 from relcal.cli import main
 from relcal.errors import RelcalError
-from relcal.model import auto_hayati
-from relcal.simulate import DEG, MM, Noise
-from relcal.study import format_study, make_scenario, standard_normals, study
+from relcal.geometry import DEG, MM
+from relcal.robot.model import auto_hayati
+from relcal.sim.study import format_study, make_scenario, standard_normals, study
 
 NOISE = Noise(0.05 * MM, 0.01 * DEG, 0.0)
 
@@ -83,9 +84,9 @@ def test_least_squares_spread_matches_its_sandwich_covariance(scenario):
 
 def test_results_do_not_depend_on_the_number_of_workers(scenario, monkeypatch):
     one = study(scenario, trials=4, seed=5, workers=1, progress=False)
-    monkeypatch.setattr(relcal.study, "WORKER_STARTUP_S", 0.0)  # spawn even for 4 trials
+    monkeypatch.setattr(relcal.sim.study, "WORKER_STARTUP_S", 0.0)  # spawn even for 4 trials
     spawned = []
-    monkeypatch.setattr(relcal.study, "ProcessPoolExecutor", _recording(spawned))
+    monkeypatch.setattr(relcal.sim.study, "ProcessPoolExecutor", _recording(spawned))
     two = study(scenario, trials=4, seed=5, workers=2, progress=False, chunk=1)
     assert spawned == [2]
     # Same noise per trial; only round-off differs (BLAS threads) within the solver tolerance.
@@ -105,7 +106,7 @@ def _recording(spawned: list):
 
 def test_short_studies_run_in_this_process(scenario, monkeypatch):
     spawned = []
-    monkeypatch.setattr(relcal.study, "ProcessPoolExecutor", _recording(spawned))
+    monkeypatch.setattr(relcal.sim.study, "ProcessPoolExecutor", _recording(spawned))
     study(scenario, trials=4, seed=5, workers=2, progress=False)
     assert spawned == []  # 4 trials take far less than starting a worker
 

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from relcal import transforms as tf
+from relcal import geometry as tf
 
 
 def unit(v):

@@ -8,12 +8,11 @@ import pytest
 from conftest import random_q
 from helpers_sim import make_problem
 
-from relcal import transforms as tf
-from relcal.identify import analyse_problem
-from relcal.measurement import make_pairs, residuals
-from relcal.model import auto_hayati
-from relcal.simulate import DEG, MM, Noise
-from relcal.uncertainty import (
+from relcal import geometry as tf
+from relcal.calibration.identify import analyse_problem
+from relcal.calibration.measurement import make_pairs, residuals
+from relcal.calibration.noise import Noise
+from relcal.calibration.uncertainty import (
     body_covariance,
     eliminate,
     joint_map,
@@ -25,6 +24,8 @@ from relcal.uncertainty import (
     right_jacobian_so3,
     whitener,
 )
+from relcal.geometry import DEG, MM
+from relcal.robot.model import auto_hayati
 
 NOISE = Noise(0.05 * MM, 0.01 * DEG, 0.002 * DEG)
 CASES = [

@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from relcal.measurement import make_pairs
-from relcal.validate import Validation, ratio_interval, stats
+from relcal.calibration.measurement import make_pairs
+from relcal.calibration.validate import Validation, ratio_interval, stats
 
 
 def test_stats_of_known_norms():

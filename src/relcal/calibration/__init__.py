@@ -1,0 +1,2 @@
+"""Relative measurements, identifiability, solvers, noise, uncertainty, hand-eye, validation,
+compensation."""

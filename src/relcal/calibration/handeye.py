@@ -1,0 +1,36 @@
+"""A starting guess of the hand-eye transform from data: ``C_k = W F_k X`` solved for ``X``.
+
+Relative motions satisfy ``A X = X B`` with ``A = F_i^-1 F_j`` and ``B = C_i^-1 C_j``. As in Park
+and Martin, the rotation vectors obey ``a = R_X b``, which an SVD (Kabsch) solves; the translation
+then follows from ``(R_A - I) t_X = R_X t_B - t_A`` by linear least squares. The identification
+refines ``X`` with the geometry, so this only needs to be close.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from relcal import geometry as tf
+from relcal.calibration.measurement import make_pairs
+from relcal.errors import RelcalError
+
+
+def solve_handeye(flange: np.ndarray, measured: np.ndarray) -> np.ndarray:
+    """``X`` ``(4, 4)`` from flange poses ``F_k`` and measured poses ``C_k`` ``(N, 4, 4)``."""
+    pairs = make_pairs(len(flange), "all")
+    a = tf.invert(flange[pairs[:, 0]]) @ flange[pairs[:, 1]]
+    b = tf.invert(measured[pairs[:, 0]]) @ measured[pairs[:, 1]]
+    va = Rotation.from_matrix(a[:, :3, :3]).as_rotvec()
+    vb = Rotation.from_matrix(b[:, :3, :3]).as_rotvec()
+    if len(pairs) < 2 or np.linalg.matrix_rank(va, tol=1e-3) < 2:
+        raise RelcalError(
+            "cannot guess the hand-eye transform: the poses must rotate about at least two "
+            "different axes (or give handeye: in dataset.yaml)"
+        )
+    u, _, vt = np.linalg.svd(va.T @ vb)
+    rot = u @ np.diag([1.0, 1.0, np.linalg.det(u @ vt)]) @ vt
+    lhs = (a[:, :3, :3] - np.eye(3)).reshape(-1, 3)
+    rhs = (np.einsum("ij,pj->pi", rot, b[:, :3, 3]) - a[:, :3, 3]).reshape(-1)
+    trans = np.linalg.lstsq(lhs, rhs, rcond=None)[0]
+    return tf.homogeneous(rot, trans)

@@ -1,0 +1,160 @@
+"""Measurement models: residuals and their Jacobians for absolute and relative pose data.
+
+Residuals follow ``r ~ A (p_true - p)``: measured minus modelled, so a Gauss-Newton step is
+``dp = pinv(A) r``. Three formulations:
+
+- ``absolute``: tool pose in the base frame; ``r_k = (p_meas - p_model, rotvec(R_meas R_model^T))``.
+- ``published`` (Lu & Hayes): ``r_ij = r_j - r_i`` with the absolute errors in the base frame; the
+  board position cancels, its orientation must be known (the measured poses are base-aligned).
+- ``invariant``: ``M_ij = C_i^-1 C_j`` against ``X^-1 F_i^-1 F_j X``; residual = 6-vector of
+  ``model^-1 measured`` (in the camera frame). The board frame ``W`` cancels entirely; the hand-eye
+  transform ``X`` is estimated with the geometry (6 extra parameters ``handeye.*``).
+
+``measure="position"`` keeps the 3 translation rows of each measurement, ``"pose"`` all 6.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Literal
+
+import numpy as np
+
+from relcal import geometry as tf
+from relcal.robot.kinematics import Layout, apply_errors, fk, pose_jacobian, spatial_jacobian
+from relcal.robot.model import RobotModel
+
+Formulation = Literal["absolute", "published", "invariant"]
+Measure = Literal["position", "pose"]
+PairStrategy = Literal["consecutive", "star", "all"]
+
+
+def make_pairs(
+    n_poses: int, strategy: PairStrategy = "consecutive", reference: int = 0
+) -> np.ndarray:
+    """Index pairs ``(P, 2)`` of poses: consecutive ``(k, k+1)``, a star around ``reference``, or
+    all ``n (n - 1) / 2`` pairs."""
+    idx = np.arange(n_poses)
+    if strategy == "consecutive":
+        return np.stack([idx[:-1], idx[1:]], axis=1)
+    if strategy == "star":
+        others = idx[idx != reference]
+        return np.stack([np.full_like(others, reference), others], axis=1)
+    if strategy == "all":
+        i, j = np.triu_indices(n_poses, k=1)
+        return np.stack([i, j], axis=1)
+    raise ValueError(f"unknown pairing strategy '{strategy}': use consecutive, star or all")
+
+
+@dataclass(frozen=True)
+class Problem:
+    """An identification problem: nominal model, which parameters, and the measurements.
+
+    ``q`` ``(N, n)`` joint values; ``poses`` ``(N, 4, 4)`` measured poses: tool poses in a
+    base-aligned frame (absolute, published) or camera poses in the board frame (invariant).
+    ``handeye`` is the flange-from-camera guess ``X`` used by the invariant formulation (for the
+    others the measured pose is the tool pose: put the camera in ``model.tool``).
+    """
+
+    model: RobotModel
+    layout: Layout
+    q: np.ndarray
+    poses: np.ndarray
+    formulation: Formulation = "invariant"
+    measure: Measure = "pose"
+    pairs: np.ndarray | None = None
+    handeye: np.ndarray = field(default_factory=lambda: np.eye(4))
+    weights: np.ndarray | None = None  # (6,) per-row factors, e.g. 1/sigma of (t, r) rows
+
+    @property
+    def full_layout(self) -> Layout:
+        """The parameter layout including the hand-eye 6-vector when it is estimated."""
+        if self.formulation == "invariant":
+            return self.layout.extended("handeye")
+        return self.layout
+
+    @property
+    def rows_per_measurement(self) -> int:
+        return 3 if self.measure == "position" else 6
+
+    def pair_indices(self) -> np.ndarray:
+        if self.pairs is not None:
+            return np.asarray(self.pairs, dtype=int)
+        return make_pairs(len(self.q))
+
+    def n_residuals(self) -> int:
+        count = len(self.q) if self.formulation == "absolute" else len(self.pair_indices())
+        return count * self.rows_per_measurement
+
+
+def absolute_errors(measured: np.ndarray, modelled: np.ndarray) -> np.ndarray:
+    """Base-frame pose errors ``(N, 6)``: position difference (m) and rotation vector (rad) of
+    ``R_meas R_model^T``."""
+    rot = measured[..., :3, :3] @ np.swapaxes(modelled[..., :3, :3], -1, -2)
+    out = np.empty((*measured.shape[:-2], 6))
+    out[..., :3] = measured[..., :3, 3] - modelled[..., :3, 3]
+    out[..., 3:] = tf.to_vector(tf.homogeneous(rot, np.zeros(3)))[..., 3:]
+    return out
+
+
+def relative_measurements(poses: np.ndarray, pairs: np.ndarray) -> np.ndarray:
+    """Measured relative transforms ``C_i^-1 C_j`` ``(P, 4, 4)``."""
+    return tf.invert(poses[pairs[:, 0]]) @ poses[pairs[:, 1]]
+
+
+def split_params(problem: Problem, params: np.ndarray) -> tuple[RobotModel, np.ndarray]:
+    """The model with the geometric errors applied, and the hand-eye transform ``X``."""
+    n_geo = problem.layout.size
+    model = apply_errors(problem.model, problem.layout, params[:n_geo])
+    handeye = problem.handeye
+    if problem.formulation == "invariant":
+        handeye = handeye @ tf.from_vector(params[n_geo : n_geo + 6])
+    return model, handeye
+
+
+def residuals(problem: Problem, params: np.ndarray, jacobian: bool = True):
+    """Residual vector ``(M,)`` and, if asked, its Jacobian ``A`` ``(M, P)`` at ``params``.
+
+    Measurements are stacked measurement by measurement (3 or 6 rows each).
+    """
+    model, handeye = split_params(problem, params)
+    if jacobian and problem.formulation == "invariant":
+        tip, jac = spatial_jacobian(model, problem.q, problem.layout)
+    elif jacobian:
+        tip, jac = pose_jacobian(model, problem.q, problem.layout)
+    else:
+        tip, jac = fk(model, problem.q), None
+    rows = problem.rows_per_measurement
+    if problem.formulation == "invariant":
+        r, a = _invariant(problem, tip, jac, handeye)
+    else:
+        r, a = absolute_errors(problem.poses, tip), jac
+        if problem.formulation == "published":
+            i, j = problem.pair_indices().T
+            r, a = r[j] - r[i], (a[j] - a[i] if jacobian else None)
+    if problem.weights is not None:
+        r = r * problem.weights
+        a = a * problem.weights[:, None] if jacobian else None
+    r = r[:, :rows].reshape(-1)
+    return (r, a[:, :rows].reshape(-1, a.shape[-1])) if jacobian else r
+
+
+def _invariant(
+    problem: Problem, tip: np.ndarray, spatial: np.ndarray | None, handeye: np.ndarray
+) -> tuple[np.ndarray, np.ndarray | None]:
+    """Residuals ``(P, 6)`` and Jacobian ``(P, 6, n_geo + 6)`` of the frame-invariant form, the
+    latter if the spatial twists of the parameters (:func:`spatial_jacobian`) are given."""
+    i, j = problem.pair_indices().T
+    rel = tf.invert(tip[i]) @ tip[j]  # F_i^-1 F_j
+    model_rel = tf.invert(handeye) @ rel @ handeye
+    model_rel_inv = tf.invert(model_rel)
+    measured = relative_measurements(problem.poses, problem.pair_indices())
+    r = tf.to_vector(model_rel_inv @ measured)
+    if spatial is None:
+        return r, None
+
+    # F_k -> exp(S_k) F_k makes X^-1 F_i^-1 F_j X -> model_rel exp(Ad((F_j X)^-1) (S_j - S_i)).
+    geo = tf.adjoint(tf.invert(tip[j] @ handeye)) @ (spatial[j] - spatial[i])
+    # Hand-eye X -> X exp(xi): model_rel -> model_rel exp(xi - Ad(model_rel^-1) xi).
+    he = np.eye(6) - tf.adjoint(model_rel_inv)
+    return r, np.concatenate([geo, he], axis=-1)

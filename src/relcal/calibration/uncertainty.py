@@ -1,0 +1,590 @@
+"""Uncertainty of identified parameters: covariance, correlation and predicted accuracy.
+
+The identification is linearised at the parameters (nominal by default): residuals
+``r ~ A (p_true - p) + e`` with ``A`` the identification Jacobian restricted to the estimated
+subset and ``e`` the residual noise. The noise comes from the poses: each measured camera pose
+``C_k`` carries a small error ``eps_k`` (6-vector, translation m and rotation rad, in the frame the
+formulation's residuals live in), and each joint reading an error ``eta_k`` that moves the modelled
+pose by ``J_q eta_k``. Relative measurements mix the errors of two poses, so consecutive pairs are
+correlated and all-pairs sets are redundant: ``e = B eps`` with ``B`` (:func:`noise_blocks`) mapping
+the ``6 N`` per-pose errors to the ``M`` residual rows, ``Cov(e) = B S B^T`` with ``S`` the
+block-diagonal per-pose covariance (:func:`pose_covariances`).
+
+Two covariances of the estimate follow:
+
+- least squares (what :func:`identify.identify` computes, with the problem's row weights):
+  ``K B S B^T K^T`` with ``K = (A^T A)^-1 A^T`` (the "sandwich");
+- weighted by the full noise covariance (Gauss-Markov, maximum likelihood for Gaussian noise):
+  ``(A^T Cov(e)^+ A)^-1``, the Cramer-Rao bound of the linearised problem. It does not depend on
+  the pairing strategy or on the order of the poses (any connected pairing carries the same
+  information); the least-squares covariance does.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+from typing import Literal
+
+import numpy as np
+import scipy.sparse
+import scipy.sparse.csgraph
+
+from relcal import geometry as tf
+from relcal.calibration.identifiability import Identifiability
+from relcal.calibration.measurement import (
+    PairStrategy,
+    Problem,
+    make_pairs,
+    relative_measurements,
+    residuals,
+    split_params,
+)
+from relcal.calibration.noise import Noise
+from relcal.errors import RelcalError
+from relcal.robot.ik import joint_layout
+from relcal.robot.kinematics import fk, pose_jacobian
+
+Estimator = Literal["least_squares", "weighted"]
+_RANK_TOL = 1e-10  # relative tolerance on the singular values of the noise factor
+
+
+# --- the noise -----------------------------------------------------------------------------------
+
+
+def right_jacobian_so3(rotvec: np.ndarray) -> np.ndarray:
+    """Right Jacobian ``(..., 3, 3)`` of SO(3) at rotation vectors ``(..., 3)`` (rad):
+    ``R(phi + dphi) ~ R(phi) exp(J_r(phi) dphi)``."""
+    phi = np.asarray(rotvec, dtype=float)
+    angle = np.linalg.norm(phi, axis=-1)[..., None, None]
+    k = tf.skew(phi)
+    small = angle < 1e-8
+    safe = np.where(small, 1.0, angle)
+    c1 = np.where(small, 0.5, (1 - np.cos(safe)) / safe**2)
+    c2 = np.where(small, 1.0 / 6.0, (safe - np.sin(safe)) / safe**3)
+    return np.eye(3) - c1 * k + c2 * (k @ k)
+
+
+def body_covariance(poses: np.ndarray, vector_covariance: np.ndarray) -> np.ndarray:
+    """Covariances ``(N, 6, 6)`` of body-frame pose errors (``C exp(eps)``) from covariances of
+    ``transforms.to_vector(C)`` (translation m, rotation vector rad), as the image pipeline gives
+    them (:class:`relcal.vision.detect.PoseResult`)."""
+    vec = tf.to_vector(poses)
+    g = np.zeros((len(poses), 6, 6))
+    g[:, :3, :3] = np.swapaxes(poses[:, :3, :3], -1, -2)  # eps_t = R^T dt
+    g[:, 3:, 3:] = right_jacobian_so3(vec[:, 3:])  # eps_w = J_r(phi) dphi
+    return g @ vector_covariance @ np.swapaxes(g, -1, -2)
+
+
+def _joint_variances(noise: Noise, n_joints: int) -> np.ndarray:
+    joints = np.broadcast_to(np.asarray(noise.joints, dtype=float), (n_joints,))
+    return joints**2
+
+
+def pose_covariances(
+    problem: Problem,
+    noise: Noise,
+    covariances: np.ndarray | None = None,
+    params: np.ndarray | None = None,
+) -> np.ndarray:
+    """Per-pose error covariances ``(N, 6, 6)`` in the frame of the formulation's residuals.
+
+    Frame-invariant: the camera's own (body) frame, ``C_k exp(eps_k)``. Published and absolute:
+    the base frame at the tool point, ``(R eps_t, R eps_w)``. The camera pose error is isotropic
+    with ``noise.position`` (m) and ``noise.orientation`` (rad) per axis, or the given
+    ``covariances`` ``(N, 6, 6)`` of ``to_vector(C_k)``; joint noise ``noise.joints`` (rad, or m for
+    prismatic joints; scalar or per joint) adds ``G Sigma_q G^T`` with ``G`` the joint Jacobian in
+    the same frame.
+    """
+    n = len(problem.q)
+    params = np.zeros(problem.full_layout.size) if params is None else params
+    model, handeye = split_params(problem, params)
+    if covariances is not None:
+        covariances = np.asarray(covariances, dtype=float)
+        if covariances.shape != (n, 6, 6):
+            raise RelcalError(
+                f"pose covariances must have shape ({n}, 6, 6), got {covariances.shape}"
+            )
+        camera = body_covariance(problem.poses, covariances)
+    else:
+        diag = np.r_[np.full(3, noise.position**2), np.full(3, noise.orientation**2)]
+        camera = np.broadcast_to(np.diag(diag), (n, 6, 6)).copy()
+    if problem.formulation != "invariant":
+        rot = fk(model, problem.q)[:, :3, :3]
+        d = np.zeros((n, 6, 6))
+        d[:, :3, :3] = rot
+        d[:, 3:, 3:] = rot
+        camera = d @ camera @ np.swapaxes(d, -1, -2)
+    var_q = _joint_variances(noise, model.n_joints)
+    if np.any(var_q > 0):
+        g = joint_map(problem, params)
+        camera = camera + (g * var_q) @ np.swapaxes(g, -1, -2)
+    return camera
+
+
+def joint_map(problem: Problem, params: np.ndarray | None = None) -> np.ndarray:
+    """Per-pose joint Jacobians ``(N, 6, n)`` in the frame of :func:`pose_covariances`: how a
+    joint reading error moves the modelled pose (camera body frame for the frame-invariant
+    formulation, base frame at the tool point otherwise)."""
+    params = np.zeros(problem.full_layout.size) if params is None else params
+    model, handeye = split_params(problem, params)
+    tip, jq = pose_jacobian(model, problem.q, joint_layout(model))
+    if problem.formulation != "invariant":
+        return jq
+    body = tf.rotate_twist(np.swapaxes(tip[:, :3, :3], -1, -2), jq)  # flange body twists
+    return tf.adjoint(tf.invert(handeye)) @ body
+
+
+def noise_blocks(
+    problem: Problem, params: np.ndarray | None = None, measured: bool = False
+) -> tuple[np.ndarray, np.ndarray]:
+    """The residual noise per measurement: which poses ``(m, s)`` each of the ``m`` measurements
+    involves (``s`` = 2 for pairs, 1 for absolute poses) and the blocks ``(m, s, r, 6)`` mapping
+    those poses' errors to its ``r`` residual rows (with the problem's row weights).
+
+    Frame-invariant pair (i, j): ``eps_j - Ad(M_ij^-1) eps_i`` with ``M_ij`` the relative camera
+    motion, modelled at ``params`` or, with ``measured``, the measured ``C_i^-1 C_j`` (closer to
+    the truth than the nominal model); published: ``eps_j - eps_i``; absolute: ``eps_k``.
+    Position-only measurements keep the first 3 rows of each.
+    """
+    n = len(problem.q)
+    params = np.zeros(problem.full_layout.size) if params is None else params
+    if problem.formulation == "absolute":
+        poses = np.arange(n)[:, None]
+        blocks = np.broadcast_to(np.eye(6), (n, 1, 6, 6))
+    else:
+        pairs = problem.pair_indices()
+        poses = pairs[:, ::-1]  # (j, i): pose j enters with +I, pose i with the left block
+        i, j = pairs.T
+        if problem.formulation == "invariant" and measured:
+            left = -tf.adjoint(tf.invert(relative_measurements(problem.poses, pairs)))
+        elif problem.formulation == "invariant":
+            model, handeye = split_params(problem, params)
+            tip = fk(model, problem.q)
+            x_inv = tf.invert(handeye)
+            model_rel = x_inv @ tf.invert(tip[i]) @ tip[j] @ handeye
+            left = -tf.adjoint(tf.invert(model_rel))
+        else:
+            left = np.broadcast_to(-np.eye(6), (len(poses), 6, 6))
+        blocks = np.stack([np.broadcast_to(np.eye(6), left.shape), left], axis=1)
+    if problem.weights is not None:
+        blocks = blocks * np.asarray(problem.weights, dtype=float)[None, None, :, None]
+    return poses, blocks[:, :, : problem.rows_per_measurement]
+
+
+def noise_map(
+    problem: Problem, params: np.ndarray | None = None, measured: bool = False
+) -> np.ndarray:
+    """``B`` ``(M, 6 N)``: residual rows per unit per-pose error, dense (small problems), from
+    :func:`noise_blocks`."""
+    poses, blocks = noise_blocks(problem, params, measured)
+    m, slots, r, _ = blocks.shape
+    dense = np.zeros((m, r, len(problem.q), 6))
+    for k in range(slots):
+        dense[np.arange(m), :, poses[:, k], :] += blocks[:, k]
+    return dense.reshape(m * r, -1)
+
+
+def _root(cov: np.ndarray) -> np.ndarray:
+    """Symmetric square roots ``(N, 6, 6)`` of positive semi-definite covariances."""
+    w, v = np.linalg.eigh(cov)
+    return (v * np.sqrt(np.clip(w, 0.0, None))[:, None, :]) @ np.swapaxes(v, -1, -2)
+
+
+def noise_factor(
+    problem: Problem,
+    noise: Noise,
+    covariances: np.ndarray | None = None,
+    params: np.ndarray | None = None,
+    measured: bool = False,
+) -> np.ndarray:
+    """``Z`` ``(M, 6 N)`` with ``Z Z^T`` the covariance of the residual noise (``B S^(1/2)``),
+    dense; ``measured`` as in :func:`noise_map`."""
+    root = _root(pose_covariances(problem, noise, covariances, params))
+    n = len(problem.q)
+    blockdiag = np.zeros((n, 6, n, 6))
+    blockdiag[np.arange(n), :, np.arange(n), :] = root
+    return noise_map(problem, params, measured) @ blockdiag.reshape(6 * n, 6 * n)
+
+
+def projected_noise_factor(
+    problem: Problem,
+    a: np.ndarray,
+    noise: Noise,
+    covariances: np.ndarray | None = None,
+    params: np.ndarray | None = None,
+) -> np.ndarray:
+    """``A^T Z`` ``(k, 6 N)`` for a Jacobian ``A`` ``(M, k)``, without forming ``Z``: each
+    measurement adds its rows' share to the poses it involves, in ``O(M k)`` time and memory (an
+    all-pairs set of N poses has ``M ~ 3 N^2`` rows, and ``Z`` would hold ``M x 6 N`` numbers)."""
+    poses, blocks = noise_blocks(problem, params)
+    m, slots, r, _ = blocks.shape
+    rows = a.reshape(m, r, -1)
+    out = np.zeros((len(problem.q), a.shape[1], 6))
+    for k in range(slots):
+        np.add.at(out, poses[:, k], np.einsum("mrp,mrc->mpc", rows, blocks[:, k]))
+    root = _root(pose_covariances(problem, noise, covariances, params))
+    return np.concatenate(out @ root, axis=1)
+
+
+def residual_covariance(
+    problem: Problem,
+    noise: Noise,
+    covariances: np.ndarray | None = None,
+    params: np.ndarray | None = None,
+) -> np.ndarray:
+    """Covariance ``(M, M)`` of the residual noise (small problems; it is dense)."""
+    z = noise_factor(problem, noise, covariances, params)
+    return z @ z.T
+
+
+def whitener(z: np.ndarray) -> np.ndarray:
+    """``W`` ``(r, M)`` with ``W Cov W^T = I_r`` and ``W^T W = Cov^+`` for ``Cov = Z Z^T``."""
+    u, s, _ = np.linalg.svd(z, full_matrices=False)
+    keep = s > _RANK_TOL * (s[0] if len(s) else 0.0)
+    if not keep.any():
+        raise RelcalError("the noise model is zero: give position/orientation or joint noise")
+    return u[:, keep].T / s[keep, None]
+
+
+# --- per-pose information (planning) -------------------------------------------------------------
+
+
+def pose_rows(
+    problem: Problem,
+    noise: Noise,
+    covariances: np.ndarray | None = None,
+    params: np.ndarray | None = None,
+) -> tuple[np.ndarray, int]:
+    """Whitened per-pose Jacobians ``(N, r, P + h)`` and the nuisance size ``h``.
+
+    Each pose's own error (``r`` = 6 rows, 3 for position-only published data) as a function of
+    the parameters (``problem.full_layout``, ``P`` columns) and of what relative measurements
+    cancel (``h`` nuisance columns last): the board pose ``W`` (6, frame-invariant), a constant
+    offset of every row (published: the differences cancel it), nothing (absolute). Eliminating
+    the nuisance from the summed information ``sum_k R_k^T R_k`` gives the same information as
+    any connected set of pairs weighted by its full covariance (the Cramer-Rao bound does not
+    depend on the pairing), and the sum is additive over poses, which pose selection needs.
+    """
+    if problem.formulation == "invariant" and problem.measure == "position":
+        raise RelcalError(
+            "per-pose information needs full-pose measurements for the frame-invariant "
+            "formulation (relative positions do not split into per-pose terms); use --measure pose"
+        )
+    n = len(problem.q)
+    params = np.zeros(problem.full_layout.size) if params is None else params
+    model, handeye = split_params(problem, params)
+    tip, jac = pose_jacobian(model, problem.q, problem.layout)
+    if problem.formulation == "invariant":
+        body = tf.rotate_twist(np.swapaxes(tip[:, :3, :3], -1, -2), jac)
+        geo = tf.adjoint(tf.invert(handeye)) @ body
+        he = np.broadcast_to(np.eye(6), (n, 6, 6))
+        board = tf.adjoint(tf.invert(tip @ handeye))  # W -> W exp(w)
+        rows = np.concatenate([geo, he, board], axis=-1)
+        h = 6
+    elif problem.formulation == "published":  # differences cancel any constant offset
+        offset = np.zeros((n, 6, problem.rows_per_measurement))
+        offset[:, : problem.rows_per_measurement] = np.eye(problem.rows_per_measurement)
+        rows, h = np.concatenate([jac, offset], axis=-1), problem.rows_per_measurement
+    else:
+        rows, h = jac, 0
+    cov = pose_covariances(problem, noise, covariances, params)
+    r = problem.rows_per_measurement
+    rows, cov = rows[:, :r], cov[:, :r, :r]
+    w, v = np.linalg.eigh(cov)
+    if np.any(w <= 1e-30 * np.abs(w).max(initial=0.0)) or not np.all(w > 0):
+        raise RelcalError(
+            "the pose noise covariance is singular: give positive position and orientation noise"
+        )
+    inv_root = (v / np.sqrt(w)[:, None, :]) @ np.swapaxes(v, -1, -2)
+    return inv_root @ rows, h
+
+
+def eliminate(information: np.ndarray, h: int) -> np.ndarray:
+    """Schur complement ``(..., P, P)`` of the last ``h`` (nuisance) rows and columns of
+    information matrices ``(..., P + h, P + h)``."""
+    if h == 0:
+        return information
+    a = information[..., :-h, :-h]
+    b = information[..., :-h, -h:]
+    c = information[..., -h:, -h:]
+    return a - b @ np.linalg.solve(c, np.swapaxes(b, -1, -2))
+
+
+# --- parameter covariance ------------------------------------------------------------------------
+
+
+def _inverse_scaled(info: np.ndarray) -> np.ndarray:
+    """Inverse of a symmetric information matrix, computed on unit-diagonal scaling; directions
+    without information get an enormous (not infinite) variance."""
+    d = np.sqrt(np.clip(np.diag(info), 1e-300, None))
+    unit = info / np.outer(d, d)
+    w, v = np.linalg.eigh(unit)
+    w = np.clip(w, np.finfo(float).eps * max(w.max(initial=0.0), 1e-300), None)
+    return (v / w) @ v.T / np.outer(d, d)
+
+
+@dataclass(frozen=True)
+class Uncertainty:
+    """Covariance of the estimated parameters.
+
+    ``crb`` and ``least_squares`` are ``(k, k)`` over ``subset`` (indices into ``names``), SI
+    units (m, rad): the Cramer-Rao bound (the noise-weighted estimator) and the covariance of the
+    problem's least-squares estimate (its pairs and row weights). ``estimator`` says which one
+    :attr:`covariance` is. Parameters outside the subset are not estimated (held at nominal).
+    """
+
+    names: tuple[str, ...]
+    is_angle: np.ndarray  # (P,)
+    subset: np.ndarray  # (k,)
+    crb: np.ndarray  # (k, k)
+    least_squares: np.ndarray | None  # (k, k), None when not computed (pose planning)
+    estimator: Estimator
+    identifiable: np.ndarray  # (P,) individually identifiable (no share in the null space)
+
+    @property
+    def covariance(self) -> np.ndarray:
+        """``(k, k)`` covariance of the chosen estimator."""
+        if self.estimator == "weighted" or self.least_squares is None:
+            return self.crb
+        return self.least_squares
+
+    def _full(self, cov: np.ndarray) -> np.ndarray:
+        out = np.full(len(self.names), np.nan)
+        out[self.subset] = np.sqrt(np.diag(cov))
+        return out
+
+    @property
+    def std(self) -> np.ndarray:
+        """Standard deviations ``(P,)`` (m or rad) of the chosen estimator; NaN if not estimated."""
+        return self._full(self.covariance)
+
+    @property
+    def crb_std(self) -> np.ndarray:
+        """Cramer-Rao standard deviations ``(P,)``; NaN for parameters not estimated."""
+        return self._full(self.crb)
+
+    @property
+    def least_squares_std(self) -> np.ndarray:
+        """Least-squares standard deviations ``(P,)``; NaN for parameters not estimated (or all
+        NaN when not computed)."""
+        if self.least_squares is None:
+            return np.full(len(self.names), np.nan)
+        return self._full(self.least_squares)
+
+    @property
+    def correlation(self) -> np.ndarray:
+        """Correlation matrix ``(k, k)`` of the estimated subset (chosen estimator)."""
+        s = np.sqrt(np.diag(self.covariance))
+        return self.covariance / np.outer(s, s)
+
+    def strongest_correlations(self, count: int = 8) -> list[tuple[str, str, float]]:
+        """The ``count`` most correlated pairs ``(name_a, name_b, rho)``, largest ``|rho|`` 1st."""
+        corr = self.correlation
+        i, j = np.triu_indices(len(corr), k=1)
+        order = np.argsort(-np.abs(corr[i, j]), kind="stable")[:count]
+        names = [self.names[k] for k in self.subset]
+        return [(names[i[o]], names[j[o]], float(corr[i[o], j[o]])) for o in order]
+
+
+def spanning_chain(problem: Problem) -> Problem:
+    """``problem`` on consecutive pairs, when that carries the same information: its pairs connect
+    every pose and each pair's measurement is a function of the chain's (full relative poses, or
+    differences of base-frame errors). The Cramer-Rao bound then needs ``6 (N - 1)`` rows, however
+    many pairs the problem has. Otherwise (absolute poses, relative positions in the camera frame,
+    pairs that leave poses apart) ``problem`` itself."""
+    n = len(problem.q)
+    if problem.formulation == "absolute" or (
+        problem.formulation == "invariant" and problem.measure == "position"
+    ):
+        return problem
+    pairs = problem.pair_indices()
+    graph = scipy.sparse.coo_matrix((np.ones(len(pairs)), tuple(pairs.T)), shape=(n, n))
+    if scipy.sparse.csgraph.connected_components(graph, directed=False)[0] != 1:
+        return problem
+    return replace(problem, pairs=make_pairs(n, "consecutive"))
+
+
+def parameter_covariance(
+    problem: Problem,
+    noise: Noise,
+    identifiability: Identifiability | None = None,
+    covariances: np.ndarray | None = None,
+    params: np.ndarray | None = None,
+    estimator: Estimator = "least_squares",
+    subset: np.ndarray | None = None,
+) -> Uncertainty:
+    """Covariance of the parameters estimated on the identifiable subset.
+
+    Parameters
+    ----------
+    problem : the identification problem (its poses only matter for ``covariances``).
+    noise : standard deviations of the measured pose (m, rad) and of the joint readings (rad).
+    identifiability : the analysis giving the subset (default :func:`analyse_problem`).
+    covariances : ``(N, 6, 6)`` per-pose covariances of ``to_vector(C_k)`` (replace the isotropic
+        pose noise; joint noise still adds).
+    params : linearisation point, ``problem.full_layout`` (default nominal, zeros).
+    estimator : ``least_squares`` (relcal's ``identify``) or ``weighted`` (the Cramer-Rao bound).
+    subset : parameter indices to estimate (default ``identifiability.subset``).
+    """
+    from relcal.calibration.identify import analyse_problem
+
+    params = np.zeros(problem.full_layout.size) if params is None else np.asarray(params, float)
+    ident = identifiability or analyse_problem(problem)
+    subset = np.sort(np.asarray(ident.subset if subset is None else subset, dtype=int))
+    if estimator not in ("least_squares", "weighted"):
+        raise ValueError(f"unknown estimator '{estimator}': use least_squares or weighted")
+    _, a = residuals(problem, params)
+    a = a[:, subset]
+    chain = spanning_chain(problem)
+    a_chain = a if chain is problem else residuals(chain, params)[1][:, subset]
+    wa = whitener(noise_factor(chain, noise, covariances, params)) @ a_chain
+    crb = _inverse_scaled(wa.T @ wa)
+    kz = _inverse_scaled(a.T @ a) @ projected_noise_factor(problem, a, noise, covariances, params)
+    ls = kz @ kz.T
+    identifiable = np.zeros(problem.full_layout.size, dtype=bool)
+    identifiable[: len(ident.identifiable)] = ident.identifiable  # shorter: hand-eye known
+    return Uncertainty(
+        names=problem.full_layout.names,
+        is_angle=problem.full_layout.is_angle(),
+        subset=subset,
+        crb=0.5 * (crb + crb.T),
+        least_squares=0.5 * (ls + ls.T),
+        estimator=estimator,
+        identifiable=identifiable,
+    )
+
+
+# --- predicted accuracy --------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Accuracy:
+    """Predicted relative-pose errors after calibration, from the parameter covariance alone.
+
+    Per validation pair: the RMS (expected root-mean-square over repeated calibrations) of the
+    position error (m) and of the rotation error (rad) of the predicted relative pose.
+    """
+
+    pairs: np.ndarray  # (P, 2) indices into the validation poses
+    position: np.ndarray  # (P,) m
+    orientation: np.ndarray  # (P,) rad
+
+    def summary(self) -> dict[str, dict[str, float]]:
+        """Mean, RMS, 95th percentile and maximum over the pairs, in mm and degrees."""
+        out = {}
+        for key, values in (
+            ("position_mm", self.position * 1e3),
+            ("orientation_deg", np.degrees(self.orientation)),
+        ):
+            out[key] = {
+                "mean": float(np.mean(values)),
+                "rms": float(np.sqrt(np.mean(values**2))),
+                "p95": float(np.percentile(values, 95)),
+                "max": float(np.max(values)),
+            }
+        return out
+
+
+def predicted_accuracy(
+    problem: Problem,
+    uncertainty: Uncertainty,
+    q_validation: np.ndarray,
+    pairing: PairStrategy = "all",
+    params: np.ndarray | None = None,
+) -> Accuracy:
+    """Propagate the parameter covariance to relative poses between validation configurations
+    ``(V, n)``: ``Cov(pair) = A_pair Cov(p) A_pair^T`` with the problem's formulation (unweighted,
+    full pose)."""
+    q_validation = np.atleast_2d(np.asarray(q_validation, dtype=float))
+    n = len(q_validation)
+    pairs = make_pairs(n, pairing)
+    shell = replace(
+        problem,
+        q=q_validation,
+        poses=np.broadcast_to(np.eye(4), (n, 4, 4)),
+        pairs=pairs,
+        measure="pose",
+        weights=None,
+    )
+    params = np.zeros(problem.full_layout.size) if params is None else params
+    _, a = residuals(shell, params)
+    a = a[:, uncertainty.subset].reshape(-1, 6, len(uncertainty.subset))
+    cov = a @ uncertainty.covariance @ np.swapaxes(a, -1, -2)  # (P, 6, 6)
+    diag = np.clip(np.diagonal(cov, axis1=-2, axis2=-1), 0.0, None)
+    if problem.formulation == "absolute":
+        pairs = np.stack([np.arange(n), np.arange(n)], axis=1)
+    return Accuracy(
+        pairs=pairs,
+        position=np.sqrt(diag[:, :3].sum(axis=1)),
+        orientation=np.sqrt(diag[:, 3:].sum(axis=1)),
+    )
+
+
+# --- text ----------------------------------------------------------------------------------------
+
+
+def _unit(is_angle: bool) -> tuple[float, str]:
+    return (np.degrees(1.0), "deg") if is_angle else (1e3, "mm")
+
+
+def format_uncertainty(
+    unc: Uncertainty, accuracy: Accuracy | None = None, correlations: int = 8
+) -> str:
+    """Standard deviation of every estimated parameter (mm, deg) for the noise-weighted estimator
+    (the Cramer-Rao bound) and for least squares, the strongest correlations (of the chosen
+    estimator) and the predicted accuracy."""
+    crb, ls = unc.crb_std, unc.least_squares_std
+    lines = [f"{'parameter':<14s} {'unit':>4s} {'std CRB':>10s} {'std LS':>10s} {'LS/CRB':>6s}"]
+    for p, name in enumerate(unc.names):
+        scale, unit = _unit(bool(unc.is_angle[p]))
+        if np.isnan(crb[p]):
+            lines.append(f"{name:<14s} {unit:>4s} {'not estimated':>21s}")
+            continue
+        row = f"{name:<14s} {unit:>4s} {crb[p] * scale:>10.4g} {ls[p] * scale:>10.4g}"
+        row += f" {ls[p] / crb[p]:>6.2f}"
+        if not unc.identifiable[p]:
+            row += "  (absorbs an unidentifiable combination)"
+        lines.append(row)
+    strongest = unc.strongest_correlations(correlations)
+    if strongest:
+        which = "CRB" if unc.estimator == "weighted" else "least squares"
+        lines += ["", f"strongest correlations ({which}):"]
+        lines += [f"  {a:<14s} {b:<14s} {rho:+.3f}" for a, b, rho in strongest]
+    if accuracy is not None:
+        s = accuracy.summary()
+        lines += [
+            "",
+            f"predicted accuracy after calibration ({len(accuracy.pairs)} validation pairs, "
+            "RMS over repeated calibrations):",
+            f"  position    mean {s['position_mm']['mean']:.4f} mm, p95 "
+            f"{s['position_mm']['p95']:.4f} mm, max {s['position_mm']['max']:.4f} mm",
+            f"  orientation mean {s['orientation_deg']['mean']:.5f} deg, p95 "
+            f"{s['orientation_deg']['p95']:.5f} deg, max {s['orientation_deg']['max']:.5f} deg",
+        ]
+    return "\n".join(lines)
+
+
+# --- the weighted estimator ----------------------------------------------------------------------
+
+
+def identify_weighted(
+    problem: Problem,
+    noise: Noise,
+    covariances: np.ndarray | None = None,
+    identifiability: Identifiability | None = None,
+    whiten: np.ndarray | None = None,
+    max_nfev: int = 200,
+):
+    """Levenberg-Marquardt on the identifiable subset with the residuals whitened by their full
+    noise covariance (correlations between pairs included): the estimator whose covariance is the
+    Cramer-Rao bound of :func:`parameter_covariance`.
+
+    The weights come from ``noise`` at the measured relative motions (frame-invariant) and the
+    nominal joint Jacobians; ``whiten`` ``(r, M)`` (from :func:`whitener`) replaces them. Returns
+    a :class:`relcal.calibration.identify.Result`.
+    """
+    from relcal.calibration.identify import identify_lm
+
+    if whiten is None:
+        whiten = whitener(noise_factor(problem, noise, covariances, measured=True))
+    return identify_lm(problem, max_nfev, identifiability, whiten=whiten)

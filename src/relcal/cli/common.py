@@ -1,0 +1,51 @@
+"""Subcommands of the ``relcal`` command line, one module each with ``register(subparsers)``.
+
+To add a command, write a module here with a ``register`` function and list it in ``COMMANDS``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+
+COMMANDS = [
+    "simulate",
+    "calibrate",
+    "imports",
+    "compensate",
+    "board",
+    "observability",
+    "study",
+    "plan",
+]
+
+
+def register_all(sub: argparse._SubParsersAction) -> None:
+    for name in COMMANDS:
+        importlib.import_module(f"relcal.cli.{name}").register(sub)
+
+
+def robot_args(parser: argparse.ArgumentParser) -> None:
+    """``--robot`` and ``--hayati``, shared by every command that takes a robot model."""
+    parser.add_argument(
+        "--robot", default="a465", help="built-in robot name or model YAML path (default a465)"
+    )
+    parser.add_argument(
+        "--hayati",
+        choices=("off", "auto"),
+        default="off",
+        help="add Hayati's beta to joints whose axis is parallel to the previous one (auto)",
+    )
+
+
+def load_robot(args: argparse.Namespace):
+    """The model named by ``--robot``, with Hayati joints if ``--hayati auto``."""
+    from relcal.robot.model import auto_hayati, get_robot
+
+    model = get_robot(args.robot)
+    return auto_hayati(model) if args.hayati == "auto" else model
+
+
+def json_arg(parser: argparse.ArgumentParser, what: str) -> None:
+    """``--json FILE``, shared by every command: ``what`` is the document written."""
+    parser.add_argument("--json", metavar="FILE", help=f"write {what} as JSON to FILE")

@@ -1,0 +1,165 @@
+"""``relcal plan``: joint configurations that see the board and identify the parameters well."""
+
+from __future__ import annotations
+
+import argparse
+
+import numpy as np
+
+from relcal.cli.common import json_arg, load_robot, robot_args
+from relcal.cli.observability import add_noise_arg
+
+EPILOG = """\
+examples:
+  relcal plan --robot a465 --hayati auto --out plan.csv
+  relcal plan --robot a465 --hayati auto --board 7x10@20mm --camera camera.yaml --poses 40
+  relcal plan --robot a465 --hayati auto --index O1 --algorithm greedy --random-out random.csv
+
+output: a CSV  id,q1..qn  (angles in --joint-unit, prismatic joints in m) in an order that keeps
+joint moves short; run it on the robot, record an image at each pose, and add an image column to
+make it a dataset's samples.csv. Collisions with anything but the board plane are not checked.
+"""
+
+
+def _floats(text: str, count: tuple[int, ...], what: str) -> list[float]:
+    from relcal.errors import RelcalError
+
+    try:
+        values = [float(v) for v in text.split(",")]
+    except ValueError:
+        values = []
+    if len(values) not in count or not all(np.isfinite(values)):
+        raise RelcalError(f"{what} '{text}': expected {' or '.join(map(str, count))} numbers")
+    return values
+
+
+def build_cell(args: argparse.Namespace):
+    """The cell from the command line (board, its centre, camera, hand-eye guess)."""
+    from relcal import geometry as tf
+    from relcal.design.cell import default_camera, default_cell
+    from relcal.design.plan import parse_board, parse_camera
+
+    board = parse_board(args.board)
+    camera = parse_camera(args.camera) if args.camera else default_camera()
+    center = _floats(args.board_center, (3,), "--board-center")
+    he = _floats(args.handeye, (3, 6), "--handeye") + [0.0, 0.0, 0.0]
+    handeye = tf.from_xyz_rpy(np.array(he[:3]), np.radians(he[3:6]))
+    return default_cell(board=board, center=tuple(center), camera=camera, handeye=handeye)
+
+
+def run(args: argparse.Namespace) -> int:
+    from relcal.calibration.noise import Noise
+    from relcal.design.plan import Constraints, format_plan, joints_csv, plan
+    from relcal.io import write_json, write_text
+
+    model = load_robot(args)
+    cell = build_cell(args)
+    lo, hi = _floats(args.distance, (2,), "--distance")
+    constraints = Constraints(
+        margin_px=args.margin,
+        distance=(lo, hi),
+        max_view_angle_deg=args.max_angle,
+        min_inverse_condition=args.min_inverse_condition,
+        clearance=args.clearance,
+        length_scale=args.length_scale,
+    )
+    res = plan(
+        model,
+        cell,
+        k=args.poses,
+        constraints=constraints,
+        criterion=args.index,
+        algorithm=args.algorithm,
+        n_candidates=args.candidates,
+        noise=Noise.parse(args.noise),
+        random_sets=args.random_sets,
+        seed=args.seed,
+    )
+    if args.out:
+        write_text(args.out, joints_csv(model, res.q, args.joint_unit))
+    if args.random_out and res.random_q is not None:
+        write_text(args.random_out, joints_csv(model, res.random_q, args.joint_unit))
+    if not args.quiet:
+        print(f"{model.name}: {cell.board.describe()}, centre {args.board_center} m")
+        print(format_plan(res, args.length_scale))
+        if args.out:
+            print(f"wrote {len(res.q)} joint configurations to {args.out}")
+        if args.random_out:
+            print(f"wrote the median random set to {args.random_out}")
+    if args.json:
+        write_json(args.json, res.summary(model))
+    return 0
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "plan",
+        help="plan joint configurations that keep the board in view and identify the "
+        "parameters well",
+        description="Generate feasible configurations (whole board in view with a margin, "
+        "distance and viewing angle limits, joint limits, away from singularities), select K "
+        "of them that maximise an observability criterion, write them as CSV and compare the "
+        "predicted parameter standard deviations and accuracy with random feasible sets.",
+        epilog=EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    robot_args(p)
+    p.add_argument(
+        "--board",
+        default="7x10@0.02",
+        help="ROWSxCOLS@SQUARE chessboard squares (m, or with mm) or a board YAML file "
+        "(default 7x10@0.02)",
+    )
+    p.add_argument(
+        "--camera",
+        help="FX,FY,CX,CY,WIDTH,HEIGHT (px) or a camera YAML file (default 2448x2048 px, "
+        "3.45 um pixels, 8 mm lens)",
+    )
+    p.add_argument(
+        "--board-center",
+        default="0.45,0,0",
+        help="X,Y,Z of the pattern centre in the base frame, m; the board lies flat, face up "
+        "(default 0.45,0,0)",
+    )
+    p.add_argument(
+        "--handeye",
+        default="0,0.04,0.06",
+        help="flange-from-camera guess X,Y,Z[,ROLL,PITCH,YAW] (m, deg; default 0,0.04,0.06)",
+    )
+    p.add_argument("--poses", type=int, default=30, help="poses to select (default 30)")
+    p.add_argument(
+        "--candidates", type=int, default=2000, help="feasible candidates (default 2000)"
+    )
+    p.add_argument(
+        "--index",
+        choices=("worst", "O1", "O2", "O3", "O4", "O5", "A"),
+        default="worst",
+        help="criterion: worst-parameter std (default), observability index O1..O5, or A "
+        "(trace of the scaled covariance)",
+    )
+    p.add_argument("--algorithm", choices=("exchange", "greedy"), default="exchange")
+    p.add_argument("--distance", default="0.25,0.45", help="camera to board centre, m")
+    p.add_argument("--max-angle", type=float, default=40.0, help="viewing angle limit, deg")
+    p.add_argument("--margin", type=float, default=40.0, help="image margin, px")
+    p.add_argument(
+        "--min-inverse-condition",
+        type=float,
+        default=0.05,
+        help="singularity limit on the joint Jacobian's inverse condition number",
+    )
+    p.add_argument("--clearance", type=float, default=0.05, help="above the board plane, m")
+    p.add_argument(
+        "--length-scale",
+        type=float,
+        default=0.5,
+        help="angles count as the displacement this far away (m) in the worst-parameter std",
+    )
+    add_noise_arg(p)
+    p.add_argument("--random-sets", type=int, default=20, help="random sets to compare with")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--out", help="write the planned joint configurations to this CSV")
+    p.add_argument("--random-out", help="write the median random set to this CSV")
+    p.add_argument("--joint-unit", choices=("deg", "rad"), default="deg")
+    json_arg(p, "the plan and the comparison")
+    p.add_argument("--quiet", action="store_true", help="print nothing but errors")
+    p.set_defaults(func=run)

@@ -1,0 +1,1 @@
+"""Dataset folders, importers and image measurement."""

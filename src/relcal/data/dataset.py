@@ -1,0 +1,250 @@
+"""The dataset folder: ``dataset.yaml`` plus one CSV table of samples.
+
+``dataset.yaml``::
+
+    robot: a465                # built-in name, a model YAML path (relative to the folder)
+    hayati: auto               # auto | off: Hayati's beta for parallel consecutive axes
+    mode: eye_in_hand          # eye_in_hand (camera on the flange) | eye_to_hand (board on it)
+    board: board.yaml          # path or inline mapping (needed when samples have images)
+    camera: camera.yaml        # path, inline mapping, or "calibrate" (from the same images)
+    handeye:                   # guess of flange-from-camera (eye-in-hand) or flange-from-board
+      xyz: [0.0, 0.04, 0.06]   # m   (optional: without it, a hand-eye solve on the data
+      rpy: [0.0, 0.0, 0.0]     # deg  (OpenCV's calibrateHandEye) gives the starting guess)
+    joint_unit: deg            # deg | rad (prismatic joints always in m)
+    samples: samples.csv
+
+``samples.csv`` has a header: ``id``, one column per joint (``q1`` .. ``qn``), then either
+``image`` (a path relative to the folder) or a measured pose ``x, y, z, qx, qy, qz, qw`` (camera in
+board frame for eye-in-hand, board in camera frame for eye-to-hand; metres, unit quaternion), for
+users whose poses come from another pipeline or a tracker.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+import pydantic
+from scipy.spatial.transform import Rotation
+
+from relcal import geometry as tf
+from relcal.errors import RelcalError
+from relcal.io import load_yaml, read_table, validate
+from relcal.robot.model import RobotModel, auto_hayati, get_robot, model_from_dict
+
+POSE_COLUMNS = ("x", "y", "z", "qx", "qy", "qz", "qw")
+
+
+class _Frame(pydantic.BaseModel):
+    model_config = pydantic.ConfigDict(extra="forbid")
+    xyz: tuple[pydantic.FiniteFloat, pydantic.FiniteFloat, pydantic.FiniteFloat] = (0.0, 0.0, 0.0)
+    rpy: tuple[pydantic.FiniteFloat, pydantic.FiniteFloat, pydantic.FiniteFloat] = (0.0, 0.0, 0.0)
+
+
+class _DatasetSpec(pydantic.BaseModel):
+    model_config = pydantic.ConfigDict(extra="forbid")
+    robot: str | dict[str, Any]
+    hayati: Literal["auto", "off"] = "auto"
+    mode: Literal["eye_in_hand", "eye_to_hand"] = "eye_in_hand"
+    board: str | dict[str, Any] | None = None
+    camera: str | dict[str, Any] | None = None
+    handeye: _Frame | None = None
+    joint_unit: Literal["deg", "rad"] = "deg"
+    samples: str = "samples.csv"
+
+
+@dataclass(frozen=True)
+class Dataset:
+    """A loaded dataset. ``q`` ``(N, n)`` in rad (m for prismatic joints)."""
+
+    root: Path
+    model: RobotModel
+    mode: str
+    handeye: np.ndarray | None  # (4, 4) guess, or None to estimate it from the data
+    ids: tuple[str, ...]
+    q: np.ndarray
+    images: tuple[Path, ...] | None  # one per sample, or None when poses are given
+    poses: np.ndarray | None  # (N, 4, 4) measured C_k when given directly
+    board: Any = None
+    camera: Any = None  # a relcal.vision.camera.Camera, or "calibrate"
+    spec_path: Path | None = None
+
+
+def _resolve(root: Path, value: str | dict | None, loader, what: str, spec: Path):
+    """A path (relative to the dataset) or an inline mapping, loaded by ``loader``."""
+    if value is None or isinstance(value, str) and value == "calibrate":
+        return value
+    if isinstance(value, dict):
+        return loader(value, spec)
+    return loader(root / value, None)
+
+
+def load_dataset(folder: str | Path) -> Dataset:
+    """Read and check ``folder/dataset.yaml`` and its samples table."""
+    root = Path(folder)
+    spec_path = root / "dataset.yaml"
+    if not root.is_dir():
+        raise RelcalError(f"{root}: not a dataset folder (expected a folder with dataset.yaml)")
+    data, node = load_yaml(spec_path)
+    spec = validate(_DatasetSpec, data, spec_path, node)
+
+    if isinstance(spec.robot, dict):
+        model = model_from_dict(spec.robot, f"{spec_path}: robot")
+    else:
+        path = root / spec.robot
+        model = get_robot(path if path.suffix in (".yaml", ".yml") else spec.robot)
+    if spec.hayati == "auto":
+        model = auto_hayati(model)
+
+    handeye = None
+    if spec.handeye is not None:
+        handeye = tf.from_xyz_rpy(np.array(spec.handeye.xyz), np.radians(spec.handeye.rpy))
+    ids, q, images, poses = read_samples(root / spec.samples, model, spec.joint_unit)
+    board = camera = None
+    if images is not None:
+        from relcal.vision.boards import load_board
+        from relcal.vision.camera import load_camera
+
+        if spec.board is None:
+            raise RelcalError(f"{spec_path}: board: required when the samples have images")
+        board = _board(root, spec.board, spec_path, load_board)
+        if spec.camera is None:
+            raise RelcalError(
+                f"{spec_path}: camera: required when the samples have images (a file, a mapping "
+                "or 'calibrate')"
+            )
+        camera = _camera(root, spec.camera, spec_path, load_camera)
+    return Dataset(root, model, spec.mode, handeye, ids, q, images, poses, board, camera, spec_path)
+
+
+def _board(root: Path, value, spec_path: Path, load_board):
+    if isinstance(value, dict):
+        from relcal.vision.boards import BoardSpec
+
+        return validate(BoardSpec, value, f"{spec_path}: board").to_board()
+    return load_board(root / value)
+
+
+def _camera(root: Path, value, spec_path: Path, load_camera):
+    if value == "calibrate":
+        return "calibrate"
+    if isinstance(value, dict):
+        from relcal.vision.camera import CameraSpec
+
+        return validate(CameraSpec, value, f"{spec_path}: camera").to_camera()
+    return load_camera(root / value)
+
+
+def read_samples(
+    path: Path, model: RobotModel, joint_unit: str
+) -> tuple[tuple[str, ...], np.ndarray, tuple[Path, ...] | None, np.ndarray | None]:
+    """Parse the samples table; errors name the file, the line and the column."""
+    header, data = read_table(path, "sample")
+    n = model.n_joints
+    joints = [f"q{i + 1}" for i in range(n)]
+    has_image = "image" in header
+    has_pose = all(c in header for c in POSE_COLUMNS)
+    missing = [c for c in ["id", *joints] if c not in header]
+    extra_q = [h for h in header if h.startswith("q") and h[1:].isdigit() and h not in joints]
+    if missing or extra_q:
+        raise RelcalError(
+            f"{path} line 1: header: expected columns id, {', '.join(joints)} for the "
+            f"{n}-joint robot '{model.name}'"
+            + (f"; missing {', '.join(missing)}" if missing else "")
+            + (f"; unexpected {', '.join(extra_q)} (wrong joint count?)" if extra_q else "")
+        )
+    if has_image == has_pose:
+        raise RelcalError(
+            f"{path} line 1: header: expected either an 'image' column or the pose columns "
+            f"{', '.join(POSE_COLUMNS)} (exactly one of the two)"
+        )
+    col = {h: i for i, h in enumerate(header)}
+    ids, q, images, poses, seen = [], [], [], [], {}
+    for line_no, row in enumerate(data, start=2):
+        if len(row) != len(header):
+            raise RelcalError(
+                f"{path} line {line_no}: {len(row)} fields, expected {len(header)} as in the header"
+            )
+        sid = row[col["id"]].strip()
+        if sid in seen:
+            raise RelcalError(f"{path} line {line_no}: id '{sid}' duplicates line {seen[sid]}")
+        seen[sid] = line_no
+        ids.append(sid)
+        q.append([parse_number(path, line_no, c, row[col[c]]) for c in joints])
+        if has_image:
+            images.append(path.parent / row[col["image"]].strip())
+        else:
+            poses.append([parse_number(path, line_no, c, row[col[c]]) for c in POSE_COLUMNS])
+    q_arr = _joint_values(path, np.array(q, dtype=float), model, joint_unit)
+    pose_arr = None
+    if has_pose:
+        pose_arr = _poses(path, np.array(poses))
+    else:
+        for line_no, image in enumerate(images, start=2):
+            if not image.is_file():
+                raise RelcalError(f"{path} line {line_no}: image: file not found: {image}")
+    return tuple(ids), q_arr, (tuple(images) if has_image else None), pose_arr
+
+
+def parse_number(path: Path, line_no: int, column: str, text: str) -> float:
+    """A finite float from a CSV cell; errors name the file, the line and the column."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise RelcalError(
+            f"{path} line {line_no}: {column}: expected a number, got '{text.strip()}'"
+        ) from None
+    if not np.isfinite(value):
+        raise RelcalError(f"{path} line {line_no}: {column}: expected a finite number, got {text}")
+    return value
+
+
+def _joint_values(path: Path, q: np.ndarray, model: RobotModel, unit: str) -> np.ndarray:
+    """Convert to radians and catch the two classic unit mistakes."""
+    revolute = ~model.prismatic
+    if q.size and revolute.any():
+        peak = np.abs(q[:, revolute]).max()
+        if unit == "rad" and peak > 2 * np.pi + 0.1:
+            raise RelcalError(
+                f"{path}: joint angles reach {peak:.1f}, which looks like degrees, but "
+                "dataset.yaml declares joint_unit: rad"
+            )
+        if unit == "deg" and len(q) >= 5 and peak < np.pi + 0.05 and np.abs(q).mean() > 1e-3:
+            raise RelcalError(
+                f"{path}: no joint angle exceeds {peak:.2f}, which looks like radians, but "
+                "dataset.yaml declares joint_unit: deg"
+            )
+    if unit == "deg":
+        q = np.where(revolute, np.radians(q), q)
+    return q
+
+
+def _poses(path: Path, values: np.ndarray) -> np.ndarray:
+    norms = np.linalg.norm(values[:, 3:], axis=1)
+    bad = np.flatnonzero(np.abs(norms - 1) > 1e-3)
+    if bad.size:
+        raise RelcalError(
+            f"{path} line {bad[0] + 2}: qx, qy, qz, qw: expected a unit quaternion, "
+            f"norm is {norms[bad[0]]:.4f}"
+        )
+    rot = Rotation.from_quat(values[:, 3:] / norms[:, None]).as_matrix()
+    return tf.homogeneous(rot, values[:, :3])
+
+
+def write_samples(path: Path, ids, q_deg: np.ndarray, images=None, poses=None) -> str:
+    """CSV text of a samples table (joint angles as given, poses as x..qw)."""
+    n = q_deg.shape[1]
+    header = ["id", *[f"q{i + 1}" for i in range(n)]]
+    header += ["image"] if images is not None else list(POSE_COLUMNS)
+    lines = [",".join(header)]
+    for k, sid in enumerate(ids):
+        cells = [str(sid), *[f"{v:.12g}" for v in q_deg[k]]]
+        if images is not None:
+            cells.append(str(images[k]))
+        else:
+            quat = Rotation.from_matrix(poses[k][:3, :3]).as_quat()
+            cells += [f"{v:.12g}" for v in (*poses[k][:3, 3], *quat)]
+        lines.append(",".join(cells))
+    return "\n".join(lines) + "\n"

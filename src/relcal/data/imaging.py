@@ -1,0 +1,102 @@
+"""Images of a dataset to camera poses ``C_k``: detection, intrinsics (given or calibrated from the
+same images), pose with covariance, and rejected frames with their reasons."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from relcal import geometry as tf
+from relcal.data.dataset import Dataset
+from relcal.errors import RelcalError
+from relcal.vision.camera import calibrate_intrinsics
+from relcal.vision.detect import Rejected, estimate_pose, measure_images
+
+
+@dataclass(frozen=True)
+class Measurements:
+    """Camera poses ``C_k`` per sample and which samples are usable."""
+
+    poses: np.ndarray  # (N, 4, 4); NaN where rejected
+    ok: np.ndarray  # (N,) bool
+    reasons: tuple[str, ...]  # "" for accepted samples
+    rms_px: np.ndarray  # (N,) reprojection RMS, NaN without images
+    covariance: np.ndarray | None = None  # (N, 6, 6) of (translation, rotation vector), or None
+    camera: object = None  # the intrinsics used (given or calibrated)
+    intrinsics_report: dict = field(default_factory=dict)
+
+
+def measure(dataset: Dataset, workers: int = 2, progress: bool = True) -> Measurements:
+    """Camera poses of every sample: given directly, or from the images."""
+    n = len(dataset.ids)
+    if dataset.poses is not None:
+        return Measurements(
+            poses=dataset.poses,
+            ok=np.ones(n, dtype=bool),
+            reasons=("",) * n,
+            rms_px=np.full(n, np.nan),
+        )
+    return measure_dataset_images(dataset, workers=workers, progress=progress)
+
+
+def measure_dataset_images(
+    dataset: Dataset, workers: int = 2, progress: bool = True
+) -> Measurements:
+    """Camera poses of every image of ``dataset``.
+
+    Eye-in-hand: ``C_k`` is the camera pose in the board frame. Eye-to-hand: the board moves with
+    the flange, so ``C_k`` is the board pose in the camera frame (the inverse); both satisfy
+    ``C_k = W F_k X``.
+    """
+    n = len(dataset.ids)
+    calibrate = dataset.camera == "calibrate"
+    camera = None if calibrate else dataset.camera
+    results = measure_images(
+        dataset.images, dataset.board, camera, workers=workers, progress=progress
+    )
+    reasons = [r.reason or "" for r in results]
+    report: dict = {}
+    if calibrate:
+        found = [k for k in range(n) if results[k].detection is not None]
+        if len(found) < 4:
+            raise _never_found(dataset, reasons)
+        intr = calibrate_intrinsics([results[k].detection for k in found])
+        camera = intr.camera
+        report = {
+            "calibrated_from_images": True,
+            "rms_px": intr.rms,
+            "per_image_rms_px": {
+                dataset.ids[found[i]]: float(v) for i, v in enumerate(intr.per_image_rms)
+            },
+            "rejected": {dataset.ids[found[i]]: why for i, why in intr.rejected.items()},
+            "std_px": intr.std,
+        }
+        for i, why in intr.rejected.items():
+            reasons[found[i]] = f"intrinsics: {why}"
+    poses = np.full((n, 4, 4), np.nan)
+    cov = np.full((n, 6, 6), np.nan)
+    rms = np.full(n, np.nan)
+    for k, res in enumerate(results):
+        pose = res.pose
+        if calibrate and not reasons[k] and res.detection is not None:
+            pose = estimate_pose(res.detection, camera)
+            if isinstance(pose, Rejected):
+                reasons[k], pose = f"{res.path}: {pose.reason}", None
+        if pose is None or reasons[k]:
+            continue
+        c = pose.T_board_camera
+        poses[k] = c if dataset.mode == "eye_in_hand" else tf.invert(c)
+        cov[k], rms[k] = pose.covariance, pose.rms
+    ok = np.all(np.isfinite(poses), axis=(1, 2))
+    if not ok.any():
+        raise _never_found(dataset, reasons)
+    return Measurements(poses, ok, tuple(reasons), rms, cov, camera, report)
+
+
+def _never_found(dataset: Dataset, reasons: list[str]) -> RelcalError:
+    first = next((r for r in reasons if r), "no reason recorded")
+    return RelcalError(
+        f"{dataset.spec_path}: the board was not found (or not posed) in enough of the "
+        f"{len(reasons)} images; first reason: {first}"
+    )

@@ -1,0 +1,1 @@
+"""Pose planning: the cell, feasibility and pose selection."""

@@ -1,0 +1,710 @@
+"""Pose planning: feasible joint configurations that see the whole board, and a selection of K of
+them that makes the parameters as well determined as possible.
+
+Candidates: camera poses are drawn over a spherical cap above the board (distance range, viewing
+angle limit, random aim point near the centre and random roll about the optical axis), turned into
+flange poses with the hand-eye guess and solved by inverse kinematics, each from a random joint
+configuration so that every IK branch (elbow, wrist flip) appears. A candidate is kept when, with
+the nominal model:
+
+- the joints are within their limits;
+- the pattern's four outer corners project inside the image with ``margin_px`` to spare
+  (pinhole without distortion; the margin absorbs it), in front of the camera;
+- the camera is ``distance`` away from the board centre, and the line of sight from the board
+  centre makes at most ``max_view_angle_deg`` with the board normal;
+- the configuration is away from singularities: the inverse condition number of the joint
+  Jacobian (translation rows divided by ``length_scale``) is at least ``min_inverse_condition``;
+- the joint frames from the elbow on and the camera stay ``clearance`` above the board plane.
+
+Selection: each candidate's information (whitened per-pose Jacobian,
+:func:`uncertainty.pose_rows`) is additive; the information of a set, with the unknown
+board pose eliminated, is that of any connected pairing weighted by its full noise covariance (the
+Cramer-Rao bound). Greedy forward selection, optionally followed by Fedorov-style exchanges (swap
+a chosen pose for a candidate while the criterion improves), maximises the chosen criterion:
+
+- ``O1`` .. ``O5``: the observability indices of the scaled information (column scales fixed from
+  the whole candidate pool, so that sets compare), ``O1`` being D-optimality;
+- ``A``: smallest trace of the scaled covariance;
+- ``worst``: smallest worst-parameter standard deviation, angles counted as the displacement they
+  cause ``length_scale`` away.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Literal
+
+import numpy as np
+
+from relcal import geometry as tf
+from relcal.calibration.identifiability import DEFAULT_RCOND
+from relcal.calibration.identify import analyse_problem
+from relcal.calibration.measurement import Formulation, Measure, Problem
+from relcal.calibration.noise import Noise
+from relcal.calibration.uncertainty import (
+    Accuracy,
+    Uncertainty,
+    eliminate,
+    pose_rows,
+    predicted_accuracy,
+)
+from relcal.design.cell import Cell
+from relcal.design.observability import Indices, nominal_problem, observability_indices
+from relcal.errors import RelcalError
+from relcal.geometry import DEG, MM, look_at
+from relcal.robot.ik import joint_layout, solve
+from relcal.robot.kinematics import fk, forward_frames, pose_jacobian
+from relcal.robot.model import RobotModel
+from relcal.vision.boards import Board
+from relcal.vision.camera import Camera
+
+Criterion = Literal["O1", "O2", "O3", "O4", "O5", "A", "worst"]
+CRITERIA: tuple[str, ...] = ("O1", "O2", "O3", "O4", "O5", "A", "worst")
+Algorithm = Literal["greedy", "exchange"]
+DEFAULT_NOISE = Noise(0.05 * MM, 0.01 * DEG, 0.001 * DEG)
+_RIDGE = 1e-6  # added to the scaled information so that early greedy steps are defined
+
+
+# --- the cell -------------------------------------------------------------------------------------
+
+
+def parse_board(text: str) -> Board:
+    """A chessboard from ``ROWSxCOLS@SQUARE`` (squares; ``SQUARE`` in m, or with ``mm``), e.g.
+    ``7x10@0.02`` or ``7x10@20mm``, or a board YAML file (:func:`boards.load_board`)."""
+    match = re.fullmatch(r"\s*(\d+)\s*[xX]\s*(\d+)\s*@\s*([0-9.eE+-]+)\s*(mm|m)?\s*", text)
+    if match:
+        rows, cols, size, unit = match.groups()
+        try:
+            spacing = float(size) * (1e-3 if unit == "mm" else 1.0)
+            return Board(type="chessboard", rows=int(rows), columns=int(cols), spacing=spacing)
+        except ValueError as exc:
+            raise RelcalError(f"--board '{text}': {exc}") from None
+    if Path(text).suffix in (".yaml", ".yml") or Path(text).exists():
+        from relcal.vision.boards import load_board
+
+        return load_board(text)
+    raise RelcalError(
+        f"--board '{text}': expected ROWSxCOLS@SQUARE (squares, metres or mm, e.g. 7x10@0.02) "
+        "or a board YAML file"
+    )
+
+
+def parse_camera(text: str) -> Camera:
+    """A camera from ``FX,FY,CX,CY,WIDTH,HEIGHT`` (px) or a camera YAML file."""
+    parts = text.split(",")
+    if len(parts) == 6:
+        try:
+            fx, fy, cx, cy = (float(v) for v in parts[:4])
+            return Camera(fx=fx, fy=fy, cx=cx, cy=cy, width=int(parts[4]), height=int(parts[5]))
+        except ValueError as exc:
+            raise RelcalError(f"--camera '{text}': {exc}") from None
+    from relcal.vision.camera import load_camera
+
+    camera = load_camera(text)
+    if camera.width is None or camera.height is None:
+        raise RelcalError(f"{text}: the camera's image size (width, height) is needed to plan")
+    return camera
+
+
+@dataclass(frozen=True)
+class Constraints:
+    """What makes a configuration usable (lengths m, angles deg)."""
+
+    margin_px: float = 40.0
+    distance: tuple[float, float] = (0.25, 0.45)
+    max_view_angle_deg: float = 40.0
+    min_inverse_condition: float = 0.05
+    clearance: float = 0.05
+    length_scale: float = 0.5
+    aim: float = 0.1  # sampled aim points within this fraction of the pattern size of its centre
+
+
+# --- feasibility ----------------------------------------------------------------------------------
+
+
+def camera_poses(model: RobotModel, cell: Cell, q: np.ndarray) -> np.ndarray:
+    """Camera poses ``(N, 4, 4)`` in the base frame with the nominal model."""
+    return fk(model, q) @ cell.handeye
+
+
+def image_points(cell: Cell, cameras: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Pixels ``(N, 4, 2)`` of the pattern corners and their depths ``(N, 4)`` (m)."""
+    corners = np.c_[cell.corners, np.ones(4)]  # (4, 4) homogeneous rows
+    in_camera = tf.invert(cameras) @ cell.board_pose  # camera-from-board (N, 4, 4)
+    pts = np.einsum("nij,kj->nki", in_camera, corners)[..., :3]
+    z = pts[..., 2]
+    safe = np.where(z > 1e-9, z, 1e-9)
+    cam = cell.camera
+    u = cam.fx * pts[..., 0] / safe + cam.cx
+    v = cam.fy * pts[..., 1] / safe + cam.cy
+    return np.stack([u, v], axis=-1), z
+
+
+def inverse_condition(model: RobotModel, q: np.ndarray, length_scale: float) -> np.ndarray:
+    """``s_min / s_max`` ``(N,)`` of the joint Jacobian with translation rows over
+    ``length_scale`` (m): 0 at a singularity."""
+    _, jac = pose_jacobian(model, q, joint_layout(model))
+    jac = jac.copy()
+    jac[:, :3] /= length_scale
+    s = np.linalg.svd(jac, compute_uv=False)
+    return s[:, -1] / s[:, 0]
+
+
+def check(
+    model: RobotModel, cell: Cell, q: np.ndarray, constraints: Constraints
+) -> dict[str, np.ndarray]:
+    """Per constraint, a mask ``(N,)`` of configurations ``(N, n)`` that satisfy it."""
+    q = np.atleast_2d(q)
+    cameras = camera_poses(model, cell, q)
+    pix, depth = image_points(cell, cameras)
+    cam, m = cell.camera, constraints.margin_px
+    inside = (
+        (depth > 0).all(axis=1)
+        & (pix[..., 0] >= m).all(axis=1)
+        & (pix[..., 0] <= cam.width - 1 - m).all(axis=1)
+        & (pix[..., 1] >= m).all(axis=1)
+        & (pix[..., 1] <= cam.height - 1 - m).all(axis=1)
+    )
+    sight = cameras[:, :3, 3] - cell.center
+    distance = np.linalg.norm(sight, axis=1)
+    angle = np.degrees(np.arccos(np.clip(sight @ cell.normal / distance, -1.0, 1.0)))
+    frames = forward_frames(model, q)[:, 2:, :3, 3]  # from the elbow on
+    points = np.concatenate([frames, cameras[:, None, :3, 3]], axis=1)
+    height = (points - cell.center) @ cell.normal
+    lo, hi = constraints.distance
+    return {
+        "joint limits": np.all((q >= model.lower) & (q <= model.upper), axis=1),
+        "board in view": inside,
+        "distance": (distance >= lo) & (distance <= hi),
+        "viewing angle": angle <= constraints.max_view_angle_deg,
+        "singularity": inverse_condition(model, q, constraints.length_scale)
+        >= constraints.min_inverse_condition,
+        "clearance": (height >= constraints.clearance).all(axis=1),
+    }
+
+
+def feasible(model: RobotModel, cell: Cell, q: np.ndarray, constraints: Constraints) -> np.ndarray:
+    """Mask ``(N,)`` of configurations that satisfy every constraint."""
+    masks = check(model, cell, q, constraints)
+    return np.logical_and.reduce(list(masks.values()))
+
+
+def sample_camera_poses(
+    cell: Cell, constraints: Constraints, count: int, rng: np.random.Generator
+) -> np.ndarray:
+    """Camera poses ``(count, 4, 4)`` over the spherical cap above the board: uniform over the
+    cap's area up to the viewing angle, distance uniform in range, aim within ``aim`` of the
+    pattern's size of its centre, roll uniform."""
+    max_tilt = np.radians(constraints.max_view_angle_deg)
+    cos_t = rng.uniform(np.cos(max_tilt), 1.0, count)
+    sin_t = np.sqrt(1 - cos_t**2)
+    az = rng.uniform(0, 2 * np.pi, count)
+    rot = cell.board_pose[:3, :3] @ np.diag([1.0, 1.0, -1.0])  # z along the normal
+    local = np.stack([sin_t * np.cos(az), sin_t * np.sin(az), cos_t], axis=1)
+    dist = rng.uniform(*constraints.distance, count)
+    eyes = cell.center + dist[:, None] * (local @ rot.T)
+    size = np.ptp(cell.corners[:, :2], axis=0)
+    offsets = rng.uniform(-1.0, 1.0, (count, 2)) * constraints.aim * size
+    aims = cell.board_pose[:3, :3] @ np.c_[offsets, np.zeros(count)].T
+    aims = cell.center + aims.T
+    rolls = rng.uniform(-np.pi, np.pi, count)
+    return np.stack([look_at(e, a, r) for e, a, r in zip(eyes, aims, rolls, strict=True)])
+
+
+def random_joints(model: RobotModel, count: int, rng: np.random.Generator) -> np.ndarray:
+    """Uniform joint values ``(count, n)`` within the limits (one turn where unlimited)."""
+    lo = np.where(np.isfinite(model.lower), model.lower, -np.pi)
+    hi = np.where(np.isfinite(model.upper), model.upper, np.pi)
+    return rng.uniform(lo, hi, (count, model.n_joints))
+
+
+def candidates(
+    model: RobotModel,
+    cell: Cell,
+    constraints: Constraints,
+    count: int,
+    rng: np.random.Generator,
+    batch: int = 400,
+    max_rounds: int = 20,
+) -> tuple[np.ndarray, dict[str, int]]:
+    """Up to ``count`` feasible configurations ``(K, n)`` and, per constraint, how many IK
+    solutions it rejected (``ik`` counts camera poses out of reach)."""
+    kept: list[np.ndarray] = []
+    rejected: dict[str, int] = {"ik": 0}
+    total = 0
+    for _ in range(max_rounds):
+        cams = sample_camera_poses(cell, constraints, batch, rng)
+        flange = cams @ tf.invert(cell.handeye)
+        sol = solve(model, flange, q_near=random_joints(model, batch, rng))
+        ok = np.asarray(sol.converged, dtype=bool)
+        rejected["ik"] += int((~ok).sum())
+        q = np.asarray(sol.q)[ok]
+        masks = check(model, cell, q, constraints)
+        for name, mask in masks.items():
+            rejected[name] = rejected.get(name, 0) + int((~mask).sum())
+        good = q[np.logical_and.reduce(list(masks.values()))]
+        kept.append(good)
+        total += len(good)
+        if total >= count:
+            break
+    out = np.concatenate(kept)[:count] if kept else np.zeros((0, model.n_joints))
+    if len(out) == 0:
+        raise RelcalError(
+            "no feasible configuration found: the board may be out of reach or the constraints "
+            f"too tight (rejections: {rejected})"
+        )
+    return out, rejected
+
+
+# --- information and criteria ---------------------------------------------------------------------
+
+
+def selection_problem(
+    model: RobotModel,
+    cell: Cell,
+    q: np.ndarray,
+    formulation: Formulation = "invariant",
+    measure: Measure = "pose",
+) -> Problem:
+    """The identification problem the plan is for (poses are the nominal camera poses)."""
+    return nominal_problem(model, q, cell.handeye, formulation, measure)
+
+
+@dataclass(frozen=True)
+class Information:
+    """Per-candidate whitened Jacobians of the estimated parameters plus the nuisance (the board
+    pose), and the fixed scales that make criteria of different sets comparable."""
+
+    rows: np.ndarray  # (N, r, k + h)
+    h: int
+    subset: np.ndarray  # (k,) parameter indices (problem.full_layout)
+    names: tuple[str, ...]  # full layout names
+    is_angle: np.ndarray  # (P,)
+    scale: np.ndarray  # (k,) column scales: RMS information per pose over the whole pool
+    weights: np.ndarray  # (k,) length-equivalent factors (1 for m, length_scale for rad)
+    identifiable: np.ndarray  # (P,)
+    ridge: np.ndarray  # (k + h,) regularisation of the diagonal (early greedy steps)
+
+    @property
+    def k(self) -> int:
+        return len(self.subset)
+
+    def total(self, idx: np.ndarray) -> np.ndarray:
+        """Summed information ``(k + h, k + h)`` of the candidates ``idx`` (nuisance kept)."""
+        r = self.rows[np.asarray(idx, dtype=int)]
+        return np.einsum("nri,nrj->ij", r, r)
+
+    def of(self, idx: np.ndarray) -> np.ndarray:
+        """Information ``(k, k)`` of the set ``idx`` with the nuisance eliminated."""
+        return eliminate(self.total(idx), self.h)
+
+
+def information(
+    problem: Problem, noise: Noise, length_scale: float, rcond: float = DEFAULT_RCOND
+) -> Information:
+    """Per-pose information of the candidate problem's identifiable subset (judged on the whole
+    pool with the relative rank tolerance)."""
+    rows, h = pose_rows(problem, noise)
+    layout = problem.full_layout
+    ident = analyse_problem(problem, rcond)
+    subset = ident.subset
+    cols = np.r_[subset, np.arange(layout.size, layout.size + h)]
+    sub = rows[:, :, cols]
+    full = np.einsum("nri,nrj->ij", sub, sub)
+    scale = np.sqrt(np.diag(eliminate(full, h)) / len(rows))
+    nuisance = np.diag(full)[len(subset) :] / len(rows)
+    angle = layout.is_angle()
+    return Information(
+        rows=sub,
+        h=h,
+        subset=subset,
+        names=layout.names,
+        is_angle=angle,
+        scale=scale,
+        weights=np.where(angle[subset], length_scale, 1.0),
+        identifiable=ident.identifiable,
+        ridge=_RIDGE * np.r_[scale**2, nuisance],
+    )
+
+
+def _from_eigenvalues(lam: np.ndarray, name: str, n_meas: int) -> np.ndarray:
+    s = np.sqrt(np.clip(lam, 1e-300, None))  # singular values of the scaled Jacobian, ascending
+    if name == "O1":
+        return np.exp(np.mean(np.log(s), axis=-1)) / np.sqrt(n_meas)
+    if name == "O2":
+        return s[..., 0] / s[..., -1]
+    if name == "O3":
+        return s[..., 0]
+    if name == "O4":
+        return s[..., 0] ** 2 / s[..., -1]
+    if name == "O5":
+        return 1.0 / np.sum(1.0 / s, axis=-1)
+    raise ValueError(f"unknown criterion '{name}': use one of {', '.join(CRITERIA)}")
+
+
+def _from_variances(info: Information, var: np.ndarray, name: str) -> np.ndarray:
+    if name == "worst":
+        return -(np.sqrt(np.clip(var, 0, None)) * info.weights).max(axis=-1)
+    return -np.sum(var * info.scale**2, axis=-1)  # A: trace of the scaled covariance
+
+
+def criterion(info: Information, totals: np.ndarray, name: str, n_meas: int) -> np.ndarray:
+    """Values to maximise ``(...,)`` of summed information ``(..., k + h, k + h)``."""
+    if name not in CRITERIA:
+        raise ValueError(f"unknown criterion '{name}': use one of {', '.join(CRITERIA)}")
+    mats = eliminate(totals + np.diag(info.ridge), info.h)
+    scaled = mats / np.outer(info.scale, info.scale)
+    if name in ("worst", "A"):
+        cov = np.linalg.inv(scaled) / np.outer(info.scale, info.scale)
+        return _from_variances(info, np.diagonal(cov, axis1=-2, axis2=-1), name)
+    return _from_eigenvalues(np.linalg.eigvalsh(scaled), name, n_meas)
+
+
+def _values(info: Information, base: np.ndarray, add: np.ndarray, name: str, n_meas: int):
+    """Criterion of ``base + rows[c]^T rows[c]`` for every candidate ``c`` in ``add``.
+
+    ``worst``, ``A`` and ``O1`` use rank-r updates of one inverse (Woodbury, determinant lemma):
+    the top-left ``k x k`` block of the inverse of the full information is the covariance of the
+    parameters with the nuisance eliminated. The others need eigenvalues of every candidate set.
+    """
+    rows = info.rows[add]  # (N, r, Q)
+    if name not in ("worst", "A", "O1"):
+        totals = base[None] + np.swapaxes(rows, -1, -2) @ rows
+        return criterion(info, totals, name, n_meas)
+    reg = base + np.diag(info.ridge)
+    inv = np.linalg.inv(reg)
+    v = rows @ inv  # (N, r, Q)
+    small = np.eye(rows.shape[1]) + v @ np.swapaxes(rows, -1, -2)  # (N, r, r)
+    k = info.k
+    if name == "O1":
+        _, logdet_full = np.linalg.slogdet(reg)
+        _, logdet_small = np.linalg.slogdet(small)
+        logdet = logdet_full + logdet_small
+        if info.h:
+            rh = rows[..., k:]
+            nuis = reg[k:, k:] + np.swapaxes(rh, -1, -2) @ rh
+            logdet = logdet - np.linalg.slogdet(nuis)[1]
+        logdet = logdet - 2 * np.sum(np.log(info.scale))
+        return np.exp(logdet / (2 * k)) / np.sqrt(n_meas)
+    w = np.linalg.solve(small, v[..., :k])  # (N, r, k)
+    var = np.diag(inv)[:k] - np.sum(v[..., :k] * w, axis=-2)
+    return _from_variances(info, var, name)
+
+
+def greedy(info: Information, k: int, name: str) -> np.ndarray:
+    """Forward selection: add, one at a time, the candidate that maximises the criterion."""
+    chosen: list[int] = []
+    total = np.zeros(info.rows.shape[-1:] * 2)
+    free = np.arange(len(info.rows))
+    while len(chosen) < k:
+        vals = _values(info, total, free, name, len(chosen) + 1)
+        best = int(np.argmax(vals))
+        chosen.append(int(free[best]))
+        total = total + info.total([free[best]])
+        free = np.delete(free, best)
+    return np.array(chosen)
+
+
+def exchange(
+    info: Information, chosen: np.ndarray, name: str, max_passes: int = 20, tol: float = 1e-9
+) -> tuple[np.ndarray, int]:
+    """Fedorov-style exchange: for each chosen pose, the swap with an unchosen candidate that
+    improves the criterion most; passes until none improves. Returns the set and the swaps made."""
+    chosen = np.array(chosen)
+    k = len(chosen)
+    total = info.total(chosen)
+    current = float(criterion(info, total, name, k))
+    swaps = 0
+    for _ in range(max_passes):
+        improved = False
+        for pos in range(k):
+            free = np.setdiff1d(np.arange(len(info.rows)), chosen)
+            if free.size == 0:
+                return chosen, swaps
+            base = total - info.total([chosen[pos]])
+            vals = _values(info, base, free, name, k)
+            best = int(np.argmax(vals))
+            if vals[best] > current + tol * abs(current):
+                total = base + info.total([free[best]])
+                chosen[pos] = free[best]
+                current = float(vals[best])
+                improved, swaps = True, swaps + 1
+        if not improved:
+            break
+    return chosen, swaps
+
+
+def travel_order(q: np.ndarray) -> np.ndarray:
+    """An order of configurations ``(K, n)`` for the controller: nearest neighbour in joint space
+    (largest joint move) from the one nearest the zero position. The Cramer-Rao bound does not
+    depend on the order."""
+    left = list(range(len(q)))
+    order = [left.pop(int(np.argmin(np.abs(q).max(axis=1))))]
+    while left:
+        step = np.abs(q[left] - q[order[-1]]).max(axis=1)
+        order.append(left.pop(int(np.argmin(step))))
+    return np.array(order)
+
+
+# --- evaluating a set -----------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Quality:
+    """Predicted quality of a set of poses (noise-weighted estimator, Cramer-Rao bound)."""
+
+    uncertainty: Uncertainty
+    worst: tuple[str, float]  # parameter and its length-equivalent std (m)
+    worst_length: tuple[str, float]  # largest std among lengths (m)
+    worst_angle: tuple[str, float]  # largest std among angles (rad)
+    median: float  # median length-equivalent std (m)
+    indices: Indices
+    accuracy: Accuracy | None = None
+
+
+def quality(
+    info: Information,
+    idx: np.ndarray,
+    problem: Problem | None = None,
+    q_validation: np.ndarray | None = None,
+) -> Quality:
+    """Standard deviations, observability indices and (with the pool's ``problem`` and validation
+    poses) the predicted accuracy of the set ``idx`` of candidates."""
+    mat = info.of(idx)
+    cov = np.linalg.inv(mat / np.outer(info.scale, info.scale)) / np.outer(info.scale, info.scale)
+    cov = 0.5 * (cov + cov.T)
+    unc = Uncertainty(
+        names=info.names,
+        is_angle=info.is_angle,
+        subset=info.subset,
+        crb=cov,
+        least_squares=None,
+        estimator="weighted",
+        identifiable=info.identifiable,
+    )
+    std = np.sqrt(np.diag(cov))
+    eq = std * info.weights
+    names = [info.names[p] for p in info.subset]
+    angle = info.is_angle[info.subset]
+
+    def worst_of(mask: np.ndarray) -> tuple[str, float]:
+        if not mask.any():
+            return "-", float("nan")
+        k = int(np.argmax(np.where(mask, std, -np.inf)))
+        return names[k], float(std[k])
+
+    s = np.sqrt(np.clip(np.linalg.eigvalsh(mat / np.outer(info.scale, info.scale)), 0, None))
+    acc = None
+    if problem is not None and q_validation is not None:
+        acc = predicted_accuracy(problem, unc, q_validation)
+    return Quality(
+        uncertainty=unc,
+        worst=(names[int(np.argmax(eq))], float(eq.max())),
+        worst_length=worst_of(~angle),
+        worst_angle=worst_of(angle),
+        median=float(np.median(eq)),
+        indices=observability_indices(s, len(idx)),
+        accuracy=acc,
+    )
+
+
+# --- the plan -------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class PlanResult:
+    """A plan, the candidate pool it came from, and how it compares with random sets."""
+
+    q: np.ndarray  # (K, n) in travel order
+    criterion: str
+    algorithm: str
+    swaps: int
+    n_candidates: int
+    rejected: dict[str, int]
+    plan: Quality
+    random: tuple[Quality, ...]  # random feasible sets of the same size
+    seconds: float
+    names: tuple[str, ...] = field(default=())
+    random_q: np.ndarray | None = None  # (K, n) the random set with the median worst std
+
+    def summary(self, model: RobotModel) -> dict:
+        """JSON-ready: the joints (rad, m), and per set the standard deviations (m, rad)."""
+
+        def one(q: Quality) -> dict:
+            unc = q.uncertainty
+            out = {
+                "worst": {"name": q.worst[0], "std_equivalent_m": q.worst[1]},
+                "worst_length": {"name": q.worst_length[0], "std_m": q.worst_length[1]},
+                "worst_angle": {"name": q.worst_angle[0], "std_rad": q.worst_angle[1]},
+                "median_std_equivalent_m": q.median,
+                "indices": q.indices.as_dict(),
+                "std": {unc.names[p]: float(unc.crb_std[p]) for p in unc.subset},
+            }
+            if q.accuracy is not None:
+                out["predicted_accuracy"] = q.accuracy.summary()
+            return out
+
+        return {
+            "robot": model.name,
+            "criterion": self.criterion,
+            "algorithm": self.algorithm,
+            "exchanges": self.swaps,
+            "n_candidates": self.n_candidates,
+            "rejected": self.rejected,
+            "seconds": self.seconds,
+            "joints": [[float(v) for v in row] for row in self.q],
+            "plan": one(self.plan),
+            "random": [one(r) for r in self.random],
+            "random_median_worst_m": self.random_median_worst,
+            "improvement": self.improvement,
+        }
+
+    @property
+    def random_median_worst(self) -> float:
+        return float(np.median([r.worst[1] for r in self.random])) if self.random else np.nan
+
+    @property
+    def improvement(self) -> float:
+        """Median worst std of the random sets over the plan's."""
+        return self.random_median_worst / self.plan.worst[1]
+
+
+def plan(
+    model: RobotModel,
+    cell: Cell,
+    k: int = 30,
+    constraints: Constraints = Constraints(),
+    criterion: Criterion = "worst",
+    algorithm: Algorithm = "exchange",
+    n_candidates: int = 2000,
+    noise: Noise = DEFAULT_NOISE,
+    formulation: Formulation = "invariant",
+    measure: Measure = "pose",
+    random_sets: int = 20,
+    n_validation: int = 50,
+    seed: int = 0,
+) -> PlanResult:
+    """Plan ``k`` poses: candidates, selection, and the comparison with ``random_sets`` random
+    feasible sets of ``k`` candidates (predicted standard deviations and accuracy on
+    ``n_validation`` other feasible poses)."""
+    import time
+
+    start = time.perf_counter()
+    rng = np.random.default_rng(seed)
+    pool, rejected = candidates(model, cell, constraints, n_candidates + n_validation, rng)
+    if len(pool) < k + n_validation:
+        raise RelcalError(
+            f"only {len(pool)} feasible candidates for {k} poses and {n_validation} validation "
+            f"poses; relax the constraints or ask for fewer poses (rejections: {rejected})"
+        )
+    q_val, pool = pool[:n_validation], pool[n_validation:]
+    problem = selection_problem(model, cell, pool, formulation, measure)
+    info = information(problem, noise, constraints.length_scale)
+    chosen = greedy(info, k, criterion)
+    swaps = 0
+    if algorithm == "exchange":
+        chosen, swaps = exchange(info, chosen, criterion)
+    elif algorithm != "greedy":
+        raise ValueError(f"unknown algorithm '{algorithm}': use greedy or exchange")
+    chosen = chosen[travel_order(pool[chosen])]
+    plan_quality = quality(info, chosen, problem, q_val)
+    sets = [rng.choice(len(pool), k, replace=False) for _ in range(random_sets)]
+    randoms = tuple(quality(info, idx, problem, q_val) for idx in sets)
+    random_q = None
+    if sets:
+        middle = sets[int(np.argsort([r.worst[1] for r in randoms])[len(sets) // 2])]
+        random_q = pool[middle][travel_order(pool[middle])]
+    return PlanResult(
+        q=pool[chosen],
+        criterion=criterion,
+        algorithm=algorithm,
+        swaps=swaps,
+        n_candidates=len(pool),
+        rejected=rejected,
+        plan=plan_quality,
+        random=randoms,
+        seconds=time.perf_counter() - start,
+        names=problem.full_layout.names,
+        random_q=random_q,
+    )
+
+
+def joints_csv(model: RobotModel, q: np.ndarray, joint_unit: str = "deg") -> str:
+    """``id,q1..qn`` lines (angles in ``joint_unit``, prismatic joints in m)."""
+    values = np.where(model.prismatic, q, np.degrees(q)) if joint_unit == "deg" else q
+    header = ",".join(["id", *[f"q{i + 1}" for i in range(model.n_joints)]])
+    lines = [header] + [
+        ",".join([f"p{k + 1:03d}", *[f"{v:.6f}" for v in row]]) for k, row in enumerate(values)
+    ]
+    return "\n".join(lines) + "\n"
+
+
+def _quality_row(label: str, q: Quality) -> str:
+    name, eq = q.worst
+    ln, lv = q.worst_length
+    an, av = q.worst_angle
+    acc = ""
+    if q.accuracy is not None:
+        s = q.accuracy.summary()
+        acc = (
+            f" {s['position_mm']['mean']:>8.4f} {s['position_mm']['p95']:>8.4f}"
+            f" {s['orientation_deg']['mean']:>9.5f}"
+        )
+    return (
+        f"{label:<22s} {eq * 1e3:>8.4f} {name:<13s} {q.median * 1e3:>8.4f} {lv * 1e3:>8.4f} "
+        f"{np.degrees(av):>9.5f} {q.indices.O1:>7.3g}{acc}"
+    )
+
+
+def format_plan(res: PlanResult, length_scale: float) -> str:
+    """The plan against random sets: predicted standard deviations and accuracy."""
+    k = len(res.q)
+    lines = [
+        f"{k} poses selected from {res.n_candidates} feasible candidates by {res.algorithm} "
+        f"({res.swaps} exchanges) maximising {res.criterion}, {res.seconds:.1f} s",
+        "rejected IK solutions: " + ", ".join(f"{n} {c}" for n, c in res.rejected.items()),
+        "",
+        f"predicted standard deviations (noise-weighted estimator, Cramer-Rao bound); angles "
+        f"count as the displacement {length_scale:g} m away:",
+        f"{'':<22s} {'worst':>8s} {'(param)':<13s} {'median':>8s} {'worst mm':>8s} "
+        f"{'worst deg':>9s} {'O1':>7s} {'acc mean':>8s} {'acc p95':>8s} {'acc deg':>9s}",
+        f"{'':<22s} {'mm':>8s} {'':<13s} {'mm':>8s} {'length':>8s} {'angle':>9s} {'':>7s} "
+        f"{'mm':>8s} {'mm':>8s} {'mean':>9s}",
+        _quality_row("plan", res.plan),
+    ]
+    if res.random:
+        worst = np.array([r.worst[1] for r in res.random])
+        median_set = res.random[int(np.argsort(worst)[len(worst) // 2])]
+        best_set = res.random[int(np.argmin(worst))]
+        lines += [
+            _quality_row(f"random (median of {len(res.random)})", median_set),
+            _quality_row("random (best)", best_set),
+            "",
+            f"worst-parameter std: plan {res.plan.worst[1] * 1e3:.4f} mm, random sets median "
+            f"{res.random_median_worst * 1e3:.4f} mm: {res.improvement:.2f}x lower",
+        ]
+    lines += [
+        "predicted accuracy: RMS error of relative camera poses between validation poses "
+        "caused by the parameter uncertainty alone",
+    ]
+    if res.random:
+        lines += ["", *_parameter_table(res.plan, median_set, len(res.random))]
+    return "\n".join(lines)
+
+
+def _parameter_table(plan_q: Quality, random_q: Quality, n_sets: int) -> list[str]:
+    """Per estimated parameter: predicted std for the plan and the median random set."""
+    a, b = plan_q.uncertainty, random_q.uncertainty
+    lines = [
+        f"{'parameter':<14s} {'unit':>4s} {'plan':>10s} {'random':>10s} {'ratio':>6s}"
+        f"   (predicted std; random = the median of {n_sets} sets)"
+    ]
+    for p in a.subset:
+        scale, unit = (np.degrees(1.0), "deg") if a.is_angle[p] else (1e3, "mm")
+        sa, sb = a.crb_std[p], b.crb_std[p]
+        lines.append(
+            f"{a.names[p]:<14s} {unit:>4s} {sa * scale:>10.4g} {sb * scale:>10.4g} {sb / sa:>6.2f}"
+        )
+    return lines

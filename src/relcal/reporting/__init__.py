@@ -1,0 +1,1 @@
+"""Presentation: text tables, JSON documents and the HTML report."""

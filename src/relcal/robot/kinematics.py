@@ -1,0 +1,336 @@
+"""Forward kinematics, the geometric parameter vector, and its analytic identification Jacobian.
+
+Everything is vectorised over N joint configurations ``q`` of shape ``(N, n)``.
+
+The parameter vector is ordered by kind, as in the published formulation: all ``theta_off``, all
+``a``, all ``d``, all ``alpha``, then ``beta`` of Hayati joints, then optionally the base and tool
+transforms as 6-vectors of small motions in their own frames (``base.tx`` ... ``base.rz``).
+"""
+
+from __future__ import annotations
+
+import functools
+import importlib.util
+from dataclasses import dataclass, replace
+from typing import Literal
+
+import numpy as np
+
+from relcal import geometry as tf
+from relcal.errors import RelcalError
+from relcal.robot.model import ANGLE_KINDS, KINDS, RobotModel
+
+FRAME_COMPONENTS = ("tx", "ty", "tz", "rx", "ry", "rz")
+
+
+@dataclass(frozen=True)
+class Layout:
+    """Names and meaning of the entries of a parameter vector.
+
+    ``kinds[k]`` is ``theta_off``, ``a``, ``d``, ``alpha``, ``beta``, ``base`` or ``tool``;
+    ``index[k]`` is the 0-based joint, or the component 0..5 of a base/tool 6-vector.
+    """
+
+    names: tuple[str, ...]
+    kinds: tuple[str, ...]
+    index: tuple[int, ...]
+
+    @property
+    def size(self) -> int:
+        return len(self.names)
+
+    def is_angle(self) -> np.ndarray:
+        """Mask of entries in radians (the others are in metres); frame 6-vectors end in radians."""
+        return np.array(
+            [k in ANGLE_KINDS or (k not in KINDS and i >= 3) for k, i in self],
+            dtype=bool,
+        )
+
+    def __iter__(self):
+        return iter(zip(self.kinds, self.index, strict=True))
+
+    def extended(self, prefix: str) -> Layout:
+        """This layout followed by a 6-vector frame named ``prefix`` (e.g. ``handeye``)."""
+        names = tuple(f"{prefix}.{c}" for c in FRAME_COMPONENTS)
+        return Layout(self.names + names, self.kinds + (prefix,) * 6, self.index + tuple(range(6)))
+
+
+def make_layout(model: RobotModel, base: bool = False, tool: bool = False) -> Layout:
+    """The geometric parameters of ``model`` (plus base and tool 6-vectors if asked)."""
+    n = model.n_joints
+    fixed_d = model.fixed_d()
+    entries: list[tuple[str, int]] = []
+    for kind in ("theta_off", "a", "d", "alpha"):
+        entries += [(kind, i) for i in range(n) if not (kind == "d" and fixed_d[i])]
+    entries += [("beta", i) for i in range(n) if model.hayati[i]]
+    for frame, wanted in (("base", base), ("tool", tool)):
+        if wanted:
+            entries += [(frame, c) for c in range(6)]
+    names = tuple(
+        f"{k}.{FRAME_COMPONENTS[i]}" if k in ("base", "tool") else f"{k}[{i + 1}]"
+        for k, i in entries
+    )
+    return Layout(names, tuple(k for k, _ in entries), tuple(i for _, i in entries))
+
+
+def apply_errors(model: RobotModel, layout: Layout, errors: np.ndarray) -> RobotModel:
+    """The model with additive geometric errors; base/tool errors move those frames locally."""
+    errors = np.asarray(errors, dtype=float)
+    arrays = {k: model.geometric(k).copy() for k in ("theta_off", "a", "d", "alpha", "beta")}
+    frames = {"base": np.zeros(6), "tool": np.zeros(6)}
+    for (kind, i), e in zip(layout, errors, strict=False):
+        if kind in arrays:
+            arrays[kind][i] += e
+        elif kind in frames:
+            frames[kind][i] += e
+    moved = {
+        frame: getattr(model, frame) @ tf.from_vector(vec)
+        for frame, vec in frames.items()
+        if vec.any()
+    }
+    return replace(model, **arrays, **moved)
+
+
+def _joint_values(model: RobotModel, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Total joint angles and offsets ``(N, n)``: the joint variable goes to theta or d."""
+    q = np.atleast_2d(np.asarray(q, dtype=float))
+    theta = model.theta_off + np.where(model.prismatic, 0.0, q)
+    d = model.d + np.where(model.prismatic, q, 0.0)
+    return theta, d
+
+
+def _twist_rotations(model: RobotModel) -> np.ndarray:
+    """``Rx(alpha_i) Ry(beta_i)`` per joint, ``(n, 3, 3)``, written out."""
+    ca, sa = np.cos(model.alpha), np.sin(model.alpha)
+    cb, sb = np.cos(model.beta), np.sin(model.beta)
+    zero = np.zeros_like(ca)
+    rows = [cb, zero, sb, sa * sb, ca, -sa * cb, -ca * sb, sa, ca * cb]
+    return np.stack(rows, axis=-1).reshape(-1, 3, 3)
+
+
+def _link_transforms(model: RobotModel, q: np.ndarray) -> np.ndarray:
+    """Joint transforms ``A_i``, shape ``(N, n, 4, 4)``."""
+    theta, d = _joint_values(model, q)
+    return _links(model, np.cos(theta), np.sin(theta), d)
+
+
+def _links(model: RobotModel, c: np.ndarray, s: np.ndarray, d: np.ndarray) -> np.ndarray:
+    """Joint transforms ``A_i`` ``(N, n, 4, 4)`` from ``cos``/``sin`` of the total joint angles
+    and the total offsets ``d`` ``(N, n)``.
+
+    The constant part ``Rx(alpha) Ry(beta)`` is formed once; ``Rz(theta)`` only mixes two of its
+    rows (DH, applied before) or columns (MDH, after), written out element-wise.
+    """
+    c, s = c[..., None], s[..., None]
+    rc = _twist_rotations(model)  # (n, 3, 3)
+    out = np.zeros((*d.shape, 4, 4))
+    out[..., 3, 3] = 1.0
+    if model.convention == "dh":  # Rz(theta) Tz(d) Tx(a) [Rx(alpha) Ry(beta)]
+        out[..., 0, :3] = c * rc[:, 0] - s * rc[:, 1]
+        out[..., 1, :3] = s * rc[:, 0] + c * rc[:, 1]
+        out[..., 2, :3] = rc[:, 2]
+        out[..., 0, 3] = model.a * c[..., 0]
+        out[..., 1, 3] = model.a * s[..., 0]
+        out[..., 2, 3] = d
+    else:  # [Rx(alpha) Ry(beta)] Tx(a) Rz(theta) Tz(d)
+        out[..., :3, 0] = c * rc[..., 0] + s * rc[..., 1]
+        out[..., :3, 1] = c * rc[..., 1] - s * rc[..., 0]
+        out[..., :3, 2] = rc[..., 2]
+        out[..., :3, 3] = model.a[:, None] * rc[..., 0] + d[..., None] * rc[..., 2]
+    return out
+
+
+def _chain(model: RobotModel, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Frames ``base A_1 ... A_i`` for i = 0..n ``(N, n + 1, 4, 4)``, with ``cos`` and ``sin`` of
+    the total joint angles ``(N, n)`` (the Jacobian needs them again)."""
+    theta, d = _joint_values(model, q)
+    c, s = np.cos(theta), np.sin(theta)
+    links = _links(model, c, s, d)
+    n_conf, n = links.shape[:2]
+    frames = np.empty((n_conf, n + 1, 4, 4))
+    frames[:, 0] = model.base
+    for i in range(n):
+        frames[:, i + 1] = frames[:, i] @ links[:, i]
+    return frames, c, s
+
+
+def forward_frames(model: RobotModel, q: np.ndarray) -> np.ndarray:
+    """Frames ``base A_1 ... A_i`` for i = 0..n, shape ``(N, n + 1, 4, 4)`` (tool not applied)."""
+    return _chain(model, q)[0]
+
+
+Backend = Literal["auto", "numpy", "numba"]
+_LOAD_MIN = 50_000  # configurations that pay for loading the kernel (~0.5 s; compiling ~3 s)
+
+
+def _fast_available() -> bool:
+    return importlib.util.find_spec("numba") is not None
+
+
+def _use_fast(backend: Backend, n_conf: int) -> bool:
+    if backend == "numpy":
+        return False
+    if backend == "numba":
+        if not _fast_available():
+            raise RelcalError("backend='numba' needs the numba package: pip install numba")
+        return True
+    if backend != "auto":
+        raise ValueError(f"unknown FK backend '{backend}': use auto, numpy or numba")
+    # By batch size alone, not by whether the kernel happens to be loaded: the same call gives
+    # the same round-off in every process (worker pools must agree with a serial run).
+    return n_conf >= _LOAD_MIN and _fast_available()
+
+
+def fk(model: RobotModel, q: np.ndarray, backend: Backend = "auto") -> np.ndarray:
+    """Flange/tool poses in the base frame ``F(q)``, shape ``(N, 4, 4)`` for ``q`` of ``(N, n)``.
+
+    ``backend="numpy"`` is the reference implementation; ``"numba"`` the compiled kernel of
+    :mod:`relcal.robot.fastkin` (same result to round-off, about 40 times faster on large batches);
+    ``"auto"`` takes the kernel when Numba is installed and the batch is large enough to pay for
+    loading it (``_LOAD_MIN`` configurations): small batches never import Numba, so short commands
+    start quickly.
+    """
+    q = np.atleast_2d(np.asarray(q, dtype=float))
+    if _use_fast(backend, q.shape[0]):
+        try:
+            from relcal.robot import fastkin
+        except Exception as exc:  # e.g. Numba finds no writable cache directory
+            if backend == "numba":
+                raise RelcalError(f"the compiled FK kernel could not be loaded: {exc}") from exc
+        else:
+            return fastkin.fk(model, q)
+    links = _link_transforms(model, q)
+    out = np.broadcast_to(model.base, (links.shape[0], 4, 4))
+    for i in range(links.shape[1]):
+        out = out @ links[:, i]
+    return out @ model.tool
+
+
+_JOINT_KINDS = ("theta_off", "a", "d", "alpha", "beta")
+_ROTATIONS = ("theta_off", "alpha", "beta")  # the other joint kinds translate
+
+
+def _joint_screws(
+    model: RobotModel, frames: np.ndarray, c: np.ndarray, s: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Axes and points on them ``(N, 5 n, 3)`` (base frame) that a unit change of each joint
+    parameter rotates about or translates along, ordered kind by kind as ``_JOINT_KINDS``;
+    ``c``, ``s``: cosine and sine of the total joint angles."""
+    rot, origin = frames[:, :-1, :3, :3], frames[:, :-1, :3, 3]  # frame before each joint
+    after = frames[:, 1:, :3]  # frame after each joint
+    if model.convention == "dh":  # Rz(theta) Tz(d) Tx(a) Rx(alpha) Ry(beta)
+        c, s = c[..., None], s[..., None]
+        z_axis = rot[..., 2]
+        x_axis = rot[..., 0] * c + rot[..., 1] * s  # x after Rz(theta)
+        link_origin = after[..., 3]
+        # theta_off, a, d, alpha, beta
+        axes = (z_axis, x_axis, z_axis, x_axis, after[..., 1])
+        points = (origin, origin, origin, link_origin, link_origin)
+    else:  # modified DH: Rx(alpha) Ry(beta) Tx(a) Rz(theta) Tz(d)
+        ca, sa = np.cos(model.alpha)[:, None], np.sin(model.alpha)[:, None]
+        y_alpha = rot[..., 1] * ca + rot[..., 2] * sa  # y after Rx(alpha)
+        x_ab = np.einsum("nikl,il->nik", rot, _twist_rotations(model)[..., 0])
+        joint_origin = origin + model.a[:, None] * x_ab
+        z_axis = after[..., 2]  # Rz(theta) keeps z: the joint axis
+        axes = (z_axis, x_ab, z_axis, rot[..., 0], y_alpha)
+        points = (joint_origin, origin, joint_origin, origin, origin)
+    return np.concatenate(axes, axis=1), np.concatenate(points, axis=1)
+
+
+def _cross(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """``u x v`` over the last axis (``np.cross`` costs more on small batches)."""
+    return np.stack(
+        [
+            u[..., 1] * v[..., 2] - u[..., 2] * v[..., 1],
+            u[..., 2] * v[..., 0] - u[..., 0] * v[..., 2],
+            u[..., 0] * v[..., 1] - u[..., 1] * v[..., 0],
+        ],
+        axis=-1,
+    )
+
+
+@functools.lru_cache(maxsize=64)
+def _slots(layout: Layout, n_joints: int) -> tuple[np.ndarray, ...]:
+    """Where each parameter's screw is found: joint parameters index the ``(kind, joint)`` table
+    of :func:`_joint_screws` flattened (kind-major); frame parameters name their component."""
+    kinds, index = np.array(layout.kinds), np.array(layout.index, dtype=int)
+    joint = np.isin(kinds, _JOINT_KINDS)
+    if np.any(~joint & ~np.isin(kinds, ("base", "tool"))):
+        bad = kinds[~joint & ~np.isin(kinds, ("base", "tool"))][0]
+        raise ValueError(f"parameter kind '{bad}' is not a kinematic parameter")
+    table = np.array([_JOINT_KINDS.index(k) if j else 0 for k, j in zip(kinds, joint, strict=True)])
+    rotation = np.where(joint, np.isin(kinds, _ROTATIONS), index >= 3)
+    return (
+        np.flatnonzero(joint),
+        table[joint] * n_joints + index[joint],
+        np.flatnonzero(kinds == "base"),
+        index[kinds == "base"] % 3,
+        np.flatnonzero(kinds == "tool"),
+        index[kinds == "tool"] % 3,
+        rotation,
+    )
+
+
+def _screws(
+    model: RobotModel, q: np.ndarray, layout: Layout
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Tool poses ``(N, 4, 4)``, and per parameter of ``layout`` the unit screw it moves the tool
+    by: axes and points on them ``(N, P, 3)`` in the base frame, and which ones rotate ``(P,)``
+    (the others translate along their axis)."""
+    frames, c, s = _chain(model, q)
+    tip_pose = frames[:, -1] @ model.tool
+    joint_cols, joint_slots, base_cols, base_axes, tool_cols, tool_axes, rotation = _slots(
+        layout, model.n_joints
+    )
+    screw_axes, screw_points = _joint_screws(model, frames, c, s)  # (N, 5 n, 3) each
+    axes = np.empty((len(tip_pose), layout.size, 3))
+    points = np.empty((len(tip_pose), layout.size, 3))
+    axes[:, joint_cols] = screw_axes[:, joint_slots]
+    points[:, joint_cols] = screw_points[:, joint_slots]
+    # Base and tool 6-vectors are small motions in their own frames.
+    axes[:, base_cols] = model.base[:3, base_axes].T
+    points[:, base_cols] = model.base[:3, 3]
+    axes[:, tool_cols] = np.swapaxes(tip_pose[:, :3, tool_axes], -1, -2)
+    points[:, tool_cols] = tip_pose[:, None, :3, 3]
+    return tip_pose, axes, points, rotation
+
+
+def _columns(axes: np.ndarray, moments: np.ndarray, rotation: np.ndarray) -> np.ndarray:
+    """Twist columns ``(N, 6, P)``: ``(moment, axis)`` for rotations, ``(axis, 0)`` for
+    translations."""
+    out = np.zeros((axes.shape[0], axes.shape[1], 6))  # transposed while filled
+    out[:, rotation, :3] = moments
+    out[:, rotation, 3:] = axes[:, rotation]
+    out[:, ~rotation, :3] = axes[:, ~rotation]
+    return np.ascontiguousarray(np.swapaxes(out, -1, -2))
+
+
+def pose_jacobian(
+    model: RobotModel, q: np.ndarray, layout: Layout
+) -> tuple[np.ndarray, np.ndarray]:
+    """Poses ``F(q)`` ``(N, 4, 4)`` and the Jacobian ``(N, 6, P)`` of the pose error.
+
+    Rows are the tool position change (m) and the small rotation (rad), both in the base frame,
+    per unit change of each parameter of ``layout``: ``F(p + dp) ~ (I + [J dp]) F(p)`` with the
+    rotation part acting about the tool point.
+
+    Each parameter moves the tool by a unit screw: a translation along an axis (column
+    ``(axis, 0)``) or a rotation about an axis through a point (``(axis x (tip - point), axis)``).
+    """
+    tip_pose, axes, points, rotation = _screws(model, q, layout)
+    tip = tip_pose[:, None, :3, 3]
+    return tip_pose, _columns(axes, _cross(axes[:, rotation], tip - points[:, rotation]), rotation)
+
+
+def spatial_jacobian(
+    model: RobotModel, q: np.ndarray, layout: Layout
+) -> tuple[np.ndarray, np.ndarray]:
+    """Poses ``F(q)`` ``(N, 4, 4)`` and the spatial twists ``(N, 6, P)`` of the parameters.
+
+    The same motion as :func:`pose_jacobian` with the velocity taken at the base origin instead
+    of the tool point: ``F(p + dp) ~ exp([S dp]) F(p)``; a rotation about an axis through a point
+    is ``(point x axis, axis)``. It does not depend on the tool point, which relative
+    measurements (that difference two poses) exploit.
+    """
+    tip_pose, axes, points, rotation = _screws(model, q, layout)
+    return tip_pose, _columns(axes, _cross(points[:, rotation], axes[:, rotation]), rotation)

@@ -1,0 +1,1 @@
+"""Simulation: the published experiment, synthetic images and Monte Carlo studies."""

@@ -1,0 +1,478 @@
+"""Monte Carlo study: many noisy simulated calibrations against the predicted covariance.
+
+One :class:`Scenario` fixes the robot, the joint configurations, the true geometric errors and
+hand-eye transform, and the noise model. Each trial measures the same poses with new noise (seeded
+per trial, so results do not depend on the number of worker processes), identifies the parameters
+on the identifiable subset, and keeps the estimate. The empirical standard deviation of every
+estimated parameter is then compared with the prediction of :mod:`uncertainty` for the
+same estimator (the Cramer-Rao bound for the noise-weighted one), and the mean with the noise-free
+estimate (the bias test).
+
+With ``sampling="random"`` the trials are independent draws; the sample standard deviation of T
+trials then scatters by about ``1/sqrt(2 (T - 1))`` (5 % at 200 trials) around the true one, so a
+per-parameter agreement is judged against that interval. ``sampling="matched"`` (moment matching)
+makes the noise vectors of the trials have exactly the modelled sample covariance (needs more
+trials than noise dimensions): the sampling scatter of the linear part vanishes, and what remains
+is the error of the prediction itself (noise propagation, linearisation, estimator).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import multiprocessing as mp
+import os
+import time
+from collections.abc import Iterator
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from dataclasses import dataclass, replace
+from typing import Literal
+
+import numpy as np
+
+from relcal import geometry as tf
+from relcal.calibration.identify import analyse_problem, identify_lm
+from relcal.calibration.measurement import Formulation, Measure, PairStrategy, Problem, make_pairs
+from relcal.calibration.noise import Noise
+from relcal.calibration.uncertainty import (
+    Estimator,
+    Uncertainty,
+    identify_weighted,
+    parameter_covariance,
+)
+from relcal.errors import RelcalError
+from relcal.geometry import DEG, MM
+from relcal.robot.kinematics import apply_errors, fk, make_layout
+from relcal.robot.model import RobotModel
+from relcal.sim.simulate import random_errors
+
+Sampling = Literal["random", "matched"]
+DEFAULT_HANDEYE = tf.from_vector(np.array([0.0, 0.04, 0.06, 0.0, 0.0, 0.0]))
+DEFAULT_BOARD = tf.from_vector(np.array([0.55, 0.0, 0.0, np.pi, 0.0, 0.3]))  # unknown W
+
+
+@dataclass(frozen=True)
+class Scenario:
+    """A simulated calibration: the truth and how it is measured.
+
+    ``q`` ``(N, n)`` commanded joints (rad); ``errors`` true geometric errors on
+    ``make_layout(model)`` (m, rad); ``handeye`` the true flange-from-camera ``X`` and
+    ``handeye_guess`` the one the identification starts from (frame-invariant formulation; the
+    published one uses the true ``X`` as the tool); ``board`` the board-from-base ``W``.
+    """
+
+    model: RobotModel
+    q: np.ndarray
+    errors: np.ndarray
+    handeye: np.ndarray
+    handeye_guess: np.ndarray
+    board: np.ndarray
+    noise: Noise
+    formulation: Formulation = "invariant"
+    measure: Measure = "pose"
+    pairing: PairStrategy = "consecutive"
+
+    @property
+    def noise_dimension(self) -> int:
+        """Independent standard normals per trial: 6 per pose, plus one per joint reading."""
+        n_pose, n_joint = self.q.shape
+        return n_pose * (6 + (n_joint if np.any(np.asarray(self.noise.joints) > 0) else 0))
+
+
+def make_scenario(
+    model: RobotModel,
+    q: np.ndarray,
+    noise: Noise,
+    seed: int = 0,
+    formulation: Formulation = "invariant",
+    measure: Measure = "pose",
+    pairing: PairStrategy = "consecutive",
+    errors: np.ndarray | None = None,
+    handeye: np.ndarray = DEFAULT_HANDEYE,
+) -> Scenario:
+    """A scenario with random errors (0.1..0.9 mm, 0.01..0.9 deg, seeded) unless given, and, for
+    the frame-invariant formulation, a hand-eye guess about 1 mm / 0.5 deg off the truth."""
+    rng = np.random.default_rng(seed)
+    layout = make_layout(model)
+    errors = random_errors(layout, rng) if errors is None else np.asarray(errors, dtype=float)
+    guess = handeye
+    if formulation == "invariant":
+        offset = np.concatenate([rng.normal(0, 1 * MM, 3), rng.normal(0, 0.5 * DEG, 3)])
+        guess = handeye @ tf.from_vector(offset)
+    return Scenario(
+        model=model,
+        q=np.asarray(q, dtype=float),
+        errors=errors,
+        handeye=handeye,
+        handeye_guess=guess,
+        board=DEFAULT_BOARD,
+        noise=noise,
+        formulation=formulation,
+        measure=measure,
+        pairing=pairing,
+    )
+
+
+def clean_poses(scenario: Scenario) -> np.ndarray:
+    """Noise-free measured poses ``(N, 4, 4)``: ``W F_true X`` (frame-invariant), else the camera
+    pose in a base-aligned frame shifted by an unknown translation (published) or not (absolute)."""
+    true_model = apply_errors(scenario.model, make_layout(scenario.model), scenario.errors)
+    camera = fk(true_model, scenario.q) @ scenario.handeye
+    if scenario.formulation == "invariant":
+        return scenario.board @ camera
+    if scenario.formulation == "published":
+        camera[:, :3, 3] -= scenario.board[:3, 3]
+    return camera
+
+
+def problem_for(scenario: Scenario, q: np.ndarray, poses: np.ndarray) -> Problem:
+    """The identification problem for measured joints ``q`` and poses."""
+    model = scenario.model
+    handeye = scenario.handeye_guess
+    if scenario.formulation != "invariant":
+        model = replace(model, tool=model.tool @ scenario.handeye)
+        handeye = np.eye(4)
+    return Problem(
+        model=model,
+        layout=make_layout(scenario.model),
+        q=q,
+        poses=poses,
+        formulation=scenario.formulation,
+        measure=scenario.measure,
+        pairs=make_pairs(len(q), scenario.pairing),
+        handeye=handeye,
+    )
+
+
+def truth_vector(scenario: Scenario) -> np.ndarray:
+    """The true parameters on the problem's full layout (hand-eye error as ``X_guess^-1 X``)."""
+    if scenario.formulation != "invariant":
+        return scenario.errors.copy()
+    offset = tf.to_vector(tf.invert(scenario.handeye_guess) @ scenario.handeye)
+    return np.concatenate([scenario.errors, offset])
+
+
+def noisy_measurement(
+    scenario: Scenario, clean: np.ndarray, z: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Joint readings ``(N, n)`` and measured poses ``(N, 4, 4)`` for standard normals ``z``
+    ``(D,)``: pose errors ``C exp(eps)`` in the camera frame, joint errors added to the readings."""
+    n_pose, n_joint = scenario.q.shape
+    noise = scenario.noise
+    sd = np.r_[np.full(3, noise.position), np.full(3, noise.orientation)]
+    eps = z[: 6 * n_pose].reshape(n_pose, 6) * sd
+    poses = clean @ tf.from_vector(eps)
+    q = scenario.q
+    if z.size > 6 * n_pose:
+        q = q + z[6 * n_pose :].reshape(n_pose, n_joint) * np.asarray(noise.joints, dtype=float)
+    return q, poses
+
+
+def standard_normals(seed: int, trials: int, dim: int, sampling: Sampling) -> np.ndarray:
+    """``(trials, dim)`` standard normals; row t is drawn from the seed ``(seed, t)``. ``matched``
+    centres and whitens the columns so that their sample covariance is exactly the identity."""
+    z = np.stack([np.random.default_rng([seed, t]).standard_normal(dim) for t in range(trials)])
+    if sampling == "random":
+        return z
+    if sampling != "matched":
+        raise ValueError(f"unknown sampling '{sampling}': use random or matched")
+    if trials <= dim + 1:
+        raise RelcalError(
+            f"matched sampling needs more trials than noise dimensions: {trials} trials for "
+            f"{dim} (use at least {dim + 2} trials, fewer poses, or --sampling random)"
+        )
+    z = z - z.mean(axis=0)
+    chol = np.linalg.cholesky(z.T @ z / (trials - 1))
+    return np.linalg.solve(chol, z.T).T
+
+
+# --- trials (run in worker processes) ------------------------------------------------------------
+
+_CONTEXT: dict = {}
+_BLAS_THREADS = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
+
+
+@contextlib.contextmanager
+def _single_threaded_blas() -> Iterator[None]:
+    """Workers started meanwhile use one BLAS thread each (the matrices are small; threads of
+    several processes competing for the cores make them many times slower)."""
+    saved = {k: os.environ.get(k) for k in _BLAS_THREADS}
+    os.environ.update({k: "1" for k in _BLAS_THREADS})
+    try:
+        yield
+    finally:
+        for key, value in saved.items():
+            if value is None:
+                os.environ.pop(key, None)
+            else:
+                os.environ[key] = value
+
+
+def _init(context: dict) -> None:
+    _CONTEXT.clear()
+    _CONTEXT.update(context)
+
+
+def _estimate(problem: Problem, context: dict) -> tuple[np.ndarray, bool]:
+    if context["estimator"] == "weighted":
+        result = identify_weighted(
+            problem,
+            context["scenario"].noise,
+            identifiability=context["ident"],
+        )
+    else:
+        result = identify_lm(problem, identifiability=context["ident"])
+    return result.params, result.converged
+
+
+def _run_trials(rows: list[tuple[int, np.ndarray]]) -> list[tuple[int, np.ndarray, bool]]:
+    ctx = _CONTEXT
+    out = []
+    for t, z in rows:
+        q, poses = noisy_measurement(ctx["scenario"], ctx["clean"], z)
+        params, ok = _estimate(problem_for(ctx["scenario"], q, poses), ctx)
+        out.append((t, params, ok))
+    return out
+
+
+# --- the study -----------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class StudyResult:
+    """Estimates of every trial and their comparison with the prediction (SI units)."""
+
+    names: tuple[str, ...]
+    is_angle: np.ndarray  # (P,)
+    subset: np.ndarray  # (k,) estimated parameters
+    truth: np.ndarray  # (P,)
+    reference: np.ndarray  # (P,) noise-free estimate
+    estimates: np.ndarray  # (T, P)
+    converged: np.ndarray  # (T,)
+    predicted: Uncertainty
+    estimator: Estimator
+    sampling: Sampling
+    seconds: float
+
+    @property
+    def trials(self) -> int:
+        return len(self.estimates)
+
+    @property
+    def empirical_std(self) -> np.ndarray:
+        """``(k,)`` sample standard deviations of the estimated parameters."""
+        return np.std(self.estimates[:, self.subset], axis=0, ddof=1)
+
+    @property
+    def predicted_std(self) -> np.ndarray:
+        return self.predicted.std[self.subset]
+
+    @property
+    def ratio(self) -> np.ndarray:
+        """``(k,)`` empirical over predicted standard deviation."""
+        return self.empirical_std / self.predicted_std
+
+    @property
+    def overall_ratio(self) -> float:
+        """Root mean of the squared ratios (empirical over predicted variance, averaged)."""
+        return float(np.sqrt(np.mean(self.ratio**2)))
+
+    def ratio_interval(self, level: float = 0.95) -> tuple[float, float]:
+        """Interval that the ratio of one parameter falls in with probability ``level`` when the
+        prediction is exact and the trials are independent (chi-square with T - 1 dof)."""
+        dof = self.trials - 1
+        import scipy.stats  # here: worker processes need not import it
+
+        lo, hi = scipy.stats.chi2.ppf([(1 - level) / 2, (1 + level) / 2], dof)
+        return float(np.sqrt(lo / dof)), float(np.sqrt(hi / dof))
+
+    @property
+    def bias(self) -> np.ndarray:
+        """``(k,)`` mean estimate minus the noise-free estimate."""
+        return self.estimates[:, self.subset].mean(axis=0) - self.reference[self.subset]
+
+    @property
+    def bias_t(self) -> np.ndarray:
+        """``(k,)`` bias in units of its predicted standard error ``std / sqrt(T)``."""
+        return self.bias / (self.predicted_std / np.sqrt(self.trials))
+
+    def bias_test(self) -> tuple[float, float]:
+        """``(chi2, p)``: ``T b^T Cov^-1 b`` against chi-square with k dof (p small: biased)."""
+        cov = self.predicted.covariance
+        d = np.sqrt(np.diag(cov))
+        b = self.bias / d
+        chi2 = float(self.trials * b @ np.linalg.solve(cov / np.outer(d, d), b))
+        import scipy.stats
+
+        return chi2, float(scipy.stats.chi2.sf(chi2, len(b)))
+
+    @property
+    def reference_error(self) -> np.ndarray:
+        """``(P,)`` noise-free estimate minus truth (zero for individually identifiable ones)."""
+        return self.reference - self.truth
+
+    def summary(self) -> dict:
+        """JSON-ready numbers (SI units)."""
+        chi2, p = self.bias_test()
+        lo, hi = self.ratio_interval()
+        return {
+            "trials": self.trials,
+            "converged": int(self.converged.sum()),
+            "estimator": self.estimator,
+            "sampling": self.sampling,
+            "seconds": self.seconds,
+            "overall_ratio": self.overall_ratio,
+            "ratio_interval_95": [lo, hi],
+            "bias_chi2": chi2,
+            "bias_p": p,
+            "parameters": [
+                {
+                    "name": self.names[p_],
+                    "unit": "rad" if self.is_angle[p_] else "m",
+                    "identifiable": bool(self.predicted.identifiable[p_]),
+                    "truth": float(self.truth[p_]),
+                    "reference": float(self.reference[p_]),
+                    "predicted_std": float(ps),
+                    "empirical_std": float(es),
+                    "ratio": float(es / ps),
+                    "bias": float(b),
+                    "bias_t": float(t),
+                }
+                for p_, ps, es, b, t in zip(
+                    self.subset,
+                    self.predicted_std,
+                    self.empirical_std,
+                    self.bias,
+                    self.bias_t,
+                    strict=True,
+                )
+            ],
+        }
+
+
+WORKER_STARTUP_S = 1.0  # s: a spawned worker imports NumPy, SciPy and relcal
+
+
+def study(
+    scenario: Scenario,
+    trials: int = 200,
+    seed: int = 0,
+    workers: int = 2,
+    estimator: Estimator = "weighted",
+    sampling: Sampling = "random",
+    progress: bool = True,
+    chunk: int = 5,
+) -> StudyResult:
+    """Run ``trials`` noisy calibrations of ``scenario`` over up to ``workers`` processes (1: in
+    this process) with a progress bar, and compare them with the predicted covariance.
+
+    A study whose trials would take less than :data:`WORKER_STARTUP_S` in all (judged by the
+    noise-free reference estimate) runs in this process: starting a worker costs about that much.
+    The estimates do not depend on where they run.
+    """
+    from tqdm import tqdm
+
+    start = time.perf_counter()
+    clean = clean_poses(scenario)
+    base = problem_for(scenario, scenario.q, clean)
+    ident = analyse_problem(base)
+    context = {"scenario": scenario, "clean": clean, "ident": ident, "estimator": estimator}
+    tick = time.perf_counter()
+    reference, _ = _estimate(base, context)
+    # Noisy trials take about twice the noise-free reference (more iterations).
+    if 2 * trials * (time.perf_counter() - tick) < WORKER_STARTUP_S:
+        workers = 1
+    predicted = parameter_covariance(
+        base, scenario.noise, ident, params=reference, estimator=estimator
+    )
+    z = standard_normals(seed, trials, scenario.noise_dimension, sampling)
+    rows = list(enumerate(z))
+    batches = [rows[i : i + chunk] for i in range(0, len(rows), chunk)]
+    estimates = np.empty((trials, base.full_layout.size))
+    converged = np.zeros(trials, dtype=bool)
+    with tqdm(total=trials, desc="trials", disable=not progress, unit="trial") as bar:
+        if workers <= 1:
+            _init(context)
+            done = (_run_trials(b) for b in batches)
+            for out in done:
+                for t, params, ok in out:
+                    estimates[t], converged[t] = params, ok
+                bar.update(len(out))
+        else:
+            with (
+                _single_threaded_blas(),
+                ProcessPoolExecutor(
+                    workers,
+                    mp_context=mp.get_context("spawn"),
+                    initializer=_init,
+                    initargs=(context,),
+                ) as pool,
+            ):
+                futures = [pool.submit(_run_trials, b) for b in batches]
+                for future in as_completed(futures):
+                    out = future.result()
+                    for t, params, ok in out:
+                        estimates[t], converged[t] = params, ok
+                    bar.update(len(out))
+    return StudyResult(
+        names=base.full_layout.names,
+        is_angle=base.full_layout.is_angle(),
+        subset=predicted.subset,
+        truth=truth_vector(scenario),
+        reference=reference,
+        estimates=estimates,
+        converged=converged,
+        predicted=predicted,
+        estimator=estimator,
+        sampling=sampling,
+        seconds=time.perf_counter() - start,
+    )
+
+
+def worst(res: StudyResult, length_scale: float = 0.5) -> tuple[str, float, str, float]:
+    """Worst parameter by predicted and by empirical standard deviation, angles counted as the
+    displacement ``length_scale`` m away: ``(name, predicted m, name, empirical m)``."""
+    w = np.where(res.is_angle[res.subset], length_scale, 1.0)
+    p, e = res.predicted_std * w, res.empirical_std * w
+    names = [res.names[k] for k in res.subset]
+    return names[int(np.argmax(p))], float(p.max()), names[int(np.argmax(e))], float(e.max())
+
+
+def format_study(res: StudyResult, length_scale: float = 0.5) -> str:
+    """Per parameter: predicted and empirical standard deviation, their ratio, the bias in
+    standard errors; then the overall ratio, the worst parameter and the bias test."""
+    lo, hi = res.ratio_interval()
+    lines = [
+        f"{'parameter':<14s} {'unit':>4s} {'predicted':>10s} {'empirical':>10s} {'ratio':>6s} "
+        f"{'bias/se':>7s}"
+    ]
+    for k, p in enumerate(res.subset):
+        angle = bool(res.is_angle[p])
+        scale, unit = (np.degrees(1.0), "deg") if angle else (1e3, "mm")
+        flag = "" if lo <= res.ratio[k] <= hi else "  outside 95% interval"
+        if not res.predicted.identifiable[p]:
+            flag += "  (absorbs an unidentifiable combination)"
+        lines.append(
+            f"{res.names[p]:<14s} {unit:>4s} {res.predicted_std[k] * scale:>10.4g} "
+            f"{res.empirical_std[k] * scale:>10.4g} {res.ratio[k]:>6.3f} {res.bias_t[k]:>+7.2f}"
+            + flag
+        )
+    chi2, p = res.bias_test()
+    wp, pv, we, ev = worst(res, length_scale)
+    what = "Cramer-Rao bound" if res.estimator == "weighted" else "least-squares covariance"
+    outside = int(np.sum((res.ratio < lo) | (res.ratio > hi)))
+    lines += [
+        "",
+        f"{res.trials} trials ({int(res.converged.sum())} converged), {res.sampling} sampling, "
+        f"{res.estimator} estimator, predicted = {what}, {res.seconds:.1f} s",
+        f"empirical / predicted std: overall {res.overall_ratio:.3f}, per parameter "
+        f"{res.ratio.min():.3f} .. {res.ratio.max():.3f}, max |ratio - 1| "
+        f"{np.abs(res.ratio - 1).max():.3f}",
+        f"  {outside} of {len(res.ratio)} outside the 95% sampling interval "
+        f"[{lo:.3f}, {hi:.3f}] of {res.trials} independent trials",
+        f"worst parameter (angles x {length_scale:g} m): predicted {wp} {pv * 1e3:.4f} mm, "
+        f"empirical {we} {ev * 1e3:.4f} mm",
+        f"bias: max |mean - noise-free| = {np.abs(res.bias_t).max():.2f} standard errors; "
+        f"chi-square {chi2:.1f} on {len(res.subset)} dof, p = {p:.3f}"
+        + (" (unbiased)" if p > 0.01 else " (BIASED)"),
+    ]
+    return "\n".join(lines)

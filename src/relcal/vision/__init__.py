@@ -1,0 +1,1 @@
+"""Boards, cameras, detection and rendering."""
