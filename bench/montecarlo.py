@@ -38,7 +38,7 @@ import time  # noqa: E402
 import numpy as np  # noqa: E402
 from peers import fd_least_squares  # noqa: E402
 
-from relcal.calibration.identify import analyse_problem  # noqa: E402
+from relcal.calibration.identifiability import analyse_problem  # noqa: E402
 from relcal.calibration.noise import Noise  # noqa: E402
 from relcal.design.cell import Setup, joint_path  # noqa: E402
 from relcal.robot.model import auto_hayati, get_robot  # noqa: E402

@@ -54,7 +54,8 @@ sys.path.insert(0, str(HERE))
 from peers import fd_least_squares  # noqa: E402
 
 from relcal import geometry as tf  # noqa: E402
-from relcal.calibration.identify import analyse_problem, identify_lm, identify_published  # noqa: E402
+from relcal.calibration.identifiability import analyse_problem  # noqa: E402
+from relcal.calibration.identify import identify_lm, identify_published  # noqa: E402
 from relcal.calibration.measurement import Problem, make_pairs, residuals, split_params  # noqa: E402
 from relcal.robot.kinematics import fk, make_layout  # noqa: E402
 from relcal.robot.model import RobotModel, get_robot, library_names  # noqa: E402

@@ -11,8 +11,8 @@ from conftest import random_q
 
 pytest.importorskip("numba")
 
-from relcal.robot import fastkin, kinematics  # noqa: E402
 from relcal import geometry as tf  # noqa: E402
+from relcal.robot import fastkin, kinematics  # noqa: E402
 from relcal.robot.kinematics import fk  # noqa: E402
 from relcal.robot.model import auto_hayati, get_robot, library_names  # noqa: E402
 

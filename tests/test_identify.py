@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 from helpers_sim import held_out_error, make_problem
 
-from relcal.calibration.identify import analyse_problem, identify
+from relcal.calibration.identifiability import analyse_problem
+from relcal.calibration.identify import identify
 from relcal.robot.kinematics import make_layout
 from relcal.robot.model import auto_hayati
 

@@ -10,16 +10,15 @@ import pytest
 from conftest import random_q
 from helpers_sim import make_problem
 
+from relcal.calibration.identifiability import (
+    analyse_problem,
+    observability_indices,
+    parallel_pairs,
+)
 from relcal.calibration.measurement import residuals
 from relcal.calibration.noise import Noise
 from relcal.cli import main
-from relcal.design.observability import (
-    analyse_formulation,
-    format_report,
-    observability_indices,
-    parallel_pairs,
-    report,
-)
+from relcal.design.observability import format_report, report
 from relcal.geometry import DEG, MM
 from relcal.robot.kinematics import make_layout
 from relcal.robot.model import auto_hayati, model_from_dict
@@ -96,7 +95,7 @@ def test_every_named_combination_leaves_the_measurements_unchanged(
     a465, rng, formulation, measure, handeye
 ):
     problem, _ = make_problem(a465, formulation, measure, rng, n_poses=25)
-    ident = analyse_formulation(problem, handeye)  # at the nominal parameters
+    ident = analyse_problem(problem, handeye=handeye)  # at the nominal parameters
     n = problem.full_layout.size
     nominal = np.zeros(n)
     base = residuals(problem, nominal, jacobian=False)

@@ -9,7 +9,7 @@ from conftest import random_q
 from helpers_sim import make_problem
 
 from relcal import geometry as tf
-from relcal.calibration.identify import analyse_problem
+from relcal.calibration.identifiability import analyse_problem
 from relcal.calibration.measurement import make_pairs, residuals
 from relcal.calibration.noise import Noise
 from relcal.calibration.uncertainty import (

@@ -8,14 +8,23 @@ transform, offsets along parallel axes, or no effect at all.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import functools
+from dataclasses import dataclass, replace
+from typing import Literal
 
 import numpy as np
 import scipy.linalg
 
-from relcal.robot.kinematics import Layout
+from relcal import geometry as tf
+from relcal.calibration.blas import one_blas_thread
+from relcal.calibration.measurement import Problem, residuals
+from relcal.errors import RelcalError
+from relcal.robot.kinematics import Layout, pose_jacobian
+from relcal.robot.model import RobotModel, parallel_axes
 
 DEFAULT_RCOND = 1e-6
+HandEye = Literal["estimated", "known"]
+INDEX_NAMES = ("O1", "O2", "O3", "O4", "O5")
 _INVOLVED = 1e-6  # a parameter with a larger share of a null vector is not identifiable alone
 
 
@@ -168,3 +177,190 @@ def analyse(
         null_space=null,
         combinations=tuple(combos),
     )
+
+
+# --- a problem's identifiability ---------------------------------------------------------------
+
+
+def explainer(problem: Problem):
+    """A function naming why a null-space direction (parameter units) leaves the data unchanged."""
+    model, layout = problem.model, problem.full_layout
+    n_geo = problem.layout.size
+
+    @functools.cache
+    def jacobians() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The parameters' effect on the tool at the nominal model ``(N, 6, P)``: at the tool
+        point in the base frame, as a spatial twist (about the base origin) and as a body twist
+        (in the tool frame). Computed on the first explanation only (problems without a null
+        space never need them), so that each explanation is a few matrix-vector products."""
+        tip, jac = pose_jacobian(model, problem.q, problem.layout)
+        spatial = jac.copy()
+        spatial[:, :3] += tf.skew(tip[:, :3, 3]) @ jac[:, 3:]  # v_0 = v_tip - w x tip
+        body = tf.rotate_twist(np.swapaxes(tip[:, :3, :3], -1, -2), jac)
+        return jac, spatial, body
+
+    def constant(twists: np.ndarray) -> bool:
+        scale = np.abs(twists).max()
+        return scale > 0 and np.abs(twists - twists.mean(axis=0)).max() < 1e-6 * scale
+
+    def explain(v: np.ndarray) -> str:
+        involved = np.flatnonzero(np.abs(v) > 1e-6 * np.abs(v).max())
+        kinds = {layout.kinds[i] for i in involved}
+        jac, spatial, body = jacobians()
+        geometric = v[:n_geo]
+        motion = jac @ geometric  # (N, 6): tip velocity and angular velocity, base frame
+        if len(involved) == 1 and np.abs(motion).max() < 1e-12:
+            return "has no effect on the tool pose"
+        if kinds == {"d"} and len(involved) > 1:
+            joints = sorted({layout.index[i] + 1 for i in involved})
+            return (
+                f"translations along parallel axes of joints {', '.join(map(str, joints))}: "
+                "only their sum is identifiable (Hayati's beta cures it)"
+            )
+        if "handeye" not in kinds and constant(spatial @ geometric):
+            return "acts as a rigid motion of the robot base: cancels in relative measurements"
+        if "handeye" in kinds or constant(body @ geometric):
+            if problem.formulation == "invariant":
+                return "acts like a change of the hand-eye transform X, which absorbs it"
+            return "acts like a change of the tool transform"
+        return "linearly dependent at these poses: vary the poses or fix one of them"
+
+    return explain
+
+
+@one_blas_thread
+def analyse_problem(
+    problem: Problem,
+    rcond: float = DEFAULT_RCOND,
+    jac: np.ndarray | None = None,
+    handeye: HandEye = "estimated",
+) -> Identifiability:
+    """Identifiability of ``problem`` at its nominal model (all errors zero).
+
+    ``jac``: the identification Jacobian there, if the caller has it already. With
+    ``handeye="known"`` the hand-eye columns of the frame-invariant formulation are left out (the
+    transform is taken as given).
+    """
+    if jac is None:
+        _, jac = residuals(problem, np.zeros(problem.full_layout.size))
+    layout = problem.full_layout
+    if handeye == "known" and problem.formulation == "invariant":
+        layout = problem.layout
+        jac = jac[:, : layout.size]
+    return analyse(jac, layout, rcond, explainer(problem))
+
+
+def check_pose_set(problem: Problem, source: str, seed: int = 0) -> Identifiability:
+    """Identifiability at the problem's poses; an error if they identify less than generic poses
+    would (the structural null space of this robot and formulation), naming what they miss.
+    ``source`` names the data in the message (e.g. the dataset file)."""
+    ident = analyse_problem(problem)
+    rng = np.random.default_rng(seed)
+    model = problem.model
+    lo = np.where(np.isfinite(model.lower), model.lower, -np.pi)
+    hi = np.where(np.isfinite(model.upper), model.upper, np.pi)
+    generic = rng.uniform(lo, hi, (max(30, len(problem.q)), model.n_joints))
+    reference = analyse_problem(
+        replace(
+            problem, q=generic, poses=np.broadcast_to(np.eye(4), (len(generic), 4, 4)), pairs=None
+        )
+    )
+    if ident.rank < reference.rank:
+        known = {c.names for c in reference.combinations}
+        extra = [c.describe() for c in ident.combinations if c.names not in known]
+        raise RelcalError(
+            f"{source}: the poses identify only {ident.rank} of the {reference.rank} "
+            "parameter combinations that varied poses would; vary the joints more. Not "
+            "determined by these poses: " + "; ".join(extra or ["(mixed combinations)"])
+        )
+    return ident
+
+
+def identifiable_at(
+    problem: Problem, params: np.ndarray, ident: Identifiability, jac: np.ndarray | None = None
+) -> np.ndarray:
+    """Parameters identifiable both at the nominal model and at the estimate.
+
+    Exact symmetries (base motion, hand-eye absorption) are curved in parameter space: a parameter
+    outside the nominal null space can still drift along it at second order, which the null space
+    at the estimate reveals. ``jac``: the Jacobian at ``params`` if the caller has it.
+    """
+    if jac is None:
+        _, jac = residuals(problem, params)
+    return ident.identifiable & identifiable_mask(jac, ident.rcond)
+
+
+def n_measurements(problem: Problem) -> int:
+    """Poses (absolute) or pairs (relative formulations)."""
+    if problem.formulation == "absolute":
+        return len(problem.q)
+    return len(problem.pair_indices())
+
+
+# --- observability indices and parallel axes ----------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Indices:
+    """Observability indices O1..O5 (see the module docstring) and the condition number."""
+
+    O1: float
+    O2: float
+    O3: float
+    O4: float
+    O5: float
+    condition_number: float
+
+    def as_dict(self) -> dict[str, float]:
+        return {k: float(getattr(self, k)) for k in (*INDEX_NAMES, "condition_number")}
+
+
+def index_values(singular_values: np.ndarray, name: str, n_measurements: int) -> np.ndarray:
+    """Observability index ``name`` (O1..O5) of singular values ``(..., L)`` (any order, all
+    positive) of full-column-rank scaled Jacobians, one value per leading index."""
+    s = np.asarray(singular_values, dtype=float)
+    low, high = s.min(axis=-1), s.max(axis=-1)
+    if name == "O1":
+        return np.exp(np.mean(np.log(s), axis=-1)) / np.sqrt(n_measurements)
+    if name == "O2":
+        return low / high
+    if name == "O3":
+        return low
+    if name == "O4":
+        return low**2 / high
+    if name == "O5":
+        return 1.0 / np.sum(1.0 / s, axis=-1)
+    raise ValueError(f"unknown observability index '{name}': use one of {', '.join(INDEX_NAMES)}")
+
+
+def observability_indices(singular_values: np.ndarray, n_measurements: int) -> Indices:
+    """Indices from the singular values ``(L,)`` of a full-column-rank scaled Jacobian."""
+    s = np.asarray(singular_values, dtype=float)
+    if len(s) == 0 or s.min() <= 0:
+        return Indices(0.0, 0.0, 0.0, 0.0, 0.0, float("inf"))
+    values = {name: float(index_values(s, name, n_measurements)) for name in INDEX_NAMES}
+    return Indices(**values, condition_number=float(s.max() / s.min()))
+
+
+@dataclass(frozen=True)
+class ParallelPair:
+    """Consecutive joint axes parallel within the tolerance, and what standard DH makes of them."""
+
+    joints: tuple[int, int]  # 1-based
+    angle_deg: float  # angle between the axes at the nominal geometry
+    hayati: bool  # the model already has Hayati's beta for this pair
+    misalignment_deg: float = 0.0  # for the demonstration below
+    std_d: tuple[float, float] | None = None  # std of both d's (m) with that misalignment
+
+
+def parallel_pairs(model: RobotModel, tol_deg: float = 1.0) -> list[ParallelPair]:
+    """Consecutive axes parallel within ``tol_deg`` (:func:`robot.model.parallel_axes`, the test
+    that the Hayati choice uses too)."""
+    parallel, angles = parallel_axes(model, tol_deg)
+    first = 1 if model.convention == "dh" else 0  # 1-based first joint of the pair, less j
+    return [
+        ParallelPair(
+            (j + first, j + first + 1), float(np.degrees(angles[j])), bool(model.hayati[j])
+        )
+        for j in map(int, np.flatnonzero(parallel))
+    ]

@@ -7,7 +7,6 @@ identifiability analysis at the nominal model.
 
 from __future__ import annotations
 
-import functools
 import time
 from dataclasses import dataclass
 from typing import Literal
@@ -16,55 +15,17 @@ import numpy as np
 import scipy.optimize
 
 from relcal import geometry as tf
+from relcal.calibration.blas import one_blas_thread
 from relcal.calibration.identifiability import (
-    DEFAULT_RCOND,
     Identifiability,
-    analyse,
-    identifiable_mask,
+    analyse_problem,
+    identifiable_at,
     scaled,
 )
 from relcal.calibration.measurement import Problem, residuals
 from relcal.errors import RelcalError
-from relcal.robot.kinematics import pose_jacobian
 
 Method = Literal["published", "lm"]
-
-
-@functools.cache
-def _blas_threads():
-    from threadpoolctl import ThreadpoolController
-
-    return ThreadpoolController()  # created once, after NumPy and SciPy have loaded their BLAS
-
-
-def one_blas_thread(function):
-    """Run ``function`` with BLAS/LAPACK on one thread.
-
-    Identification factorises tall, narrow matrices (hundreds of rows, tens of columns) many
-    times: OpenBLAS's threads cost more than they gain there, up to six times slower on a busy
-    two-core machine. The limit holds only during the call.
-    """
-
-    @functools.wraps(function)
-    def limited(*args, **kwargs):
-        with _blas_threads().limit(limits=1, user_api="blas"):
-            return function(*args, **kwargs)
-
-    return limited
-
-
-def _final_identifiable(
-    problem: Problem, params: np.ndarray, ident: Identifiability, jac: np.ndarray | None = None
-) -> np.ndarray:
-    """Parameters identifiable both at the nominal model and at the estimate.
-
-    Exact symmetries (base motion, hand-eye absorption) are curved in parameter space: a parameter
-    outside the nominal null space can still drift along it at second order, which the null space
-    at the estimate reveals. ``jac``: the Jacobian at ``params`` if the caller has it.
-    """
-    if jac is None:
-        _, jac = residuals(problem, params)
-    return ident.identifiable & identifiable_mask(jac, ident.rcond)
 
 
 @dataclass(frozen=True)
@@ -87,63 +48,6 @@ class Result:
     @property
     def unidentifiable(self) -> list[str]:
         return [c.describe() for c in self.identifiability.combinations]
-
-
-def explainer(problem: Problem):
-    """A function naming why a null-space direction (parameter units) leaves the data unchanged."""
-    model, layout = problem.model, problem.full_layout
-    n_geo = problem.layout.size
-
-    @functools.cache
-    def jacobians() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """The parameters' effect on the tool at the nominal model ``(N, 6, P)``: at the tool
-        point in the base frame, as a spatial twist (about the base origin) and as a body twist
-        (in the tool frame). Computed on the first explanation only (problems without a null
-        space never need them), so that each explanation is a few matrix-vector products."""
-        tip, jac = pose_jacobian(model, problem.q, problem.layout)
-        spatial = jac.copy()
-        spatial[:, :3] += tf.skew(tip[:, :3, 3]) @ jac[:, 3:]  # v_0 = v_tip - w x tip
-        body = tf.rotate_twist(np.swapaxes(tip[:, :3, :3], -1, -2), jac)
-        return jac, spatial, body
-
-    def constant(twists: np.ndarray) -> bool:
-        scale = np.abs(twists).max()
-        return scale > 0 and np.abs(twists - twists.mean(axis=0)).max() < 1e-6 * scale
-
-    def explain(v: np.ndarray) -> str:
-        involved = np.flatnonzero(np.abs(v) > 1e-6 * np.abs(v).max())
-        kinds = {layout.kinds[i] for i in involved}
-        jac, spatial, body = jacobians()
-        geometric = v[:n_geo]
-        motion = jac @ geometric  # (N, 6): tip velocity and angular velocity, base frame
-        if len(involved) == 1 and np.abs(motion).max() < 1e-12:
-            return "has no effect on the tool pose"
-        if kinds == {"d"} and len(involved) > 1:
-            joints = sorted({layout.index[i] + 1 for i in involved})
-            return (
-                f"translations along parallel axes of joints {', '.join(map(str, joints))}: "
-                "only their sum is identifiable (Hayati's beta cures it)"
-            )
-        if "handeye" not in kinds and constant(spatial @ geometric):
-            return "acts as a rigid motion of the robot base: cancels in relative measurements"
-        if "handeye" in kinds or constant(body @ geometric):
-            if problem.formulation == "invariant":
-                return "acts like a change of the hand-eye transform X, which absorbs it"
-            return "acts like a change of the tool transform"
-        return "linearly dependent at these poses: vary the poses or fix one of them"
-
-    return explain
-
-
-@one_blas_thread
-def analyse_problem(
-    problem: Problem, rcond: float = DEFAULT_RCOND, jac: np.ndarray | None = None
-) -> Identifiability:
-    """Identifiability of ``problem`` at its nominal model (all errors zero); ``jac``: the
-    identification Jacobian there, if the caller has it already."""
-    if jac is None:
-        _, jac = residuals(problem, np.zeros(problem.full_layout.size))
-    return analyse(jac, problem.full_layout, rcond, explainer(problem))
 
 
 def _check(problem: Problem) -> None:
@@ -225,7 +129,7 @@ def identify_published(
         seconds=time.perf_counter() - start,
         method="published",
         identifiability=ident,
-        identifiable=_final_identifiable(problem, params, ident, jac=a),
+        identifiable=identifiable_at(problem, params, ident, jac=a),
     )
 
 
@@ -305,7 +209,7 @@ def identify_lm(
         seconds=time.perf_counter() - start,
         method=label,
         identifiability=ident,
-        identifiable=_final_identifiable(problem, expand(sol.x), ident, jac=a),
+        identifiable=identifiable_at(problem, expand(sol.x), ident, jac=a),
     )
 
 

@@ -13,8 +13,8 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from relcal.calibration.handeye import solve_handeye
-from relcal.calibration.identifiability import Identifiability
-from relcal.calibration.identify import Result, analyse_problem, identify
+from relcal.calibration.identifiability import check_pose_set
+from relcal.calibration.identify import Result, identify
 from relcal.calibration.measurement import PairStrategy, Problem, make_pairs
 from relcal.calibration.noise import Noise
 from relcal.calibration.validate import Validation, folds, held_out, pair_errors, split
@@ -51,31 +51,6 @@ def cross_validate(
         )
         for f in folds(len(usable), k, seed)
     ]
-
-
-def check_poses(problem: Problem, dataset: Dataset, seed: int = 0) -> Identifiability:
-    """Identifiability at the dataset's poses; an error if they identify less than generic poses
-    would (the structural null space of this robot and formulation), naming what they miss."""
-    ident = analyse_problem(problem)
-    rng = np.random.default_rng(seed)
-    model = problem.model
-    lo = np.where(np.isfinite(model.lower), model.lower, -np.pi)
-    hi = np.where(np.isfinite(model.upper), model.upper, np.pi)
-    generic = rng.uniform(lo, hi, (max(30, len(problem.q)), model.n_joints))
-    reference = analyse_problem(
-        replace(
-            problem, q=generic, poses=np.broadcast_to(np.eye(4), (len(generic), 4, 4)), pairs=None
-        )
-    )
-    if ident.rank < reference.rank:
-        known = {c.names for c in reference.combinations}
-        extra = [c.describe() for c in ident.combinations if c.names not in known]
-        raise RelcalError(
-            f"{dataset.spec_path}: the poses identify only {ident.rank} of the {reference.rank} "
-            "parameter combinations that varied poses would; vary the joints more. Not "
-            "determined by these poses: " + "; ".join(extra or ["(mixed combinations)"])
-        )
-    return ident
 
 
 @dataclass(frozen=True)
@@ -194,7 +169,7 @@ def weighted_fit(
     """A least-squares fit gives robust noise levels of the translation and rotation rows; the
     final fit weights the rows by them (so metres and radians compare) with the chosen loss.
     Returns the weighted problem, its result and the row noise levels ``(6,)``."""
-    ident = check_poses(problem, dataset)
+    ident = check_pose_set(problem, str(dataset.spec_path))
     first = identify(problem, "lm", identifiability=ident)
     sigma = robust_sigma(pair_errors(problem, first.params))
     problem = replace(problem, weights=1.0 / sigma)

@@ -426,7 +426,7 @@ def parameter_covariance(
     estimator : ``least_squares`` (relcal's ``identify``) or ``weighted`` (the Cramer-Rao bound).
     subset : parameter indices to estimate (default ``identifiability.subset``).
     """
-    from relcal.calibration.identify import analyse_problem
+    from relcal.calibration.identifiability import analyse_problem
 
     params = np.zeros(problem.full_layout.size) if params is None else np.asarray(params, float)
     ident = identifiability or analyse_problem(problem)

@@ -20,12 +20,21 @@ unidentifiable, which is why they are reported for the identifiable subset.
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
-from typing import Literal
 
 import numpy as np
 
-from relcal.calibration.identifiability import DEFAULT_RCOND, Identifiability, analyse, scaled
-from relcal.calibration.identify import explainer
+from relcal.calibration.identifiability import (
+    DEFAULT_RCOND,
+    HandEye,
+    Identifiability,
+    Indices,
+    ParallelPair,
+    analyse_problem,
+    n_measurements,
+    observability_indices,
+    parallel_pairs,
+    scaled,
+)
 from relcal.calibration.measurement import Problem, make_pairs, residuals
 from relcal.calibration.noise import Noise
 from relcal.calibration.uncertainty import (
@@ -39,39 +48,6 @@ from relcal.calibration.uncertainty import (
 from relcal.geometry import DEG
 from relcal.robot.kinematics import fk, make_layout
 from relcal.robot.model import RobotModel
-
-HandEye = Literal["estimated", "known"]
-INDEX_NAMES = ("O1", "O2", "O3", "O4", "O5")
-
-
-@dataclass(frozen=True)
-class Indices:
-    """Observability indices O1..O5 (see the module docstring) and the condition number."""
-
-    O1: float
-    O2: float
-    O3: float
-    O4: float
-    O5: float
-    condition_number: float
-
-    def as_dict(self) -> dict[str, float]:
-        return {k: float(getattr(self, k)) for k in (*INDEX_NAMES, "condition_number")}
-
-
-def observability_indices(singular_values: np.ndarray, n_measurements: int) -> Indices:
-    """Indices from the singular values ``(L,)`` of a full-column-rank scaled Jacobian."""
-    s = np.sort(np.asarray(singular_values, dtype=float))[::-1]
-    if len(s) == 0 or s[-1] <= 0:
-        return Indices(0.0, 0.0, 0.0, 0.0, 0.0, float("inf"))
-    return Indices(
-        O1=float(np.exp(np.mean(np.log(s))) / np.sqrt(n_measurements)),
-        O2=float(s[-1] / s[0]),
-        O3=float(s[-1]),
-        O4=float(s[-1] ** 2 / s[0]),
-        O5=float(1.0 / np.sum(1.0 / s)),
-        condition_number=float(s[0] / s[-1]),
-    )
 
 
 def nominal_problem(
@@ -101,50 +77,6 @@ def nominal_problem(
     )
 
 
-def n_measurements(problem: Problem) -> int:
-    """Poses (absolute) or pairs (relative formulations)."""
-    if problem.formulation == "absolute":
-        return len(problem.q)
-    return len(problem.pair_indices())
-
-
-def analyse_formulation(
-    problem: Problem, handeye: HandEye = "estimated", rcond: float = DEFAULT_RCOND
-) -> Identifiability:
-    """Identifiability of ``problem`` at the nominal model. With ``handeye="known"`` the hand-eye
-    columns of the frame-invariant formulation are left out (the transform is taken as given)."""
-    _, jac = residuals(problem, np.zeros(problem.full_layout.size))
-    layout = problem.full_layout
-    if handeye == "known" and problem.formulation == "invariant":
-        layout = problem.layout
-        jac = jac[:, : layout.size]
-    return analyse(jac, layout, rcond, explainer(problem))
-
-
-@dataclass(frozen=True)
-class ParallelPair:
-    """Consecutive joint axes parallel within the tolerance, and what standard DH makes of them."""
-
-    joints: tuple[int, int]  # 1-based
-    angle_deg: float  # angle between the axes at the nominal geometry
-    hayati: bool  # the model already has Hayati's beta for this pair
-    misalignment_deg: float = 0.0  # for the demonstration below
-    std_d: tuple[float, float] | None = None  # std of both d's (m) with that misalignment
-
-
-def parallel_pairs(model: RobotModel, tol_deg: float = 1.0) -> list[ParallelPair]:
-    """Consecutive axes parallel within ``tol_deg`` (as :func:`model.auto_hayati` judges)."""
-    out = []
-    n = model.n_joints
-    for i in range(n - 1):
-        twist = model.alpha[i] if model.convention == "dh" else model.alpha[i + 1]
-        angle = float(np.degrees(np.arcsin(min(abs(np.sin(twist)), 1.0))))
-        if angle < tol_deg:
-            marked = model.hayati[i] if model.convention == "dh" else model.hayati[i + 1]
-            out.append(ParallelPair((i + 1, i + 2), angle, bool(marked)))
-    return out
-
-
 def _misaligned(model: RobotModel, pair: ParallelPair, angle: float) -> RobotModel:
     i = pair.joints[0] - 1 if model.convention == "dh" else pair.joints[1] - 1
     alpha = model.alpha.copy()
@@ -164,7 +96,7 @@ def demonstrate_parallel(
     identifiable and the least-squares estimate of each explodes (``~ noise / misalignment``)."""
     model = _misaligned(problem.model, pair, np.radians(misalignment_deg))
     tilted = replace(problem, model=model, layout=make_layout(model))
-    ident = analyse_formulation(tilted, handeye)
+    ident = analyse_problem(tilted, handeye=handeye)
     names = tilted.full_layout.names
     ds = [names.index(f"d[{j}]") for j in pair.joints]
     subset = np.union1d(ident.subset, ds)
@@ -281,7 +213,7 @@ def report(
     Hayati's beta the standard deviations of its ``d``s at ``misalignment_deg``; with
     ``q_validation`` ``(V, n)`` as well: the predicted accuracy after calibration.
     """
-    ident = analyse_formulation(problem, handeye, rcond)
+    ident = analyse_problem(problem, rcond, handeye=handeye)
     _, jac = residuals(problem, np.zeros(problem.full_layout.size))
     names = problem.full_layout.names[: len(ident.column_norms)]
     unit, _ = scaled(jac[:, ident.subset])

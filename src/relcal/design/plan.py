@@ -39,8 +39,13 @@ from typing import Literal
 import numpy as np
 
 from relcal import geometry as tf
-from relcal.calibration.identifiability import DEFAULT_RCOND
-from relcal.calibration.identify import analyse_problem
+from relcal.calibration.identifiability import (
+    DEFAULT_RCOND,
+    Indices,
+    analyse_problem,
+    index_values,
+    observability_indices,
+)
 from relcal.calibration.measurement import Formulation, Measure, Problem
 from relcal.calibration.noise import Noise
 from relcal.calibration.uncertainty import (
@@ -51,7 +56,7 @@ from relcal.calibration.uncertainty import (
     predicted_accuracy,
 )
 from relcal.design.cell import Cell
-from relcal.design.observability import Indices, nominal_problem, observability_indices
+from relcal.design.observability import nominal_problem
 from relcal.errors import RelcalError
 from relcal.geometry import DEG, MM, look_at
 from relcal.robot.ik import joint_layout, solve
@@ -329,21 +334,6 @@ def information(
     )
 
 
-def _from_eigenvalues(lam: np.ndarray, name: str, n_meas: int) -> np.ndarray:
-    s = np.sqrt(np.clip(lam, 1e-300, None))  # singular values of the scaled Jacobian, ascending
-    if name == "O1":
-        return np.exp(np.mean(np.log(s), axis=-1)) / np.sqrt(n_meas)
-    if name == "O2":
-        return s[..., 0] / s[..., -1]
-    if name == "O3":
-        return s[..., 0]
-    if name == "O4":
-        return s[..., 0] ** 2 / s[..., -1]
-    if name == "O5":
-        return 1.0 / np.sum(1.0 / s, axis=-1)
-    raise ValueError(f"unknown criterion '{name}': use one of {', '.join(CRITERIA)}")
-
-
 def _from_variances(info: Information, var: np.ndarray, name: str) -> np.ndarray:
     if name == "worst":
         return -(np.sqrt(np.clip(var, 0, None)) * info.weights).max(axis=-1)
@@ -359,7 +349,8 @@ def criterion(info: Information, totals: np.ndarray, name: str, n_meas: int) -> 
     if name in ("worst", "A"):
         cov = np.linalg.inv(scaled) / np.outer(info.scale, info.scale)
         return _from_variances(info, np.diagonal(cov, axis1=-2, axis2=-1), name)
-    return _from_eigenvalues(np.linalg.eigvalsh(scaled), name, n_meas)
+    s = np.sqrt(np.clip(np.linalg.eigvalsh(scaled), 1e-300, None))  # scaled singular values
+    return index_values(s, name, n_meas)
 
 
 def _values(info: Information, base: np.ndarray, add: np.ndarray, name: str, n_meas: int):

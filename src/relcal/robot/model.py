@@ -224,18 +224,23 @@ def get_robot(name_or_path: str | Path) -> RobotModel:
     )
 
 
-def auto_hayati(model: RobotModel, tol_deg: float = 1.0) -> RobotModel:
-    """Mark joints whose axis is parallel (within ``tol_deg``) to the previous one as Hayati joints.
-
-    Parallelism is judged at the nominal geometry: in standard DH joint i's transform has twist
-    ``alpha_i`` between axes i and i+1; in modified DH ``alpha_i`` lies between axes i-1 and i.
-    """
-    tol = np.radians(tol_deg)
-    twist = np.abs(np.sin(model.alpha))
+def parallel_axes(model: RobotModel, tol_deg: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+    """Which joints' axes are parallel (within ``tol_deg``) to the previous joint's axis, and the
+    angle between them (rad), both ``(n,)`` and indexed by the joint whose parameters carry
+    Hayati's beta for the pair: in standard DH joint i's twist ``alpha_i`` lies between axes i and
+    i+1 (so the first joint of the pair), in modified DH ``alpha_i`` lies between axes i-1 and i.
+    Judged at the nominal geometry."""
+    n = model.n_joints
+    angle = np.arcsin(np.minimum(np.abs(np.sin(model.alpha)), 1.0))
+    parallel = angle < np.radians(tol_deg)
     if model.convention == "dh":
-        parallel = np.zeros(model.n_joints, dtype=bool)
-        parallel[: model.n_joints - 1] = twist[: model.n_joints - 1] < tol
+        parallel[n - 1] = False  # the last twist lies between the last axis and the tool
     else:
-        parallel = twist < tol
-        parallel[0] = False
-    return replace(model, hayati=model.hayati | parallel)
+        parallel[0] = False  # the first twist lies between the base frame and axis 1
+    return parallel, angle
+
+
+def auto_hayati(model: RobotModel, tol_deg: float = 1.0) -> RobotModel:
+    """Mark joints whose axis is parallel (within ``tol_deg``) to the neighbouring one as Hayati
+    joints (:func:`parallel_axes`)."""
+    return replace(model, hayati=model.hayati | parallel_axes(model, tol_deg)[0])

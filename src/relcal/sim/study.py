@@ -30,7 +30,8 @@ from typing import Literal
 import numpy as np
 
 from relcal import geometry as tf
-from relcal.calibration.identify import analyse_problem, identify_lm
+from relcal.calibration.identifiability import analyse_problem
+from relcal.calibration.identify import identify_lm
 from relcal.calibration.measurement import Formulation, Measure, PairStrategy, Problem, make_pairs
 from relcal.calibration.noise import Noise
 from relcal.calibration.uncertainty import (
