@@ -22,7 +22,7 @@ from relcal.robot.model import auto_hayati, dump_model, get_robot, load_model
 def test_compensation_brings_positioning_errors_down(a465, rng, tmp_path):
     nominal = auto_hayati(a465)
     problem, truth = make_problem(nominal, "invariant", "pose", rng, n_poses=40)
-    result = identify(problem, "lm")
+    result = identify(problem)
     true_model, true_x = split_params(problem, truth)
     # The camera is the tool: relative calibration determines F X, not F alone.
     true_robot = replace(true_model, tool=true_x)

@@ -8,7 +8,7 @@ import pytest
 from helpers_sim import held_out_error, make_problem
 
 from relcal.calibration.identifiability import analyse_problem
-from relcal.calibration.identify import identify
+from relcal.calibration.identify import SolverOptions, identify
 from relcal.robot.kinematics import make_layout
 from relcal.robot.model import auto_hayati
 
@@ -18,7 +18,7 @@ CASES = [(f, m) for f in ("published", "invariant") for m in ("position", "pose"
 @pytest.mark.parametrize(("formulation", "measure"), CASES)
 def test_noise_free_recovery(formulation, measure, a465, rng):
     problem, truth = make_problem(a465, formulation, measure, rng)
-    result = identify(problem, "published")
+    result = identify(problem, SolverOptions(method="published"))
     assert result.converged
     assert result.residual_norm < 1e-12
     ok = result.identifiable
@@ -42,7 +42,8 @@ def test_noise_free_recovery(formulation, measure, a465, rng):
 
 def test_levenberg_marquardt_on_the_identifiable_subset(a465, rng):
     problem, truth = make_problem(auto_hayati(a465), "invariant", "pose", rng)
-    truth_lm, truth_p = identify(problem, "lm"), identify(problem, "published")
+    truth_lm = identify(problem)
+    truth_p = identify(problem, SolverOptions(method="published"))
     assert truth_lm.converged and truth_lm.residual_norm < 1e-10
     ok = truth_lm.identifiable
     np.testing.assert_allclose(truth_lm.params[ok], truth_p.params[ok], atol=1e-9)
@@ -79,7 +80,7 @@ def test_identified_errors_degrade_smoothly_with_noise(a465):
             problem, truth = make_problem(
                 hay, "invariant", "pose", np.random.default_rng(seed), n_poses=40, noise=noise
             )
-            result = identify(problem, "lm")
+            result = identify(problem)
             ok = result.identifiable
             scale = result.identifiability.column_norms[ok]
             rms.append(np.sqrt(np.mean(((result.params[ok] - truth[ok]) * scale) ** 2)))

@@ -1,3 +1,60 @@
-"""relcal: kinematic calibration of serial robot arms from relative camera measurements."""
+"""relcal: kinematic calibration of serial robot arms from relative camera measurements.
+
+The Python API, in the order of the flow of data::
+
+    import relcal
+
+    dataset = relcal.load_dataset("positioner")  # dataset.yaml + samples (+ images)
+    cal = relcal.calibrate(dataset)              # measure, identify, validate
+    cal.result.converged, cal.result.std         # the Result: estimate, covariance, costs
+    cal.validation.summary()                     # held-out errors before and after
+    cal.model                                    # the calibrated RobotModel
+
+Lower-level pieces: :func:`get_robot` and :func:`load_model` (robot models),
+:func:`make_layout` and :func:`fk` (parameters and kinematics), :class:`Problem` (an
+identification problem), :func:`identify` with :class:`SolverOptions` giving a :class:`Result`,
+:func:`analyse_problem` (identifiability), :func:`simulate` (the published simulation).
+"""
+
+from relcal.calibration.identifiability import Identifiability, analyse_problem
+from relcal.calibration.identify import Result, SolverOptions, identify
+from relcal.calibration.measurement import Problem, make_pairs
+from relcal.calibration.noise import Noise
+from relcal.calibration.pipeline import Calibration, calibrate
+from relcal.data.dataset import Dataset, load_dataset
+from relcal.data.imaging import Measurements, measure
+from relcal.errors import RelcalError
+from relcal.robot.export import calibrated_model
+from relcal.robot.kinematics import Layout, apply_errors, fk, make_layout
+from relcal.robot.model import RobotModel, get_robot, load_model
+from relcal.sim.simulate import Simulation, simulate
 
 __version__ = "0.1.0"
+
+__all__ = [
+    "Calibration",
+    "Dataset",
+    "Identifiability",
+    "Layout",
+    "Measurements",
+    "Noise",
+    "Problem",
+    "RelcalError",
+    "Result",
+    "RobotModel",
+    "Simulation",
+    "SolverOptions",
+    "analyse_problem",
+    "apply_errors",
+    "calibrate",
+    "calibrated_model",
+    "fk",
+    "get_robot",
+    "identify",
+    "load_dataset",
+    "load_model",
+    "make_layout",
+    "make_pairs",
+    "measure",
+    "simulate",
+]

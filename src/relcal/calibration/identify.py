@@ -7,8 +7,9 @@ identifiability analysis at the nominal model.
 
 from __future__ import annotations
 
+import functools
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Literal
 
 import numpy as np
@@ -22,15 +23,54 @@ from relcal.calibration.identifiability import (
     identifiable_at,
     scaled,
 )
-from relcal.calibration.measurement import Problem, residuals
+from relcal.calibration.measurement import Problem, pair_errors, residuals
+from relcal.calibration.noise import Noise, robust_sigma
+from relcal.calibration.uncertainty import noise_factor, parameter_covariance, whitener
 from relcal.errors import RelcalError
 
 Method = Literal["published", "lm"]
+Loss = Literal["linear", "huber", "soft_l1", "cauchy", "arctan"]
+
+
+@dataclass(frozen=True)
+class SolverOptions:
+    """How :func:`identify` solves.
+
+    ``method``: ``"lm"`` (Levenberg-Marquardt on the identifiable subset, SciPy) or
+    ``"published"`` (iterated truncated-SVD least squares, Lu & Hayes). ``loss`` and ``f_scale``
+    (the residual, in weighted units, where a robust loss bends) apply to ``"lm"``; ``rcond``
+    (singular values below ``rcond * s_max`` zeroed) and ``tol`` (relative step size that stops
+    the iteration) to ``"published"``.
+    """
+
+    method: Method = "lm"
+    loss: Loss = "linear"
+    f_scale: float = 1.0
+    max_iterations: int = 200
+    rcond: float = 1e-8
+    tol: float = 1e-12
+
+    def __post_init__(self) -> None:
+        if self.method not in ("published", "lm"):
+            raise ValueError(f"unknown identification method '{self.method}': use published or lm")
+        if self.loss not in Loss.__args__:
+            raise ValueError(f"unknown loss '{self.loss}': use one of {', '.join(Loss.__args__)}")
+        if not (self.f_scale > 0 and self.max_iterations > 0 and 0 < self.rcond < 1):
+            raise ValueError("f_scale and max_iterations must be positive, rcond in (0, 1)")
 
 
 @dataclass(frozen=True)
 class Result:
-    """Outcome of one identification. ``params`` follows ``problem.full_layout``."""
+    """Outcome of one identification (the shape of robot_cal_tools' results).
+
+    ``params`` ``(P,)`` follows ``problem.full_layout`` (errors from nominal, m and rad).
+    ``covariance`` ``(P, P)`` of the estimated subset, NaN for parameters held at nominal: for
+    relative measurements (pairs share poses, so their residuals correlate) the least-squares
+    covariance of :func:`uncertainty.parameter_covariance` with the pose noise estimated from
+    the residuals; for absolute poses ``s^2 (A^T A)^-1``; for the noise-weighted estimator its
+    Cramer-Rao form. Computed on first use. Costs are ``0.5 |r|^2`` per residual row, weighted
+    as solved.
+    """
 
     params: np.ndarray
     names: tuple[str, ...]
@@ -44,10 +84,86 @@ class Result:
     method: str
     identifiability: Identifiability
     identifiable: np.ndarray  # (P,) bool, individually determined (nominal and at the estimate)
+    problem: Problem = field(repr=False, compare=False)
+    whiten: np.ndarray | None = field(default=None, repr=False, compare=False)
+
+    @functools.cached_property
+    def covariance(self) -> np.ndarray:
+        return result_covariance(self.problem, self.params, self.identifiability, self.whiten)
 
     @property
     def unidentifiable(self) -> list[str]:
         return [c.describe() for c in self.identifiability.combinations]
+
+    @property
+    def initial_cost_per_observation(self) -> float:
+        return 0.5 * self.initial_residual_norm**2 / self.n_residuals
+
+    @property
+    def final_cost_per_observation(self) -> float:
+        return 0.5 * self.residual_norm**2 / self.n_residuals
+
+    @property
+    def std(self) -> np.ndarray:
+        """Standard deviations ``(P,)`` (NaN where not estimated)."""
+        return np.sqrt(np.diagonal(self.covariance))
+
+    @property
+    def correlation(self) -> np.ndarray:
+        """Correlation matrix ``(P, P)`` of the estimate (NaN where not estimated)."""
+        std = self.std
+        with np.errstate(invalid="ignore", divide="ignore"):
+            return self.covariance / np.outer(std, std)
+
+    def labelled_covariance(self) -> dict[str, dict[str, float]]:
+        """``{name: {name: covariance}}`` over the estimated parameters."""
+        est = np.flatnonzero(np.isfinite(self.std))
+        return {
+            self.names[i]: {self.names[j]: float(self.covariance[i, j]) for j in est} for i in est
+        }
+
+    def strongest_correlations(self, count: int = 10) -> list[tuple[str, str, float]]:
+        """The ``count`` largest ``|rho|`` between two estimated parameters."""
+        rho = self.correlation
+        i, j = np.triu_indices(len(rho), k=1)
+        keep = np.isfinite(rho[i, j])
+        i, j = i[keep], j[keep]
+        order = np.argsort(-np.abs(rho[i, j]))[:count]
+        return [(self.names[i[k]], self.names[j[k]], float(rho[i[k], j[k]])) for k in order]
+
+
+def result_covariance(
+    problem: Problem,
+    params: np.ndarray,
+    ident: Identifiability,
+    whiten: np.ndarray | None = None,
+) -> np.ndarray:
+    """The covariance ``(P, P)`` of :attr:`Result.covariance` (NaN outside the subset)."""
+    r, a = residuals(problem, params)
+    if whiten is not None:
+        return least_squares_covariance(whiten @ a, whiten @ r, ident.subset)
+    if problem.formulation == "absolute":
+        return least_squares_covariance(a, r, ident.subset)
+    sigma = robust_sigma(pair_errors(problem, params)) / np.sqrt(2)  # two poses per pair
+    noise = Noise(position=float(sigma[0]), orientation=float(sigma[3]))
+    unc = parameter_covariance(problem, noise, ident, params=params)
+    cov = np.full((len(params), len(params)), np.nan)
+    cov[np.ix_(unc.subset, unc.subset)] = unc.least_squares
+    return cov
+
+
+def least_squares_covariance(jac: np.ndarray, r: np.ndarray, subset: np.ndarray) -> np.ndarray:
+    """``s^2 (A^T A)^-1`` of the columns ``subset`` of ``jac`` ``(M, P)``, with ``s^2 = |r|^2 /
+    (M - k)``, embedded in a ``(P, P)`` matrix that is NaN outside the subset."""
+    n = jac.shape[1]
+    cov = np.full((n, n), np.nan)
+    if len(subset) == 0:
+        return cov
+    unit, norms = scaled(jac[:, subset])
+    s2 = float(r @ r) / max(len(r) - len(subset), 1)
+    inv = np.linalg.pinv(unit.T @ unit, hermitian=True)
+    cov[np.ix_(subset, subset)] = s2 * inv / np.outer(norms, norms)
+    return cov
 
 
 def _check(problem: Problem) -> None:
@@ -130,6 +246,7 @@ def identify_published(
         method="published",
         identifiability=ident,
         identifiable=identifiable_at(problem, params, ident, jac=a),
+        problem=problem,
     )
 
 
@@ -210,16 +327,43 @@ def identify_lm(
         method=label,
         identifiability=ident,
         identifiable=identifiable_at(problem, expand(sol.x), ident, jac=a),
+        problem=problem,
+        whiten=whiten,
     )
 
 
-def identify(problem: Problem, method: Method = "published", **kwargs) -> Result:
-    """Run the chosen identification method."""
-    if method == "published":
-        return identify_published(problem, **kwargs)
-    if method == "lm":
-        return identify_lm(problem, **kwargs)
-    raise ValueError(f"unknown identification method '{method}': use published or lm")
+def identify(
+    problem: Problem,
+    options: SolverOptions | None = None,
+    identifiability: Identifiability | None = None,
+) -> Result:
+    """Identify the parameters of ``problem`` as ``options`` say (default: Levenberg-Marquardt,
+    linear loss). ``identifiability``: the analysis at the nominal model, if the caller has it."""
+    o = options or SolverOptions()
+    if o.method == "published":
+        return identify_published(problem, o.rcond, o.tol, o.max_iterations, identifiability)
+    return identify_lm(problem, o.max_iterations, identifiability, o.loss, o.f_scale)
+
+
+def identify_weighted(
+    problem: Problem,
+    noise: Noise,
+    covariances: np.ndarray | None = None,
+    identifiability: Identifiability | None = None,
+    whiten: np.ndarray | None = None,
+    max_nfev: int = 200,
+) -> Result:
+    """Levenberg-Marquardt on the identifiable subset with the residuals whitened by their full
+    noise covariance (correlations between pairs included): the estimator whose covariance is the
+    Cramer-Rao bound of :func:`uncertainty.parameter_covariance`.
+
+    The weights come from ``noise`` (or per-pose ``covariances`` ``(N, 6, 6)``) at the measured
+    relative motions (frame-invariant) and the nominal joint Jacobians; ``whiten`` ``(r, M)``
+    (from :func:`uncertainty.whitener`) replaces them.
+    """
+    if whiten is None:
+        whiten = whitener(noise_factor(problem, noise, covariances, measured=True))
+    return identify_lm(problem, max_nfev, identifiability, whiten=whiten)
 
 
 def calibrated_handeye(problem: Problem, result: Result) -> np.ndarray:

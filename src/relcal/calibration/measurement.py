@@ -15,7 +15,7 @@ Residuals follow ``r ~ A (p_true - p)``: measured minus modelled, so a Gauss-New
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Literal
 
 import numpy as np
@@ -158,3 +158,14 @@ def _invariant(
     # Hand-eye X -> X exp(xi): model_rel -> model_rel exp(xi - Ad(model_rel^-1) xi).
     he = np.eye(6) - tf.adjoint(model_rel_inv)
     return r, np.concatenate([geo, he], axis=-1)
+
+
+def pair_errors(problem: Problem, params: np.ndarray) -> np.ndarray:
+    """Per-pair (or per-pose for ``absolute``) errors ``(P, 6)``: position (m), rotation (rad).
+
+    With position-only measurements the rotation columns are NaN.
+    """
+    r = residuals(replace(problem, measure="pose"), params, jacobian=False).reshape(-1, 6)
+    if problem.measure == "position":
+        r[:, 3:] = np.nan
+    return r

@@ -31,3 +31,13 @@ class Noise:
             )
         values += [0.0] * (3 - len(values))
         return cls(values[0] * MM, values[1] * DEG, values[2] * DEG)
+
+
+def robust_sigma(errors: np.ndarray) -> np.ndarray:
+    """Per-row noise levels ``(6,)``: 1.4826 MAD of the translation and of the rotation rows."""
+    sigma = np.empty(6)
+    for rows in (slice(0, 3), slice(3, 6)):
+        values = errors[:, rows].ravel()
+        mad = 1.4826 * np.median(np.abs(values - np.median(values)))
+        sigma[rows] = max(mad, 1e-12)
+    return sigma

@@ -14,14 +14,16 @@ import numpy as np
 
 from relcal.calibration.handeye import solve_handeye
 from relcal.calibration.identifiability import check_pose_set
-from relcal.calibration.identify import Result, identify
-from relcal.calibration.measurement import PairStrategy, Problem, make_pairs
-from relcal.calibration.noise import Noise
-from relcal.calibration.validate import Validation, folds, held_out, pair_errors, split
+from relcal.calibration.identify import Result, SolverOptions, calibrated_handeye, identify
+from relcal.calibration.measurement import PairStrategy, Problem, make_pairs, pair_errors
+from relcal.calibration.noise import Noise, robust_sigma
+from relcal.calibration.validate import Validation, folds, held_out, split
 from relcal.data.dataset import Dataset
-from relcal.data.imaging import Measurements
+from relcal.data.imaging import Measurements, measure
 from relcal.errors import RelcalError
+from relcal.robot.export import calibrated_model
 from relcal.robot.kinematics import fk, make_layout
+from relcal.robot.model import RobotModel
 
 ROBUST_SCALE = 3.0  # residual (in noise standard deviations) where the robust loss bends
 
@@ -68,10 +70,20 @@ class Calibration:
     outliers: tuple[str, ...] = ()  # ids of training samples that fit badly
     std: np.ndarray | None = None  # (P,) standard deviations (m, rad); NaN if not estimated
 
+    @property
+    def model(self) -> RobotModel:
+        """The calibrated robot model (the identified geometric errors applied)."""
+        return calibrated_model(self.problem.model, self.problem.layout, self.result.params)
+
+    @property
+    def handeye(self) -> np.ndarray:
+        """The calibrated hand-eye transform ``X`` ``(4, 4)``."""
+        return calibrated_handeye(self.problem, self.result)
+
 
 def calibrate(
     dataset: Dataset,
-    measurements: Measurements,
+    measurements: Measurements | None = None,
     holdout: float = 0.25,
     seed: int = 0,
     pairing: PairStrategy = "all",
@@ -84,8 +96,11 @@ def calibrate(
 
     Training samples whose pairs fit badly after a robust fit are reported as outliers and, with
     ``reject_outliers``, left out of a second fit. ``holdout_ids`` names the validation samples
-    (instead of a random share ``holdout``).
+    (instead of a random share ``holdout``). ``measurements``: the camera poses of
+    :func:`data.imaging.measure` (measured here if not given).
     """
+    if measurements is None:
+        measurements = measure(dataset)
     usable = np.flatnonzero(measurements.ok)
     if len(usable) < 4:
         raise RelcalError(
@@ -170,21 +185,11 @@ def weighted_fit(
     final fit weights the rows by them (so metres and radians compare) with the chosen loss.
     Returns the weighted problem, its result and the row noise levels ``(6,)``."""
     ident = check_pose_set(problem, str(dataset.spec_path))
-    first = identify(problem, "lm", identifiability=ident)
+    first = identify(problem, SolverOptions(), ident)
     sigma = robust_sigma(pair_errors(problem, first.params))
     problem = replace(problem, weights=1.0 / sigma)
-    kwargs = {"loss": loss, "f_scale": ROBUST_SCALE} if method == "lm" else {}
-    return problem, identify(problem, method, identifiability=ident, **kwargs), sigma
-
-
-def robust_sigma(errors: np.ndarray) -> np.ndarray:
-    """Per-row noise levels ``(6,)``: 1.4826 MAD of the translation and of the rotation rows."""
-    sigma = np.empty(6)
-    for rows in (slice(0, 3), slice(3, 6)):
-        values = errors[:, rows].ravel()
-        mad = 1.4826 * np.median(np.abs(values - np.median(values)))
-        sigma[rows] = max(mad, 1e-12)
-    return sigma
+    options = SolverOptions(method=method, loss=loss, f_scale=ROBUST_SCALE)
+    return problem, identify(problem, options, ident), sigma
 
 
 def outlier_samples(weighted: np.ndarray, pairs: np.ndarray, threshold: float = 5.0) -> np.ndarray:

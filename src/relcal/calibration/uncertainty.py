@@ -562,29 +562,3 @@ def format_uncertainty(
             f"{s['orientation_deg']['p95']:.5f} deg, max {s['orientation_deg']['max']:.5f} deg",
         ]
     return "\n".join(lines)
-
-
-# --- the weighted estimator ----------------------------------------------------------------------
-
-
-def identify_weighted(
-    problem: Problem,
-    noise: Noise,
-    covariances: np.ndarray | None = None,
-    identifiability: Identifiability | None = None,
-    whiten: np.ndarray | None = None,
-    max_nfev: int = 200,
-):
-    """Levenberg-Marquardt on the identifiable subset with the residuals whitened by their full
-    noise covariance (correlations between pairs included): the estimator whose covariance is the
-    Cramer-Rao bound of :func:`parameter_covariance`.
-
-    The weights come from ``noise`` at the measured relative motions (frame-invariant) and the
-    nominal joint Jacobians; ``whiten`` ``(r, M)`` (from :func:`whitener`) replaces them. Returns
-    a :class:`relcal.calibration.identify.Result`.
-    """
-    from relcal.calibration.identify import identify_lm
-
-    if whiten is None:
-        whiten = whitener(noise_factor(problem, noise, covariances, measured=True))
-    return identify_lm(problem, max_nfev, identifiability, whiten=whiten)

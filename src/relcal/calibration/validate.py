@@ -11,19 +11,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from relcal.calibration.identify import Result
-from relcal.calibration.measurement import PairStrategy, Problem, make_pairs, residuals
-
-
-def pair_errors(problem: Problem, params: np.ndarray) -> np.ndarray:
-    """Per-pair (or per-pose for ``absolute``) errors ``(P, 6)``: position (m), rotation (rad).
-
-    With position-only measurements the rotation columns are NaN.
-    """
-    r = residuals(replace(problem, measure="pose"), params, jacobian=False).reshape(-1, 6)
-    if problem.measure == "position":
-        r[:, 3:] = np.nan
-    return r
-
+from relcal.calibration.measurement import PairStrategy, Problem, make_pairs, pair_errors
 
 _KINDS = (("position_mm", slice(0, 3), 1e3), ("orientation_deg", slice(3, 6), 180 / np.pi))
 

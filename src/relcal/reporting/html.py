@@ -23,8 +23,9 @@ from matplotlib.ticker import FuncFormatter, MaxNLocator, NullFormatter
 
 from relcal import __version__
 from relcal.calibration.identifiability import Identifiability
+from relcal.calibration.measurement import pair_errors
 from relcal.calibration.pipeline import Calibration
-from relcal.calibration.validate import pair_errors, stats
+from relcal.calibration.validate import stats
 from relcal.sim.simulate import Simulation
 
 BEFORE, AFTER, SPECIFIED, BAD = "#b0b8c1", "#1f6feb", "#e8833a", "#cf222e"

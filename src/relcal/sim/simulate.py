@@ -16,7 +16,7 @@ import numpy as np
 import pydantic
 
 from relcal import geometry as tf
-from relcal.calibration.identify import Method, Result, identify
+from relcal.calibration.identify import Method, Result, SolverOptions, identify
 from relcal.calibration.measurement import Formulation, Measure, PairStrategy, Problem, make_pairs
 from relcal.calibration.noise import Noise
 from relcal.design.cell import Setup, joint_path, place_board
@@ -126,7 +126,7 @@ def simulate(
     method: Method = "published",
     pairing: PairStrategy = "consecutive",
     setup: Setup | None = None,
-    **identify_kwargs,
+    options: SolverOptions | None = None,
 ) -> Simulation:
     """Run the published simulation once. ``errors`` follows ``make_layout(model)`` (random if
     None); the invariant formulation also gets a random hand-eye error of about 1 mm / 0.5 deg."""
@@ -165,7 +165,7 @@ def simulate(
         pairs=make_pairs(len(q), pairing),
         handeye=setup.handeye,
     )
-    result = identify(problem, method, **identify_kwargs)
+    result = identify(problem, options or SolverOptions(method=method))
     return Simulation(
         problem=problem,
         layout=problem.full_layout,

@@ -31,13 +31,12 @@ import numpy as np
 
 from relcal import geometry as tf
 from relcal.calibration.identifiability import analyse_problem
-from relcal.calibration.identify import identify_lm
+from relcal.calibration.identify import identify_lm, identify_weighted
 from relcal.calibration.measurement import Formulation, Measure, PairStrategy, Problem, make_pairs
 from relcal.calibration.noise import Noise
 from relcal.calibration.uncertainty import (
     Estimator,
     Uncertainty,
-    identify_weighted,
     parameter_covariance,
 )
 from relcal.errors import RelcalError

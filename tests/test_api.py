@@ -1,0 +1,71 @@
+"""The public Python API: the names of ``relcal.__all__``, the README's example, and the
+covariance that :class:`relcal.Result` reports, checked against repeated noisy calibrations."""
+
+import re
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+from conftest import DATA
+from helpers_sim import make_problem
+
+import relcal
+from relcal import geometry as tf
+from relcal.calibration.identify import least_squares_covariance
+from relcal.calibration.measurement import residuals
+from relcal.data.importers import import_rct_positioner
+from relcal.robot.model import auto_hayati
+
+README = Path(__file__).resolve().parents[1] / "README.md"
+
+
+def test_api_names_are_importable():
+    needed = {"get_robot", "load_dataset", "calibrate", "simulate", "Problem", "identify", "Result"}
+    assert needed <= set(relcal.__all__)
+    for name in relcal.__all__:
+        assert getattr(relcal, name) is not None
+
+
+def test_readme_example_runs(tmp_path, monkeypatch):
+    """The README's Python example, as printed there, on the real positioner."""
+    section = README.read_text().split("## Python API", 1)[1]
+    code = re.search(r"```python\n(.*?)```", section, re.S).group(1)
+    import_rct_positioner(
+        DATA / "rct_positioner" / "positioner_kinematic_measurements.yaml", tmp_path / "positioner"
+    )
+    monkeypatch.chdir(tmp_path)
+    scope: dict = {}
+    exec(compile(code, "README.md", "exec"), scope)
+    cal = scope["cal"]
+    assert isinstance(cal, relcal.Calibration) and cal.result.converged
+    assert isinstance(cal.model, relcal.RobotModel)
+
+
+def test_result_covariance_matches_repeated_calibrations(a465, rng):
+    """All pairs of 25 poses share each pose 24 times: the residuals correlate, and the naive
+    ``s^2 (A^T A)^-1`` would be 3 to 5 times too small. The reported standard deviations must
+    match the spread of estimates over repeated noisy measurements."""
+    model = auto_hayati(a465)
+    problem, _ = make_problem(model, "invariant", "pose", rng, n_poses=25)
+    problem = replace(problem, pairs=relcal.make_pairs(25, "all"))
+    estimates, predicted, naive = [], [], []
+    for _ in range(40):
+        noise = np.c_[rng.normal(0, 1e-4, (25, 3)), rng.normal(0, 2e-4, (25, 3))]
+        noisy = replace(problem, poses=problem.poses @ tf.from_vector(noise))
+        res = relcal.identify(noisy)
+        estimates.append(res.params)
+        predicted.append(res.std)
+        r, a = residuals(noisy, res.params)
+        naive.append(np.sqrt(np.diag(least_squares_covariance(a, r, res.identifiability.subset))))
+    sub = res.identifiability.subset
+    empirical = np.std(estimates, axis=0, ddof=1)[sub]
+    ratio = np.mean(predicted, axis=0)[sub] / empirical
+    assert 0.85 < np.median(ratio) < 1.15, ratio
+    assert np.all((ratio > 0.6) & (ratio < 1.5)), ratio  # 40 trials: a sample std scatters ~11 %
+    assert np.median(np.mean(naive, axis=0)[sub] / empirical) < 0.6  # what the test guards against
+    # Labelled: names, symmetric, correlations within [-1, 1].
+    cov = res.labelled_covariance()
+    assert set(cov) == {res.names[k] for k in sub}
+    rho = res.correlation[np.ix_(sub, sub)]
+    assert np.allclose(rho, rho.T) and np.all(np.abs(rho) <= 1 + 1e-12)
+    assert res.final_cost_per_observation < res.initial_cost_per_observation
