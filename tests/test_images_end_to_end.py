@@ -40,8 +40,9 @@ def test_images_are_posed_and_held_out_error_drops_fivefold(calibration):
     assert measured.ok.sum() >= 30
     assert np.nanmax(measured.rms_px) < 0.5
     val = cal.validation.summary()
-    assert val["before"]["position_mm"]["rms"] > 5 * val["after"]["position_mm"]["rms"]
-    assert val["before"]["orientation_deg"]["rms"] > 5 * val["after"]["orientation_deg"]["rms"]
+    base, cal = val["baseline"], val["calibrated"]
+    assert base["position_mm"]["rms"] > 5 * cal["position_mm"]["rms"]
+    assert base["orientation_deg"]["rms"] > 5 * cal["orientation_deg"]["rms"]
 
 
 def test_identified_parameters_within_three_predicted_std(calibration):

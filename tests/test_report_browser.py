@@ -254,23 +254,27 @@ def test_calibration_report_renders_in_chromium(calibration, tmp_path):
     text = path.read_text()
     page = check_page(text, CAL_SECTIONS, CAL_PLOTS)
 
-    # the summary: held-out accuracy before -> after, and convergence
+    # the summary: held-out accuracy of the baseline -> calibrated, and convergence
     val = doc["validation"]
     for key, unit in (("position_mm", "mm"), ("orientation_deg", "deg")):
-        b, a = val["before"][key]["rms"], val["after"][key]["rms"]
+        b, a = val["baseline"][key]["rms"], val["calibrated"][key]["rms"]
         assert f"{b:.3g} → {a:.3g} {unit}" in text
         assert b > 5 * a
+        assert f"{b / a:.2f}× smaller" in text  # never "1.0x smaller" when nothing changed
     assert "converged" in text
     # the parameter table: every parameter, identifiable ones with a number and a std
     cells = page.cells
     for row in doc["parameters"]:
         k = cells.index(row["name"])
         assert cells[k + 1] == row["unit"]
-        if row["identifiable"]:
+        assert cells[k + 7] == row["status"]
+        if row["status"] in ("estimated", "combination"):
             assert float(cells[k + 3]) == pytest.approx(row["error"], abs=1e-4)
-            assert float(cells[k + 4]) > 0
+            assert float(cells[k + 4]) > 0 and float(cells[k + 5]) > 0  # predicted, bootstrap
         else:
-            assert cells[k + 3] == "–" and cells[k + 5] == "no"
+            assert cells[k + 3] == "–"
+    for candidate in doc["model_selection"]["candidates"]:
+        assert candidate["name"] in text
     for combination in doc["identification"]["unidentifiable"]:
         assert combination.replace("'", "&#x27;") in text
     # rejected images with their reasons (escaped), the outlier, every setting

@@ -38,7 +38,7 @@ def test_interval_reflects_how_many_samples_there_are():
         before = rng.normal(0, 1e-3, (len(pairs), 6))
         after = before * np.sqrt(quality[pairs[:, 0]] * quality[pairs[:, 1]])[:, None]
         val = Validation(pairs, before, after)
-        r = val.summary()["rms_ratio"]["position_mm"]
+        r = val.summary()["ratio_to_baseline"]["position_mm"]
         lo, hi = r["ci95"]
         assert lo < r["after_over_before"] < hi
         widths.append(hi - lo)

@@ -20,7 +20,6 @@ from relcal.calibration.blas import one_blas_thread
 from relcal.calibration.identifiability import (
     Identifiability,
     analyse_problem,
-    identifiable_at,
     scaled,
 )
 from relcal.calibration.measurement import Problem, pair_errors, residuals
@@ -83,13 +82,25 @@ class Result:
     seconds: float
     method: str
     identifiability: Identifiability
-    identifiable: np.ndarray  # (P,) bool, individually determined (nominal and at the estimate)
     problem: Problem = field(repr=False, compare=False)
     whiten: np.ndarray | None = field(default=None, repr=False, compare=False)
+    noise: Noise | None = field(default=None, compare=False)  # pose noise; default: from r
+
+    @functools.cached_property
+    def identifiable(self) -> np.ndarray:
+        """``(P,)`` bool: determined by the data given the estimated subset (the others held at
+        nominal): no share in the null space at the nominal model, and an estimate that does
+        not move when the parameters held at nominal take other values (a curved symmetry can
+        draw a parameter outside the nominal null space into a combination; this finds it)."""
+        return self.identifiability.identifiable & ~held_dependence(
+            self.problem, self.params, self.identifiability, self.whiten, self.method
+        )
 
     @functools.cached_property
     def covariance(self) -> np.ndarray:
-        return result_covariance(self.problem, self.params, self.identifiability, self.whiten)
+        return result_covariance(
+            self.problem, self.params, self.identifiability, self.whiten, self.noise
+        )
 
     @property
     def unidentifiable(self) -> list[str]:
@@ -132,20 +143,62 @@ class Result:
         return [(self.names[i[k]], self.names[j[k]], float(rho[i[k], j[k]])) for k in order]
 
 
+DEPENDENCE_TOL = 1e-4  # mm or deg of change per mm or deg of a parameter held at nominal
+
+
+def held_dependence(
+    problem: Problem,
+    params: np.ndarray,
+    ident: Identifiability,
+    whiten: np.ndarray | None = None,
+    method: str = "lm",
+) -> np.ndarray:
+    """``(P,)`` bool: estimated parameters that move (by more than ``DEPENDENCE_TOL`` per unit)
+    when the parameters held at nominal move along the unidentifiable directions by one unit
+    (1 mm or 1 deg of each combination's lead), the estimate refitted from there.
+
+    Along an exact, straight symmetry only the combination's own parameters move; where the
+    symmetry is curved, others follow at second order and are not determined individually.
+    """
+    out = np.zeros(len(params), dtype=bool)
+    if not ident.combinations:
+        return out
+    subset = np.asarray(ident.subset)
+    published = method == "published"
+    held = np.setdiff1d(np.arange(len(params)), subset)
+    angle = problem.full_layout.is_angle()
+    unit = np.where(angle, np.radians(1.0), 1e-3)
+    step = np.zeros(len(params))
+    for v in ident.null_space.T:
+        lead = held[np.argmax(np.abs(v[held] / unit[held]))] if len(held) else np.argmax(np.abs(v))
+        step += v / abs(v[lead]) * unit[lead]
+    if published:  # nothing is held: the solver picks a point on the symmetry's orbit
+        refit = identify_published(problem, identifiability=ident, initial=params + step)
+    else:
+        moved = params.copy()
+        moved[held] += step[held]
+        refit = identify_lm(problem, 50, ident, whiten=whiten, initial=params + step, fixed=moved)
+    involved = np.linalg.norm(ident.null_space, axis=1) > 1e-6
+    return (np.abs(refit.params - params) / unit > DEPENDENCE_TOL) & ~involved
+
+
 def result_covariance(
     problem: Problem,
     params: np.ndarray,
     ident: Identifiability,
     whiten: np.ndarray | None = None,
+    noise: Noise | None = None,
 ) -> np.ndarray:
-    """The covariance ``(P, P)`` of :attr:`Result.covariance` (NaN outside the subset)."""
+    """The covariance ``(P, P)`` of :attr:`Result.covariance` (NaN outside the subset); the pose
+    ``noise`` is estimated from the residuals (robust, isotropic) when not given."""
     r, a = residuals(problem, params)
     if whiten is not None:
         return least_squares_covariance(whiten @ a, whiten @ r, ident.subset)
     if problem.formulation == "absolute":
         return least_squares_covariance(a, r, ident.subset)
-    sigma = robust_sigma(pair_errors(problem, params)) / np.sqrt(2)  # two poses per pair
-    noise = Noise(position=float(sigma[0]), orientation=float(sigma[3]))
+    if noise is None:
+        sigma = robust_sigma(pair_errors(problem, params)) / np.sqrt(2)  # two poses per pair
+        noise = Noise(position=float(sigma[0]), orientation=float(sigma[3]))
     unc = parameter_covariance(problem, noise, ident, params=params)
     cov = np.full((len(params), len(params)), np.nan)
     cov[np.ix_(unc.subset, unc.subset)] = unc.least_squares
@@ -199,6 +252,7 @@ def identify_published(
     tol: float = 1e-12,
     max_iter: int = 50,
     identifiability: Identifiability | None = None,
+    initial: np.ndarray | None = None,
 ) -> Result:
     """Iterated linear least squares with an SVD pseudo-inverse (Lu & Hayes).
 
@@ -211,7 +265,10 @@ def identify_published(
     params = np.zeros(problem.full_layout.size)
     r, a = residuals(problem, params)
     ident = identifiability or analyse_problem(problem, jac=a)
-    initial = float(np.linalg.norm(r))
+    initial_norm = float(np.linalg.norm(r))  # the costs count from nominal
+    if initial is not None:
+        params = np.asarray(initial, dtype=float).copy()
+        r, a = residuals(problem, params)
     converged, it = False, 0
     for it in range(1, max_iter + 1):
         unit, norms = scaled(a)
@@ -238,14 +295,13 @@ def identify_published(
         names=problem.full_layout.names,
         converged=converged,
         iterations=it,
-        initial_residual_norm=initial,
+        initial_residual_norm=initial_norm,
         residual_norm=float(np.linalg.norm(r)),
         n_residuals=len(r),
         rank=int(np.sum(keep)),
         seconds=time.perf_counter() - start,
         method="published",
         identifiability=ident,
-        identifiable=identifiable_at(problem, params, ident, jac=a),
         problem=problem,
     )
 
@@ -258,10 +314,14 @@ def identify_lm(
     loss: str = "linear",
     f_scale: float = 1.0,
     whiten: np.ndarray | None = None,
+    initial: np.ndarray | None = None,
+    fixed: np.ndarray | None = None,
 ) -> Result:
     """Levenberg-Marquardt (trust region) on the identifiable subset with column scaling.
 
-    Parameters outside the QR-pivoted identifiable subset stay at their nominal values.
+    Parameters outside the QR-pivoted identifiable subset stay at their nominal values; the
+    others start from ``initial`` ``(P,)`` (default nominal, zeros). ``fixed`` ``(P,)``: other
+    values to hold the parameters outside the subset at.
     ``whiten`` ``(r, M)`` multiplies the residual rows first (a full noise covariance's inverse
     root: :func:`relcal.calibration.uncertainty.identify_weighted`).
     """
@@ -271,9 +331,14 @@ def identify_lm(
     r0, a0 = residuals(problem, full)
     ident = identifiability or analyse_problem(problem, jac=a0)
     subset = ident.subset
+    if fixed is not None:
+        full = np.asarray(fixed, dtype=float).copy()
+        full[subset] = 0.0
+        r0, a0 = residuals(problem, full)
     # The latest evaluation, residual and full Jacobian together: the solver asks for the
     # Jacobian at the point it has just evaluated (the start, then each accepted step), and
     # both cost little more than the residual alone.
+    x0 = np.zeros(len(subset)) if initial is None else np.asarray(initial, float)[subset]
     last = {"x": np.zeros(len(subset)).tobytes(), "r": r0, "jac": a0}
 
     def expand(x: np.ndarray) -> np.ndarray:
@@ -298,7 +363,7 @@ def identify_lm(
     method = "lm" if loss == "linear" else "trf"
     sol = scipy.optimize.least_squares(
         fun,
-        np.zeros(len(subset)),
+        x0,
         jac=jac,
         method=method,
         x_scale="jac",
@@ -326,7 +391,6 @@ def identify_lm(
         seconds=time.perf_counter() - start,
         method=label,
         identifiability=ident,
-        identifiable=identifiable_at(problem, expand(sol.x), ident, jac=a),
         problem=problem,
         whiten=whiten,
     )

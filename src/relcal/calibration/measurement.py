@@ -65,6 +65,9 @@ class Problem:
     pairs: np.ndarray | None = None
     handeye: np.ndarray = field(default_factory=lambda: np.eye(4))
     weights: np.ndarray | None = None  # (6,) per-row factors, e.g. 1/sigma of (t, r) rows
+    # (P, 6, 6) per-measurement whitening blocks (pose measurements), applied after ``weights``:
+    # a learned noise model's inverse Cholesky factors (:func:`noise.pair_whiteners`).
+    pair_weights: np.ndarray | None = None
 
     @property
     def full_layout(self) -> Layout:
@@ -135,6 +138,10 @@ def residuals(problem: Problem, params: np.ndarray, jacobian: bool = True):
     if problem.weights is not None:
         r = r * problem.weights
         a = a * problem.weights[:, None] if jacobian else None
+    if problem.pair_weights is not None:
+        w = problem.pair_weights
+        r = np.einsum("pij,pj->pi", w, r)
+        a = w @ a if jacobian else None
     r = r[:, :rows].reshape(-1)
     return (r, a[:, :rows].reshape(-1, a.shape[-1])) if jacobian else r
 
@@ -165,7 +172,8 @@ def pair_errors(problem: Problem, params: np.ndarray) -> np.ndarray:
 
     With position-only measurements the rotation columns are NaN.
     """
-    r = residuals(replace(problem, measure="pose"), params, jacobian=False).reshape(-1, 6)
+    plain = replace(problem, measure="pose", weights=None, pair_weights=None)
+    r = residuals(plain, params, jacobian=False).reshape(-1, 6)
     if problem.measure == "position":
         r[:, 3:] = np.nan
     return r

@@ -1,8 +1,17 @@
-"""The noise model of measured poses and joint readings."""
+"""The noise model of measured poses and joint readings, and its estimation from residuals.
+
+A measured camera pose is ``C_k exp(eps_k)`` with ``eps_k`` the pose error in the camera's own
+(body) frame, translation (m) then rotation (rad). A relative measurement of the pair (i, j) then
+carries ``eps_j - Ad(M_ij^-1) eps_i`` (``M_ij`` the relative motion), so its residual covariance
+is ``Sigma + Ad Sigma Ad^T``: the rotation of the pair mixes the components, and camera-pose
+errors in translation and rotation are strongly correlated (a small tilt of the camera and a
+sideways shift explain the same image motion). :func:`estimate_pose_noise` finds the full 6x6
+``Sigma`` from the residuals by the method of moments, robustly.
+"""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -17,6 +26,15 @@ class Noise:
     position: float = 0.0
     orientation: float = 0.0
     joints: float = 0.0
+    # (6, 6) covariance of the body-frame pose error (translation m, rotation rad), replacing the
+    # isotropic position and orientation levels when given (a learned noise model).
+    covariance: np.ndarray | None = field(default=None, compare=False)
+
+    def pose_covariance(self) -> np.ndarray:
+        """The ``(6, 6)`` covariance of one measured pose's body-frame error."""
+        if self.covariance is not None:
+            return np.asarray(self.covariance, dtype=float)
+        return np.diag(np.r_[np.full(3, self.position**2), np.full(3, self.orientation**2)])
 
     @classmethod
     def parse(cls, text: str) -> Noise:
@@ -41,3 +59,111 @@ def robust_sigma(errors: np.ndarray) -> np.ndarray:
         mad = 1.4826 * np.median(np.abs(values - np.median(values)))
         sigma[rows] = max(mad, 1e-12)
     return sigma
+
+
+# --- learning the pose noise from pair residuals -------------------------------------------------
+
+_SYM = np.array([(a, b) for a in range(6) for b in range(a, 6)])  # the 21 free entries of Sigma
+
+
+def pair_covariances(sigma: np.ndarray, left: np.ndarray) -> np.ndarray:
+    """Residual covariances ``(P, 6, 6)`` of pairs whose residual is ``eps_j + L_p eps_i`` with
+    ``left`` ``(P, 6, 6)`` = ``-Ad(M_ij^-1)``, for pose errors of covariance ``sigma`` (6, 6)."""
+    return sigma + left @ sigma @ np.swapaxes(left, -1, -2)
+
+
+def _moment_design(left: np.ndarray) -> np.ndarray:
+    """``D`` ``(P * 36, 21)``: ``vec(pair covariance) = D theta`` for Sigma's free entries."""
+    # vec(L S L^T) = (L kron L) vec(S); the symmetric basis sums two columns of the Kronecker.
+    kron = np.einsum("pac,pbd->pabcd", left, left).reshape(len(left), 36, 36)
+    first, second = _SYM[:, 0] * 6 + _SYM[:, 1], _SYM[:, 1] * 6 + _SYM[:, 0]
+    design = kron[:, :, first] + np.where(first != second, 1.0, 0.0) * kron[:, :, second]
+    identity = np.zeros((36, len(_SYM)))
+    identity[first, np.arange(len(_SYM))] = 1.0
+    identity[second, np.arange(len(_SYM))] = 1.0
+    return (design + identity).reshape(-1, len(_SYM))
+
+
+@dataclass(frozen=True)
+class PoseNoise:
+    """A learned noise model: the covariance of each measured pose's body-frame error."""
+
+    covariance: np.ndarray  # (6, 6): translation (m), rotation (rad)
+    n_pairs: int
+    downweighted: int  # pairs whose weight the robust estimate reduced
+
+    @property
+    def std(self) -> np.ndarray:
+        """Standard deviations ``(6,)`` of the pose error components (m, rad)."""
+        return np.sqrt(np.diag(self.covariance))
+
+    @property
+    def correlation(self) -> np.ndarray:
+        s = self.std
+        return self.covariance / np.outer(s, s)
+
+    @property
+    def noise(self) -> Noise:
+        s = self.std
+        return Noise(
+            position=float(np.sqrt(np.mean(s[:3] ** 2))),
+            orientation=float(np.sqrt(np.mean(s[3:] ** 2))),
+            covariance=self.covariance,
+        )
+
+    def max_translation_rotation_correlation(self) -> float:
+        """The largest ``|rho|`` between a translation and a rotation component."""
+        return float(np.abs(self.correlation[:3, 3:]).max())
+
+
+def estimate_pose_noise(
+    errors: np.ndarray,
+    left: np.ndarray,
+    n_params: int = 0,
+    n_poses: int | None = None,
+    iterations: int = 5,
+    clip: float = 16.8,
+    max_pairs: int = 3000,
+) -> PoseNoise:
+    """The pose-error covariance ``Sigma`` that explains pair residuals ``errors`` ``(P, 6)``
+    (translation m, rotation rad; as measured minus modelled) with ``left`` ``(P, 6, 6)`` of
+    :func:`pair_covariances`.
+
+    Method of moments: ``r_p r_p^T ~ Sigma + L_p Sigma L_p^T``, linear in the 21 entries of
+    ``Sigma``, solved by least squares over all pairs; pairs whose Mahalanobis distance exceeds
+    ``clip`` (the 99 % point of chi-square with 6 degrees of freedom) are weighted down (Huber),
+    iterated. ``n_params`` fitted parameters over ``n_poses`` poses shrink the residuals; the
+    estimate is scaled by ``6 (N - 1) / (6 (N - 1) - n_params)`` for it.
+    """
+    errors = np.asarray(errors, dtype=float)
+    n_pairs = len(errors)
+    if n_pairs > max_pairs:  # a random share carries the same information about 21 numbers
+        keep = np.random.default_rng(0).choice(n_pairs, max_pairs, replace=False)
+        errors, left = errors[keep], left[keep]
+    design = _moment_design(left)
+    outer = (errors[:, :, None] * errors[:, None, :]).reshape(-1)
+    weight = np.ones(len(errors))
+    sigma = np.eye(6)
+    for _ in range(iterations):
+        dw = design * np.repeat(weight, 36)[:, None]
+        theta = np.linalg.lstsq(dw.T @ design, dw.T @ outer, rcond=None)[0]
+        sigma = np.zeros((6, 6))
+        sigma[_SYM[:, 0], _SYM[:, 1]] = theta
+        sigma[_SYM[:, 1], _SYM[:, 0]] = theta
+        vals, vecs = np.linalg.eigh(sigma)
+        floor = 1e-12 * max(vals.max(), 1e-30)
+        sigma = (vecs * np.clip(vals, floor, None)) @ vecs.T
+        cov = pair_covariances(sigma, left)
+        d2 = np.einsum("pi,pi->p", errors, np.linalg.solve(cov, errors[..., None])[..., 0])
+        weight = np.minimum(1.0, clip / np.maximum(d2, 1e-300))
+    n = n_poses if n_poses is not None else len(errors) + 1
+    dof = 6 * max(n - 1, 1)
+    sigma = sigma * dof / max(dof - n_params, 1)
+    return PoseNoise(sigma, n_pairs, int(np.sum(weight < 1.0)))
+
+
+def pair_whiteners(sigma: np.ndarray, left: np.ndarray) -> np.ndarray:
+    """``W_p`` ``(P, 6, 6)`` with ``W_p S_p W_p^T = I`` for the pair covariances ``S_p``: the
+    inverse Cholesky factors."""
+    chol = np.linalg.cholesky(pair_covariances(sigma, left))
+    return np.linalg.inv(chol)

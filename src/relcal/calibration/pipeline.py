@@ -12,11 +12,43 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from relcal import geometry as tf
 from relcal.calibration.handeye import solve_handeye
 from relcal.calibration.identifiability import check_pose_set
-from relcal.calibration.identify import Result, SolverOptions, calibrated_handeye, identify
-from relcal.calibration.measurement import PairStrategy, Problem, make_pairs, pair_errors
-from relcal.calibration.noise import Noise, robust_sigma
+from relcal.calibration.identify import (
+    Result,
+    SolverOptions,
+    calibrated_handeye,
+    identify,
+    identify_lm,
+)
+from relcal.calibration.measurement import (
+    PairStrategy,
+    Problem,
+    make_pairs,
+    pair_errors,
+    relative_measurements,
+    residuals,
+)
+from relcal.calibration.noise import (
+    Noise,
+    PoseNoise,
+    estimate_pose_noise,
+    pair_whiteners,
+    robust_sigma,
+)
+from relcal.calibration.selection import (
+    Linearised,
+    Score,
+    candidates,
+    choose,
+    fit,
+    linearise,
+    plain_whiteners,
+    score_candidates,
+    solve_normal,
+)
+from relcal.calibration.uncertainty import parameter_covariance
 from relcal.calibration.validate import Validation, folds, held_out, split
 from relcal.data.dataset import Dataset
 from relcal.data.imaging import Measurements, measure
@@ -57,22 +89,52 @@ def cross_validate(
 
 @dataclass(frozen=True)
 class Calibration:
-    """Everything a calibration produced."""
+    """Everything a calibration produced.
+
+    ``result`` is the chosen model's fit and ``baseline`` the fit of the hand-eye transform alone
+    (nominal kinematics): the best a user gets without kinematic calibration, and the primary
+    "before" of every comparison. When the data support no kinematic correction the chosen
+    model *is* the baseline (``exported == "baseline"``).
+    """
 
     dataset: Dataset
     measurements: Measurements
-    problem: Problem  # on the training samples
+    problem: Problem  # training samples, with the chosen weighting
     result: Result
+    baseline: Result
     validation: Validation | None
     train: np.ndarray  # sample indices
     test: np.ndarray
     settings: dict
     outliers: tuple[str, ...] = ()  # ids of training samples that fit badly
-    std: np.ndarray | None = None  # (P,) standard deviations (m, rad); NaN if not estimated
+    noise: PoseNoise | None = None
+    selection: tuple[Score, ...] = ()
+    chosen: int = 0  # index into selection
+    reason: str = ""
+    bootstrap_std: np.ndarray | None = None  # (P,) over training samples; NaN if not estimated
+
+    @property
+    def std(self) -> np.ndarray:
+        """Standard deviations ``(P,)`` of the estimate (m, rad); NaN if not estimated."""
+        return self.result.std
+
+    @property
+    def exported(self) -> str:
+        """``calibrated``, or ``baseline`` when the hand-eye transform alone was chosen."""
+        chosen = self.selection[self.chosen].candidate if self.selection else None
+        return "baseline" if chosen is not None and chosen.name == "hand-eye only" else "calibrated"
+
+    @property
+    def hurts(self) -> bool:
+        """The calibrated model is worse than the baseline on the held-out samples."""
+        if self.validation is None or self.exported == "baseline":
+            return False
+        s = self.validation.summary()
+        return s["calibrated"]["position_mm"]["rms"] > s["baseline"]["position_mm"]["rms"]
 
     @property
     def model(self) -> RobotModel:
-        """The calibrated robot model (the identified geometric errors applied)."""
+        """The exported robot model (the identified geometric errors applied)."""
         return calibrated_model(self.problem.model, self.problem.layout, self.result.params)
 
     @property
@@ -88,67 +150,100 @@ def calibrate(
     seed: int = 0,
     pairing: PairStrategy = "all",
     method: str = "lm",
-    loss: str = "huber",
+    loss: str = "linear",
     reject_outliers: bool = True,
     holdout_ids: Sequence[str] | None = None,
+    select_folds: int = 5,
+    selection: str = "cv",
 ) -> Calibration:
-    """Identify geometry and hand-eye on the training samples, validate on the held-out ones.
+    """Choose, fit and validate a model on the training samples; validate on the held-out ones.
 
-    Training samples whose pairs fit badly after a robust fit are reported as outliers and, with
-    ``reject_outliers``, left out of a second fit. ``holdout_ids`` names the validation samples
-    (instead of a random share ``holdout``). ``measurements``: the camera poses of
-    :func:`data.imaging.measure` (measured here if not given).
+    Steps: a robust fit of the identifiable subset flags training samples whose pairs fit badly
+    (left out of what follows with ``reject_outliers``); the full 6x6 pose noise is learned from
+    its residuals; candidate models (hand-eye only, geometry, non-geometric families) under two
+    row weightings are scored by ``select_folds``-fold cross-validation over training samples
+    and the simplest one within a standard error of the best is fitted (``selection="all"``
+    takes the largest, ``"conservative"`` then drops parameters below 3 standard deviations).
+    ``holdout_ids`` names the validation samples (instead of a random share ``holdout``);
+    ``measurements``: the camera poses of :func:`data.imaging.measure` (measured here if not
+    given).
     """
     if measurements is None:
         measurements = measure(dataset)
-    usable = np.flatnonzero(measurements.ok)
-    if len(usable) < 4:
-        raise RelcalError(
-            f"{dataset.spec_path}: only {len(usable)} usable samples; at least 4 are needed "
-            "(and many more for a useful calibration)"
-        )
-    if holdout_ids is not None:
-        test = _sample_indices(dataset, holdout_ids)
-        train = np.setdiff1d(usable, test)
-        test = np.intersect1d(usable, test)
-    elif holdout > 0:
-        train_idx, test_idx = split(len(usable), holdout, seed)
-        train, test = usable[train_idx], usable[test_idx]
-    else:
-        train, test = usable, np.zeros(0, dtype=int)
-    layout = make_layout(dataset.model)
+    if selection not in ("cv", "conservative", "all"):
+        raise RelcalError(f"unknown selection '{selection}': use cv, conservative or all")
+    train, test = _split(dataset, measurements, holdout, seed, holdout_ids)
     poses = measurements.poses
     handeye = dataset.handeye
     if handeye is None:
         handeye = solve_handeye(fk(dataset.model, dataset.q[train]), poses[train])
-    problem = Problem(
-        model=dataset.model,
-        layout=layout,
-        q=dataset.q[train],
-        poses=poses[train],
-        formulation="invariant",
-        measure="pose",
-        pairs=make_pairs(len(train), pairing),
-        handeye=handeye,
-    )
-    problem, result, sigma = weighted_fit(problem, dataset, method, loss)
-    outliers = outlier_samples(pair_errors(problem, result.params), problem.pair_indices())
+    layout = make_layout(dataset.model)
+
+    def problem_on(samples: np.ndarray) -> Problem:
+        return Problem(
+            dataset.model,
+            layout,
+            dataset.q[samples],
+            poses[samples],
+            "invariant",
+            "pose",
+            make_pairs(len(samples), pairing),
+            handeye,
+        )
+
+    problem = problem_on(train)
+    ident = check_pose_set(problem, str(dataset.spec_path))
+    # A robust fit finds the samples whose pairs fit badly; the fits after it use ``loss``.
+    full = _fit(problem, ident, ident.subset, "plain", method, "huber")
+    outliers = outlier_samples(_normalised(pair_errors(problem, full.params)), problem.pairs)
     outlier_ids = tuple(dataset.ids[train[i]] for i in outliers)
     if reject_outliers and outliers.size:
         train = np.delete(train, outliers)
-        problem = replace(
-            problem,
-            q=dataset.q[train],
-            poses=poses[train],
-            pairs=make_pairs(len(train), pairing),
-            weights=None,
+        problem = problem_on(train)
+    if (reject_outliers and outliers.size) or loss != "huber":
+        full = _fit(problem, ident, ident.subset, "plain", method, loss, initial=full.params)
+
+    left = pair_left_maps(problem)
+    noise = estimate_pose_noise(
+        pair_errors(problem, full.params), left, len(ident.subset), len(train)
+    )
+    lin = linearise(problem, full.params)
+    whiteners = {
+        "plain": plain_whiteners(len(left)),
+        "noise model": pair_whiteners(noise.covariance, left),
+    }
+    cands = candidates(problem, ident.subset)
+    folds_k = max(2, min(select_folds, len(train) // 2))
+    scores = score_candidates(lin, whiteners, cands, folds_k, seed)
+    if selection == "all":
+        chosen = int(np.argmin([-len(s.candidate.columns) for s in scores]))
+        chosen += int(np.argmin([np.mean(s.per_sample) for s in scores[chosen : chosen + 2]]))
+        reason = "all identifiable parameters (--select all)"
+    else:
+        chosen, reason = choose(scores)
+    pick = scores[chosen].candidate
+    columns = pick.columns
+    if selection == "conservative" and pick.name != "hand-eye only":
+        weighted = weighted_problem(problem, pick.weighting, whiteners)
+        columns = significant_columns(weighted, ident, columns, noise.noise, full.params)
+        reason += "; parameters below 3 standard deviations dropped (--select conservative)"
+
+    he_scores = [s for s in scores if s.candidate.name == "hand-eye only"]
+    he = min(he_scores, key=lambda s: np.mean(s.per_sample)).candidate
+    start = full.params
+    baseline = _fit(problem, ident, he.columns, he.weighting, "lm", loss, whiteners, noise, start)
+    if pick.name == "hand-eye only":
+        result = baseline
+    else:
+        result = _fit(
+            problem, ident, columns, pick.weighting, method, loss, whiteners, noise, start
         )
-        problem, result, sigma = weighted_fit(problem, dataset, method, loss)
-    std = parameter_std(problem, result, sigma)
+    boot = bootstrap_std(lin, whiteners[pick.weighting], columns, seed=seed)
+
     validation = None
     if len(test) >= 2:
-        full = Problem(dataset.model, layout, dataset.q, poses, "invariant", "pose", None, handeye)
-        validation = held_out(full, result, test)
+        everything = problem_on(np.arange(len(dataset.ids)))
+        validation = held_out(everything, result, test, baseline=baseline)
     settings = {
         "holdout_fraction": holdout,
         "seed": seed,
@@ -159,37 +254,152 @@ def calibrate(
         "measure": "pose",
         "mode": dataset.mode,
         "hayati_joints": [int(i) + 1 for i in np.flatnonzero(dataset.model.hayati)],
+        "selection": selection,
+        "selection_folds": folds_k,
+        "weighting": pick.weighting,
+        "reject_outliers": reject_outliers,
     }
-    settings["row_sigma"] = {"position_m": float(sigma[0]), "orientation_rad": float(sigma[3])}
-    settings["reject_outliers"] = reject_outliers
     return Calibration(
-        dataset, measurements, problem, result, validation, train, test, settings, outlier_ids, std
+        dataset,
+        measurements,
+        weighted_problem(problem, pick.weighting, whiteners),
+        result,
+        baseline,
+        validation,
+        train,
+        test,
+        settings,
+        outlier_ids,
+        noise,
+        tuple(scores),
+        chosen,
+        reason,
+        boot,
     )
 
 
-def parameter_std(problem: Problem, result: Result, sigma: np.ndarray) -> np.ndarray:
-    """Standard deviations ``(P,)`` of the estimate: the least-squares covariance of
-    :mod:`uncertainty` (pair correlations included), with per-pose noise taken as the
-    robust pair noise ``sigma`` over sqrt(2) (each pair carries the noise of two poses)."""
-    from relcal.calibration.uncertainty import parameter_covariance
+def _split(
+    dataset: Dataset,
+    measurements: Measurements,
+    holdout: float,
+    seed: int,
+    holdout_ids: Sequence[str] | None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Training and held-out sample indices among the usable samples."""
+    usable = np.flatnonzero(measurements.ok)
+    if len(usable) < 4:
+        raise RelcalError(
+            f"{dataset.spec_path}: only {len(usable)} usable samples; at least 4 are needed "
+            "(and many more for a useful calibration)"
+        )
+    if holdout_ids is not None:
+        test = _sample_indices(dataset, holdout_ids)
+        return np.setdiff1d(usable, test), np.intersect1d(usable, test)
+    if holdout > 0:
+        train_idx, test_idx = split(len(usable), holdout, seed)
+        return usable[train_idx], usable[test_idx]
+    return usable, np.zeros(0, dtype=int)
 
-    noise = Noise(position=sigma[0] / np.sqrt(2), orientation=sigma[3] / np.sqrt(2))
-    unc = parameter_covariance(problem, noise, result.identifiability, params=result.params)
-    return unc.std
+
+def weighted_problem(
+    problem: Problem, weighting: str, whiteners: dict[str, np.ndarray] | None = None
+) -> Problem:
+    """``problem`` with the rows weighted as ``weighting`` says (the plain weighting is diagonal:
+    row factors, no per-pair blocks)."""
+    if weighting == "plain":
+        return replace(problem, weights=np.diag(plain_whiteners(1)[0]), pair_weights=None)
+    return replace(problem, weights=None, pair_weights=whiteners[weighting])
 
 
-def weighted_fit(
-    problem: Problem, dataset: Dataset, method: str, loss: str
-) -> tuple[Problem, Result, np.ndarray]:
-    """A least-squares fit gives robust noise levels of the translation and rotation rows; the
-    final fit weights the rows by them (so metres and radians compare) with the chosen loss.
-    Returns the weighted problem, its result and the row noise levels ``(6,)``."""
-    ident = check_pose_set(problem, str(dataset.spec_path))
-    first = identify(problem, SolverOptions(), ident)
-    sigma = robust_sigma(pair_errors(problem, first.params))
-    problem = replace(problem, weights=1.0 / sigma)
-    options = SolverOptions(method=method, loss=loss, f_scale=ROBUST_SCALE)
-    return problem, identify(problem, options, ident), sigma
+def _blocks(problem: Problem) -> np.ndarray:
+    """The problem's row weighting as per-pair blocks ``(P, 6, 6)``."""
+    if problem.pair_weights is not None:
+        return problem.pair_weights
+    w = np.ones(6) if problem.weights is None else problem.weights
+    return np.broadcast_to(np.diag(w), (len(problem.pair_indices()), 6, 6))
+
+
+def pair_left_maps(problem: Problem) -> np.ndarray:
+    """``-Ad(M_ij^-1)`` ``(P, 6, 6)`` of the measured relative motions: how pose i's error enters
+    pair (i, j)'s residual (pose j's enters as itself)."""
+    measured = relative_measurements(problem.poses, problem.pair_indices())
+    return -tf.adjoint(tf.invert(measured))
+
+
+def _normalised(errors: np.ndarray) -> np.ndarray:
+    """Pair errors in units of their robust noise levels (translation and rotation apart)."""
+    return errors / robust_sigma(errors)
+
+
+def _fit(
+    problem: Problem,
+    ident,
+    columns: np.ndarray,
+    weighting: str,
+    method: str,
+    loss: str,
+    whiteners: dict[str, np.ndarray] | None = None,
+    noise: PoseNoise | None = None,
+    initial: np.ndarray | None = None,
+) -> Result:
+    """The nonlinear fit of ``columns`` under ``weighting``, the robust loss bending at
+    ``ROBUST_SCALE`` robust standard deviations of the weighted rows."""
+    weighted = weighted_problem(problem, weighting, whiteners)
+    if method == "published":
+        result = identify(weighted, SolverOptions(method="published"), ident)
+    else:
+        r0 = residuals(weighted, np.zeros(problem.full_layout.size), jacobian=False)
+        scale = 1.4826 * np.median(np.abs(r0 - np.median(r0)))
+        options = SolverOptions(loss=loss, f_scale=ROBUST_SCALE * max(scale, 1e-12))
+        sub = replace(ident, subset=np.asarray(columns))
+        result = identify_lm(weighted, 200, sub, options.loss, options.f_scale, initial=initial)
+    return replace(result, noise=noise.noise) if noise is not None else result
+
+
+def significant_columns(
+    problem: Problem,
+    ident,
+    columns: np.ndarray,
+    noise: Noise,
+    params: np.ndarray,
+    z_min: float = 3.0,
+) -> np.ndarray:
+    """``columns`` less the link parameters whose linearised estimate is below ``z_min``
+    standard deviations (hand-eye components always stay), dropped until none is."""
+    kinds = problem.full_layout.kinds
+    cols = np.asarray(columns)
+    lin = linearise(problem, params)
+    while True:
+        estimate = fit(lin, _blocks(problem), cols)
+        unc = parameter_covariance(problem, noise, replace(ident, subset=cols), params=params)
+        z = np.abs(estimate[unc.subset]) / np.maximum(unc.std[unc.subset], 1e-300)
+        weak = [c for c, zc in zip(unc.subset, z, strict=True) if zc < z_min]
+        weak = [c for c in weak if kinds[c] != "handeye"]
+        if not weak:
+            return cols
+        cols = np.setdiff1d(cols, weak)
+
+
+def bootstrap_std(
+    lin: Linearised, whiten: np.ndarray, columns: np.ndarray, n_boot: int = 100, seed: int = 0
+) -> np.ndarray:
+    """Standard deviations ``(Q,)`` of the linearised estimate over ``n_boot`` resamplings of the
+    training *samples* (a pair counts as often as both its samples are drawn); NaN outside
+    ``columns``. An independent check of the predicted standard deviations."""
+    rng = np.random.default_rng(seed)
+    jw = whiten @ lin.jac[:, :, columns]  # (P, 6, k)
+    bw = np.einsum("pij,pj->pi", whiten, lin.b)
+    i, j = lin.pairs.T
+    a, b = jw.reshape(-1, len(columns)), bw.reshape(-1)
+    draws = []
+    for _ in range(n_boot):
+        counts = np.bincount(rng.integers(0, lin.n_samples, lin.n_samples), minlength=lin.n_samples)
+        w = np.repeat((counts[i] * counts[j]).astype(float), 6)
+        aw = a * w[:, None]
+        draws.append(solve_normal(aw.T @ a, aw.T @ b))
+    out = np.full(lin.jac.shape[-1], np.nan)
+    out[columns] = np.std(draws, axis=0, ddof=1)
+    return out
 
 
 def outlier_samples(weighted: np.ndarray, pairs: np.ndarray, threshold: float = 5.0) -> np.ndarray:

@@ -106,8 +106,7 @@ def pose_covariances(
             )
         camera = body_covariance(problem.poses, covariances)
     else:
-        diag = np.r_[np.full(3, noise.position**2), np.full(3, noise.orientation**2)]
-        camera = np.broadcast_to(np.diag(diag), (n, 6, 6)).copy()
+        camera = np.broadcast_to(noise.pose_covariance(), (n, 6, 6)).copy()
     if problem.formulation != "invariant":
         rot = fk(model, problem.q)[:, :3, :3]
         d = np.zeros((n, 6, 6))
@@ -168,6 +167,8 @@ def noise_blocks(
         blocks = np.stack([np.broadcast_to(np.eye(6), left.shape), left], axis=1)
     if problem.weights is not None:
         blocks = blocks * np.asarray(problem.weights, dtype=float)[None, None, :, None]
+    if problem.pair_weights is not None:
+        blocks = problem.pair_weights[:, None] @ blocks
     return poses, blocks[:, :, : problem.rows_per_measurement]
 
 
@@ -401,7 +402,7 @@ def spanning_chain(problem: Problem) -> Problem:
     graph = scipy.sparse.coo_matrix((np.ones(len(pairs)), tuple(pairs.T)), shape=(n, n))
     if scipy.sparse.csgraph.connected_components(graph, directed=False)[0] != 1:
         return problem
-    return replace(problem, pairs=make_pairs(n, "consecutive"))
+    return replace(problem, pairs=make_pairs(n, "consecutive"), pair_weights=None)
 
 
 def parameter_covariance(

@@ -80,25 +80,61 @@ def ratio_interval(
 
 @dataclass(frozen=True)
 class Validation:
-    """Held-out errors before (nominal) and after (identified), per pair and summarised."""
+    """Held-out errors ``(P, 6)`` (position m, rotation rad) per pair of held-out samples.
+
+    ``guess``: nominal kinematics with the hand-eye guess. ``baseline``: nominal kinematics with
+    the hand-eye transform fitted on the training samples, the best a user gets without
+    kinematic calibration (None where there is none, e.g. a simulation that knows the truth).
+    ``calibrated``: the chosen model. Every ratio is relative to :attr:`before`, the baseline
+    when there is one.
+    """
 
     pairs: np.ndarray  # (P, 2) sample indices into the full data set
-    before: np.ndarray  # (P, 6)
-    after: np.ndarray  # (P, 6)
+    guess: np.ndarray
+    calibrated: np.ndarray
+    baseline: np.ndarray | None = None
+
+    @property
+    def before(self) -> np.ndarray:
+        return self.guess if self.baseline is None else self.baseline
+
+    @property
+    def after(self) -> np.ndarray:
+        return self.calibrated
 
     def summary(self) -> dict:
-        return {
+        """Statistics (mm, deg) of each model and the RMS ratio to the baseline with its
+        interval; keys name what is compared."""
+        out = {
             "n_pairs": len(self.pairs),
             "n_samples": len(np.unique(self.pairs)),
-            "before": stats(self.before),
-            "after": stats(self.after),
-            "rms_ratio": ratio_interval(self.pairs, self.before, self.after),
+            "baseline_handeye_guess": stats(self.guess),
         }
+        if self.baseline is not None:
+            out["baseline"] = stats(self.baseline)
+        out["calibrated"] = stats(self.calibrated)
+        out["ratio_to_baseline"] = ratio_interval(self.pairs, self.before, self.calibrated)
+        if self.baseline is not None:
+            out["ratio_to_baseline_handeye_guess"] = ratio_interval(
+                self.pairs, self.guess, self.calibrated
+            )
+        return out
 
     def improvement(self) -> float:
-        """Ratio of position RMS before to after."""
+        """Position RMS of the baseline over that of the calibrated model."""
         b, a = stats(self.before), stats(self.after)
         return b["position_mm"]["rms"] / max(a["position_mm"]["rms"], 1e-300)
+
+
+def pooled(validations: list[Validation]) -> Validation:
+    """Several validations (e.g. the folds of a cross-validation) as one."""
+    has_baseline = all(v.baseline is not None for v in validations)
+    return Validation(
+        pairs=np.concatenate([v.pairs for v in validations]),
+        guess=np.concatenate([v.guess for v in validations]),
+        calibrated=np.concatenate([v.calibrated for v in validations]),
+        baseline=np.concatenate([v.baseline for v in validations]) if has_baseline else None,
+    )
 
 
 def subset(problem: Problem, samples: np.ndarray, pairing: PairStrategy = "all") -> Problem:
@@ -113,15 +149,20 @@ def subset(problem: Problem, samples: np.ndarray, pairing: PairStrategy = "all")
 
 
 def held_out(
-    problem: Problem, result: Result, samples: np.ndarray, pairing: PairStrategy = "all"
+    problem: Problem,
+    result: Result,
+    samples: np.ndarray,
+    pairing: PairStrategy = "all",
+    baseline: Result | None = None,
 ) -> Validation:
-    """Errors on pairs among ``samples`` (which the identification did not use)."""
+    """Errors on pairs among ``samples`` (which the identification did not use) of the nominal
+    model with the hand-eye guess, the ``baseline`` fit (if given) and ``result``."""
     test = subset(problem, samples, pairing)
-    zero = np.zeros_like(result.params)
     return Validation(
         pairs=np.asarray(samples)[test.pair_indices()],
-        before=pair_errors(test, zero),
-        after=pair_errors(test, result.params),
+        guess=pair_errors(test, np.zeros_like(result.params)),
+        calibrated=pair_errors(test, result.params),
+        baseline=None if baseline is None else pair_errors(test, baseline.params),
     )
 
 

@@ -64,7 +64,7 @@ def run_calibrate(args: argparse.Namespace) -> int:
     from relcal.data.imaging import measure
     from relcal.io import write_json, write_text
     from relcal.reporting.documents import results_document
-    from relcal.robot.export import calibrated_model, parameter_csv, urdf
+    from relcal.robot.export import parameter_csv, urdf
     from relcal.robot.model import dump_model
 
     dataset = load_dataset(args.dataset)
@@ -74,14 +74,29 @@ def run_calibrate(args: argparse.Namespace) -> int:
         "method": args.method,
         "loss": args.loss,
         "reject_outliers": not args.keep_outliers,
+        "selection": args.select,
     }
     holdout_ids = _ids(args.holdout_ids) if args.holdout_ids else None
     cal = calibrate(
         dataset, m, holdout=args.holdout, seed=args.seed, holdout_ids=holdout_ids, **options
     )
     out = Path(args.out or Path(args.dataset) / "calibration")
-    model = calibrated_model(cal.problem.model, cal.problem.layout, cal.result.params)
+    model = cal.model
     doc = results_document(cal)
+    if cal.hurts:
+        val = doc["validation"]
+        import sys
+
+        print(summary_text(doc), file=sys.stderr)
+        print(
+            f"relcal: error: the chosen model ({doc['model_selection']['chosen']}) is worse than "
+            "the baseline on the held-out samples (position RMS "
+            f"{val['calibrated']['position_mm']['rms']:.3f} mm against "
+            f"{val['baseline']['position_mm']['rms']:.3f} mm): the calibration would hurt, so "
+            "nothing was written. Collect more varied poses, or check with --kfold.",
+            file=sys.stderr,
+        )
+        return 1
     if args.kfold:
         from relcal.calibration.pipeline import cross_validate
 
@@ -102,7 +117,9 @@ def run_calibrate(args: argparse.Namespace) -> int:
         print(f"written: {out}/model.yaml, robot.urdf, parameters.csv, results.json")
         if args.report:
             print(f"report: {args.report}")
-    return 0 if cal.result.converged else 1
+    if not cal.result.converged:
+        return 1
+    return 0
 
 
 def _ids(text: str) -> list[str]:
@@ -120,47 +137,94 @@ def _ids(text: str) -> list[str]:
 
 def cross_validation_summary(folds) -> dict:
     """Held-out errors per fold and pooled over all folds (each sample held out once)."""
-    import numpy as np
-
-    from relcal.calibration.validate import Validation
+    from relcal.calibration.validate import pooled
 
     done = [f.validation for f in folds if f.validation]
-    pooled = Validation(
-        pairs=np.concatenate([v.pairs for v in done]),
-        before=np.concatenate([v.before for v in done]),
-        after=np.concatenate([v.after for v in done]),
-    )
     return {
         "k": len(folds),
         "folds": [f.validation.summary() if f.validation else None for f in folds],
-        "pooled": pooled.summary(),
+        "chosen": [f.selection[f.chosen].candidate.name for f in folds],
+        "pooled": pooled(done).summary(),
     }
 
 
+def _ratio_text(ratio: dict) -> str:
+    lo, hi = ratio["ci95"]
+    return f"x{ratio['after_over_before']:.3g}, 95% interval {lo:.3g}..{hi:.3g}"
+
+
 def summary_text(doc: dict) -> str:
-    """A few lines for the terminal: convergence, held-out accuracy, unidentifiable parameters."""
+    """The terminal summary: the chosen model and why, held-out errors against the baselines,
+    the parameters with their standard deviations, and what the data cannot determine."""
     ident = doc["identification"]
     lines = [
         f"{doc['robot']}: {doc['n_used']} of {doc['n_samples']} samples used, "
         f"{len(doc['held_out_ids'])} held out",
+    ]
+    sel = doc.get("model_selection")
+    if sel and sel.get("candidates"):
+        lines.append(
+            f"model selection ({sel['folds']}-fold cross-validation on the training samples):"
+        )
+        for c in sel["candidates"]:
+            mark = "*" if c["chosen"] else " "
+            lines.append(
+                f"  {mark} {c['name']:<32} {c['weighting']:<12} {c['n_params']:>3} parameters  "
+                f"held-out position RMS {c['cv_position_rms_mm']:.4f} mm, orientation "
+                f"{c['cv_orientation_rms_deg']:.4f} deg"
+            )
+        lines.append(f"  chosen: {sel['chosen']} ({sel['weighting']}): {sel['reason']}")
+        if sel["exported"] == "baseline":
+            lines.append(
+                "  the data support no kinematic correction: the exported model is the nominal "
+                "kinematics with the fitted hand-eye transform"
+            )
+    lines.append(
         f"identification: rank {ident['rank']} of {ident['n_params']}, "
         f"{'converged' if ident['converged'] else 'NOT converged'}, residual RMS "
-        f"{ident['initial_residual_rms']:.3g} -> {ident['residual_rms']:.3g} noise std",
-    ]
+        f"{ident['initial_residual_rms']:.3g} -> {ident['residual_rms']:.3g} (weighted rows)"
+    )
     val = doc["validation"]
     if val:
+        base = "baseline" if "baseline" in val else "baseline_handeye_guess"
         for key, unit in (("position_mm", "mm"), ("orientation_deg", "deg")):
-            if key in val["before"]:
-                b, a = val["before"][key], val["after"][key]
-                ratio = val["rms_ratio"][key]
-                lo, hi = ratio["ci95"]
-                lines.append(
-                    f"held-out relative {key.split('_')[0]} error over {val['n_pairs']} pairs: "
-                    f"RMS {b['rms']:.3f} -> {a['rms']:.3f} {unit} "
-                    f"(x{ratio['after_over_before']:.3g}, 95% interval {lo:.3g}..{hi:.3g} over "
-                    f"the {val['n_samples']} samples), "
-                    f"median {b['median']:.3f} -> {a['median']:.3f} {unit}"
-                )
+            if key not in val["calibrated"]:
+                continue
+            g, b, a = val["baseline_handeye_guess"][key], val[base][key], val["calibrated"][key]
+            lines.append(
+                f"held-out relative {key.split('_')[0]} error over {val['n_pairs']} pairs of "
+                f"{val['n_samples']} samples, RMS: nominal with the hand-eye guess {g['rms']:.3f}, "
+                f"baseline (nominal, hand-eye fitted) {b['rms']:.3f}, calibrated {a['rms']:.3f} "
+                f"{unit} ({_ratio_text(val['ratio_to_baseline'][key])} of the baseline)"
+            )
+    shown = [r for r in doc["parameters"] if r["status"] in ("estimated", "combination")]
+    if shown:
+        lines.append("parameters (error from nominal +- std; bootstrap std; |error| / std):")
+        for r in shown:
+            boot = f"{r['bootstrap_std']:.3g}" if r["bootstrap_std"] is not None else "-"
+            std = f"{r['std']:.3g}" if r["std"] is not None else "-"
+            sig = f"{r['significance']:.1f}" if r["significance"] is not None else "-"
+            note = "  (carries a combination)" if r["status"] == "combination" else ""
+            lines.append(
+                f"  {r['name']:<14} {r['error']:+.4g} +- {std} {r['unit']}  bootstrap {boot}  "
+                f"z {sig}{note}"
+            )
+    for c in doc.get("identifiable_combinations", []):
+        std = f" +- {c['std']:.3g}" if c["std"] is not None else ""
+        lines.append(f"  {c['text']} = {c['value']:+.4g}{std} {c['unit']} (identifiable sum)")
+    noise = doc.get("noise_model")
+    if noise:
+        lines.append(
+            "learned pose noise (camera frame): std "
+            + ", ".join(f"{v:.3g}" for v in noise["std_mm"])
+            + " mm, "
+            + ", ".join(f"{v:.3g}" for v in noise["std_deg"])
+            + f" deg; largest translation-rotation correlation "
+            f"{noise['max_translation_rotation_correlation']:.2f}"
+        )
+    if doc["rejected"]:
+        lines.append(f"rejected frames ({len(doc['rejected'])}):")
+        lines.extend(f"  {r['id']}: {r['reason']}" for r in doc["rejected"])
     if doc["outliers"]:
         lines.append(
             "outliers (their pairs fit badly; left out unless --keep-outliers): "
@@ -169,12 +233,13 @@ def summary_text(doc: dict) -> str:
     cv = doc.get("cross_validation")
     if cv:
         pooled = cv["pooled"]
-        b, a = pooled["before"]["position_mm"], pooled["after"]["position_mm"]
-        lo, hi = pooled["rms_ratio"]["position_mm"]["ci95"]
+        base = "baseline" if "baseline" in pooled else "baseline_handeye_guess"
+        b, a = pooled[base]["position_mm"], pooled["calibrated"]["position_mm"]
         lines.append(
             f"{cv['k']}-fold cross-validation over {pooled['n_pairs']} held-out pairs: position "
-            f"RMS {b['rms']:.3f} -> {a['rms']:.3f} mm "
-            f"(95% interval of the ratio {lo:.3g}..{hi:.3g})"
+            f"RMS baseline {b['rms']:.3f} -> calibrated {a['rms']:.3f} mm "
+            f"({_ratio_text(pooled['ratio_to_baseline']['position_mm'])}); chosen per fold: "
+            + ", ".join(cv["chosen"])
         )
     for text in ident["unidentifiable"]:
         lines.append(f"  not identifiable: {text}")
@@ -218,11 +283,20 @@ def register(sub: argparse._SubParsersAction) -> None:
     cp.add_argument(
         "--loss",
         choices=("linear", "huber", "cauchy", "soft_l1"),
-        default="huber",
-        help="loss of the weighted residuals (lm only; default huber, robust to outliers)",
+        default="linear",
+        help="loss of the weighted residuals once outlier samples are out (lm only; default "
+        "linear; the outlier search itself always uses huber)",
     )
     cp.add_argument(
         "--keep-outliers", action="store_true", help="do not leave detected outliers out of the fit"
+    )
+    cp.add_argument(
+        "--select",
+        choices=("cv", "conservative", "all"),
+        default="cv",
+        help="model selection: cv (default) the simplest candidate within a standard error of "
+        "the best cross-validated one; conservative: then only parameters above 3 std; all: "
+        "every identifiable parameter",
     )
     cp.add_argument("--report", metavar="FILE", help="write the HTML calibration report to FILE")
     json_arg(cp, "a copy of results.json (parameters, hand-eye, validation, calibrated model)")

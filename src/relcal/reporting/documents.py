@@ -4,42 +4,137 @@ from __future__ import annotations
 
 import numpy as np
 
-from relcal.calibration.identify import calibrated_handeye
 from relcal.calibration.pipeline import Calibration
 from relcal.geometry import to_xyz_rpy
-from relcal.robot.export import calibrated_model
 from relcal.robot.model import model_to_dict
 
 
+def parameter_status(cal: Calibration) -> list[str]:
+    """Per parameter: ``estimated`` (in the chosen model and determined by the data on its own),
+    ``combination`` (in the chosen model, but it carries an identifiable combination with
+    parameters held at nominal), ``not supported`` (identifiable, left out by model selection)
+    or ``unidentifiable`` (no share of the data determines it; held at nominal)."""
+    chosen = set(cal.selection[cal.chosen].candidate.columns.tolist()) if cal.selection else None
+    free = set(np.flatnonzero(np.isfinite(cal.result.std)).tolist())
+    ident = cal.result.identifiability
+    out = []
+    for k in range(len(cal.result.params)):
+        if k in free and (chosen is None or k in chosen):
+            out.append("estimated" if ident.identifiable[k] else "combination")
+        elif ident.identifiable[k]:
+            out.append("not supported")
+        else:
+            out.append("unidentifiable")
+    return out
+
+
 def parameter_rows(cal: Calibration) -> list[dict]:
-    """One row per parameter: name, unit, nominal value, identified error, standard deviation,
-    identifiable. Lengths in mm, angles in degrees (the units people read)."""
+    """One row per parameter: name, unit, nominal value, identified error, standard deviation
+    (predicted, and from a bootstrap over training samples), significance (error / std) and
+    status (:func:`parameter_status`). Lengths in mm, angles in degrees (the units people read).
+    """
     layout = cal.problem.full_layout
     angle = layout.is_angle()
-    std = cal.std
+    std, boot = cal.std, cal.bootstrap_std
     model = cal.problem.model
     rows = []
-    for k, (kind, index) in enumerate(layout):
+    for k, ((kind, index), status) in enumerate(zip(layout, parameter_status(cal), strict=True)):
         nominal = (
             float(model.geometric(kind)[index])
             if kind in ("theta_off", "a", "d", "alpha", "beta")
             else 0.0
         )
         scale = np.degrees(1.0) if angle[k] else 1e3
-        ok = bool(cal.result.identifiable[k])
+        ok = status in ("estimated", "combination")
+        value = float(cal.result.params[k])
         rows.append(
             {
                 "name": layout.names[k],
                 "unit": "deg" if angle[k] else "mm",
                 "nominal": nominal * scale,
-                "error": float(cal.result.params[k]) * scale if ok else None,
-                "std": float(std[k]) * scale
-                if std is not None and ok and np.isfinite(std[k])
+                "error": value * scale if ok else None,
+                "std": float(std[k]) * scale if ok and np.isfinite(std[k]) else None,
+                "bootstrap_std": float(boot[k]) * scale
+                if ok and boot is not None and np.isfinite(boot[k])
                 else None,
-                "identifiable": ok,
+                "significance": abs(value) / std[k] if ok and std[k] > 0 else None,
+                "status": status,
+                "identifiable": bool(cal.result.identifiability.identifiable[k]),
             }
         )
     return rows
+
+
+def combination_rows(cal: Calibration) -> list[dict]:
+    """Value and standard deviation of the identifiable combination of each two-parameter
+    unidentifiable pair (e.g. ``d[2] + d[3]`` where only the sum is determined), in mm or deg."""
+    names = cal.result.names
+    std = cal.std
+    out = []
+    for combo in cal.result.identifiability.combinations:
+        if len(combo.names) != 2 or any(n.startswith("handeye.") for n in combo.names):
+            continue
+        if combo.is_angle[0] != combo.is_angle[1]:
+            continue
+        (a, b), (va, vb) = combo.names, combo.coefficients
+        c = -va / vb  # a + c b is orthogonal to the null direction (va, vb)
+        ia, ib = names.index(a), names.index(b)
+        value = cal.result.params[ia] + c * cal.result.params[ib]
+        var = np.nansum([std[ia] ** 2, (c * std[ib]) ** 2])
+        scale = np.degrees(1.0) if combo.is_angle[0] else 1e3
+        out.append(
+            {
+                "text": f"{a} {'+' if c >= 0 else '-'} {abs(c):.3g} {b}".replace(" 1 ", " "),
+                "unit": "deg" if combo.is_angle[0] else "mm",
+                "value": float(value) * scale,
+                "std": float(np.sqrt(var)) * scale if var > 0 else None,
+                "reason": combo.reason,
+            }
+        )
+    return out
+
+
+def selection_document(cal: Calibration) -> dict:
+    """The candidate models with their cross-validated held-out errors, and the choice."""
+    layout = cal.problem.full_layout
+    return {
+        "folds": cal.settings.get("selection_folds"),
+        "candidates": [
+            {
+                "name": s.candidate.name,
+                "weighting": s.candidate.weighting,
+                "n_params": len(s.candidate.columns),
+                "cv_position_rms_mm": s.position_rms * 1e3,
+                "cv_orientation_rms_deg": float(np.degrees(s.orientation_rms)),
+                "chosen": k == cal.chosen,
+            }
+            for k, s in enumerate(cal.selection)
+        ],
+        "chosen": cal.selection[cal.chosen].candidate.name if cal.selection else None,
+        "weighting": cal.settings.get("weighting"),
+        "reason": cal.reason,
+        "exported": cal.exported,
+        "parameters": [
+            layout.names[k]
+            for k in (cal.selection[cal.chosen].candidate.columns if cal.selection else [])
+        ],
+    }
+
+
+def noise_document(cal: Calibration) -> dict | None:
+    """The learned pose noise: standard deviations and correlations of the body-frame error."""
+    if cal.noise is None:
+        return None
+    n = cal.noise
+    return {
+        "std_mm": [float(v) * 1e3 for v in n.std[:3]],
+        "std_deg": [float(np.degrees(v)) for v in n.std[3:]],
+        "correlation": [[float(v) for v in row] for row in n.correlation],
+        "max_translation_rotation_correlation": n.max_translation_rotation_correlation(),
+        "covariance_si": [[float(v) for v in row] for row in n.covariance],
+        "n_pairs": n.n_pairs,
+        "downweighted_pairs": n.downweighted,
+    }
 
 
 def validation_document(cal: Calibration) -> dict | None:
@@ -53,12 +148,13 @@ def validation_document(cal: Calibration) -> dict | None:
         values = np.linalg.norm(errors[:, cols], axis=1) * scale
         return [None if np.isnan(v) else float(v) for v in values]
 
-    columns = {
-        "before_mm": norms(val.before, slice(0, 3), 1e3),
-        "after_mm": norms(val.after, slice(0, 3), 1e3),
-        "before_deg": norms(val.before, slice(3, 6), np.degrees(1.0)),
-        "after_deg": norms(val.after, slice(3, 6), np.degrees(1.0)),
-    }
+    models = {"baseline_handeye_guess": val.guess, "calibrated": val.calibrated}
+    if val.baseline is not None:
+        models["baseline"] = val.baseline
+    columns = {}
+    for name, errors in models.items():
+        columns[f"{name}_mm"] = norms(errors, slice(0, 3), 1e3)
+        columns[f"{name}_deg"] = norms(errors, slice(3, 6), np.degrees(1.0))
     pairs = [
         {"ids": [ids[i], ids[j]], **{key: col[k] for key, col in columns.items()}}
         for k, (i, j) in enumerate(val.pairs)
@@ -69,8 +165,7 @@ def validation_document(cal: Calibration) -> dict | None:
 def results_document(cal: Calibration) -> dict:
     """Everything a calibration found, JSON-ready."""
     r = cal.result
-    layout = cal.problem.layout
-    handeye = calibrated_handeye(cal.problem, r)
+    handeye = cal.handeye
     xyz, rpy = to_xyz_rpy(handeye)
     m = cal.measurements
     return {
@@ -103,10 +198,14 @@ def results_document(cal: Calibration) -> dict:
             "unidentifiable": r.unidentifiable,
         },
         "parameters": parameter_rows(cal),
+        "identifiable_combinations": combination_rows(cal),
+        "model_selection": selection_document(cal),
+        "noise_model": noise_document(cal),
+        "exported": cal.exported,
         "handeye": {
             "xyz_m": [float(v) for v in xyz],
             "rpy_deg": [float(np.degrees(v)) for v in rpy],
         },
         "validation": validation_document(cal),
-        "calibrated_model": model_to_dict(calibrated_model(cal.problem.model, layout, r.params)),
+        "calibrated_model": model_to_dict(cal.model),
     }

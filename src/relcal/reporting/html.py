@@ -343,12 +343,13 @@ def _error_sets(cal: Calibration) -> tuple[np.ndarray, np.ndarray, str, str]:
             v.after,
             "held-out pairs",
             f"Held-out validation: {len(v.pairs)} pairs among {len(cal.test)} samples that the "
-            "identification did not use; before = nominal model, after = calibrated model.",
+            "identification did not use; before = the baseline (nominal kinematics with the "
+            "hand-eye transform fitted on the training samples, the best a user gets without "
+            "kinematic calibration), after = the exported model.",
         )
-    problem = replace(cal.problem, weights=None)
-    zero = np.zeros_like(cal.result.params)
+    problem = replace(cal.problem, weights=None, pair_weights=None)
     return (
-        pair_errors(problem, zero),
+        pair_errors(problem, cal.baseline.params),
         pair_errors(problem, cal.result.params),
         "training pairs",
         f"No held-out samples: training residuals of {len(problem.pair_indices())} pairs "
@@ -361,15 +362,26 @@ def _accuracy_cards(before: dict, after: dict, label: str) -> list[tuple[str, st
     for _, (name, unit, key) in QUANTITIES.items():
         if key in before:
             b, a = before[key]["rms"], after[key]["rms"]
-            factor = b / a if a > 0 else float("inf")
             cards.append(
                 (
                     f"{label.split()[0]} {name.split()[1]} error, RMS",
                     f"{b:.3g} → {a:.3g} {unit}",
-                    f"{label}: {factor:.1f}× smaller after calibration",
+                    f"{label}, against the baseline: {_change(b, a)}",
                 )
             )
     return cards
+
+
+def _change(before: float, after: float) -> str:
+    """``2.4× smaller``, ``unchanged`` or ``12 % larger``: never a factor that hides a loss."""
+    if after <= 0:
+        return "smaller"
+    ratio = after / before
+    if abs(ratio - 1) < 0.005:
+        return "unchanged (within 0.5 %)"
+    if ratio < 1:
+        return f"{1 / ratio:.2f}× smaller" if ratio < 0.5 else f"{(1 - ratio) * 100:.1f} % smaller"
+    return f"{(ratio - 1) * 100:.1f} % larger"
 
 
 def _fit_cards(cal: Calibration, doc: dict) -> list[tuple[str, str, str]]:
@@ -395,9 +407,12 @@ def _fit_cards(cal: Calibration, doc: dict) -> list[tuple[str, str, str]]:
     ]
 
 
-def _stats_table(before: dict, after: dict, interval: dict | None = None) -> Html:
-    """Statistics before and after; ``interval``: the held-out ``rms_ratio`` (after / before,
-    bootstrap over samples), shown as the 95 % interval of the improvement."""
+def _stats_table(
+    before: dict, after: dict, interval: dict | None = None, guess: dict | None = None
+) -> Html:
+    """Statistics before (the baseline) and after; ``interval``: the held-out ratio to the
+    baseline (after / before, bootstrap over samples); ``guess``: the nominal model with the
+    hand-eye guess, shown beside it."""
     keys = [q for q in QUANTITIES.values() if q[2] in before]
     head = [""] + [f"{n.split()[1]} {w} ({u})" for n, u, _ in keys for w in ("before", "after")]
     rows = []
@@ -409,18 +424,20 @@ def _stats_table(before: dict, after: dict, interval: dict | None = None) -> Htm
         ("max", "max"),
     ):
         rows.append([label] + [_fmt(s[k][stat]) for _, _, k in keys for s in (before, after)])
-    ratio = ["improvement (RMS before / after)"]
+    ratio = ["RMS after / before"]
     for _, _, k in keys:
-        ratio += [_fmt(before[k]["rms"] / max(after[k]["rms"], 1e-300), ".1f") + "×", ""]
+        ratio += ["", _fmt(after[k]["rms"] / max(before[k]["rms"], 1e-300), ".3f")]
     rows.append(ratio)
     if interval:
-        row = ["95 % interval of the improvement (bootstrap over held-out samples)"]
+        row = ["95 % interval of after / before (bootstrap over held-out samples)"]
         for _, _, k in keys:
             lo, hi = interval[k]["ci95"]
-            row += [
-                f"{_fmt(1 / max(hi, 1e-300), '.2f')}× – {_fmt(1 / max(lo, 1e-300), '.2f')}×",
-                "",
-            ]
+            row += ["", f"{_fmt(lo, '.3f')} – {_fmt(hi, '.3f')}"]
+        rows.append(row)
+    if guess:
+        row = ["RMS of the nominal model with the hand-eye guess"]
+        for _, _, k in keys:
+            row += [_fmt(guess[k]["rms"]), ""]
         rows.append(row)
     return _table(head, rows, "num")
 
@@ -435,7 +452,13 @@ def _summary(cal: Calibration, doc: dict, errors: tuple) -> tuple[str, str, Html
         _cards(_accuracy_cards(b, a, label), "wide"),
         _cards(_fit_cards(cal, doc)),
         _p(sentence),
-        _stats_table(b, a, (doc.get("validation") or {}).get("rms_ratio")),
+        _stats_table(
+            b,
+            a,
+            (doc.get("validation") or {}).get("ratio_to_baseline"),
+            (doc.get("validation") or {}).get("baseline_handeye_guess"),
+        ),
+        _selection(doc),
         Html(
             "<p>Convergence: "
             + _badge(converged, "converged", "not converged")
@@ -463,12 +486,68 @@ def _parameter_table(cal: Calibration, doc: dict) -> tuple[Html, str]:
             _fmt(row["nominal"], ".3f"),
             _fmt(row["error"], "+.4f"),
             _fmt(s, ".2g"),
-            _badge(row["identifiable"]),
+            _fmt(row.get("bootstrap_std"), ".2g"),
+            _fmt(row.get("significance"), ".1f"),
+            row.get("status", "estimated" if row["identifiable"] else "unidentifiable"),
         ]
         for row, s in zip(rows, std, strict=True)
     ]
-    head = ["parameter", "unit", "nominal", "identified error", "std", "identifiable"]
+    head = [
+        "parameter",
+        "unit",
+        "nominal",
+        "identified error",
+        "std",
+        "bootstrap std",
+        "|error| / std",
+        "status",
+    ]
     return _table(head, body, "num"), source
+
+
+def _selection(doc: dict) -> Html:
+    """The candidate models with their cross-validated held-out errors, the choice and why."""
+    sel = doc.get("model_selection")
+    if not sel or not sel.get("candidates"):
+        return Html("")
+    rows = [
+        [
+            ("▶ " if c["chosen"] else "") + c["name"],
+            c["weighting"],
+            str(c["n_params"]),
+            _fmt(c["cv_position_rms_mm"], ".4f"),
+            _fmt(c["cv_orientation_rms_deg"], ".4f"),
+        ]
+        for c in sel["candidates"]
+    ]
+    head = [
+        "candidate model",
+        "row weighting",
+        "parameters",
+        "CV position RMS (mm)",
+        "CV orientation RMS (deg)",
+    ]
+    note = f"Chosen: {sel['chosen']} ({sel['weighting']}): {sel['reason']}."
+    if sel["exported"] == "baseline":
+        note += (
+            " The data support no kinematic correction: the exported model is the nominal "
+            "kinematics with the fitted hand-eye transform."
+        )
+    noise = doc.get("noise_model")
+    if noise:
+        note += (
+            " Learned pose noise (camera frame): "
+            + ", ".join(f"{v:.3g}" for v in noise["std_mm"])
+            + " mm and "
+            + ", ".join(f"{v:.3g}" for v in noise["std_deg"])
+            + f" deg; largest translation-rotation correlation "
+            f"{noise['max_translation_rotation_correlation']:.2f}."
+        )
+    return Html(
+        f"<h3>Model selection ({sel['folds']}-fold cross-validation on the training samples)</h3>"
+        + _table(head, rows, "num")
+        + f'<p class="hint">{_text(note)}</p>'
+    )
 
 
 def _handeye_table(doc: dict) -> Html:

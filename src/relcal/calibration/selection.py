@@ -1,0 +1,195 @@
+"""Model selection: which parameters (and which row weighting) the data support, chosen by
+cross-validated held-out error on the training samples.
+
+Candidates range from the hand-eye transform alone (the baseline a user gets without kinematic
+calibration) through the identifiable geometry to each family of non-geometric terms. Every
+candidate and weighting is scored by K-fold cross-validation over *samples* (a held-out fold's
+pairs are the pairs among its samples; pairs share samples, so splitting pairs would leak). The
+folds are refitted on the model linearised at the full fit, ``r(p) ~ b - J p``: the errors are
+millimetres and tenths of a degree, so the second-order terms are micrometres, and each fold costs
+one small normal-equation solve instead of a nonlinear fit.
+
+The choice is conservative: the simplest candidate whose cross-validated error is within one
+standard error of the best (paired over samples) wins, so a term is added only when it helps
+clearly, and the hand-eye-only baseline is chosen when nothing helps.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from relcal.calibration.measurement import Problem, residuals
+
+GEOMETRIC_KINDS = ("theta_off", "a", "d", "alpha", "beta", "base", "tool")
+PLAIN_ROTATION_WEIGHT = 0.1  # m/rad: rotation rows count like a 0.1 m lever arm
+
+
+def family(kind: str) -> str:
+    """The family of a parameter kind: ``hand-eye``, ``geometric`` or a non-geometric family
+    (``harmonic_c`` and ``harmonic_s`` are one family ``harmonic``)."""
+    if kind == "handeye":
+        return "hand-eye"
+    if kind in GEOMETRIC_KINDS:
+        return "geometric"
+    return kind.split("_")[0]
+
+
+@dataclass(frozen=True)
+class Candidate:
+    """A set of free parameters (indices into the full layout) and a row weighting."""
+
+    name: str
+    columns: np.ndarray  # (k,) int
+    weighting: str  # "plain" (rotation rows x 0.1 m/rad) or "noise model" (learned 6x6)
+
+
+def candidates(problem: Problem, subset: np.ndarray) -> list[Candidate]:
+    """Nested candidates within the identifiable ``subset``, simplest first, each with both
+    weightings: hand-eye only, + geometry, + each non-geometric family, + all of them."""
+    kinds = problem.full_layout.kinds
+    fam = np.array([family(kinds[i]) for i in subset])
+    sets: list[tuple[str, np.ndarray]] = [("hand-eye only", subset[fam == "hand-eye"])]
+    base = subset[np.isin(fam, ("hand-eye", "geometric"))]
+    if len(base) > len(sets[0][1]):
+        sets.append(("geometric", base))
+    extra = [f for f in dict.fromkeys(fam) if f not in ("hand-eye", "geometric")]
+    for f in extra:
+        sets.append((f"geometric + {f}", np.union1d(base, subset[fam == f])))
+    if len(extra) > 1:
+        sets.append(("geometric + " + " + ".join(extra), np.sort(subset)))
+    return [
+        Candidate(name, np.sort(cols), weighting)
+        for name, cols in sets
+        for weighting in ("plain", "noise model")
+    ]
+
+
+@dataclass(frozen=True)
+class Linearised:
+    """Unweighted pair residuals as a linear function of the parameters: ``r(p) ~ b - J p``."""
+
+    b: np.ndarray  # (P, 6) translation m, rotation rad
+    jac: np.ndarray  # (P, 6, Q)
+    pairs: np.ndarray  # (P, 2) sample positions
+    n_samples: int
+
+
+def linearise(problem: Problem, params: np.ndarray) -> Linearised:
+    """The frame-invariant pose problem linearised at ``params`` (its weights ignored)."""
+    plain = replace(problem, weights=None, pair_weights=None, measure="pose")
+    pairs = plain.pair_indices()
+    r, a = residuals(plain, params)
+    r, a = r.reshape(len(pairs), 6), a.reshape(len(pairs), 6, -1)
+    return Linearised(r + a @ params, a, pairs, len(problem.q))
+
+
+def plain_whiteners(n_pairs: int) -> np.ndarray:
+    """The plain weighting ``(P, 6, 6)``: translation rows in m, rotation rows x 0.1 m/rad."""
+    w = np.diag(np.r_[np.ones(3), np.full(3, PLAIN_ROTATION_WEIGHT)])
+    return np.broadcast_to(w, (n_pairs, 6, 6))
+
+
+def solve_normal(normal: np.ndarray, rhs: np.ndarray) -> np.ndarray:
+    """``normal^-1 rhs`` with Jacobi scaling (metres and radians differ by orders)."""
+    d = np.sqrt(np.clip(np.diag(normal), 1e-300, None))
+    return np.linalg.lstsq(normal / np.outer(d, d), rhs / d, rcond=1e-12)[0] / d
+
+
+def fit(lin: Linearised, whiten: np.ndarray, columns: np.ndarray, rows=None) -> np.ndarray:
+    """Weighted linear least squares over ``columns``; the full parameter vector ``(Q,)``."""
+    rows = slice(None) if rows is None else rows
+    jw = (whiten[rows] @ lin.jac[rows][:, :, columns]).reshape(-1, len(columns))
+    bw = np.einsum("pij,pj->pi", whiten[rows], lin.b[rows]).reshape(-1)
+    out = np.zeros(lin.jac.shape[-1])
+    out[columns] = solve_normal(jw.T @ jw, jw.T @ bw)
+    return out
+
+
+def errors(lin: Linearised, params: np.ndarray, rows=None) -> np.ndarray:
+    """Unweighted pair errors ``(P, 6)`` of the linear model at ``params``."""
+    rows = slice(None) if rows is None else rows
+    return lin.b[rows] - lin.jac[rows] @ params
+
+
+@dataclass(frozen=True)
+class Score:
+    """A candidate's cross-validated held-out errors."""
+
+    candidate: Candidate
+    errors: np.ndarray  # (T, 6) over the held-out pairs of every fold
+    per_sample: np.ndarray  # (n,) mean squared position error (m^2) of each sample's pairs
+
+    @property
+    def position_rms(self) -> float:
+        return float(np.sqrt(np.mean(np.sum(self.errors[:, :3] ** 2, axis=1))))
+
+    @property
+    def orientation_rms(self) -> float:
+        return float(np.sqrt(np.mean(np.sum(self.errors[:, 3:] ** 2, axis=1))))
+
+
+def sample_folds(n_samples: int, k: int, seed: int) -> list[np.ndarray]:
+    """``k`` disjoint held-out sets of sample positions (shuffled with ``seed``)."""
+    order = np.random.default_rng(seed).permutation(n_samples)
+    return [np.sort(f) for f in np.array_split(order, k)]
+
+
+def score_candidates(
+    lin: Linearised,
+    whiteners: dict[str, np.ndarray],
+    cands: list[Candidate],
+    k: int = 5,
+    seed: int = 0,
+) -> list[Score]:
+    """K-fold scores of every candidate: each fold's samples held out, the others refitted."""
+    held = {c.name + c.weighting: [] for c in cands}
+    in_fold = np.zeros(lin.n_samples, dtype=int)
+    for f, fold in enumerate(sample_folds(lin.n_samples, k, seed)):
+        in_fold[fold] = f
+    test_pairs = []
+    for f in range(k):
+        inside = in_fold[lin.pairs] == f
+        train, test = ~inside.any(axis=1), inside.all(axis=1)
+        test_pairs.append(np.flatnonzero(test))
+        for weighting, whiten in whiteners.items():
+            jw = (whiten[train] @ lin.jac[train]).reshape(-1, lin.jac.shape[-1])
+            bw = np.einsum("pij,pj->pi", whiten[train], lin.b[train]).reshape(-1)
+            normal, rhs = jw.T @ jw, jw.T @ bw
+            for c in cands:
+                if c.weighting != weighting:
+                    continue
+                params = np.zeros(lin.jac.shape[-1])
+                cols = c.columns
+                params[cols] = solve_normal(normal[np.ix_(cols, cols)], rhs[cols])
+                held[c.name + c.weighting].append(errors(lin, params, test))
+    pairs = lin.pairs[np.concatenate(test_pairs)]
+    scores = []
+    for c in cands:
+        e = np.concatenate(held[c.name + c.weighting])
+        sq = np.sum(e[:, :3] ** 2, axis=1)
+        total = np.bincount(pairs.ravel(), np.repeat(sq, 2), minlength=lin.n_samples)
+        count = np.bincount(pairs.ravel(), minlength=lin.n_samples)
+        scores.append(Score(c, e, total / np.maximum(count, 1)))
+    return scores
+
+
+def choose(scores: list[Score]) -> tuple[int, str]:
+    """Index of the chosen score and why: the simplest (first) candidate whose mean squared
+    held-out position error is within one paired standard error of the best's."""
+    mse = np.array([np.mean(s.per_sample) for s in scores])
+    best = int(np.argmin(mse))
+    for i, s in enumerate(scores[: best + 1]):
+        diff = s.per_sample - scores[best].per_sample
+        se = np.std(diff, ddof=1) / np.sqrt(len(diff)) if len(diff) > 1 else 0.0
+        if i == best or np.mean(diff) <= se:
+            if i == best:
+                why = "lowest cross-validated held-out position error"
+            else:
+                why = (
+                    f"within one standard error of the best ({scores[best].candidate.name}, "
+                    f"{scores[best].candidate.weighting}) and simpler"
+                )
+            return i, why
+    return best, "lowest cross-validated held-out position error"
