@@ -21,13 +21,14 @@ class Synthetic:
     ids: list
 
 
-def synthetic_dataset(root, n=60, noise=(2e-5, 2e-5), outliers=0, seed=0) -> Synthetic:
-    """``n`` samples of a perturbed A465 (Hayati on), pose noise ``(m, rad)``, and ``outliers``
-    samples whose pose is off by 5 mm and 1 deg (a wrongly detected board)."""
+def synthetic_dataset(root, n=60, noise=(2e-5, 2e-5), outliers=0, seed=0, errors=1.0) -> Synthetic:
+    """``n`` samples of a perturbed A465 (Hayati on; geometric errors of 0.1..0.9 mm and
+    0.01..0.9 deg times ``errors``), pose noise ``(m, rad)``, and ``outliers`` samples whose
+    pose is off by 5 mm and 1 deg (a wrongly detected board)."""
     rng = np.random.default_rng(seed)
     model = auto_hayati(get_robot("a465"))
     layout = make_layout(model)
-    truth = true_errors(layout, rng)
+    truth = true_errors(layout, rng) * errors
     true_model = apply_errors(model, layout, truth)
     true_x = HANDEYE @ tf.from_vector(
         np.concatenate([rng.normal(0, 1e-3, 3), rng.normal(0, 5e-3, 3)])

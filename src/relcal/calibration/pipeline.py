@@ -125,12 +125,20 @@ class Calibration:
         return "baseline" if chosen is not None and chosen.name == "hand-eye only" else "calibrated"
 
     @property
-    def hurts(self) -> bool:
-        """The calibrated model is worse than the baseline on the held-out samples."""
+    def worse(self) -> bool:
+        """The exported calibrated model's held-out position RMS exceeds the baseline's."""
         if self.validation is None or self.exported == "baseline":
             return False
         s = self.validation.summary()
         return s["calibrated"]["position_mm"]["rms"] > s["baseline"]["position_mm"]["rms"]
+
+    @property
+    def hurts(self) -> bool:
+        """:attr:`worse`, and beyond doubt: the whole 95 % interval of the held-out RMS ratio to
+        the baseline (bootstrap over held-out samples) lies above 1."""
+        if not self.worse:
+            return False
+        return self.validation.summary()["ratio_to_baseline"]["position_mm"]["ci95"][0] > 1.0
 
     @property
     def model(self) -> RobotModel:

@@ -92,11 +92,18 @@ def run_calibrate(args: argparse.Namespace) -> int:
             f"relcal: error: the chosen model ({doc['model_selection']['chosen']}) is worse than "
             "the baseline on the held-out samples (position RMS "
             f"{val['calibrated']['position_mm']['rms']:.3f} mm against "
-            f"{val['baseline']['position_mm']['rms']:.3f} mm): the calibration would hurt, so "
-            "nothing was written. Collect more varied poses, or check with --kfold.",
+            f"{val['baseline']['position_mm']['rms']:.3f} mm, the whole 95% interval of the "
+            "ratio above 1): the calibration would hurt, so nothing was written. Collect more "
+            "varied poses, or check with --kfold.",
             file=sys.stderr,
         )
         return 1
+    if cal.worse and not args.quiet:
+        print(
+            "note: on this held-out split the calibrated model is slightly worse than the "
+            "baseline, within the sampling interval (no evidence of harm; cross-validation on the "
+            "training samples chose it); --kfold K measures it on every sample"
+        )
     if args.kfold:
         from relcal.calibration.pipeline import cross_validate
 
