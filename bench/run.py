@@ -61,7 +61,7 @@ from relcal.robot.kinematics import fk, make_layout  # noqa: E402
 from relcal.robot.model import RobotModel, get_robot, library_names  # noqa: E402
 
 #: Benchmark modules other engineers add under bench/ (``run() -> list[dict]``), in table order.
-OPTIONAL_MODULES = ("images", "montecarlo")
+OPTIONAL_MODULES = ("images", "montecarlo", "selection")
 
 FK_GOAL = 5e6  # configurations per second on one core
 ID_GOAL_MS = 10.0  # one identification of 100 poses

@@ -395,16 +395,18 @@ def bootstrap_std(
     training *samples* (a pair counts as often as both its samples are drawn); NaN outside
     ``columns``. An independent check of the predicted standard deviations."""
     rng = np.random.default_rng(seed)
+    k = len(columns)
     jw = whiten @ lin.jac[:, :, columns]  # (P, 6, k)
     bw = np.einsum("pij,pj->pi", whiten, lin.b)
+    gram = np.einsum("pra,prb->pab", jw, jw).reshape(len(jw), k * k)  # each pair's share
+    rhs = np.einsum("pra,pr->pa", jw, bw)
     i, j = lin.pairs.T
-    a, b = jw.reshape(-1, len(columns)), bw.reshape(-1)
-    draws = []
-    for _ in range(n_boot):
-        counts = np.bincount(rng.integers(0, lin.n_samples, lin.n_samples), minlength=lin.n_samples)
-        w = np.repeat((counts[i] * counts[j]).astype(float), 6)
-        aw = a * w[:, None]
-        draws.append(solve_normal(aw.T @ a, aw.T @ b))
+    draws = rng.integers(0, lin.n_samples, (n_boot, lin.n_samples))
+    counts = np.zeros((n_boot, lin.n_samples))
+    np.add.at(counts, (np.arange(n_boot)[:, None], draws), 1.0)
+    weights = counts[:, i] * counts[:, j]  # (B, P): a pair counts as often as both its samples
+    normals, rhss = (weights @ gram).reshape(n_boot, k, k), weights @ rhs
+    draws = [solve_normal(n, r) for n, r in zip(normals, rhss, strict=True)]
     out = np.full(lin.jac.shape[-1], np.nan)
     out[columns] = np.std(draws, axis=0, ddof=1)
     return out
