@@ -306,6 +306,50 @@ def identify_published(
     )
 
 
+def levenberg_marquardt(
+    evaluate, x0: np.ndarray, max_nfev: int = 200, rtol: float = 1e-10
+) -> tuple[np.ndarray, bool, int]:
+    """Minimise ``|r(x)|^2`` where ``evaluate(x) -> (r, A)`` with ``r(x + dx) ~ r(x) - A dx``.
+
+    Marquardt's damping on columns scaled to unit norm (the scale never shrinks, as in MINPACK);
+    a step is kept when it lowers the cost, and the iteration stops when the relative decrease
+    or the scaled step falls below ``rtol``, or when a rejected step changes the cost by no more
+    than round-off (the minimum is reached to the precision of the residual). The problems here are small and nearly linear at the
+    start, so a few factorisations of a ``k x k`` normal matrix replace SciPy's per-call set-up.
+    Returns the solution, whether it converged, and the evaluations used.
+    """
+    x = np.asarray(x0, dtype=float).copy()
+    r, a = evaluate(x)
+    cost, nfev, damping = float(r @ r), 1, 1e-6
+    scale = np.linalg.norm(a, axis=0)
+    scale = np.where(scale > 0, scale, 1.0)
+    while nfev < max_nfev:
+        unit = a / scale
+        normal, gradient = unit.T @ unit, unit.T @ r
+        try:
+            step = np.linalg.solve(normal + damping * np.eye(len(x)), gradient)
+        except np.linalg.LinAlgError:
+            damping *= 10.0
+            continue
+        trial = x + step / scale
+        r_new, a_new = evaluate(trial)
+        nfev += 1
+        cost_new = float(r_new @ r_new)
+        if cost_new <= cost:
+            small_step = np.linalg.norm(step) <= rtol * (np.linalg.norm(x * scale) + rtol)
+            small_gain = cost - cost_new <= rtol * cost
+            x, r, a, cost = trial, r_new, a_new, cost_new
+            scale = np.maximum(scale, np.linalg.norm(a, axis=0))
+            damping = max(damping / 10.0, 1e-15)
+            if small_step or small_gain or cost == 0.0:
+                return x, True, nfev
+        elif cost_new - cost <= 1e4 * rtol * cost or damping > 1e10:
+            return x, True, nfev  # no step lowers the cost: at the minimum to round-off
+        else:
+            damping *= 10.0
+    return x, False, nfev
+
+
 @one_blas_thread
 def identify_lm(
     problem: Problem,
@@ -360,30 +404,33 @@ def identify_lm(
         a = evaluate(x)[1][:, subset]
         return a if whiten is None else whiten @ a
 
-    method = "lm" if loss == "linear" else "trf"
-    sol = scipy.optimize.least_squares(
-        fun,
-        x0,
-        jac=jac,
-        method=method,
-        x_scale="jac",
-        loss=loss,
-        f_scale=f_scale,
-        max_nfev=max_nfev,
-        xtol=1e-12,
-        ftol=1e-12,
-        gtol=1e-12,
-    )
-    r, a = evaluate(sol.x)
+    if loss == "linear":
+        x, converged, nfev = levenberg_marquardt(lambda x: (-fun(x), jac(x)), x0, max_nfev)
+    else:  # robust losses: SciPy's trust-region reflective solver
+        sol = scipy.optimize.least_squares(
+            fun,
+            x0,
+            jac=jac,
+            method="trf",
+            x_scale="jac",
+            loss=loss,
+            f_scale=f_scale,
+            max_nfev=max_nfev,
+            xtol=1e-12,
+            ftol=1e-12,
+            gtol=1e-12,
+        )
+        x, converged, nfev = sol.x, bool(sol.status > 0), int(sol.nfev)
+    r, a = evaluate(x)
     if whiten is not None:
         label = "lm (noise-weighted)"
     else:
         label = f"lm ({loss} loss)" if loss != "linear" else "lm"
     return Result(
-        params=expand(sol.x),
+        params=expand(x),
         names=problem.full_layout.names,
-        converged=bool(sol.status > 0),
-        iterations=int(sol.nfev),
+        converged=converged,
+        iterations=nfev,
         initial_residual_norm=float(np.linalg.norm(r0)),
         residual_norm=float(np.linalg.norm(r)),
         n_residuals=len(r0),
