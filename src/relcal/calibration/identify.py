@@ -314,8 +314,9 @@ def levenberg_marquardt(
     Marquardt's damping on columns scaled to unit norm (the scale never shrinks, as in MINPACK);
     a step is kept when it lowers the cost, and the iteration stops when the relative decrease
     or the scaled step falls below ``rtol``, or when a rejected step changes the cost by no more
-    than round-off (the minimum is reached to the precision of the residual). The problems here are small and nearly linear at the
-    start, so a few factorisations of a ``k x k`` normal matrix replace SciPy's per-call set-up.
+    than round-off (the minimum is reached to the precision of the residual). The problems here
+    are small and nearly linear at the start, so a few factorisations of a ``k x k`` normal
+    matrix replace SciPy's per-call set-up.
     Returns the solution, whether it converged, and the evaluations used.
     """
     x = np.asarray(x0, dtype=float).copy()
