@@ -12,6 +12,9 @@
       rpy: [0.0, 0.0, 0.0]     # deg  (OpenCV's calibrateHandEye) gives the starting guess)
     joint_unit: deg            # deg | rad (prismatic joints always in m)
     samples: samples.csv
+    tolerances:                # optional plausibility thresholds (defaults shown)
+      length_mm: 10            #   largest identified correction of a link length
+      angle_deg: 2             #   of a joint offset or twist
 
 ``samples.csv`` has a header: ``id``, one column per joint (``q1`` .. ``qn``), then either
 ``image`` (a path relative to the folder) or a measured pose ``x, y, z, qx, qy, qz, qw`` (camera in
@@ -43,6 +46,19 @@ class _Frame(pydantic.BaseModel):
     rpy: tuple[pydantic.FiniteFloat, pydantic.FiniteFloat, pydantic.FiniteFloat] = (0.0, 0.0, 0.0)
 
 
+class _Tolerances(pydantic.BaseModel):
+    """Plausibility thresholds (relcal.calibration.plausibility.Tolerances), display units."""
+
+    model_config = pydantic.ConfigDict(extra="forbid")
+    length_mm: pydantic.PositiveFloat | None = None
+    angle_deg: pydantic.PositiveFloat | None = None
+    handeye_mm: pydantic.PositiveFloat | None = None
+    handeye_deg: pydantic.PositiveFloat | None = None
+    rotation_deg: pydantic.PositiveFloat | None = None
+    scale_percent: pydantic.PositiveFloat | None = None
+    joint_limit_deg: pydantic.PositiveFloat | None = None
+
+
 class _DatasetSpec(pydantic.BaseModel):
     model_config = pydantic.ConfigDict(extra="forbid")
     robot: str | dict[str, Any]
@@ -53,6 +69,17 @@ class _DatasetSpec(pydantic.BaseModel):
     handeye: _Frame | None = None
     joint_unit: Literal["deg", "rad"] = "deg"
     samples: str = "samples.csv"
+    tolerances: _Tolerances | None = None
+
+    @pydantic.field_validator("hayati", mode="before")
+    @classmethod
+    def _yaml_booleans(cls, value: object) -> object:
+        """YAML 1.1 reads ``off``/``no`` as False and ``on``/``yes`` as True."""
+        if value is False:
+            return "off"
+        if value is True:
+            return "auto"
+        return value
 
 
 @dataclass(frozen=True)
@@ -70,6 +97,7 @@ class Dataset:
     board: Any = None
     camera: Any = None  # a relcal.vision.camera.Camera, or "calibrate"
     spec_path: Path | None = None
+    tolerances: dict[str, float] | None = None  # plausibility thresholds (mm, deg, percent)
 
 
 def _resolve(root: Path, value: str | dict | None, loader, what: str, spec: Path):
@@ -116,7 +144,10 @@ def load_dataset(folder: str | Path) -> Dataset:
                 "or 'calibrate')"
             )
         camera = _camera(root, spec.camera, spec_path, load_camera)
-    return Dataset(root, model, spec.mode, handeye, ids, q, images, poses, board, camera, spec_path)
+    tolerances = spec.tolerances.model_dump(exclude_none=True) if spec.tolerances else None
+    return Dataset(
+        root, model, spec.mode, handeye, ids, q, images, poses, board, camera, spec_path, tolerances
+    )
 
 
 def _board(root: Path, value, spec_path: Path, load_board):
