@@ -193,7 +193,10 @@ def read_samples(
         )
     col = {h: i for i, h in enumerate(header)}
     ids, q, images, poses, seen = [], [], [], [], {}
-    for line_no, row in enumerate(data, start=2):
+    lines = []
+    for row in data:
+        line_no = row.line
+        lines.append(line_no)
         if len(row) != len(header):
             raise RelcalError(
                 f"{path} line {line_no}: {len(row)} fields, expected {len(header)} as in the header"
@@ -205,15 +208,22 @@ def read_samples(
         ids.append(sid)
         q.append([parse_number(path, line_no, c, row[col[c]]) for c in joints])
         if has_image:
-            images.append(path.parent / row[col["image"]].strip())
+            name = row[col["image"]].strip()
+            if not name:
+                raise RelcalError(f"{path} line {line_no}: image: empty; expected an image path")
+            images.append(path.parent / name)
         else:
             poses.append([parse_number(path, line_no, c, row[col[c]]) for c in POSE_COLUMNS])
     q_arr = _joint_values(path, np.array(q, dtype=float), model, joint_unit)
     pose_arr = None
     if has_pose:
-        pose_arr = _poses(path, np.array(poses))
+        pose_arr = _poses(path, np.array(poses), lines)
     else:
-        for line_no, image in enumerate(images, start=2):
+        for line_no, image in zip(lines, images, strict=True):
+            if image.is_dir():
+                raise RelcalError(
+                    f"{path} line {line_no}: image: {image} is a directory, expected an image file"
+                )
             if not image.is_file():
                 raise RelcalError(f"{path} line {line_no}: image: file not found: {image}")
     return tuple(ids), q_arr, (tuple(images) if has_image else None), pose_arr
@@ -224,8 +234,9 @@ def parse_number(path: Path, line_no: int, column: str, text: str) -> float:
     try:
         value = float(text)
     except ValueError:
+        hint = " (a decimal comma? write 0.5, not 0,5)" if "," in text else ""
         raise RelcalError(
-            f"{path} line {line_no}: {column}: expected a number, got '{text.strip()}'"
+            f"{path} line {line_no}: {column}: expected a number, got '{text.strip()}'{hint}"
         ) from None
     if not np.isfinite(value):
         raise RelcalError(f"{path} line {line_no}: {column}: expected a finite number, got {text}")
@@ -252,12 +263,12 @@ def _joint_values(path: Path, q: np.ndarray, model: RobotModel, unit: str) -> np
     return q
 
 
-def _poses(path: Path, values: np.ndarray) -> np.ndarray:
+def _poses(path: Path, values: np.ndarray, lines: list[int]) -> np.ndarray:
     norms = np.linalg.norm(values[:, 3:], axis=1)
     bad = np.flatnonzero(np.abs(norms - 1) > 1e-3)
     if bad.size:
         raise RelcalError(
-            f"{path} line {bad[0] + 2}: qx, qy, qz, qw: expected a unit quaternion, "
+            f"{path} line {lines[bad[0]]}: qx, qy, qz, qw: expected a unit quaternion, "
             f"norm is {norms[bad[0]]:.4f}"
         )
     rot = Rotation.from_quat(values[:, 3:] / norms[:, None]).as_matrix()
