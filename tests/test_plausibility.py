@@ -169,14 +169,15 @@ def test_corrections_larger_than_the_tolerance(capsys, synthetic, tmp_path):
 
 
 def test_a_wrong_link_length_in_the_model_is_named(capsys, synthetic, tmp_path):
-    """The model says a2 = 0.283 m where the arm has 0.303 m: the modelled translations are too
-    short (the 20 mm would otherwise be absorbed as a correction)."""
+    """The model says a2 = 0.283 m where the arm has 0.303 m: the 20 mm correction is refused."""
     robot = get_robot("a465")
     text = dump_model(robot.with_values(a=robot.a - np.array([0, 0.020, 0, 0, 0, 0])))
     spec = "robot: robot.yaml\nhayati: auto\njoint_unit: deg\nhandeye: {xyz: [0, 0.04, 0.06]}\n"
     root = copy_with(synthetic, tmp_path, spec=spec)
     (root / "robot.yaml").write_text(text)
-    run(capsys, root, "measured translations are 1.0", "a wrong robot model")
+    err = run(capsys, root, "a[2] corrected by +", "not a calibration")
+    value = float(err.split("a[2] corrected by ")[1].split(" mm")[0])
+    assert abs(value - 20) < 2  # the planted 20 mm plus the synthetic arm's own sub-mm error
 
 
 # --- the pure checks ------------------------------------------------------------------------------

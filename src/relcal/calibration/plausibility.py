@@ -37,6 +37,7 @@ from relcal import geometry as tf
 from relcal.errors import RelcalError
 
 MAX_PAIRS = 2000  # pairs used by the checks (all pairs up to 63 samples)
+RATIO = 3.0  # an alternative reading that fits the rotations this much better is named
 
 
 @dataclass(frozen=True)
@@ -49,8 +50,8 @@ class Tolerances:
     angle: float = np.radians(2.0)  # rad, of a joint offset or twist (theta_off, alpha, beta)
     handeye_length: float = 0.05  # m, of the hand-eye translation from its starting value
     handeye_angle: float = np.radians(5.0)  # rad, of the hand-eye rotation
-    rotation: float = np.radians(10.0)  # rad, median relative-rotation misfit
-    scale: float = 0.03  # relative, measured/modelled translation scale minus one
+    rotation: float = np.radians(5.0)  # rad, median relative-rotation misfit
+    scale: float = 0.05  # relative, measured/modelled translation scale minus one
     joint_limit: float = np.radians(5.0)  # rad, reading beyond a joint limit
 
     FIELDS = {
@@ -244,7 +245,7 @@ def diagnose_rotations(
     alternative reading that fits (or the size of the disagreement) and ``R_X``."""
     a, b = relative(flange, pairs), relative(measured, pairs)
     misfit, rx = rotation_misfit(a, b)
-    if misfit <= tolerance:
+    if misfit <= tolerance / 5:
         return None, rx
     angle = angle_misfit(a, b)
     tried = []
@@ -257,12 +258,16 @@ def diagnose_rotations(
         tried.append((m <= tolerance, rank, m, alt.label))
     tried.sort(key=lambda t: (not t[0], t[1], t[2]))
     tried = [(m, label) for _, _, m, label in tried]
+    better = bool(tried) and tried[0][0] <= tolerance and tried[0][0] < misfit / RATIO
+    if misfit <= tolerance and not better:
+        return None, rx
     head = (
         f"measured relative rotations disagree with the commanded ones by a median "
         f"{np.degrees(misfit):.1f} deg (rotation angles alone by {np.degrees(angle):.1f} deg; "
-        f"expected < {np.degrees(tolerance):.1f} deg for any hand-eye transform)"
+        f"expected < {np.degrees(tolerance):.1f} deg for any hand-eye transform, and no other "
+        "reading fitting much better)"
     )
-    if tried and tried[0][0] <= tolerance and tried[0][0] < misfit / 3:
+    if better:
         return (
             f"{tried[0][1]}: {head}; read that way they agree to {np.degrees(tried[0][0]):.2f} deg",
             rx,
