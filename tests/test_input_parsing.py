@@ -6,7 +6,6 @@ import numpy as np
 import pytest
 from test_bad_input import run_bad, write_dataset
 
-from relcal.cli import main
 from relcal.data.dataset import load_dataset
 from relcal.io import read_table
 from relcal.robot.model import get_robot, load_model
@@ -79,7 +78,8 @@ def image_dataset(root, cell):
     root.mkdir()
     (root / "img").mkdir()
     (root / "dataset.yaml").write_text(
-        "robot: a465\nboard: {type: chessboard, rows: 7, columns: 10, square: 0.02}\ncamera: calibrate\n"
+        "robot: a465\nboard: {type: chessboard, rows: 7, columns: 10, square: 0.02}\n"
+        "camera: calibrate\n"
     )
     (root / "samples.csv").write_text(f"id,q1,q2,q3,q4,q5,q6,image\na,1,2,3,4,5,6,{cell}\n")
     return root
