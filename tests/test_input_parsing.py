@@ -4,6 +4,7 @@ file, the line and the likely cause (exit 2, no traceback); each right one read.
 
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
 from test_bad_input import run_bad, write_dataset
 
 from relcal.data.dataset import load_dataset
@@ -166,3 +167,26 @@ def test_puma560_matches_its_cited_source():
     np.testing.assert_allclose(np.degrees(puma.lower), [-160, -110, -135, -266, -100, -266])
     np.testing.assert_allclose(puma.a, [0, 0.4318, 0.0203, 0, 0, 0])
     np.testing.assert_allclose(puma.d[1:], [0, 0.15005, 0.4318, 0, 0])
+
+
+def test_board_with_one_row_too_many_is_not_posed():
+    """A 7 x 10 chessboard seen close and nearly square-on (pose of a `relcal simulate --images`
+    frame): declared as 8 x 10, OpenCV's finder takes the pattern's edge for a row of corners and
+    the pose fits at 0.03 px. The squares around the grid give it away."""
+    from dataclasses import replace
+
+    from relcal.sim.synth import DEFAULT_CAMERA
+    from relcal.vision.boards import Board
+    from relcal.vision.detect import Detection, Rejected, detect
+    from relcal.vision.render import render_board
+
+    board = Board("chessboard", 7, 10, 0.02)
+    rot = Rotation.from_euler("xyz", [0.933, -1.147, -134.229], degrees=True).as_matrix()
+    pose = np.eye(4)
+    pose[:3, :3], pose[:3, 3] = rot, [0.0966, 0.0504, -0.2745]
+    image = render_board(board, DEFAULT_CAMERA, pose, 0.8, 2.0, 0.3, 0)
+    assert isinstance(detect(image, board), Detection)
+    wrong = detect(image, replace(board, rows=8))
+    assert isinstance(wrong, Rejected)
+    assert "does not match the printed pattern" in wrong.reason
+    assert "fewer rows or columns than declared" in wrong.reason

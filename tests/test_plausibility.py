@@ -216,3 +216,16 @@ def test_rotations_about_one_point_leave_the_scale_undetermined():
     scaled = measured.copy()
     scaled[:, :3, 3] *= 3.0
     assert not pl.translation_scale(a, pl.relative(scaled, pairs), rx).determined
+
+
+def test_wrong_robot_is_named_as_a_disagreement(capsys, synthetic, tmp_path):
+    """A465 data calibrated as a UR5e: no reading fits, the message says by how much and what to
+    check."""
+    spec = "robot: ur5e\nhayati: auto\njoint_unit: deg\n"
+    err = run(capsys, copy_with(synthetic, tmp_path, spec=spec), "disagree with the commanded")
+    assert "Check the quaternion order" in err and "robot model" in err
+
+
+def test_guess_rotated_far_from_the_data(capsys, synthetic, tmp_path):
+    spec = "robot: a465\njoint_unit: deg\nhandeye: {xyz: [0, 0.04, 0.06], rpy: [90, 0, 0]}\n"
+    run(capsys, copy_with(synthetic, tmp_path, spec=spec), "handeye: the guess's rotation is")

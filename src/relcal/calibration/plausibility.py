@@ -197,7 +197,8 @@ def joint_problems(
         )
         out.append(
             f"sample {ids[k]}: q{j + 1} ({names[j]}) = {values[k] * conv:.6g} {unit} is outside "
-            f"{limits}; {len(bad)} reading(s) of this joint are. Wrong joint order, unit or model?"
+            f"{limits} ({len(bad)} of {len(values)} readings of this joint are): wrong joint "
+            "order, unit or model?"
         )
     return out
 
@@ -261,20 +262,19 @@ def diagnose_rotations(
     better = bool(tried) and tried[0][0] <= tolerance and tried[0][0] < misfit / RATIO
     if misfit <= tolerance and not better:
         return None, rx
-    head = (
-        f"measured relative rotations disagree with the commanded ones by a median "
-        f"{np.degrees(misfit):.1f} deg (rotation angles alone by {np.degrees(angle):.1f} deg; "
-        f"expected < {np.degrees(tolerance):.1f} deg for any hand-eye transform, and no other "
-        "reading fitting much better)"
-    )
     if better:
         return (
-            f"{tried[0][1]}: {head}; read that way they agree to {np.degrees(tried[0][0]):.2f} deg",
+            f"{tried[0][1]}: read that way the relative rotations agree with the commanded ones "
+            f"to {np.degrees(tried[0][0]):.2f} deg; as given they disagree by a median "
+            f"{np.degrees(misfit):.1f} deg",
             rx,
         )
     return (
-        f"{head}. Check the quaternion order (x, y, z, w), the pose direction, the joint order and "
-        "unit, and the robot model",
+        f"measured relative rotations disagree with the commanded ones by a median "
+        f"{np.degrees(misfit):.1f} deg (their rotation angles alone by {np.degrees(angle):.1f} "
+        f"deg; expected < {np.degrees(tolerance):.1f} deg for any hand-eye transform). Check the "
+        "quaternion order (x, y, z, w), the pose direction, the joint order and unit, and the "
+        "robot model",
         rx,
     )
 
