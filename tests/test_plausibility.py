@@ -229,3 +229,18 @@ def test_wrong_robot_is_named_as_a_disagreement(capsys, synthetic, tmp_path):
 def test_guess_rotated_far_from_the_data(capsys, synthetic, tmp_path):
     spec = "robot: a465\njoint_unit: deg\nhandeye: {xyz: [0, 0.04, 0.06], rpy: [90, 0, 0]}\n"
     run(capsys, copy_with(synthetic, tmp_path, spec=spec), "handeye: the guess's rotation is")
+
+
+def test_wrong_mode_reads_as_inverted_camera_poses():
+    """With images, inverted poses mean the mode is the wrong one."""
+    robot = get_robot("a465")
+    rng = np.random.default_rng(5)
+    q = rng.uniform(-1.0, 1.0, (25, 6))
+    x = tf.from_vector(np.array([0, 0.04, 0.06, 0.05, -0.03, 0.2]))
+    w = tf.from_vector(np.array([0.5, 0.1, -0.2, 3.0, 0.1, 0.4]))
+    camera_in_board = w @ fk(robot, q) @ x
+    ids = [f"s{k}" for k in range(25)]
+    kwargs = {"fk": lambda v: fk(robot, v), "poses_given": False}
+    pl.check_inputs(robot, q, camera_in_board, ids, "dataset.yaml", **kwargs)
+    with pytest.raises(Exception, match=r"inverted \(mode: eye_to_hand meant, not eye_in_hand\?\)"):
+        pl.check_inputs(robot, q, tf.invert(camera_in_board), ids, "dataset.yaml", **kwargs)

@@ -324,9 +324,15 @@ def check_inputs(
         return lambda: fk(np.where(revolute, q * factor, q))
 
     given = lambda: poses  # noqa: E731
+    swapped = "eye_to_hand" if mode == "eye_in_hand" else "eye_in_hand"
+    inverted = (
+        f"poses look inverted ({other} given, {wanted} expected for {mode})"
+        if poses_given
+        else f"the camera poses look inverted (mode: {swapped} meant, not {mode}?)"
+    )
     alternatives = [
         Alternative(
-            f"poses look inverted ({other} given, {wanted} expected for {mode})",
+            inverted,
             lambda: flange,
             lambda: tf.invert(poses),
         ),
