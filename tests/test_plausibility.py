@@ -3,6 +3,7 @@ nothing written, inputs untouched), and the right input passes (no false alarm).
 
 import csv
 import io
+import json
 
 import numpy as np
 import pytest
@@ -85,6 +86,10 @@ def set_poses(header, rows, poses, quat_order=(0, 1, 2, 3)):
 def test_right_synthetic_dataset_calibrates(capsys, synthetic, tmp_path):
     root = copy_with(synthetic, tmp_path)
     run(capsys, root, code=0)
+    found = json.loads((root / "calibration" / "results.json").read_text())["settings"]
+    found = found["plausibility"]
+    assert found["rotation_misfit_deg"] < 5.0
+    assert abs(found["translation_scale"] - 1.0) < 0.01  # poses in metres of this very arm
 
 
 def test_right_positioner_calibrates(capsys, tmp_path):
@@ -93,6 +98,10 @@ def test_right_positioner_calibrates(capsys, tmp_path):
     assert main(["import", "rct-positioner", str(POSITIONER), "--out", str(tmp_path / "p")]) == 0
     capsys.readouterr()
     run(capsys, tmp_path / "p", code=0)
+    doc = json.loads((tmp_path / "p" / "calibration" / "results.json").read_text())
+    found = doc["settings"]["plausibility"]
+    assert found["rotation_misfit_deg"] < 0.5
+    assert "translation_scale" not in found  # rotations about one point: scale not determined
 
 
 # --- wrong inputs --------------------------------------------------------------------------------
@@ -192,7 +201,9 @@ def test_joint_unit_alternatives_are_named(synthetic):
     ids = [f"s{k}" for k in range(30)]
     with pytest.raises(Exception, match="radians declared as degrees"):
         pl.check_inputs(robot, np.radians(q), poses, ids, "samples.csv", fk=lambda x: fk(robot, x))
-    assert pl.check_inputs(robot, q, poses, ids, "samples.csv", fk=lambda x: fk(robot, x))
+    assert pl.check_inputs(
+        robot, q, poses, ids, "samples.csv", fk=lambda x: fk(robot, x)
+    ).determined
 
 
 def test_scale_message_names_the_board_square():

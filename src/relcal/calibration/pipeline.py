@@ -182,7 +182,7 @@ def calibrate(
     if selection not in ("cv", "conservative", "all"):
         raise RelcalError(f"unknown selection '{selection}': use cv, conservative or all")
     train, test = _split(dataset, measurements, holdout, seed, holdout_ids)
-    check_dataset(dataset, measurements)  # a wrong unit, order or board size: stop here
+    plausibility = check_dataset(dataset, measurements)  # a wrong unit, order or board size
     poses = measurements.poses
     handeye = dataset.handeye
     if handeye is None:
@@ -269,6 +269,7 @@ def calibrate(
         "selection_folds": folds_k,
         "weighting": pick.weighting,
         "reject_outliers": reject_outliers,
+        "plausibility": plausibility,
     }
     return Calibration(
         dataset,

@@ -293,9 +293,10 @@ def check_inputs(
     poses_given: bool = True,
     spec: str | None = None,
     tolerances: Tolerances = Tolerances(),
-) -> Scale | None:
+) -> Scale:
     """Raise :class:`RelcalError` naming the likely cause when the samples cannot be what the
-    model commands; return the translation scale found (None if not determined).
+    model commands; return the translation scale found (``determined`` False if the motions
+    cannot tell).
 
     ``q`` ``(N, n)`` rad, ``poses`` ``(N, 4, 4)`` the measured ``C_k`` of usable samples, ``fk``
     the nominal forward kinematics, ``where`` the file named in messages about samples and
@@ -361,7 +362,7 @@ def check_inputs(
         raise RelcalError(f"{where}: {message}")
     scale = translation_scale(relative(flange, pairs), relative(poses, pairs), rx)
     if not scale.determined:
-        return None
+        return scale
     off = scale.ratio - 1.0
     if abs(off) > tolerances.scale and abs(off) > 3 * scale.std * scale.ratio:
         raise RelcalError(f"{where}: {scale_message(scale.ratio, board, poses_given)}")
@@ -463,23 +464,26 @@ def check_corrections(
 # --- the two calls of the pipeline ---------------------------------------------------------------
 
 
-def check_dataset(dataset, measurements) -> Scale | None:
+def check_dataset(dataset, measurements) -> dict:
     """:func:`check_inputs` on the usable samples of a loaded dataset; messages name its
-    samples file (or dataset.yaml for images)."""
+    samples file (or dataset.yaml for images). Returns what the checks measured, for the
+    results: the median relative-rotation misfit (deg) and the translation scale (with the
+    board size the data say, for images)."""
     from relcal.robot.kinematics import fk
 
     usable = np.flatnonzero(measurements.ok)
     if len(usable) < 4:
-        return None
+        return {}
     spec = dataset.spec_path or dataset.root / "dataset.yaml"
     where = str(spec.parent / "samples.csv") if dataset.poses is not None else str(spec)
-    return check_inputs(
+    q, poses = dataset.q[usable], measurements.poses[usable]
+    scale = check_inputs(
         dataset.model,
-        dataset.q[usable],
-        measurements.poses[usable],
+        q,
+        poses,
         [dataset.ids[i] for i in usable],
         where,
-        fk=lambda q: fk(dataset.model, q),
+        fk=lambda v: fk(dataset.model, v),
         mode=dataset.mode,
         handeye=dataset.handeye,
         board=dataset.board,
@@ -487,6 +491,15 @@ def check_dataset(dataset, measurements) -> Scale | None:
         spec=str(spec),
         tolerances=Tolerances.from_display(dataset.tolerances),
     )
+    pairs = check_pairs(len(usable))
+    misfit, _ = rotation_misfit(relative(fk(dataset.model, q), pairs), relative(poses, pairs))
+    out: dict = {"rotation_misfit_deg": float(np.degrees(misfit))}
+    if scale.determined:
+        out["translation_scale"] = float(scale.ratio)
+        out["translation_scale_std"] = float(scale.std * scale.ratio)
+        if dataset.board is not None and dataset.poses is None:
+            out["board_spacing_from_data_m"] = float(dataset.board.spacing / scale.ratio)
+    return out
 
 
 def check_result(dataset, problem, result) -> None:
