@@ -50,7 +50,7 @@ class Tolerances:
     angle: float = np.radians(2.0)  # rad, of a joint offset or twist (theta_off, alpha, beta)
     handeye_length: float = 0.05  # m, of the hand-eye translation from its starting value
     handeye_angle: float = np.radians(5.0)  # rad, of the hand-eye rotation
-    rotation: float = np.radians(5.0)  # rad, median relative-rotation misfit
+    rotation: float = np.radians(10.0)  # rad, median relative-rotation misfit
     scale: float = 0.05  # relative, measured/modelled translation scale minus one
     joint_limit: float = np.radians(5.0)  # rad, reading beyond a joint limit
 
