@@ -36,7 +36,7 @@ def rows_of(root):
 def copy_with(synthetic, tmp_path, edit=None, spec=None):
     """A copy of the synthetic dataset with ``edit(header, rows)`` applied to its samples."""
     root = tmp_path / "d"
-    root.mkdir()
+    root.mkdir(parents=True)
     header, rows = rows_of(synthetic.root)
     if edit is not None:
         edit(header, rows)
@@ -301,3 +301,28 @@ def test_right_tiago_mocap_poses_pass_and_inverted_ones_are_named():
     inverted = tf.invert(marker)
     message, _ = pl.diagnose_rotations(flange, inverted, alternatives(inverted), tol, pairs)
     assert message.startswith("poses look inverted"), message
+
+
+@pytest.mark.parametrize(
+    ("case", "expected"),
+    [("w_first", "quaternions look w-first"), ("inverted", "poses look inverted")],
+)
+def test_positioner_readings_named(capsys, tmp_path, case, expected):
+    """The positioner turns about one point: w-first and inverted readings fit its rotations and
+    translations alike, so both are named (as given: 27.9 deg misfit, read either way: 0.06)."""
+    if not POSITIONER.exists():
+        pytest.skip("real data not available")
+    assert main(["import", "rct-positioner", str(POSITIONER), "--out", str(tmp_path / "p")]) == 0
+    capsys.readouterr()
+    source = type("Source", (), {"root": tmp_path / "p"})
+
+    def edit(header, rows):
+        poses, _ = poses_of(header, rows)
+        if case == "w_first":
+            set_poses(header, rows, poses, quat_order=(3, 0, 1, 2))
+        else:
+            set_poses(header, rows, tf.invert(poses))
+
+    root = copy_with(source, tmp_path / "x", edit)
+    (root / "positioner.yaml").write_text((tmp_path / "p" / "positioner.yaml").read_text())
+    run(capsys, root, expected, "agree with the commanded ones to 0.06 deg")

@@ -258,15 +258,18 @@ def diagnose_rotations(
         rank = translation_scale(fa, mb, alt_rx).residual if m <= tolerance else np.inf
         tried.append((m <= tolerance, rank, m, alt.label))
     tried.sort(key=lambda t: (not t[0], t[1], t[2]))
-    tried = [(m, label) for _, _, m, label in tried]
-    better = bool(tried) and tried[0][0] <= tolerance and tried[0][0] < misfit / RATIO
+    better = bool(tried) and tried[0][0] and tried[0][2] < misfit / RATIO
     if misfit <= tolerance and not better:
         return None, rx
     if better:
+        # readings the translations cannot tell apart either (rotations about one point) are
+        # named together
+        best = tried[0][1]
+        alike = [t[3] for t in tried if t[0] and t[1] <= 1.5 * best + 1e-12]
         return (
-            f"{tried[0][1]}: read that way the relative rotations agree with the commanded ones "
-            f"to {np.degrees(tried[0][0]):.2f} deg; as given they disagree by a median "
-            f"{np.degrees(misfit):.1f} deg",
+            f"{' or '.join(alike)}: read that way the relative rotations agree with the "
+            f"commanded ones to {np.degrees(tried[0][2]):.2f} deg; as given they disagree by a "
+            f"median {np.degrees(misfit):.1f} deg",
             rx,
         )
     return (
