@@ -190,3 +190,14 @@ def test_board_with_one_row_too_many_is_not_posed():
     assert isinstance(wrong, Rejected)
     assert "does not match the printed pattern" in wrong.reason
     assert "fewer rows or columns than declared" in wrong.reason
+
+
+def test_importer_messages_name_no_internal_class(capsys, tmp_path):
+    path = tmp_path / "measurements.yaml"
+    path.write_text("sample_1:\n  pose: 3\n  target_joints: [0.1, 0.2]\n")
+    err = run_bad(
+        capsys,
+        ["import", "rct-positioner", path, "--out", tmp_path / "out"],
+        "measurements.yaml line 2: sample_1.pose: expected a mapping of fields",
+    )
+    assert "_Observation" not in err and "_Pose" not in err and not (tmp_path / "out").exists()
