@@ -44,14 +44,14 @@ def test_degrees_are_converted(tmp_path):
     [
         (
             ("alpha: 0}", "alpha: abc}"),
-            r"line 5: joints\[1\]\.alpha: Input should be a valid number",
+            r"line 5: joints\[1\]\.alpha: expected a number, got the text 'abc'",
         ),
         (("alpha: 0}", "alpha: .inf}"), r"line 5: joints\[1\]\.alpha: Input should be a finite"),
         (
             ("convention: dh", "convention: xx"),
             r"line 2: convention: Input should be 'dh' or 'mdh'",
         ),
-        (("[-170, 170]", "[170, -170]"), r"line 4: joints\[0\]: Value error, limits must be"),
+        (("[-170, 170]", "[170, -170]"), r"line 4: joints\[0\]: limits must be"),
         (("d: 0.33,", "d: 0.33, bogus: 1,"), r"joints\[0\]\.bogus: Extra inputs are not permitted"),
         (("name: test arm\n", ""), r"name: Field required"),
         (("joints:", "joints: ["), r"line \d+: malformed YAML"),

@@ -231,3 +231,56 @@ def test_charuco_hand_eye_is_consistent(charuco_results):
     assert calibrated[0] < 0.5 * given[0] and calibrated[1] < 0.5 * given[1]
     assert calibrated[0] < 0.008 and np.degrees(calibrated[1]) < 0.5
     assert calibrated[2] == pytest.approx(0.036195, rel=0.02)
+
+
+# --- plausibility checks on the real sets: no false alarm, and the wrong readings named ----------
+
+
+def _plausibility(F, C, board, poses_given=False):
+    """What calibrate's plausibility check says of robot poses F and camera poses C: None when
+    they pass, else the message."""
+    from relcal.calibration import plausibility as pl
+    from relcal.errors import RelcalError
+
+    pairs = pl.check_pairs(len(F))
+    alternatives = [
+        pl.Alternative("poses look inverted", lambda: F, lambda: tf.invert(C)),
+        pl.Alternative("quaternions look w-first", lambda: F, lambda: pl.reorder_w_first(C)),
+    ]
+    message, rx = pl.diagnose_rotations(F, C, alternatives, pl.Tolerances().rotation, pairs)
+    if message:
+        return message
+    scale = pl.translation_scale(pl.relative(F, pairs), pl.relative(C, pairs), rx)
+    print(f"\nrotation check passed; scale {scale.ratio:.4f} +- {scale.std:.4f}")
+    if scale.determined and abs(scale.ratio - 1) > pl.Tolerances().scale:
+        try:
+            raise RelcalError(pl.scale_message(scale.ratio, board, poses_given))
+        except RelcalError as exc:
+            return str(exc)
+    return None
+
+
+@pytest.mark.parametrize("which", ["circles", "charuco"])
+def test_plausibility_of_the_real_sets(which, circle_results, charuco_results):
+    folder, (board, camera, results) = (
+        (CIRCLES, circle_results) if which == "circles" else (CHARUCO, charuco_results)
+    )
+    F = np.array([load_pose(pose) for _, pose in pairs(folder)])
+    C = np.array([r.pose.T_board_camera for r in results])
+    if which == "charuco":
+        C = tf.invert(C)  # eye to hand: the board pose in the camera frame is W F X
+    assert _plausibility(F, C, board) is None  # the right data pass
+    message = _plausibility(F, tf.invert(C), board)
+    assert message.startswith("poses look inverted"), message
+    # the board declared 0.8x its size: the check finds the size the data say
+    # (PnP scales the camera translations with the declared size, test above)
+    small = replace(board, spacing=0.8 * board.spacing)
+    C_small = C.copy()
+    C_small[:, :3, 3] *= 0.8
+    message = _plausibility(F, C_small, small)
+    print(message)
+    assert message.startswith("board ") and f"{small.spacing:.6g} m in the board file" in message
+    ratio = float(message.split(" looks ")[1].split("x")[0])
+    assert abs(ratio - 0.8) < 0.03
+    said = float(message.split("the data say ")[1].split(" m")[0])
+    assert abs(said - board.spacing) < 0.05 * board.spacing

@@ -26,7 +26,7 @@ def dh(theta, d, a, alpha):
 
 def puma_by_hand(q):
     """Product of the PUMA 560 link transforms with the toolbox's numbers typed in again."""
-    d = [0.6718, 0, 0.15005, 0.4318, 0, 0]
+    d = [26.45 * 0.0254, 0, 0.15005, 0.4318, 0, 0]  # d1 = 26.45 in, as in the toolbox
     a = [0, 0.4318, 0.0203, 0, 0, 0]
     alpha = np.array([90, 0, -90, 90, -90, 0]) * DEG
     out = np.eye(4)
@@ -48,16 +48,20 @@ def test_library_robot_loads(name):
 
 # PUMA 560, worked by hand (rtb.models.DH.Puma560, pedestal included):
 # qz = 0: all Rz = I, the twists cancel (90 - 90 + 90 - 90) so R = I; the offsets add up to
-#   x = a2 + a3 = 0.4521, y = -d3 = -0.15005 (z1 points along -y0), z = d1 + d4 = 1.1036.
+#   x = a2 + a3 = 0.4521, y = -d3 = -0.15005 (z1 points along -y0), z = d1 + d4 = 1.10363.
 # qr = (0, 90, -90, 0, 0, 0) deg, arm up: the upper arm points up (z += a2), joint 3 undoes joint 2,
-#   so R = I, x = a3 = 0.0203, y = -d3, z = d1 + a2 + d4 = 1.5354.
+#   so R = I, x = a3 = 0.0203, y = -d3, z = d1 + a2 + d4 = 1.53543.
 # q = (90, 0, 0, 0, 90, 0) deg: the 'L' pose turned to face +y, then the wrist bent 90 deg about
-#   axis 5 (= +x0): x = d3 = 0.15005, y = a2 + a3 = 0.4521, z = 1.1036; tool x (was +y) -> +z,
+#   axis 5 (= +x0): x = d3 = 0.15005, y = a2 + a3 = 0.4521, z = 1.10363; tool x (was +y) -> +z,
 #   tool y (was -x) stays -x, tool z (was +z) -> -y.
 PUMA_HAND = [
-    ([0, 0, 0, 0, 0, 0], np.eye(3), [0.4521, -0.15005, 1.1036]),
-    ([0, 90, -90, 0, 0, 0], np.eye(3), [0.0203, -0.15005, 1.5354]),
-    ([90, 0, 0, 0, 90, 0], [[0, -1, 0], [0, 0, -1], [1, 0, 0]], [0.15005, 0.4521, 1.1036]),
+    ([0, 0, 0, 0, 0, 0], np.eye(3), [0.4521, -0.15005, 0.67183 + 0.4318]),
+    ([0, 90, -90, 0, 0, 0], np.eye(3), [0.0203, -0.15005, 0.67183 + 0.4318 + 0.4318]),
+    (
+        [90, 0, 0, 0, 90, 0],
+        [[0, -1, 0], [0, 0, -1], [1, 0, 0]],
+        [0.15005, 0.4521, 0.67183 + 0.4318],
+    ),
 ]
 
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 import csv
 import json
 import os
+import re
 import tempfile
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
@@ -41,25 +42,61 @@ def _format_loc(loc: tuple[Any, ...]) -> str:
     return out or "(top level)"
 
 
-def read_table(path: str | Path, what: str) -> tuple[list[str], list[list[str]]]:
-    """The stripped header and the data rows of a CSV file (blank lines dropped).
+class TableRow(list):
+    """The cells of one CSV row, with ``line``: its 1-based line number in the file."""
 
-    ``what`` names one data row in messages (``"sample"``, ``"target"``); a file without a header
-    and at least one data row is an error naming the file.
+    line: int = 0
+
+
+def read_table(path: str | Path, what: str) -> tuple[list[str], list[TableRow]]:
+    """The stripped header and the data rows of a CSV file (blank lines dropped; each row keeps
+    its line number in ``row.line``).
+
+    A UTF-8 byte-order mark is skipped; a semicolon-delimited file (a header without commas) is
+    read with semicolons. ``what`` names one data row in messages (``"sample"``, ``"target"``); a
+    file without a header and at least one data row is an error naming the file.
     """
     path = Path(path)
     try:
-        with open(path, newline="") as handle:
-            rows = [r for r in csv.reader(handle) if r and any(c.strip() for c in r)]
+        with open(path, newline="", encoding="utf-8-sig") as handle:
+            text = handle.read()
     except FileNotFoundError:
         raise RelcalError(f"{path}: file not found") from None
-    except (OSError, UnicodeDecodeError, csv.Error) as exc:
+    except IsADirectoryError:
+        raise RelcalError(f"{path}: is a directory, expected a CSV file") from None
+    except (OSError, UnicodeDecodeError) as exc:
         raise RelcalError(f"{path}: cannot read: {exc}") from None
+    first = next((line for line in text.splitlines() if line.strip()), "")
+    delimiter = ";" if ";" in first and "," not in first else ","
+    rows: list[TableRow] = []
+    try:
+        reader = csv.reader(text.splitlines(keepends=True), delimiter=delimiter)
+        start = 1
+        for cells in reader:
+            row = TableRow(cells)
+            row.line = start
+            start = reader.line_num + 1
+            if cells and any(c.strip() for c in cells):
+                rows.append(row)
+    except csv.Error as exc:
+        raise RelcalError(f"{path} line {reader.line_num}: cannot read: {exc}") from None
     if not rows:
         raise RelcalError(f"{path}: empty; expected a header line and one line per {what}")
     if len(rows) < 2:
         raise RelcalError(f"{path}: no {what}s after the header line")
     return [h.strip() for h in rows[0]], rows[1:]
+
+
+class _Loader(yaml.SafeLoader):
+    """PyYAML's safe loader with YAML 1.2 floats: ``1e300`` and ``2E-3`` (no dot) are numbers,
+    not strings as in YAML 1.1."""
+
+
+_Loader.add_implicit_resolver(
+    "tag:yaml.org,2002:float",
+    re.compile(r"^[-+]?(?:[0-9][0-9_]*)(?:\.[0-9_]*)?[eE][-+]?[0-9]+$"),
+    list("-+0123456789"),
+)
 
 
 def load_yaml(path: str | Path) -> tuple[Any, yaml.Node | None]:
@@ -72,8 +109,8 @@ def load_yaml(path: str | Path) -> tuple[Any, yaml.Node | None]:
     except (OSError, UnicodeDecodeError) as exc:
         raise RelcalError(f"{path}: cannot read: {exc}") from None
     try:
-        node = yaml.compose(text, Loader=yaml.SafeLoader)
-        data = yaml.safe_load(text)
+        node = yaml.compose(text, Loader=_Loader)
+        data = yaml.load(text, Loader=_Loader)  # noqa: S506 (a SafeLoader)
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         where = f" line {mark.line + 1}" if mark is not None else ""
@@ -93,8 +130,19 @@ def validate(schema: type[M], data: Any, path: str | Path, node: yaml.Node | Non
             where = ""
             if node is not None:
                 where = f" line {_node_at(node, loc).start_mark.line + 1}"
-            lines.append(f"{path}{where}: {_format_loc(loc)}: {err['msg']}")
+            lines.append(f"{path}{where}: {_format_loc(loc)}: {_message(err)}")
         raise RelcalError("\n".join(lines)) from None
+
+
+def _message(err: dict) -> str:
+    """pydantic's message for a person: no internal class names, no "Value error," prefix."""
+    kind, value = err["type"], err.get("input")
+    if kind == "model_type" or kind == "dict_type":
+        return f"expected a mapping of fields (key: value), got {type(value).__name__} {value!r}"
+    if kind in ("float_type", "int_type") and isinstance(value, str):
+        return f"expected a number, got the text {value!r} (numbers are written without quotes)"
+    msg = re.sub(r"^Value error, ", "", err["msg"])
+    return re.sub(r"\b(?:an? )?instance of _?[A-Z]\w*", "a mapping", msg)
 
 
 def load_validated(schema: type[M], path: str | Path) -> M:

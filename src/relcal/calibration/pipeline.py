@@ -37,6 +37,7 @@ from relcal.calibration.noise import (
     pair_whiteners,
     robust_sigma,
 )
+from relcal.calibration.plausibility import check_dataset, check_result
 from relcal.calibration.selection import (
     Linearised,
     Score,
@@ -181,6 +182,7 @@ def calibrate(
     if selection not in ("cv", "conservative", "all"):
         raise RelcalError(f"unknown selection '{selection}': use cv, conservative or all")
     train, test = _split(dataset, measurements, holdout, seed, holdout_ids)
+    plausibility = check_dataset(dataset, measurements)  # a wrong unit, order or board size
     poses = measurements.poses
     handeye = dataset.handeye
     if handeye is None:
@@ -246,6 +248,7 @@ def calibrate(
         result = _fit(
             problem, ident, columns, pick.weighting, method, loss, whiteners, noise, start
         )
+    check_result(dataset, problem, result)  # corrections too large to be a calibration
     boot = bootstrap_std(lin, whiteners[pick.weighting], columns, seed=seed)
 
     validation = None
@@ -266,6 +269,7 @@ def calibrate(
         "selection_folds": folds_k,
         "weighting": pick.weighting,
         "reject_outliers": reject_outliers,
+        "plausibility": plausibility,
     }
     return Calibration(
         dataset,

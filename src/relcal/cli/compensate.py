@@ -48,7 +48,8 @@ def read_targets(path: Path, model, joint_unit: str):
         )
     idx = [header.index(c) for c in cols]
     ids, values = [], []
-    for line, row in enumerate(data, start=2):
+    for row in data:
+        line = row.line
         if len(row) != len(header):
             raise RelcalError(f"{path} line {line}: {len(row)} fields, expected {len(header)}")
         ids.append(row[header.index("id")].strip())

@@ -37,7 +37,8 @@ def read_joints(path: Path, model, joint_unit: str) -> np.ndarray:
         )
     idx = [header.index(c) for c in joints]
     values = []
-    for line, row in enumerate(data, start=2):
+    for row in data:
+        line = row.line
         if len(row) != len(header):
             raise RelcalError(f"{path} line {line}: {len(row)} fields, expected {len(header)}")
         values.append(

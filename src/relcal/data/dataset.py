@@ -12,6 +12,9 @@
       rpy: [0.0, 0.0, 0.0]     # deg  (OpenCV's calibrateHandEye) gives the starting guess)
     joint_unit: deg            # deg | rad (prismatic joints always in m)
     samples: samples.csv
+    tolerances:                # optional plausibility thresholds (defaults shown)
+      length_mm: 10            #   largest identified correction of a link length
+      angle_deg: 2             #   of a joint offset or twist
 
 ``samples.csv`` has a header: ``id``, one column per joint (``q1`` .. ``qn``), then either
 ``image`` (a path relative to the folder) or a measured pose ``x, y, z, qx, qy, qz, qw`` (camera in
@@ -43,6 +46,19 @@ class _Frame(pydantic.BaseModel):
     rpy: tuple[pydantic.FiniteFloat, pydantic.FiniteFloat, pydantic.FiniteFloat] = (0.0, 0.0, 0.0)
 
 
+class _Tolerances(pydantic.BaseModel):
+    """Plausibility thresholds (relcal.calibration.plausibility.Tolerances), display units."""
+
+    model_config = pydantic.ConfigDict(extra="forbid")
+    length_mm: pydantic.PositiveFloat | None = None
+    angle_deg: pydantic.PositiveFloat | None = None
+    handeye_mm: pydantic.PositiveFloat | None = None
+    handeye_deg: pydantic.PositiveFloat | None = None
+    rotation_deg: pydantic.PositiveFloat | None = None
+    scale_percent: pydantic.PositiveFloat | None = None
+    joint_limit_deg: pydantic.PositiveFloat | None = None
+
+
 class _DatasetSpec(pydantic.BaseModel):
     model_config = pydantic.ConfigDict(extra="forbid")
     robot: str | dict[str, Any]
@@ -53,6 +69,17 @@ class _DatasetSpec(pydantic.BaseModel):
     handeye: _Frame | None = None
     joint_unit: Literal["deg", "rad"] = "deg"
     samples: str = "samples.csv"
+    tolerances: _Tolerances | None = None
+
+    @pydantic.field_validator("hayati", mode="before")
+    @classmethod
+    def _yaml_booleans(cls, value: object) -> object:
+        """YAML 1.1 reads ``off``/``no`` as False and ``on``/``yes`` as True."""
+        if value is False:
+            return "off"
+        if value is True:
+            return "auto"
+        return value
 
 
 @dataclass(frozen=True)
@@ -70,6 +97,7 @@ class Dataset:
     board: Any = None
     camera: Any = None  # a relcal.vision.camera.Camera, or "calibrate"
     spec_path: Path | None = None
+    tolerances: dict[str, float] | None = None  # plausibility thresholds (mm, deg, percent)
 
 
 def _resolve(root: Path, value: str | dict | None, loader, what: str, spec: Path):
@@ -116,7 +144,10 @@ def load_dataset(folder: str | Path) -> Dataset:
                 "or 'calibrate')"
             )
         camera = _camera(root, spec.camera, spec_path, load_camera)
-    return Dataset(root, model, spec.mode, handeye, ids, q, images, poses, board, camera, spec_path)
+    tolerances = spec.tolerances.model_dump(exclude_none=True) if spec.tolerances else None
+    return Dataset(
+        root, model, spec.mode, handeye, ids, q, images, poses, board, camera, spec_path, tolerances
+    )
 
 
 def _board(root: Path, value, spec_path: Path, load_board):
@@ -162,7 +193,10 @@ def read_samples(
         )
     col = {h: i for i, h in enumerate(header)}
     ids, q, images, poses, seen = [], [], [], [], {}
-    for line_no, row in enumerate(data, start=2):
+    lines = []
+    for row in data:
+        line_no = row.line
+        lines.append(line_no)
         if len(row) != len(header):
             raise RelcalError(
                 f"{path} line {line_no}: {len(row)} fields, expected {len(header)} as in the header"
@@ -174,15 +208,22 @@ def read_samples(
         ids.append(sid)
         q.append([parse_number(path, line_no, c, row[col[c]]) for c in joints])
         if has_image:
-            images.append(path.parent / row[col["image"]].strip())
+            name = row[col["image"]].strip()
+            if not name:
+                raise RelcalError(f"{path} line {line_no}: image: empty; expected an image path")
+            images.append(path.parent / name)
         else:
             poses.append([parse_number(path, line_no, c, row[col[c]]) for c in POSE_COLUMNS])
     q_arr = _joint_values(path, np.array(q, dtype=float), model, joint_unit)
     pose_arr = None
     if has_pose:
-        pose_arr = _poses(path, np.array(poses))
+        pose_arr = _poses(path, np.array(poses), lines)
     else:
-        for line_no, image in enumerate(images, start=2):
+        for line_no, image in zip(lines, images, strict=True):
+            if image.is_dir():
+                raise RelcalError(
+                    f"{path} line {line_no}: image: {image} is a directory, expected an image file"
+                )
             if not image.is_file():
                 raise RelcalError(f"{path} line {line_no}: image: file not found: {image}")
     return tuple(ids), q_arr, (tuple(images) if has_image else None), pose_arr
@@ -193,8 +234,9 @@ def parse_number(path: Path, line_no: int, column: str, text: str) -> float:
     try:
         value = float(text)
     except ValueError:
+        hint = " (a decimal comma? write 0.5, not 0,5)" if "," in text else ""
         raise RelcalError(
-            f"{path} line {line_no}: {column}: expected a number, got '{text.strip()}'"
+            f"{path} line {line_no}: {column}: expected a number, got '{text.strip()}'{hint}"
         ) from None
     if not np.isfinite(value):
         raise RelcalError(f"{path} line {line_no}: {column}: expected a finite number, got {text}")
@@ -221,12 +263,12 @@ def _joint_values(path: Path, q: np.ndarray, model: RobotModel, unit: str) -> np
     return q
 
 
-def _poses(path: Path, values: np.ndarray) -> np.ndarray:
+def _poses(path: Path, values: np.ndarray, lines: list[int]) -> np.ndarray:
     norms = np.linalg.norm(values[:, 3:], axis=1)
     bad = np.flatnonzero(np.abs(norms - 1) > 1e-3)
     if bad.size:
         raise RelcalError(
-            f"{path} line {bad[0] + 2}: qx, qy, qz, qw: expected a unit quaternion, "
+            f"{path} line {lines[bad[0]]}: qx, qy, qz, qw: expected a unit quaternion, "
             f"norm is {norms[bad[0]]:.4f}"
         )
     rot = Rotation.from_quat(values[:, 3:] / norms[:, None]).as_matrix()

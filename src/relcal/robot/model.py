@@ -16,7 +16,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field, replace
 from importlib import resources
 from pathlib import Path
-from typing import Literal
+from typing import Annotated, Literal
 
 import numpy as np
 import pydantic
@@ -78,21 +78,52 @@ class _Strict(pydantic.BaseModel):
     model_config = pydantic.ConfigDict(extra="forbid")
 
 
+# a number written as a number: "90" (quoted) is refused, not read as 90
+Number = Annotated[float, pydantic.Strict(), pydantic.AllowInfNan(False)]
+MAX_LINK = 5.0  # m: a longer link length or offset looks like millimetres
+MAX_FRAME = 20.0  # m: a base or tool offset beyond this looks like millimetres
+MAX_LENGTH = 1e3  # m: beyond any machine
+
+
+def plausible_length(value: float, limit: float, what: str) -> float:
+    """``value`` (m) if plausible; a ValueError naming the likely unit mistake otherwise."""
+    if abs(value) > MAX_LENGTH:
+        raise ValueError(f"{value:g} m is not a physical {what} (lengths are in metres)")
+    if abs(value) > limit:
+        raise ValueError(
+            f"{value:g} m looks like millimetres (a {what} above {limit:g} m is implausible); "
+            "give lengths in metres"
+        )
+    return value
+
+
 class _Transform(_Strict):
-    xyz: tuple[pydantic.FiniteFloat, pydantic.FiniteFloat, pydantic.FiniteFloat] = (0.0, 0.0, 0.0)
-    rpy: tuple[pydantic.FiniteFloat, pydantic.FiniteFloat, pydantic.FiniteFloat] = (0.0, 0.0, 0.0)
+    xyz: tuple[Number, Number, Number] = (0.0, 0.0, 0.0)
+    rpy: tuple[Number, Number, Number] = (0.0, 0.0, 0.0)
+
+    @pydantic.field_validator("xyz")
+    @classmethod
+    def _metres(cls, xyz: tuple[float, float, float]) -> tuple[float, float, float]:
+        for v in xyz:
+            plausible_length(v, MAX_FRAME, "base or tool offset")
+        return xyz
 
 
 class _Joint(_Strict):
     name: str | None = None
     type: Literal["revolute", "prismatic"] = "revolute"
-    theta_off: pydantic.FiniteFloat = 0.0
-    d: pydantic.FiniteFloat = 0.0
-    a: pydantic.FiniteFloat = 0.0
-    alpha: pydantic.FiniteFloat = 0.0
-    beta: pydantic.FiniteFloat = 0.0
+    theta_off: Number = 0.0
+    d: Number = 0.0
+    a: Number = 0.0
+    alpha: Number = 0.0
+    beta: Number = 0.0
     hayati: bool = False
-    limits: tuple[pydantic.FiniteFloat, pydantic.FiniteFloat] | None = None
+    limits: tuple[Number, Number] | None = None
+
+    @pydantic.field_validator("d", "a")
+    @classmethod
+    def _metres(cls, value: float) -> float:
+        return plausible_length(value, MAX_LINK, "link length or offset")
 
     @pydantic.model_validator(mode="after")
     def _ordered_limits(self) -> _Joint:
@@ -109,6 +140,32 @@ class _Robot(_Strict):
     joints: list[_Joint] = pydantic.Field(min_length=1)
     base: _Transform = _Transform()
     tool: _Transform = _Transform()
+
+    @pydantic.model_validator(mode="after")
+    def _names_and_angles(self) -> _Robot:
+        names = [j.name for j in self.joints if j.name]
+        twice = sorted({n for n in names if names.count(n) > 1})
+        if twice:
+            raise ValueError(f"joint names must be unique: {', '.join(twice)} named twice")
+        full = 360.0 if self.angle_unit == "deg" else 2 * np.pi
+        for i, j in enumerate(self.joints):
+            for kind in ("theta_off", "alpha", "beta"):
+                value = getattr(j, kind)
+                if abs(value) <= full + 1e-9:
+                    continue
+                hint = (
+                    "looks like degrees, but angle_unit: rad (set angle_unit: deg)"
+                    if self.angle_unit == "rad" and abs(value) <= 360
+                    else f"is beyond a full turn ({full:g} {self.angle_unit})"
+                )
+                raise ValueError(f"joints[{i}].{kind}: {value:g} {hint}")
+            if self.angle_unit == "rad" and j.type == "revolute" and j.limits is not None:
+                if max(abs(v) for v in j.limits) > 4 * np.pi + 1e-9:
+                    raise ValueError(
+                        f"joints[{i}].limits: {list(j.limits)} looks like degrees, but "
+                        "angle_unit: rad (set angle_unit: deg)"
+                    )
+        return self
 
 
 def model_from_dict(data: object, path: str | Path = "<robot>", node: object = None) -> RobotModel:

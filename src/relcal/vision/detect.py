@@ -183,6 +183,9 @@ def detect(
     order = np.arange(len(points))
     if board.type == "chessboard":
         order = _chessboard_order(gray, points.reshape(*board.grid_shape, 2)).ravel()
+        mismatch = _outer_squares_mismatch(gray, points[order].reshape(*board.grid_shape, 2))
+        if mismatch:
+            return Rejected(mismatch + f" (the board file declares {board.describe()})")
     elif board.type == "circles":
         found_order = _circle_order(points.reshape(*board.grid_shape, 2), areas, board)
         if isinstance(found_order, Rejected):
@@ -457,6 +460,51 @@ def _chessboard_order(gray: np.ndarray, grid: np.ndarray) -> np.ndarray:
         if score > best_score + 1e-9:
             best, best_score = idx, score
     return best if best is not None else np.arange(flat.shape[0]).reshape(grid.shape[:2])
+
+
+def _outer_squares_mismatch(gray: np.ndarray, grid: np.ndarray) -> str | None:
+    """Check a detected corner grid ``(R, C, 2)`` against the declared board: the squares just
+    outside the grid are the board's outer squares and must continue the colour alternation.
+    A grid that takes the pattern's edge (where black squares meet the white margin) for a row
+    of corners, as a finder may when the board has fewer rows or columns than declared, puts
+    margin there instead. Returns why the grid does not fit, or None."""
+    rows, cols = grid.shape[:2]
+    i, j = np.mgrid[0:rows, 0:cols]
+    src = np.stack([j.ravel(), i.ravel()], axis=1).astype(np.float32)
+    hom, _ = cv2.findHomography(src, grid.reshape(-1, 2).astype(np.float32))
+    if hom is None:
+        return None
+    ci, cj = np.mgrid[-1:rows, -1:cols]
+    centres = np.stack([cj.ravel() + 0.5, ci.ravel() + 0.5], axis=1)
+    img = cv2.perspectiveTransform(centres[None].astype(np.float64), hom)[0]
+    height, width = gray.shape
+    inside = (
+        (img[:, 0] >= 1) & (img[:, 0] <= width - 2) & (img[:, 1] >= 1) & (img[:, 1] <= height - 2)
+    )
+    levels = _sample(gray, img)
+    dark = ((ci.ravel() + cj.ravel()) % 2) == 0
+    ring = (ci.ravel() < 0) | (ci.ravel() == rows - 1) | (cj.ravel() < 0) | (cj.ravel() == cols - 1)
+    core = ~ring & inside
+    if not (core & dark).any() or not (core & ~dark).any():
+        return None
+    threshold = 0.5 * (np.median(levels[core & dark]) + np.median(levels[core & ~dark]))
+    wrong = (levels > threshold) == dark  # a dark square brighter than the threshold, or vice versa
+    sides = {
+        "before the first row": ci.ravel() < 0,
+        "after the last row": ci.ravel() == rows - 1,
+        "before the first column": cj.ravel() < 0,
+        "after the last column": cj.ravel() == cols - 1,
+    }
+    for name, side in sides.items():
+        seen = side & inside
+        if seen.sum() >= 3 and wrong[seen].mean() > 0.3:
+            return (
+                f"the detected {rows} x {cols} corner grid does not match the printed pattern: "
+                f"{int(wrong[seen].sum())} of {int(seen.sum())} squares {name} have the wrong "
+                "colour, so the finder took the pattern's edge for a row of corners; the board "
+                "has fewer rows or columns than declared?"
+            )
+    return None
 
 
 def _circle_order(grid: np.ndarray, areas: np.ndarray, board: Board) -> np.ndarray | Rejected:

@@ -1,0 +1,522 @@
+"""Plausibility checks: catch data that would calibrate "successfully" into a wrong model.
+
+Each check compares what was measured with what the nominal model commands, using quantities that
+do not depend on the unknowns of the calibration:
+
+- **Relative rotations.** For a pair (i, j) the measured ``B = C_i^-1 C_j`` and the commanded
+  ``A = F_i^-1 F_j`` satisfy ``A X = X B``: ``B`` is ``A`` seen in another frame, so both rotate by
+  the same angle, and their axes differ by one fixed rotation ``R_X`` for every pair. The misfit of
+  ``R_A`` against ``R_X R_B R_X^T`` with the best ``R_X`` (an SVD of the rotation vectors) is the
+  robot's small geometric error plus measurement noise when the data are right, and tens of
+  degrees when quaternions are w-first, poses are inverted or joints are in the wrong unit. The
+  alternatives are tried and the one that fits is named.
+- **Translation scale.** With ``R_X`` known, ``(R_A - I) t_X - s R_X t_B = -t_A`` is linear in
+  ``t_X`` and a scale ``s``: ``1/s`` is how much larger the measured translations are than the
+  modelled ones (1000 for millimetres, the ratio of the declared to the true board square).
+  Rotations about one fixed point (a 2-axis positioner with intersecting axes) leave the scale
+  undetermined; the check then says nothing.
+- **Magnitudes.** Joint readings against the model's limits, positions beyond any cell, a
+  hand-eye guess in millimetres.
+- **Corrections.** Each identified correction against a tolerance per kind: a 75 mm link
+  correction is not a calibration but a wrong input absorbed by the model.
+
+The functions are pure (arrays in, numbers or a message out); :func:`check_inputs` and
+:func:`check_corrections` gather them for :func:`relcal.calibration.pipeline.calibrate`, which
+calls them before identifying and before anything is written.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from relcal import geometry as tf
+from relcal.errors import RelcalError
+
+MAX_PAIRS = 2000  # pairs used by the checks (all pairs up to 63 samples)
+RATIO = 3.0  # an alternative reading that fits the rotations this much better is named
+
+
+@dataclass(frozen=True)
+class Tolerances:
+    """Thresholds of the plausibility checks (SI units); ``tolerances:`` in dataset.yaml sets
+    them as ``length_mm``, ``angle_deg``, ``handeye_mm``, ``handeye_deg``, ``rotation_deg``,
+    ``scale_percent``, ``joint_limit_deg``."""
+
+    length: float = 0.010  # m, largest plausible correction of a link length (a, d)
+    angle: float = np.radians(2.0)  # rad, of a joint offset or twist (theta_off, alpha, beta)
+    handeye_length: float = 0.05  # m, of the hand-eye translation from its starting value
+    handeye_angle: float = np.radians(5.0)  # rad, of the hand-eye rotation
+    rotation: float = np.radians(10.0)  # rad, median relative-rotation misfit
+    scale: float = 0.05  # relative, measured/modelled translation scale minus one
+    joint_limit: float = np.radians(5.0)  # rad, reading beyond a joint limit
+
+    FIELDS = {
+        "length_mm": ("length", 1e-3),
+        "angle_deg": ("angle", np.pi / 180),
+        "handeye_mm": ("handeye_length", 1e-3),
+        "handeye_deg": ("handeye_angle", np.pi / 180),
+        "rotation_deg": ("rotation", np.pi / 180),
+        "scale_percent": ("scale", 1e-2),
+        "joint_limit_deg": ("joint_limit", np.pi / 180),
+    }
+
+    @classmethod
+    def from_display(cls, values: dict[str, float] | None) -> Tolerances:
+        """From the dataset.yaml form (mm, deg, percent)."""
+        kwargs = {cls.FIELDS[k][0]: float(v) * cls.FIELDS[k][1] for k, v in (values or {}).items()}
+        return cls(**kwargs)
+
+
+# --- pure pieces ---------------------------------------------------------------------------------
+
+
+def check_pairs(n: int, rng_seed: int = 0) -> np.ndarray:
+    """Index pairs ``(P, 2)`` for the checks: all pairs, or ``MAX_PAIRS`` random ones."""
+    i, j = np.triu_indices(n, 1)
+    pairs = np.stack([i, j], axis=1)
+    if len(pairs) > MAX_PAIRS:
+        pick = np.random.default_rng(rng_seed).choice(len(pairs), MAX_PAIRS, replace=False)
+        pairs = pairs[np.sort(pick)]
+    return pairs
+
+
+def relative(poses: np.ndarray, pairs: np.ndarray) -> np.ndarray:
+    """``T_i^-1 T_j`` ``(P, 4, 4)`` for each pair."""
+    return tf.invert(poses[pairs[:, 0]]) @ poses[pairs[:, 1]]
+
+
+def align_rotations(commanded: np.ndarray, measured: np.ndarray) -> np.ndarray:
+    """The rotation ``R_X`` ``(3, 3)`` that best maps measured rotation vectors onto commanded
+    ones (``a = R_X b``, Kabsch on pairs turning less than 150 deg, where the axis is sure)."""
+    a = Rotation.from_matrix(commanded[:, :3, :3]).as_rotvec()
+    b = Rotation.from_matrix(measured[:, :3, :3]).as_rotvec()
+    keep = np.linalg.norm(a, axis=1) < np.radians(150)
+    if keep.sum() >= 2:
+        a, b = a[keep], b[keep]
+    u, _, vt = np.linalg.svd(a.T @ b)
+    return u @ np.diag([1.0, 1.0, np.sign(np.linalg.det(u @ vt)) or 1.0]) @ vt
+
+
+def rotation_misfit(commanded: np.ndarray, measured: np.ndarray) -> tuple[float, np.ndarray]:
+    """Median angle (rad) of ``R_A^T R_X R_B R_X^T`` over the pairs with the best ``R_X``, and
+    that ``R_X``. Independent of the hand-eye transform; near zero for right data."""
+    rx = align_rotations(commanded, measured)
+    rb = np.einsum("ij,pjk,lk->pil", rx, measured[:, :3, :3], rx)
+    diff = np.swapaxes(commanded[:, :3, :3], 1, 2) @ rb
+    return float(np.median(np.linalg.norm(tf.log_rotation(diff), axis=1))), rx
+
+
+def angle_misfit(commanded: np.ndarray, measured: np.ndarray) -> float:
+    """Median difference (rad) of the rotation angles of commanded and measured relative
+    motions: invariant under any hand-eye transform."""
+    a = np.linalg.norm(tf.log_rotation(commanded[:, :3, :3]), axis=1)
+    b = np.linalg.norm(tf.log_rotation(measured[:, :3, :3]), axis=1)
+    return float(np.median(np.abs(a - b)))
+
+
+@dataclass(frozen=True)
+class Scale:
+    """Measured over modelled translations: ``ratio`` and its standard deviation ``std``
+    (relative); ``determined`` is False when the motions cannot tell (rotations about a point)."""
+
+    ratio: float
+    std: float
+    determined: bool
+    handeye_translation: np.ndarray | None = None  # (3,) t_X of the fit, m
+    residual: float = float("nan")  # RMS of the fit's translation rows, m
+
+
+def translation_scale(commanded: np.ndarray, measured: np.ndarray, rx: np.ndarray) -> Scale:
+    """Solve ``(R_A - I) t_X - s R_X t_B = -t_A`` for ``t_X`` and ``s`` (least squares over the
+    pairs); the ratio is ``1/s``. Its standard deviation comes from the fit's residual."""
+    m = np.concatenate(
+        [
+            commanded[:, :3, :3] - np.eye(3),
+            -np.einsum("ij,pj->pi", rx, measured[:, :3, 3])[:, :, None],
+        ],
+        axis=2,
+    ).reshape(-1, 4)
+    rhs = -commanded[:, :3, 3].reshape(-1)
+    col = np.linalg.norm(m, axis=0)
+    col[col == 0] = 1.0
+    sol, *_ = np.linalg.lstsq(m / col, rhs, rcond=None)
+    sol = sol / col
+    resid = m @ sol - rhs
+    dof = max(len(rhs) - 4, 1)
+    sigma2 = float(resid @ resid) / dof
+    normal = (m / col).T @ (m / col)
+    sv = np.linalg.svd(normal, compute_uv=False)
+    rms = float(np.sqrt(np.mean(resid**2)))
+    if sv[-1] <= 1e-12 * sv[0] or sol[3] == 0:
+        return Scale(float("nan"), float("inf"), False, None, rms)
+    s_std = np.sqrt(sigma2 * np.linalg.inv(normal)[3, 3]) / col[3]
+    s = float(sol[3])
+    rel = float(s_std / abs(s))
+    return Scale(1.0 / s, rel, bool(rel < 0.01 and s > 0), sol[:3], rms)
+
+
+def reorder_w_first(poses: np.ndarray) -> np.ndarray:
+    """Poses whose quaternion columns ``qx, qy, qz, qw`` held ``w, x, y, z``, reinterpreted."""
+    quat = Rotation.from_matrix(poses[:, :3, :3]).as_quat()  # the (w, x, y, z) read as (x, y, z, w)
+    fixed = Rotation.from_quat(np.roll(quat, -1, axis=1)).as_matrix()
+    return tf.homogeneous(fixed, poses[:, :3, 3])
+
+
+def joint_problems(
+    q: np.ndarray,
+    lower: np.ndarray,
+    upper: np.ndarray,
+    prismatic: np.ndarray,
+    names: Sequence[str],
+    ids: Sequence[str],
+    margin: float,
+) -> list[str]:
+    """Readings beyond a joint's limits by more than ``margin`` (rad; 10 mm for prismatic
+    joints), or beyond any physical range where no limit is set. One message per joint."""
+    out = []
+    for j in range(q.shape[1]):
+        values = q[:, j]
+        pr = bool(prismatic[j])
+        tol = 0.01 if pr else margin
+        absurd = 100.0 if pr else 100 * np.pi
+        lo = lower[j] if np.isfinite(lower[j]) else -absurd
+        hi = upper[j] if np.isfinite(upper[j]) else absurd
+        bad = np.flatnonzero((values < lo - tol) | (values > hi + tol))
+        if not bad.size:
+            continue
+        k = bad[np.argmax(np.abs(values[bad]))]
+        unit, conv = ("m", 1.0) if pr else ("deg", 180 / np.pi)
+        limits = (
+            f"the model's limits [{lo * conv:.4g}, {hi * conv:.4g}] {unit}"
+            if np.isfinite(lower[j]) or np.isfinite(upper[j])
+            else f"any physical range (|q| < {absurd * conv:.4g} {unit})"
+        )
+        out.append(
+            f"sample {ids[k]}: q{j + 1} ({names[j]}) = {values[k] * conv:.6g} {unit} is outside "
+            f"{limits} ({len(bad)} of {len(values)} readings of this joint are): wrong joint "
+            "order, unit or model?"
+        )
+    return out
+
+
+def position_problems(poses: np.ndarray, ids: Sequence[str]) -> list[str]:
+    """Measured positions in millimetres (median distance above 20 m) or absurd (one sample
+    beyond 1 km or 100 times the median)."""
+    dist = np.linalg.norm(poses[:, :3, 3], axis=1)
+    median = float(np.median(dist))
+    if median > 20.0:
+        return [
+            f"poses look like millimetres: the median distance is {median:.4g} m (a camera and "
+            f"board within a cell are metres apart); give x, y, z in metres"
+        ]
+    bad = np.flatnonzero(dist > max(1e3, 100 * median))
+    if bad.size:
+        k = bad[np.argmax(dist[bad])]
+        return [
+            f"sample {ids[k]}: position x, y, z = {np.array2string(poses[k, :3, 3], precision=4)} "
+            f"m is not physical (the median distance is {median:.3g} m)"
+        ]
+    return []
+
+
+# --- gathering: inputs and corrections -----------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Alternative:
+    """A reading of the data that might have been meant, and how to say it."""
+
+    label: str
+    flange: Callable[[], np.ndarray]
+    measured: Callable[[], np.ndarray]
+
+
+def diagnose_rotations(
+    flange: np.ndarray,
+    measured: np.ndarray,
+    alternatives: Sequence[Alternative],
+    tolerance: float,
+    pairs: np.ndarray,
+) -> tuple[str | None, np.ndarray]:
+    """``None`` and ``R_X`` if the relative rotations agree; else a message naming the
+    alternative reading that fits (or the size of the disagreement) and ``R_X``."""
+    a, b = relative(flange, pairs), relative(measured, pairs)
+    misfit, rx = rotation_misfit(a, b)
+    if misfit <= tolerance / 5:
+        return None, rx
+    angle = angle_misfit(a, b)
+    tried = []
+    for alt in alternatives:
+        fa, mb = relative(alt.flange(), pairs), relative(alt.measured(), pairs)
+        m, alt_rx = rotation_misfit(fa, mb)
+        # readings that fit the rotations equally (w-first quaternions of inverted poses differ
+        # from the right ones by a constant rotation) differ in the translations
+        rank = translation_scale(fa, mb, alt_rx).residual if m <= tolerance else np.inf
+        tried.append((m <= tolerance, rank, m, alt.label))
+    tried.sort(key=lambda t: (not t[0], t[1], t[2]))
+    better = bool(tried) and tried[0][0] and tried[0][2] < misfit / RATIO
+    if misfit <= tolerance and not better:
+        return None, rx
+    if better:
+        # readings the translations cannot tell apart either (rotations about one point) are
+        # named together
+        best = tried[0][1]
+        alike = [t[3] for t in tried if t[0] and t[1] <= 1.5 * best + 1e-12]
+        return (
+            f"{' or '.join(alike)}: read that way the relative rotations agree with the "
+            f"commanded ones to {np.degrees(tried[0][2]):.2f} deg; as given they disagree by a "
+            f"median {np.degrees(misfit):.1f} deg",
+            rx,
+        )
+    return (
+        f"measured relative rotations disagree with the commanded ones by a median "
+        f"{np.degrees(misfit):.1f} deg (their rotation angles alone by {np.degrees(angle):.1f} "
+        f"deg; expected < {np.degrees(tolerance):.1f} deg for any hand-eye transform). Check the "
+        "quaternion order (x, y, z, w), the pose direction, the joint order and unit, and the "
+        "robot model",
+        rx,
+    )
+
+
+def check_inputs(
+    model,
+    q: np.ndarray,
+    poses: np.ndarray,
+    ids: Sequence[str],
+    where: str,
+    *,
+    fk: Callable[[np.ndarray], np.ndarray],
+    mode: str = "eye_in_hand",
+    handeye: np.ndarray | None = None,
+    board=None,
+    poses_given: bool = True,
+    spec: str | None = None,
+    tolerances: Tolerances = Tolerances(),
+) -> Scale:
+    """Raise :class:`RelcalError` naming the likely cause when the samples cannot be what the
+    model commands; return the translation scale found (``determined`` False if the motions
+    cannot tell).
+
+    ``q`` ``(N, n)`` rad, ``poses`` ``(N, 4, 4)`` the measured ``C_k`` of usable samples, ``fk``
+    the nominal forward kinematics, ``where`` the file named in messages about samples and
+    ``spec`` the one about the hand-eye guess (dataset.yaml).
+    """
+    spec = spec or where
+    problems = joint_problems(
+        q, model.lower, model.upper, model.prismatic, model.joint_names, ids, tolerances.joint_limit
+    )
+    problems += position_problems(poses, ids)
+    if handeye is not None and np.linalg.norm(handeye[:3, 3]) > 2.0:
+        xyz = np.array2string(handeye[:3, 3], precision=4)
+        raise RelcalError(
+            f"{spec}: handeye: xyz {xyz} m is {np.linalg.norm(handeye[:3, 3]):.4g} m from the "
+            "flange: looks like millimetres (give metres)"
+        )
+    if problems:
+        raise RelcalError(f"{where}: " + "\n".join(problems))
+    flange = fk(q)
+    pairs = check_pairs(len(q))
+    revolute = ~np.asarray(model.prismatic)
+    other = "board in camera" if mode == "eye_in_hand" else "camera in board"
+    wanted = "camera in board" if mode == "eye_in_hand" else "board in camera"
+
+    def scaled(factor: float) -> Callable[[], np.ndarray]:
+        return lambda: fk(np.where(revolute, q * factor, q))
+
+    given = lambda: poses  # noqa: E731
+    swapped = "eye_to_hand" if mode == "eye_in_hand" else "eye_in_hand"
+    inverted = (
+        f"poses look inverted ({other} given, {wanted} expected for {mode})"
+        if poses_given
+        else f"the camera poses look inverted (mode: {swapped} meant, not {mode}?)"
+    )
+    alternatives = [
+        Alternative(
+            inverted,
+            lambda: flange,
+            lambda: tf.invert(poses),
+        ),
+        Alternative(
+            "joint angles look like radians declared as degrees (joint_unit)",
+            scaled(180 / np.pi),
+            given,
+        ),
+        Alternative(
+            "joint angles look like degrees declared as radians (joint_unit)",
+            scaled(np.pi / 180),
+            given,
+        ),
+    ]
+    if poses_given:
+        alternatives.insert(
+            0,
+            Alternative(
+                "quaternions look w-first (qx, qy, qz, qw columns expected in x, y, z, w order)",
+                lambda: flange,
+                lambda: reorder_w_first(poses),
+            ),
+        )
+    message, rx = diagnose_rotations(flange, poses, alternatives, tolerances.rotation, pairs)
+    if message:
+        raise RelcalError(f"{where}: {message}")
+    scale = translation_scale(relative(flange, pairs), relative(poses, pairs), rx)
+    if not scale.determined:
+        return scale
+    off = scale.ratio - 1.0
+    if abs(off) > tolerances.scale and abs(off) > 3 * scale.std * scale.ratio:
+        raise RelcalError(f"{where}: {scale_message(scale.ratio, board, poses_given)}")
+    if handeye is not None:
+        message = guess_problem(handeye, rx, scale.handeye_translation)
+        if message:
+            raise RelcalError(f"{spec}: {message}")
+    return scale
+
+
+def guess_problem(
+    guess: np.ndarray,
+    rx: np.ndarray,
+    tx: np.ndarray | None,
+    max_angle: float = np.radians(30.0),
+    max_distance: float = 0.2,
+) -> str | None:
+    """A hand-eye guess ``(4, 4)`` far from what the data say (rotation ``rx``, translation
+    ``tx`` or None): a guess may be rough, but not off by more than ``max_angle`` or
+    ``max_distance``, where the identification would start in the wrong valley."""
+    angle = float(np.linalg.norm(tf.log_rotation(guess[:3, :3].T @ rx)))
+    data = tf.homogeneous(rx, tx if tx is not None else guess[:3, 3])
+    xyz, rpy = tf.to_xyz_rpy(data)
+    said = f"the data say xyz {np.array2string(xyz, precision=3)} m, rpy "
+    said += f"{np.array2string(np.degrees(rpy), precision=1)} deg"
+    if angle > max_angle:
+        return (
+            f"handeye: the guess's rotation is {np.degrees(angle):.0f} deg from the one the data "
+            f"say ({said}): fix rpy (degrees, roll-pitch-yaw) or leave handeye out"
+        )
+    if tx is not None and np.linalg.norm(guess[:3, 3] - tx) > max_distance:
+        return (
+            f"handeye: the guess's xyz is {np.linalg.norm(guess[:3, 3] - tx):.3g} m from the "
+            f"translation the data say ({said}): fix xyz (metres) or leave handeye out"
+        )
+    return None
+
+
+def scale_message(ratio: float, board, poses_given: bool) -> str:
+    """Name the likely cause of measured translations ``ratio`` times the modelled ones."""
+    head = f"measured translations are {ratio:.4g}x the modelled ones"
+    if 300 < ratio < 3000:
+        return f"poses look like millimetres ({head}); give x, y, z in metres"
+    if 0.0003 < ratio < 0.003:
+        return f"the robot model looks like millimetres ({head}); give lengths in metres"
+    if board is not None and not poses_given:
+        what = "square" if board.type in ("chessboard", "charuco") else "spacing"
+        return (
+            f"board {what} looks {ratio:.3g}x the true size ({head}): {what} "
+            f"{board.spacing:.6g} m in the board file, the data say {board.spacing / ratio:.4g} m"
+        )
+    return f"{head}: a wrong length unit or scale of the poses, or a wrong robot model"
+
+
+def check_corrections(
+    names: Sequence[str],
+    kinds: Sequence[str],
+    params: np.ndarray,
+    where: str,
+    tolerances: Tolerances = Tolerances(),
+) -> None:
+    """Raise naming each identified correction larger than its kind's tolerance and the likely
+    cause. ``kinds`` per entry: ``a``, ``d``, ``theta_off``, ``alpha``, ``beta``, ``handeye``;
+    ``params`` in m and rad (hand-eye as translation then rotation vector)."""
+    lines = []
+    for k, (name, kind) in enumerate(zip(names, kinds, strict=True)):
+        value = float(params[k])
+        if kind == "handeye":
+            comp = name.rsplit(".", 1)[-1]
+            angle = comp.startswith("r")
+            tol = tolerances.handeye_angle if angle else tolerances.handeye_length
+            cause = (
+                "the hand-eye guess in dataset.yaml is that far off (fix it or leave it out to "
+                "estimate it), or the poses are wrong"
+            )
+            key = "handeye_deg" if angle else "handeye_mm"
+        elif kind in ("a", "d"):
+            angle, tol, key = False, tolerances.length, "length_mm"
+            cause = (
+                "a wrong board size, poses in the wrong unit or a wrong robot model (a missing "
+                "offset, another robot) absorbed by the link lengths"
+            )
+        else:
+            angle, tol, key = True, tolerances.angle, "angle_deg"
+            cause = "a wrong robot model (joint zero offsets, signs, twists) or joint readings"
+        if abs(value) <= tol:
+            continue
+        unit, conv = ("deg", 180 / np.pi) if angle else ("mm", 1e3)
+        lines.append(
+            f"{name} corrected by {value * conv:+.4g} {unit} (tolerance {tol * conv:.3g} {unit}, "
+            f"tolerances: {key} in dataset.yaml): not a calibration; likely {cause}"
+        )
+    if lines:
+        raise RelcalError(
+            f"{where}: identified corrections too large to be plausible:\n" + "\n".join(lines)
+        )
+
+
+# --- the two calls of the pipeline ---------------------------------------------------------------
+
+
+def check_dataset(dataset, measurements) -> dict:
+    """:func:`check_inputs` on the usable samples of a loaded dataset; messages name its
+    samples file (or dataset.yaml for images). Returns what the checks measured, for the
+    results: the median relative-rotation misfit (deg) and the translation scale (with the
+    board size the data say, for images)."""
+    from relcal.robot.kinematics import fk
+
+    usable = np.flatnonzero(measurements.ok)
+    if len(usable) < 4:
+        return {}
+    spec = dataset.spec_path or dataset.root / "dataset.yaml"
+    where = str(spec.parent / "samples.csv") if dataset.poses is not None else str(spec)
+    q, poses = dataset.q[usable], measurements.poses[usable]
+    scale = check_inputs(
+        dataset.model,
+        q,
+        poses,
+        [dataset.ids[i] for i in usable],
+        where,
+        fk=lambda v: fk(dataset.model, v),
+        mode=dataset.mode,
+        handeye=dataset.handeye,
+        board=dataset.board,
+        poses_given=dataset.poses is not None,
+        spec=str(spec),
+        tolerances=Tolerances.from_display(dataset.tolerances),
+    )
+    pairs = check_pairs(len(usable))
+    misfit, _ = rotation_misfit(relative(fk(dataset.model, q), pairs), relative(poses, pairs))
+    out: dict = {"rotation_misfit_deg": float(np.degrees(misfit))}
+    if scale.determined:
+        out["translation_scale"] = float(scale.ratio)
+        out["translation_scale_std"] = float(scale.std * scale.ratio)
+        if dataset.board is not None and dataset.poses is None:
+            out["board_spacing_from_data_m"] = float(dataset.board.spacing / scale.ratio)
+    return out
+
+
+def check_result(dataset, problem, result) -> None:
+    """:func:`check_corrections` on an identification result (``problem.full_layout`` order).
+    Hand-eye corrections count only when the start was estimated from the data: a guess given in
+    dataset.yaml may be rough (its plausibility is checked against the data beforehand)."""
+    layout = problem.full_layout
+    keep = [
+        k for k, kind in enumerate(layout.kinds) if kind != "handeye" or dataset.handeye is None
+    ]
+    check_corrections(
+        [layout.names[k] for k in keep],
+        [layout.kinds[k] for k in keep],
+        result.params[keep],
+        str(dataset.spec_path or dataset.root),
+        Tolerances.from_display(dataset.tolerances),
+    )
