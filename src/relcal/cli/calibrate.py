@@ -98,12 +98,6 @@ def run_calibrate(args: argparse.Namespace) -> int:
             file=sys.stderr,
         )
         return 1
-    if cal.worse and not args.quiet:
-        print(
-            "note: on this held-out split the calibrated model is slightly worse than the "
-            "baseline, within the sampling interval (no evidence of harm; cross-validation on the "
-            "training samples chose it); --kfold K measures it on every sample"
-        )
     if args.kfold:
         from relcal.calibration.pipeline import cross_validate
 
@@ -121,6 +115,12 @@ def run_calibrate(args: argparse.Namespace) -> int:
         write_text(args.report, calibration_report(cal, doc))
     if not args.quiet:
         print(summary_text(doc))
+        if cal.worse:
+            print(
+                "note: on this held-out split the calibrated model is slightly worse than the "
+                "baseline, within the sampling interval (no evidence of harm; cross-validation "
+                "on the training samples chose it); --kfold K measures it on every sample"
+            )
         print(f"written: {out}/model.yaml, robot.urdf, parameters.csv, results.json")
         if args.report:
             print(f"report: {args.report}")
