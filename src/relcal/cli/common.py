@@ -28,7 +28,19 @@ def register_all(sub: argparse._SubParsersAction) -> None:
 def robot_args(parser: argparse.ArgumentParser) -> None:
     """``--robot`` and ``--hayati``, shared by every command that takes a robot model."""
     parser.add_argument(
-        "--robot", default="a465", help="built-in robot name or model YAML path (default a465)"
+        "--robot",
+        default="a465",
+        help="built-in robot name, model YAML path or URDF file (.urdf) (default a465)",
+    )
+    parser.add_argument(
+        "--root",
+        metavar="LINK",
+        help="URDF robots: first link of the chain (default: the tree's root)",
+    )
+    parser.add_argument(
+        "--tip",
+        metavar="LINK",
+        help="URDF robots: last link of the chain (default: the end of the tree's serial chain)",
     )
     parser.add_argument(
         "--hayati",
@@ -39,10 +51,11 @@ def robot_args(parser: argparse.ArgumentParser) -> None:
 
 
 def load_robot(args: argparse.Namespace):
-    """The model named by ``--robot``, with Hayati joints if ``--hayati auto``."""
+    """The model named by ``--robot`` (``--root``/``--tip`` for a URDF), with Hayati joints if
+    ``--hayati auto``."""
     from relcal.robot.model import auto_hayati, get_robot
 
-    model = get_robot(args.robot)
+    model = get_robot(args.robot, getattr(args, "root", None), getattr(args, "tip", None))
     return auto_hayati(model) if args.hayati == "auto" else model
 
 

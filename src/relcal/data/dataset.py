@@ -2,7 +2,9 @@
 
 ``dataset.yaml``::
 
-    robot: a465                # built-in name, a model YAML path (relative to the folder)
+    robot: a465                # built-in name, a model YAML or URDF path (relative to the
+                               # folder), an inline model mapping, or a URDF chain:
+                               # {urdf: robot.urdf, root: base_link, tip: tool0}
     hayati: auto               # auto | off: Hayati's beta for parallel consecutive axes
     mode: eye_in_hand          # eye_in_hand (camera on the flange) | eye_to_hand (board on it)
     board: board.yaml          # path or inline mapping (needed when samples have images)
@@ -57,6 +59,17 @@ class _Tolerances(pydantic.BaseModel):
     rotation_deg: pydantic.PositiveFloat | None = None
     scale_percent: pydantic.PositiveFloat | None = None
     joint_limit_deg: pydantic.PositiveFloat | None = None
+
+
+class _UrdfRobot(pydantic.BaseModel):
+    """``robot: {urdf: PATH, root: LINK, tip: LINK}``; root and tip may be left out when the
+    tree has one obvious serial chain."""
+
+    model_config = pydantic.ConfigDict(extra="forbid")
+    urdf: str
+    root: str | None = None
+    tip: str | None = None
+    parametrisation: Literal["minimal"] = "minimal"
 
 
 class _DatasetSpec(pydantic.BaseModel):
@@ -118,11 +131,7 @@ def load_dataset(folder: str | Path) -> Dataset:
     data, node = load_yaml(spec_path)
     spec = validate(_DatasetSpec, data, spec_path, node)
 
-    if isinstance(spec.robot, dict):
-        model = model_from_dict(spec.robot, f"{spec_path}: robot")
-    else:
-        path = root / spec.robot
-        model = get_robot(path if path.suffix in (".yaml", ".yml") else spec.robot)
+    model = _robot(root, spec.robot, spec_path, node)
     if spec.hayati == "auto":
         model = auto_hayati(model)
 
@@ -148,6 +157,22 @@ def load_dataset(folder: str | Path) -> Dataset:
     return Dataset(
         root, model, spec.mode, handeye, ids, q, images, poses, board, camera, spec_path, tolerances
     )
+
+
+def _robot(root: Path, value: str | dict, spec_path: Path, node) -> RobotModel:
+    """The ``robot:`` entry: a name, a path (relative to the dataset), a URDF chain mapping, or
+    an inline model mapping."""
+    if isinstance(value, dict) and "urdf" in value:
+        from relcal.robot.urdf import load_urdf
+
+        sub = node.value if node is not None else None
+        robot_node = next((v for k, v in sub or [] if getattr(k, "value", None) == "robot"), None)
+        spec = validate(_UrdfRobot, value, f"{spec_path}: robot", robot_node)
+        return load_urdf(root / spec.urdf, spec.root, spec.tip, spec.parametrisation)
+    if isinstance(value, dict):
+        return model_from_dict(value, f"{spec_path}: robot")
+    path = root / value
+    return get_robot(path if path.suffix.lower() in (".yaml", ".yml", ".urdf") else value)
 
 
 def _board(root: Path, value, spec_path: Path, load_board):

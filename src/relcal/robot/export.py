@@ -1,4 +1,5 @@
-"""Outputs of a calibration: the calibrated model (YAML, URDF) and the parameter table (CSV).
+"""Outputs of a calibration: the calibrated model (YAML, URDF) and the parameter table (CSV);
+for robots loaded from a URDF, that URDF with calibrated joint origins and vendor formats.
 
 URDF joints rotate (or slide) about their own z axis after a fixed origin transform. The chain is
 rewritten as ``F(q) = M_0 J(q_1) M_1 ... J(q_n) M_n`` with ``J`` the joint motion along z: in
@@ -9,15 +10,21 @@ standard DH ``A_i(q) = J(q) A_i(0)`` (the motion comes first), in modified DH
 from __future__ import annotations
 
 import csv
+import hashlib
 import io
+import json
+import re
 from dataclasses import replace
 from xml.sax.saxutils import quoteattr
 
 import numpy as np
+import yaml
 
 from relcal import geometry as tf
-from relcal.robot.kinematics import Layout, _link_transforms, apply_errors
+from relcal.errors import RelcalError
+from relcal.robot.kinematics import Layout, _link_transforms, apply_errors, forward_frames
 from relcal.robot.model import RobotModel
+from relcal.robot.urdf import MOVABLE
 
 
 def calibrated_model(model: RobotModel, layout: Layout, params: np.ndarray) -> RobotModel:
@@ -90,3 +97,225 @@ def parameter_csv(rows: list[dict]) -> str:
     writer.writeheader()
     writer.writerows(rows)
     return buf.getvalue()
+
+
+# --- exports back into a URDF-loaded robot's own files -------------------------------------------
+
+_EXACT = 1e-13  # m and rad: an origin closer than this to the file's is left as written
+
+
+def _require_urdf(model: RobotModel, what: str):
+    if model.urdf is None:
+        raise RelcalError(
+            f"{what} needs a robot loaded from a URDF (robot: {{urdf: FILE}} or --robot FILE.urdf);"
+            f" '{model.name}' was not"
+        )
+    return model.urdf
+
+
+def urdf_origins(model: RobotModel) -> dict[str, np.ndarray]:
+    """Joint origins ``(4, 4)`` of the model's URDF chain that reproduce the model's kinematics.
+
+    Each movable joint's URDF frame keeps its place in relcal's joint frame
+    (:attr:`relcal.robot.urdf.UrdfChain.frames`), so a calibrated model moves the movable joints'
+    origins; fixed joints keep theirs, except the last fixed joint before the tip when the tool
+    transform itself changed. Returns the origin of every chain joint, by name.
+    """
+    chain = _require_urdf(model, "urdf_origins")
+    frames = forward_frames(model, np.zeros((1, model.n_joints)))[0, 1:]
+    world = frames @ chain.frames  # URDF joint frames in the root frame at q = 0
+    out, t, i = {}, np.eye(4), 0
+    for j in chain.joints:
+        if j.type in MOVABLE:
+            out[j.name] = tf.invert(t) @ world[i]
+            t = world[i]
+            i += 1
+        else:
+            out[j.name] = j.origin
+            t = t @ j.origin
+    want = frames[-1] @ model.tool
+    if np.abs(t - want).max() > _EXACT:
+        after = [k for k in range(chain.movable[-1] + 1, len(chain.joints))]
+        if not after:
+            raise RelcalError(
+                f"{chain.path}: the calibrated tool transform cannot be written into the URDF: the "
+                f"tip '{chain.tip}' is the child of joint '{chain.joints[-1].name}' itself; add a "
+                "fixed joint to a tool link, or calibrate without the tool transform"
+            )
+        last = chain.joints[after[-1]]
+        before = t @ tf.invert(last.origin)
+        out[last.name] = tf.invert(before) @ want
+    return out
+
+
+def _changed(model: RobotModel) -> dict[str, np.ndarray]:
+    """The chain joints whose origin differs from the file's (beyond round-off)."""
+    chain = model.urdf
+    new = urdf_origins(model)
+    return {
+        j.name: new[j.name] for j in chain.joints if np.abs(new[j.name] - j.origin).max() > _EXACT
+    }
+
+
+def _masked(data: bytes) -> bytes:
+    """``data`` with comments and CDATA blanked out (same length), so searches skip them."""
+
+    def blank(m: re.Match) -> bytes:
+        return re.sub(rb"[^\n]", b" ", m.group(0))
+
+    return re.sub(rb"<!--.*?-->|<!\[CDATA\[.*?\]\]>", blank, data, flags=re.S)
+
+
+def _number(v: float) -> str:
+    return repr(float(v) + 0.0)  # shortest text that reads back as the same double; no "-0.0"
+
+
+def _origin_attrs(origin: np.ndarray) -> tuple[bytes, bytes]:
+    xyz, rpy = tf.to_xyz_rpy(origin)
+    return (" ".join(_number(v) for v in xyz).encode(), " ".join(_number(v) for v in rpy).encode())
+
+
+def _set_attr(tag: bytes, name: bytes, value: bytes) -> bytes:
+    pattern = rb"(\s" + name + rb"\s*=\s*)([\"'])(.*?)\2"
+    if re.search(pattern, tag, flags=re.S):
+        return re.sub(pattern, lambda m: m.group(1) + m.group(2) + value + m.group(2), tag, count=1)
+    end = len(tag) - (2 if tag.endswith(b"/>") else 1)
+    return tag[:end].rstrip() + b" " + name + b'="' + value + b'"' + tag[end:]
+
+
+def _replace_origins(path: str, data: bytes, origins: dict[str, np.ndarray]) -> bytes:
+    """``data`` with only the ``xyz``/``rpy`` of these joints' ``<origin>`` elements rewritten."""
+    masked = _masked(data)
+    edits: list[tuple[int, int, bytes]] = []
+    for name, origin in origins.items():
+        starts = [
+            m
+            for m in re.finditer(rb"<joint\b[^>]*>", masked)
+            if re.search(rb"\sname\s*=\s*([\"'])" + re.escape(name.encode()) + rb"\1", m.group(0))
+            and re.search(rb"\stype\s*=", m.group(0))
+        ]
+        if len(starts) != 1:
+            raise RelcalError(
+                f'{path}: found {len(starts)} <joint name="{name}"> elements, expected 1'
+            )
+        start = starts[0]
+        end = masked.find(b"</joint>", start.end())
+        end = start.end() if start.group(0).endswith(b"/>") or end < 0 else end
+        xyz, rpy = _origin_attrs(origin)
+        found = re.search(rb"<origin\b[^>]*>", masked[start.end() : end])
+        if found:
+            a, b = start.end() + found.start(), start.end() + found.end()
+            tag = _set_attr(_set_attr(data[a:b], b"xyz", xyz), b"rpy", rpy)
+            edits.append((a, b, tag))
+        else:  # no <origin>: insert one, indented like the joint's first child
+            indent = re.match(rb"\s*", data[start.end() : end]).group(0) or b" "
+            tag = indent + b'<origin xyz="' + xyz + b'" rpy="' + rpy + b'"/>'
+            edits.append((start.end(), start.end(), tag))
+    out = data
+    for a, b, tag in sorted(edits, reverse=True):
+        out = out[:a] + tag + out[b:]
+    return out
+
+
+def calibrated_urdf(model: RobotModel) -> bytes:
+    """The model's own URDF file with only the changed chain joints' ``<origin>`` rewritten.
+
+    Everything else (meshes, inertials, Gazebo and ros2_control tags, comments, formatting) is
+    byte for byte the input. Use :func:`urdf` for models that did not come from a URDF.
+    """
+    chain = _require_urdf(model, "calibrated_urdf")
+    return _replace_origins(chain.path, chain.data, _changed(model))
+
+
+def _xyz_rpy(origin: np.ndarray) -> dict:
+    xyz, rpy = tf.to_xyz_rpy(origin)
+    return {"xyz": [float(v) for v in xyz], "rpy": [float(v) for v in rpy]}
+
+
+def origin_corrections(model: RobotModel) -> dict:
+    """Per chain joint whose origin changed: nominal and calibrated origin (m, rad) and the
+    correction ``nominal^-1 calibrated`` as xyz and rpy, in the joint's parent link frame."""
+    chain = _require_urdf(model, "origin_corrections")
+    by_name = {j.name: j for j in chain.joints}
+    joints = {}
+    for name, new in _changed(model).items():
+        old = by_name[name].origin
+        joints[name] = {
+            "nominal": _xyz_rpy(old),
+            "calibrated": _xyz_rpy(new),
+            "correction": _xyz_rpy(tf.invert(old) @ new),
+        }
+    return {
+        "robot": chain.robot_name,
+        "urdf": chain.path,
+        "root": chain.root,
+        "tip": chain.tip,
+        "units": {"xyz": "m", "rpy": "rad (fixed-axis roll, pitch, yaw as in URDF)"},
+        "joints": joints,
+    }
+
+
+def origin_corrections_yaml(model: RobotModel) -> str:
+    """:func:`origin_corrections` as YAML text."""
+    return yaml.safe_dump(origin_corrections(model), sort_keys=False)
+
+
+def _entries(model: RobotModel, keys: dict[str, str], what: str) -> dict[str, dict]:
+    """``{key: {x, y, z, roll, pitch, yaw}}`` of the chain joints named ``...suffix`` per
+    ``keys`` (``suffix -> key``), all of them required."""
+    chain = _require_urdf(model, what)
+    origins = urdf_origins(model)
+    out = {}
+    for suffix, key in keys.items():
+        names = [j.name for j in chain.joints if j.name == suffix or j.name.endswith("_" + suffix)]
+        if len(names) != 1:
+            raise RelcalError(
+                f"{chain.path}: {what} needs one chain joint named '{suffix}' (or "
+                f"'PREFIX_{suffix}'), found {len(names)} among "
+                + ", ".join(j.name for j in chain.joints)
+            )
+        xyz, rpy = tf.to_xyz_rpy(origins[names[0]])
+        values = [*xyz, *rpy]
+        out[key] = {
+            k: float(v) + 0.0
+            for k, v in zip(("x", "y", "z", "roll", "pitch", "yaw"), values, strict=True)
+        }
+    return out
+
+
+UR_SEGMENTS = {
+    "shoulder_pan_joint": "shoulder",
+    "shoulder_lift_joint": "upper_arm",
+    "elbow_joint": "forearm",
+    "wrist_1_joint": "wrist_1",
+    "wrist_2_joint": "wrist_2",
+    "wrist_3_joint": "wrist_3",
+}
+
+
+def ur_calibration_yaml(model: RobotModel) -> str:
+    """The ``calibration.yaml`` that Universal Robots' ROS 2 description and driver read
+    (``kinematics_parameters_file``): per segment the joint origin x, y, z (m), roll, pitch, yaw
+    (rad), and a ``hash``.
+
+    ur_description writes these six values as the origins of ``shoulder_pan_joint`` ..
+    ``wrist_3_joint``, so the model must come from a URDF with those joints (a prefix is allowed)
+    laid out as ur_description lays them. The hash is relcal's (``calib_`` and a number from the
+    values): the driver warns that it differs from the controller's own calibration hash.
+    """
+    kin = _entries(model, UR_SEGMENTS, "the UR calibration export")
+    digest = hashlib.sha256(json.dumps(kin, sort_keys=True).encode()).digest()
+    kin["hash"] = f"calib_{int.from_bytes(digest[:8], 'big') >> 1}"
+    return yaml.safe_dump({"kinematics": kin}, sort_keys=False)
+
+
+def franka_kinematics_yaml(model: RobotModel) -> str:
+    """Per-joint origins in franka_description's ``kinematics.yaml`` layout: ``jointK:
+    {kinematic: {x, y, z, roll, pitch, yaw}}`` for joint1 .. joint7 (and joint8, the flange,
+    when the chain reaches it), m and rad."""
+    chain = _require_urdf(model, "the Franka kinematics export")
+    keys = {f"joint{k}": f"joint{k}" for k in range(1, 8)}
+    if any(j.name == "joint8" or j.name.endswith("_joint8") for j in chain.joints):
+        keys["joint8"] = "joint8"
+    kin = _entries(model, keys, "the Franka kinematics export")
+    return yaml.safe_dump({k: {"kinematic": v} for k, v in kin.items()}, sort_keys=False)

@@ -16,7 +16,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field, replace
 from importlib import resources
 from pathlib import Path
-from typing import Annotated, Literal
+from typing import TYPE_CHECKING, Annotated, Literal
 
 import numpy as np
 import pydantic
@@ -24,6 +24,9 @@ import yaml
 
 from relcal import geometry as tf
 from relcal.errors import RelcalError
+
+if TYPE_CHECKING:
+    from relcal.robot.urdf import Inertials, UrdfChain
 
 KINDS = ("theta_off", "a", "d", "alpha", "beta")
 ANGLE_KINDS = ("theta_off", "alpha", "beta")
@@ -48,6 +51,8 @@ class RobotModel:
     base: np.ndarray = field(default_factory=lambda: np.eye(4))
     tool: np.ndarray = field(default_factory=lambda: np.eye(4))
     source: str = ""
+    inertials: Inertials | None = None  # link masses in the joint frames (URDF models)
+    urdf: UrdfChain | None = None  # the URDF it was loaded from, for exports back into it
 
     @property
     def n_joints(self) -> int:
@@ -267,9 +272,19 @@ def library_names() -> list[str]:
     return sorted(p.name[:-5] for p in files.iterdir() if p.name.endswith(".yaml"))
 
 
-def get_robot(name_or_path: str | Path) -> RobotModel:
-    """A built-in robot by name (``a465``, ``puma560``, ...) or a model YAML file by path."""
+def get_robot(
+    name_or_path: str | Path, root: str | None = None, tip: str | None = None
+) -> RobotModel:
+    """A built-in robot by name (``a465``, ``puma560``, ...), a model YAML file by path, or the
+    serial chain ``root`` -> ``tip`` of a URDF file (``.urdf``; root and tip may be omitted when
+    the tree has one obvious serial chain)."""
     name = str(name_or_path)
+    if Path(name).suffix.lower() == ".urdf":
+        from relcal.robot.urdf import load_urdf
+
+        return load_urdf(name, root, tip)
+    if root is not None or tip is not None:
+        raise RelcalError(f"robot '{name}': root and tip links apply to URDF files (.urdf) only")
     if name.lower() in library_names():
         ref = resources.files("relcal.robot") / "library" / f"{name.lower()}.yaml"
         with resources.as_file(ref) as path:
@@ -277,7 +292,8 @@ def get_robot(name_or_path: str | Path) -> RobotModel:
     if Path(name).suffix in (".yaml", ".yml") or Path(name).exists():
         return load_model(name)
     raise RelcalError(
-        f"unknown robot '{name}': expected one of {', '.join(library_names())} or a YAML file path"
+        f"unknown robot '{name}': expected one of {', '.join(library_names())}, a model YAML file "
+        "path or a URDF file (.urdf)"
     )
 
 

@@ -1,0 +1,239 @@
+"""URDF chains as relcal models: forward kinematics against Pinocchio on real URDFs (TIAGo Pro,
+UR5, Panda, Kinova, Z1) and on hand-made ones with the awkward cases (prismatic, axis 0 0 -1,
+parallel and nearly parallel axes, collinear axes, mimic and branch links), names, limits and
+inertials against Pinocchio, and a clear error for each kind of bad URDF."""
+
+import numpy as np
+import pytest
+from conftest import random_q
+from urdf_helpers import REAL, TIAGO, TIAGO_CHAIN, TIAGO_JOINTS, pin_fk
+
+from relcal import geometry as tf
+from relcal.errors import RelcalError
+from relcal.robot.export import calibrated_model
+from relcal.robot.kinematics import fk, make_layout, pose_jacobian
+from relcal.robot.model import auto_hayati, get_robot
+from relcal.robot.urdf import chain_fk, load_urdf
+
+
+def rotation_error(a: np.ndarray, b: np.ndarray) -> float:
+    """Largest rotation angle (rad) between matching rotations of ``(N, 4, 4)`` poses."""
+    rel = np.swapaxes(a[:, :3, :3], -1, -2) @ b[:, :3, :3]
+    return float(np.linalg.norm(tf.log_rotation(rel), axis=-1).max())
+
+
+@pytest.mark.parametrize("name", list(REAL))
+def test_fk_matches_pinocchio(name, rng):
+    path, root, tip = REAL[name]
+    model = load_urdf(path, root, tip)
+    q = random_q(model, 30, rng, scale=1.0)
+    ours = fk(model, q)
+    theirs = pin_fk(path, model.urdf.root, model.urdf.tip, model.joint_names, q)
+    assert np.abs(ours[:, :3, 3] - theirs[:, :3, 3]).max() < 1e-12
+    assert rotation_error(ours, theirs) < 1e-12
+
+
+def test_tiago_chain_names_limits_and_units():
+    import pinocchio as pin
+
+    model = load_urdf(TIAGO, *TIAGO_CHAIN)
+    assert model.joint_names == TIAGO_JOINTS
+    assert model.prismatic.tolist() == [True] + [False] * 7
+    pm = pin.buildModelFromUrdf(str(TIAGO))
+    for i, name in enumerate(model.joint_names):
+        idx = pm.joints[pm.getJointId(name)].idx_q
+        assert model.lower[i] == pm.lowerPositionLimit[idx]
+        assert model.upper[i] == pm.upperPositionLimit[idx]
+    # the torso slides in metres: 0.1 m of torso_lift_joint lifts the gripper by 0.1 m
+    q0 = np.zeros((1, 8))
+    q1 = q0.copy()
+    q1[0, 0] = 0.1
+    lift = fk(model, q1)[0, :3, 3] - fk(model, q0)[0, :3, 3]
+    np.testing.assert_allclose(lift, [0, 0, 0.1], atol=1e-12)
+
+
+def test_get_robot_gives_the_tiago_chain():
+    model = get_robot(TIAGO, root=TIAGO_CHAIN[0], tip=TIAGO_CHAIN[1])
+    assert model.joint_names == TIAGO_JOINTS
+    assert model.urdf is not None and model.urdf.tip == TIAGO_CHAIN[1]
+
+
+def test_parallel_axes_get_hayati_beta_and_auto_hayati_agrees():
+    model = load_urdf(*REAL["ur5"])
+    # UR: shoulder_lift, elbow and wrist_1 axes are parallel -> beta on elbow and wrist_1
+    assert model.hayati.tolist() == [False, False, True, True, False, False]
+    np.testing.assert_array_equal(auto_hayati(model).hayati, model.hayati)
+    assert np.all(model.d[model.fixed_d()] == 0)
+
+
+def test_identification_jacobian_matches_finite_differences(rng):
+    model = load_urdf(*REAL["tiago_pro"])
+    layout = make_layout(model)
+    q = random_q(model, 5, rng)
+    _, jac = pose_jacobian(model, q, layout)
+    h = 1e-7
+    for k in range(layout.size):
+        step = np.zeros(layout.size)
+        step[k] = h
+        plus = fk(calibrated_model(model, layout, step), q)
+        minus = fk(calibrated_model(model, layout, -step), q)
+        dpos = (plus[:, :3, 3] - minus[:, :3, 3]) / (2 * h)
+        drot = tf.log_rotation(plus[:, :3, :3] @ np.swapaxes(minus[:, :3, :3], -1, -2)) / (2 * h)
+        np.testing.assert_allclose(jac[:, :3, k], dpos, atol=1e-6)
+        np.testing.assert_allclose(jac[:, 3:, k], drot, atol=1e-6)
+
+
+# --- hand-made URDFs -----------------------------------------------------------------------------
+
+
+def joint(name, kind, parent, child, xyz="0 0 0", rpy="0 0 0", axis="0 0 1", extra=""):
+    axis_tag = f'<axis xyz="{axis}"/>' if axis is not None else ""
+    limit = '<limit lower="-2" upper="2" effort="1" velocity="1"/>' if kind != "fixed" else ""
+    return (
+        f'<joint name="{name}" type="{kind}"><parent link="{parent}"/><child link="{child}"/>'
+        f'<origin xyz="{xyz}" rpy="{rpy}"/>{axis_tag}{limit}{extra}</joint>\n'
+    )
+
+
+def robot(body: str, links) -> str:
+    tags = "".join(
+        f'<link name="{name}"><inertial><origin xyz="0.01 0.02 0.03" rpy="0.1 0.2 0.3"/>'
+        '<mass value="1.5"/><inertia ixx="0.01" ixy="0.001" ixz="0" iyy="0.02" iyz="0" izz="0.03"/>'
+        "</inertial></link>\n"
+        for name in links
+    )
+    return f'<?xml version="1.0"?>\n<robot name="test">\n{tags}{body}</robot>\n'
+
+
+AWKWARD = robot(
+    joint("mount", "fixed", "world", "base", "0.1 0.2 0.3", "0.3 -0.2 0.1")
+    + joint("slide", "prismatic", "base", "l1", "0 0 0.2", "0 0 0", "0.6 0 0.8")
+    + joint("j2", "revolute", "l1", "l2", "0.1 0 0.3", "0.2 0.1 0", "0 0 -1")
+    + joint("j3", "continuous", "l2", "l3", "0.3 0.05 0", "0 0 0", "0 0 1")  # parallel to j2
+    + joint("j4", "revolute", "l3", "l4", "0.25 0 0.01", "0.006 0.006 0", "0 0 1")  # 0.5 deg off
+    + joint("j5", "revolute", "l4", "l5", "0 0 0.1", "0 0 0.7", "0 0 1")  # collinear with j4
+    + joint("j6", "revolute", "l5", "l6", "0 0.1 0.1", "1.2 0 0", "0 1 0")
+    + joint("flange", "fixed", "l6", "tip", "0 0 0.08", "0 0.5 0")
+    + joint("finger", "prismatic", "l6", "f1", "0 0.02 0", axis="0 1 0")
+    + joint(
+        "finger2",
+        "prismatic",
+        "l6",
+        "f2",
+        "0 -0.02 0",
+        axis="0 1 0",
+        extra='<mimic joint="finger"/>',
+    )
+    + joint("sensor", "fixed", "l3", "cam", "0 0 0.05"),
+    ["world", "base", "l1", "l2", "l3", "l4", "l5", "l6", "tip", "f1", "f2", "cam"],
+)
+
+
+def test_awkward_chain_matches_pinocchio(tmp_path, rng):
+    path = tmp_path / "awkward.urdf"
+    path.write_text(AWKWARD)
+    model = load_urdf(path, tip="tip")
+    assert model.joint_names == ("slide", "j2", "j3", "j4", "j5", "j6")
+    assert model.hayati.tolist() == [False, False, True, True, True, False]
+    assert abs(model.beta[3]) > 1e-3  # the nearly parallel pair needs a real beta
+    q = random_q(model, 40, rng, scale=1.0)
+    ours = fk(model, q)
+    theirs = pin_fk(path, "world", "tip", model.joint_names, q)
+    assert np.abs(ours[:, :3, 3] - theirs[:, :3, 3]).max() < 1e-12
+    assert rotation_error(ours, theirs) < 1e-12
+    np.testing.assert_allclose(chain_fk(model.urdf, q), ours, atol=1e-12)
+
+
+def test_inertials_match_pinocchio(tmp_path):
+    import pinocchio as pin
+
+    for path, root, tip in [REAL["tiago_pro"], REAL["panda"]]:
+        model = load_urdf(path, root, tip)
+        pm = pin.buildModelFromUrdf(str(path))
+        for i, name in enumerate(model.joint_names):
+            body = pm.inertias[pm.getJointId(name)]  # in the URDF joint frame
+            frame = model.urdf.frames[i]  # URDF joint frame in relcal's joint frame
+            rot = frame[:3, :3]
+            assert model.inertials.mass[i] == pytest.approx(body.mass, rel=1e-12)
+            np.testing.assert_allclose(
+                model.inertials.com[i], frame[:3, :3] @ body.lever + frame[:3, 3], atol=1e-12
+            )
+            np.testing.assert_allclose(
+                model.inertials.inertia[i], rot @ body.inertia @ rot.T, atol=1e-12
+            )
+
+
+def test_obvious_chain_found_without_root_and_tip(tmp_path):
+    path = tmp_path / "awkward.urdf"
+    path.write_text(AWKWARD)
+    model = load_urdf(path)
+    # the mimic finger is ignored; the other finger is the chain's end
+    assert model.urdf.root == "world" and model.urdf.tip == "f1"
+    assert model.joint_names[-1] == "finger"
+
+
+# --- bad URDFs -----------------------------------------------------------------------------------
+
+
+def load_bad(tmp_path, text, *patterns, root=None, tip="tip"):
+    path = tmp_path / "bad.urdf"
+    path.write_text(text)
+    with pytest.raises(RelcalError) as err:
+        load_urdf(path, root, tip)
+    message = str(err.value)
+    assert "bad.urdf" in message
+    for pattern in patterns:
+        assert pattern in message, message
+    return message
+
+
+def test_bad_missing_link(tmp_path):
+    text = AWKWARD.replace('<child link="l3"/>', '<child link="l33"/>')
+    load_bad(tmp_path, text, "line", "joint 'j3'", "child link 'l33' is not defined", "'l3'")
+
+
+def test_bad_loop(tmp_path):
+    text = AWKWARD.replace("</robot>", joint("back", "fixed", "l4", "l2") + "</robot>")
+    load_bad(tmp_path, text, "link 'l2' is the child of two joints", "'j2'", "'back'", "tree")
+    cycle = robot(
+        joint("a", "fixed", "x", "y")
+        + joint("b", "fixed", "y", "z")
+        + joint("c", "fixed", "z", "x"),
+        ["x", "y", "z"],
+    )
+    load_bad(tmp_path, cycle, "loop", "remove the joint")
+
+
+@pytest.mark.parametrize("kind", ["floating", "planar"])
+def test_bad_floating_or_planar_joint_in_chain(tmp_path, kind):
+    text = AWKWARD.replace('name="mount" type="fixed"', f'name="mount" type="{kind}"')
+    load_bad(tmp_path, text, f"joint 'mount' is of type '{kind}'", "root: base")
+
+
+def test_bad_unknown_root_or_tip(tmp_path):
+    load_bad(tmp_path, AWKWARD, "tip link 'tipp' is not in the file", "tip", tip="tipp")
+    load_bad(tmp_path, AWKWARD, "root link 'wrold' is not in the file", "world", root="wrold")
+    load_bad(tmp_path, AWKWARD, "tip link 'l2' is not below root link 'l4'", root="l4", tip="l2")
+
+
+def test_bad_joint_without_axis(tmp_path):
+    text = AWKWARD.replace('<axis xyz="0 0 -1"/>', "")
+    load_bad(tmp_path, text, "joint 'j2' (revolute) has no <axis>", '<axis xyz="0 0 1"/>')
+    zero = AWKWARD.replace('<axis xyz="0 0 -1"/>', '<axis xyz="0 0 0"/>')
+    load_bad(tmp_path, zero, "joint 'j2'", "non-zero")
+
+
+def test_bad_non_serial_tree_without_root_and_tip(tmp_path):
+    branch = joint("other", "revolute", "l2", "arm2", axis="1 0 0")
+    text = AWKWARD.replace('<link name="cam">', f'{branch}<link name="arm2"/><link name="cam">')
+    load_bad(tmp_path, text, "not a serial chain below link 'l2'", "'j3'", "'other'", tip=None)
+    load_bad(tmp_path, text, "--root/--tip", tip=None)
+    msg = load_bad(tmp_path, TIAGO.read_text(), "not a serial chain", tip=None)
+    assert "torso_fixed_joint" in msg
+
+
+def test_bad_mimic_in_chain_xml_and_file(tmp_path):
+    load_bad(tmp_path, AWKWARD, "joint 'finger2' mimics 'finger'", "tip: l6", tip="f2")
+    load_bad(tmp_path, AWKWARD.replace("</robot>", "<robot>"), "line", "malformed XML")
+    with pytest.raises(RelcalError, match="nope.urdf: file not found"):
+        load_urdf(tmp_path / "nope.urdf")
