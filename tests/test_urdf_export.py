@@ -1,0 +1,177 @@
+"""Exports of URDF-loaded models back into the robot's own files: the calibrated URDF differs from
+the input only in the calibrated joints' origins (a byte diff proves it) and reproduces relcal's
+kinematics in Pinocchio and yourdfpy; the origin corrections, UR calibration.yaml and Franka
+kinematics.yaml, written into the URDF the way xacro would, do too."""
+
+import re
+
+import numpy as np
+import pytest
+import yaml
+import yourdfpy
+from conftest import random_q
+from lxml import etree
+from urdf_helpers import REAL, TIAGO, pin_fk
+
+from relcal import geometry as tf
+from relcal.errors import RelcalError
+from relcal.robot.export import (
+    calibrated_model,
+    calibrated_urdf,
+    franka_kinematics_yaml,
+    origin_corrections_yaml,
+    ur_calibration_yaml,
+)
+from relcal.robot.kinematics import fk, make_layout
+from relcal.robot.model import get_robot
+from relcal.robot.urdf import load_urdf
+
+
+def planted(name, rng, tool=False, size=1e-3):
+    """The URDF robot with random geometric errors (and a tool error if asked)."""
+    path, root, tip = REAL[name]
+    model = load_urdf(path, root, tip)
+    layout = make_layout(model, tool=tool)
+    return model, calibrated_model(model, layout, rng.normal(0, size, layout.size))
+
+
+def check_fk(path, model, q, tol=1e-9):
+    """Pinocchio and yourdfpy FK of the URDF at ``path`` against relcal's ``model``."""
+    ours = fk(model, q)
+    root, tip = model.urdf.root, model.urdf.tip
+    np.testing.assert_allclose(pin_fk(path, root, tip, model.joint_names, q), ours, atol=tol)
+    robot = yourdfpy.URDF.load(str(path), load_meshes=False, build_scene_graph=True)
+    for k in range(len(q)):
+        robot.update_cfg(dict(zip(model.joint_names, q[k], strict=True)))
+        np.testing.assert_allclose(robot.get_transform(tip, root), ours[k], atol=tol)
+
+
+def substitute(data: bytes, origins: dict[str, np.ndarray]) -> bytes:
+    """The URDF with these joints' origins replaced, as xacro would write them (via lxml)."""
+    root = etree.fromstring(data)
+    for name, origin in origins.items():
+        (joint,) = root.xpath(f"/robot/joint[@name='{name}']")
+        tag = joint.find("origin")
+        if tag is None:
+            tag = etree.SubElement(joint, "origin")
+        xyz, rpy = tf.to_xyz_rpy(origin)
+        tag.set("xyz", " ".join(repr(float(v)) for v in xyz))
+        tag.set("rpy", " ".join(repr(float(v)) for v in rpy))
+    return etree.tostring(root)
+
+
+def origins_masked(data: bytes, names) -> bytes:
+    """``data`` with the <origin> tag of each named top-level joint replaced by a placeholder."""
+    for name in names:
+        pattern = rb'(<joint name="' + name.encode() + rb'" type="[a-z]+">.*?)<origin [^>]*>'
+        data = re.sub(pattern, rb"\1<ORIGIN>", data, count=1, flags=re.S)
+    return data
+
+
+def test_nominal_export_is_the_input_file():
+    for name in ("tiago_pro", "ur5"):
+        model = load_urdf(*REAL[name])
+        assert calibrated_urdf(model) == model.urdf.data
+
+
+def test_calibrated_tiago_urdf_changes_only_joint_origins(tmp_path, rng):
+    nominal, model = planted("tiago_pro", rng)
+    out = calibrated_urdf(model)
+    assert out != nominal.urdf.data
+    names = model.joint_names
+    assert origins_masked(out, names) == origins_masked(nominal.urdf.data, names)
+    # every movable chain joint's origin changed, and nothing else did
+    assert origins_masked(out, names).count(b"<ORIGIN>") == len(names)
+    path = tmp_path / "calibrated.urdf"
+    path.write_bytes(out)
+    check_fk(path, model, random_q(model, 10, rng))
+
+
+COMMENTED = (
+    '<!-- a comment that names <joint name="j2" type="revolute"> and an <origin xyz="1 1 1"/> -->'
+)
+
+
+def test_comments_crlf_and_missing_origin_are_respected(tmp_path, rng):
+    from test_urdf import AWKWARD
+
+    text = AWKWARD.replace('<robot name="test">', f'<robot name="test">\n{COMMENTED}')
+    text = text.replace('<origin xyz="0 0 0.1" rpy="0 0 0.7"/>', "")  # j5 without an <origin>
+    text = text.replace('<origin xyz="0 0.1 0.1" rpy="1.2 0 0"/>', '<origin rpy="1.2 0 0"/>')
+    data = text.replace("\n", "\r\n").encode()
+    src = tmp_path / "awkward.urdf"
+    src.write_bytes(data)
+    model = load_urdf(src, tip="tip")
+    layout = make_layout(model)
+    model = calibrated_model(model, layout, rng.normal(0, 1e-3, layout.size))
+    out = calibrated_urdf(model)
+    assert COMMENTED.encode() in out and out.count(b"\r\n") == data.count(b"\r\n")
+    path = tmp_path / "calibrated.urdf"
+    path.write_bytes(out)
+    check_fk(path, model, random_q(model, 10, rng))
+
+
+def test_tool_change_goes_into_the_last_fixed_joint(tmp_path, rng):
+    nominal, model = planted("panda", rng, tool=True)
+    out = calibrated_urdf(model)
+    names = (*model.joint_names, "panda_joint8")  # the flange joint carries the tool change
+    assert origins_masked(out, names) == origins_masked(nominal.urdf.data, names)
+    path = tmp_path / "calibrated.urdf"
+    path.write_bytes(out)
+    check_fk(path, model, random_q(model, 10, rng))
+    # UR5's default tip is wrist_3_joint's own child: no fixed joint can take a tool change
+    _, ur = planted("ur5", rng, tool=True)
+    with pytest.raises(RelcalError, match="tool transform cannot be written"):
+        calibrated_urdf(ur)
+
+
+def test_origin_corrections_round_trip(tmp_path, rng):
+    nominal, model = planted("tiago_pro", rng)
+    doc = yaml.safe_load(origin_corrections_yaml(model))
+    assert set(doc["joints"]) == set(model.joint_names)
+    origins = {}
+    for name, entry in doc["joints"].items():
+        old = tf.from_xyz_rpy(entry["nominal"]["xyz"], entry["nominal"]["rpy"])
+        fix = tf.from_xyz_rpy(entry["correction"]["xyz"], entry["correction"]["rpy"])
+        origins[name] = old @ fix
+    path = tmp_path / "corrected.urdf"
+    path.write_bytes(substitute(TIAGO.read_bytes(), origins))
+    check_fk(path, model, random_q(model, 10, rng))
+
+
+def origin_of(entry: dict) -> np.ndarray:
+    return tf.from_xyz_rpy(
+        [entry["x"], entry["y"], entry["z"]], [entry["roll"], entry["pitch"], entry["yaw"]]
+    )
+
+
+def test_ur_calibration_yaml_round_trip(tmp_path, rng):
+    nominal, model = planted("ur5", rng)
+    doc = yaml.safe_load(ur_calibration_yaml(model))
+    kin = doc["kinematics"]
+    segments = ["shoulder", "upper_arm", "forearm", "wrist_1", "wrist_2", "wrist_3"]
+    assert list(kin) == [*segments, "hash"] and re.fullmatch(r"calib_\d+", kin["hash"])
+    assert all(set(kin[s]) == {"x", "y", "z", "roll", "pitch", "yaw"} for s in segments)
+    # ur_description writes segment k's values as the origin of the k-th arm joint
+    origins = {j: origin_of(kin[s]) for j, s in zip(model.joint_names, segments, strict=True)}
+    path = tmp_path / "ur5_calibrated.urdf"
+    path.write_bytes(substitute(nominal.urdf.data, origins))
+    check_fk(path, model, random_q(model, 10, rng))
+
+
+def test_franka_kinematics_yaml_round_trip(tmp_path, rng):
+    nominal, model = planted("panda", rng, tool=True)
+    doc = yaml.safe_load(franka_kinematics_yaml(model))
+    assert list(doc) == [f"joint{k}" for k in range(1, 9)]
+    origins = {f"panda_{key}": origin_of(entry["kinematic"]) for key, entry in doc.items()}
+    path = tmp_path / "panda_calibrated.urdf"
+    path.write_bytes(substitute(nominal.urdf.data, origins))
+    check_fk(path, model, random_q(model, 10, rng))
+
+
+def test_exports_need_a_urdf_robot():
+    for export in (calibrated_urdf, origin_corrections_yaml, franka_kinematics_yaml):
+        with pytest.raises(RelcalError, match="needs a robot loaded from a URDF"):
+            export(get_robot("a465"))
+    with pytest.raises(RelcalError, match="shoulder_pan_joint"):
+        ur_calibration_yaml(load_urdf(*REAL["panda"]))
