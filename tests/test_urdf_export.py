@@ -175,3 +175,74 @@ def test_exports_need_a_urdf_robot():
             export(get_robot("a465"))
     with pytest.raises(RelcalError, match="shoulder_pan_joint"):
         ur_calibration_yaml(load_urdf(*REAL["panda"]))
+
+
+def test_calibrate_command_on_a_urdf_dataset(tmp_path, rng):
+    """A UR5 dataset whose robot: is the URDF: calibrate writes the URDF files, and the written
+    URDF reproduces the calibrated model.yaml."""
+    import shutil
+
+    from helpers_sim import BOARD, HANDEYE
+
+    from relcal.cli import main
+    from relcal.data.dataset import load_dataset, write_samples
+    from relcal.robot.model import auto_hayati, load_model
+
+    root = tmp_path / "ur5_run"
+    root.mkdir()
+    shutil.copy(REAL["ur5"][0], root / "ur5.urdf")
+    (root / "dataset.yaml").write_text(
+        "robot: {urdf: ur5.urdf, root: base_link, tip: tool0}\njoint_unit: rad\n"
+        "handeye: {xyz: [0, 0.04, 0.06]}\n"
+    )
+    model = auto_hayati(load_urdf(root / "ur5.urdf", "base_link", "tool0"))  # as hayati: auto
+    layout = make_layout(model)
+    truth = calibrated_model(model, layout, rng.normal(0, 5e-4, layout.size))
+    q = random_q(model, 40, rng, scale=0.8)
+    poses = BOARD @ fk(truth, q) @ HANDEYE
+    ids = [f"s{k:02d}" for k in range(len(q))]
+    (root / "samples.csv").write_text(write_samples(root / "samples.csv", ids, q, poses=poses))
+    out = tmp_path / "out"
+    assert load_dataset(root).model.joint_names == model.joint_names
+    assert main(["calibrate", str(root), "--out", str(out), "--quiet"]) == 0
+    for name in ("robot.urdf", "origin_corrections.yaml", "ur_calibration.yaml"):
+        assert (out / name).is_file()
+    calibrated = load_model(out / "model.yaml")
+    ours = fk(calibrated, q[:10])
+    theirs = pin_fk(out / "robot.urdf", "base_link", "tool0", calibrated.joint_names, q[:10])
+    np.testing.assert_allclose(theirs, ours, atol=1e-9)
+
+
+def test_dataset_and_command_line_take_a_urdf_chain(tmp_path, capsys):
+    import argparse
+
+    from urdf_helpers import TIAGO_CHAIN, TIAGO_JOINTS
+
+    from relcal.cli import main
+    from relcal.cli.common import load_robot, robot_args
+    from relcal.data.dataset import load_dataset
+
+    parser = argparse.ArgumentParser()
+    robot_args(parser)
+    args = parser.parse_args(
+        ["--robot", str(TIAGO), "--root", TIAGO_CHAIN[0], "--tip", TIAGO_CHAIN[1]]
+    )
+    assert load_robot(args).joint_names == TIAGO_JOINTS
+    assert main(["simulate", "--robot", str(TIAGO), "--tip", "nowhere_link"]) == 2
+    assert "tip link 'nowhere_link' is not in the file" in capsys.readouterr().err
+    root = tmp_path / "ds"
+    root.mkdir()
+    (root / "dataset.yaml").write_text(f"robot:\n  urdf: {TIAGO}\n  tipp: x\n")
+    with pytest.raises(RelcalError, match=r"dataset.yaml: robot line 3: tipp"):
+        load_dataset(root)
+
+
+@pytest.mark.parametrize("off", [0.0, 1.8e-9, 1e-6, 0.3])
+def test_rpy_of_origins_rebuilds_the_rotation_near_gimbal_lock(off, rng):
+    """URDFs write pitch = 1.570796325 (UR): the rpy written back must rebuild the rotation to
+    round-off, not to the 1e-9 that independent Euler formulas give there."""
+    for sign in (1, -1):
+        roll, yaw = rng.uniform(-np.pi, np.pi, 2)
+        rot = tf.from_xyz_rpy([0, 0, 0], [roll, sign * (np.pi / 2 - off), yaw])
+        _, rpy = tf.to_xyz_rpy(rot)
+        np.testing.assert_allclose(tf.from_xyz_rpy([0, 0, 0], rpy), rot, atol=2e-15)

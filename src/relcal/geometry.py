@@ -151,8 +151,19 @@ def from_xyz_rpy(xyz: np.ndarray, rpy: np.ndarray) -> np.ndarray:
 
 
 def to_xyz_rpy(transform: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Translation (m) and fixed-axis roll, pitch, yaw (rad) of one ``(4, 4)`` transform."""
-    return transform[:3, 3].copy(), Rotation.from_matrix(transform[:3, :3]).as_euler("xyz")
+    """Translation (m) and fixed-axis roll, pitch, yaw (rad) of one ``(4, 4)`` transform.
+
+    ``R = Rz(yaw) Ry(pitch) Rx(roll)``. Roll and pitch come from the last row; yaw from what is
+    left of ``R`` once they are taken out, so the three angles rebuild ``R`` to round-off even
+    near pitch = +-90 degrees (where independent formulas lose digits: URDFs often write
+    pitch = 1.570796325).
+    """
+    r = np.asarray(transform, dtype=float)[:3, :3]
+    pitch = math.atan2(-r[2, 0], math.hypot(r[2, 1], r[2, 2]))
+    roll = math.atan2(r[2, 1], r[2, 2])
+    rest = r @ rot_x(roll).T @ rot_y(pitch).T  # Rz(yaw)
+    yaw = math.atan2(rest[1, 0], rest[0, 0])
+    return np.asarray(transform, dtype=float)[:3, 3].copy(), np.array([roll, pitch, yaw])
 
 
 def rotate_twist(rotation: np.ndarray, twist: np.ndarray) -> np.ndarray:

@@ -62,9 +62,9 @@ def run_calibrate(args: argparse.Namespace) -> int:
     from relcal.calibration.pipeline import calibrate
     from relcal.data.dataset import load_dataset
     from relcal.data.imaging import measure
-    from relcal.io import write_json, write_text
+    from relcal.io import write_json, write_text, write_with
     from relcal.reporting.documents import results_document
-    from relcal.robot.export import parameter_csv, urdf
+    from relcal.robot.export import parameter_csv, robot_files
     from relcal.robot.model import dump_model
 
     dataset = load_dataset(args.dataset)
@@ -104,7 +104,9 @@ def run_calibrate(args: argparse.Namespace) -> int:
         folds = cross_validate(dataset, m, k=args.kfold, seed=args.seed, **options)
         doc["cross_validation"] = cross_validation_summary(folds)
     write_text(out / "model.yaml", dump_model(model))
-    write_text(out / "robot.urdf", urdf(model))
+    files = robot_files(model)  # robot.urdf (+ origin corrections, UR/Franka files for URDFs)
+    for name, data in files.items():
+        write_with(out / name, lambda f, data=data: f.write(data), "wb")
     write_text(out / "parameters.csv", parameter_csv(doc["parameters"]))
     write_json(out / "results.json", doc)
     if args.json:
@@ -121,7 +123,7 @@ def run_calibrate(args: argparse.Namespace) -> int:
                 "baseline, within the sampling interval (no evidence of harm; cross-validation "
                 "on the training samples chose it); --kfold K measures it on every sample"
             )
-        print(f"written: {out}/model.yaml, robot.urdf, parameters.csv, results.json")
+        print(f"written: {out}/model.yaml, {', '.join(files)}, parameters.csv, results.json")
         if args.report:
             print(f"report: {args.report}")
     if not cal.result.converged:

@@ -319,3 +319,26 @@ def franka_kinematics_yaml(model: RobotModel) -> str:
         keys["joint8"] = "joint8"
     kin = _entries(model, keys, "the Franka kinematics export")
     return yaml.safe_dump({k: {"kinematic": v} for k, v in kin.items()}, sort_keys=False)
+
+
+def _has_joints(model: RobotModel, suffixes) -> bool:
+    names = [j.name for j in model.urdf.joints] if model.urdf is not None else []
+    return all(sum(n == s or n.endswith("_" + s) for n in names) == 1 for s in suffixes)
+
+
+def robot_files(model: RobotModel) -> dict[str, bytes]:
+    """The calibrated robot's files by name: ``robot.urdf`` (generated from the model, or for a
+    URDF robot its own file with the calibrated joint origins), and for URDF robots
+    ``origin_corrections.yaml``, plus ``ur_calibration.yaml`` for UR arms and
+    ``franka_kinematics.yaml`` for Franka arms."""
+    if model.urdf is None:
+        return {"robot.urdf": urdf(model).encode()}
+    files = {
+        "robot.urdf": calibrated_urdf(model),
+        "origin_corrections.yaml": origin_corrections_yaml(model).encode(),
+    }
+    if _has_joints(model, UR_SEGMENTS):
+        files["ur_calibration.yaml"] = ur_calibration_yaml(model).encode()
+    if _has_joints(model, [f"joint{k}" for k in range(1, 8)]):
+        files["franka_kinematics.yaml"] = franka_kinematics_yaml(model).encode()
+    return files
