@@ -237,3 +237,82 @@ def test_bad_mimic_in_chain_xml_and_file(tmp_path):
     load_bad(tmp_path, AWKWARD.replace("</robot>", "<robot>"), "line", "malformed XML")
     with pytest.raises(RelcalError, match="nope.urdf: file not found"):
         load_urdf(tmp_path / "nope.urdf")
+
+
+# --- the origins parametrisation -----------------------------------------------------------------
+
+
+def origins_model(name_or_text, tmp_path=None):
+    if name_or_text in REAL:
+        return load_urdf(*REAL[name_or_text], parametrisation="origins")
+    path = tmp_path / "awkward.urdf"
+    path.write_text(name_or_text)
+    return load_urdf(path, tip="tip", parametrisation="origins")
+
+
+@pytest.mark.parametrize("which", ["tiago_pro", "awkward"])
+def test_origin_errors_move_the_urdf_origins_exactly(which, tmp_path, rng):
+    """Planted origin errors and zero offsets give the FK of the URDF chain with those origins
+    (``origin exp(motion)``) and those joint offsets, computed straight from the joints."""
+    model = origins_model(which if which in REAL else AWKWARD, tmp_path)
+    layout = make_layout(model)
+    assert layout.size == 7 * model.n_joints
+    errors = rng.normal(0, 1e-2, layout.size)
+    moved = calibrated_model(model, layout, errors)
+    per_joint = errors.reshape(model.n_joints, 7)
+    origins = {
+        model.urdf.joints[k].name: model.urdf.joints[k].origin @ tf.from_vector(per_joint[i, 1:])
+        for i, k in enumerate(model.urdf.movable)
+    }
+    q = random_q(model, 20, rng)
+    expected = chain_fk(model.urdf, q + per_joint[:, 0], origins)
+    np.testing.assert_allclose(fk(moved, q), expected, atol=1e-12)
+
+
+@pytest.mark.parametrize("which", ["tiago_pro", "awkward"])
+def test_origins_jacobian_matches_finite_differences(which, tmp_path, rng):
+    from relcal.robot.kinematics import spatial_jacobian
+
+    model = origins_model(which if which in REAL else AWKWARD, tmp_path)
+    layout = make_layout(model)
+    model = calibrated_model(model, layout, rng.normal(0, 1e-3, layout.size))
+    q = random_q(model, 4, rng)
+    tip, jac = pose_jacobian(model, q, layout)
+    _, spatial = spatial_jacobian(model, q, layout)
+    np.testing.assert_allclose(spatial[:, 3:], jac[:, 3:], atol=1e-15)
+    # the same motions, velocity taken at the base origin instead of the tool point
+    np.testing.assert_allclose(
+        spatial[:, :3], jac[:, :3] + tf.skew(tip[:, :3, 3]) @ jac[:, 3:], atol=1e-12
+    )
+    h = 1e-7
+    for k in range(layout.size):
+        step = np.zeros(layout.size)
+        step[k] = h
+        plus = fk(calibrated_model(model, layout, step), q)
+        minus = fk(calibrated_model(model, layout, -step), q)
+        dpos = (plus[:, :3, 3] - minus[:, :3, 3]) / (2 * h)
+        drot = tf.log_rotation(plus[:, :3, :3] @ np.swapaxes(minus[:, :3, :3], -1, -2)) / (2 * h)
+        np.testing.assert_allclose(jac[:, :3, k], dpos, atol=1e-6)
+        np.testing.assert_allclose(jac[:, 3:, k], drot, atol=1e-6)
+
+
+@pytest.mark.parametrize("name", ["tiago_pro", "ur5", "panda"])
+def test_origins_and_minimal_identify_the_same_motions(name, rng):
+    """Both parametrisations span the same space of tool motions (absolute poses, base and tool
+    free): the origins one only adds redundant directions."""
+    minimal = load_urdf(*REAL[name])
+    origins = load_urdf(*REAL[name], parametrisation="origins")
+    q = random_q(minimal, 40, rng)
+
+    def rank(model):
+        layout = make_layout(model, base=True, tool=True)
+        _, jac = pose_jacobian(model, q, layout)
+        stacked = jac.reshape(-1, layout.size)
+        sv = np.linalg.svd(stacked / np.linalg.norm(stacked, axis=0), compute_uv=False)
+        return int(np.sum(sv > 1e-9 * sv[0])), layout.size
+
+    (r_min, p_min), (r_org, p_org) = rank(minimal), rank(origins)
+    assert r_min == r_org and p_org > p_min
+    # 4 per revolute joint, 2 per prismatic joint, 6 for the base (Everett's count)
+    expected = 4 * int((~minimal.prismatic).sum()) + 2 * int(minimal.prismatic.sum()) + 6
+    assert r_min == expected

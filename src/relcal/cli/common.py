@@ -43,6 +43,13 @@ def robot_args(parser: argparse.ArgumentParser) -> None:
         help="URDF robots: last link of the chain (default: the end of the tree's serial chain)",
     )
     parser.add_argument(
+        "--parametrisation",
+        choices=("minimal", "origins"),
+        default="minimal",
+        help="URDF robots: errors as modified-DH parameters (minimal) or as joint origins "
+        "(origins: xyz, rotation and zero offset per joint)",
+    )
+    parser.add_argument(
         "--hayati",
         choices=("off", "auto"),
         default="off",
@@ -55,7 +62,12 @@ def load_robot(args: argparse.Namespace):
     ``--hayati auto``."""
     from relcal.robot.model import auto_hayati, get_robot
 
-    model = get_robot(args.robot, getattr(args, "root", None), getattr(args, "tip", None))
+    model = get_robot(
+        args.robot,
+        getattr(args, "root", None),
+        getattr(args, "tip", None),
+        getattr(args, "parametrisation", "minimal"),
+    )
     return auto_hayati(model) if args.hayati == "auto" else model
 
 

@@ -69,7 +69,7 @@ class _UrdfRobot(pydantic.BaseModel):
     urdf: str
     root: str | None = None
     tip: str | None = None
-    parametrisation: Literal["minimal"] = "minimal"
+    parametrisation: Literal["minimal", "origins"] = "minimal"
 
 
 class _DatasetSpec(pydantic.BaseModel):

@@ -5,6 +5,11 @@ Everything is vectorised over N joint configurations ``q`` of shape ``(N, n)``.
 The parameter vector is ordered by kind, as in the published formulation: all ``theta_off``, all
 ``a``, all ``d``, all ``alpha``, then ``beta`` of Hayati joints, then optionally the base and tool
 transforms as 6-vectors of small motions in their own frames (``base.tx`` ... ``base.rz``).
+
+Robots loaded from a URDF with the ``origins`` parametrisation get instead, per joint, its zero
+offset (``theta_off``, or ``d`` for a prismatic joint) and a small motion of its URDF origin in
+the joint's own frame (kind ``origin``, index ``6 * joint + component``), as robot_calibration
+and FIGAROH parametrise: redundant, and the identifiability analysis names the redundancy.
 """
 
 from __future__ import annotations
@@ -42,7 +47,7 @@ class Layout:
     def is_angle(self) -> np.ndarray:
         """Mask of entries in radians (the others are in metres); frame 6-vectors end in radians."""
         return np.array(
-            [k in ANGLE_KINDS or (k not in KINDS and i >= 3) for k, i in self],
+            [k in ANGLE_KINDS or (k not in KINDS and i % 6 >= 3) for k, i in self],
             dtype=bool,
         )
 
@@ -56,7 +61,10 @@ class Layout:
 
 
 def make_layout(model: RobotModel, base: bool = False, tool: bool = False) -> Layout:
-    """The geometric parameters of ``model`` (plus base and tool 6-vectors if asked)."""
+    """The geometric parameters of ``model`` (plus base and tool 6-vectors if asked): the DH
+    parameters, or the URDF origins for URDF robots loaded with ``parametrisation: origins``."""
+    if model.urdf is not None and model.urdf.parametrisation == "origins":
+        return origins_layout(model, base, tool)
     n = model.n_joints
     fixed_d = model.fixed_d()
     entries: list[tuple[str, int]] = []
@@ -73,9 +81,41 @@ def make_layout(model: RobotModel, base: bool = False, tool: bool = False) -> La
     return Layout(names, tuple(k for k, _ in entries), tuple(i for _, i in entries))
 
 
+ORIGIN_COMPONENTS = ("x", "y", "z", "rx", "ry", "rz")
+
+
+def origins_layout(model: RobotModel, base: bool = False, tool: bool = False) -> Layout:
+    """Per joint its zero offset (``{joint}.zero``: ``theta_off``, or ``d`` when prismatic) and
+    a small motion of its URDF origin in its own frame (``{joint}.origin.x`` .. ``.rz``)."""
+    names, kinds, index = [], [], []
+    for i, joint in enumerate(model.joint_names):
+        names.append(f"{joint}.zero")
+        kinds.append("d" if model.prismatic[i] else "theta_off")
+        index.append(i)
+        for c, comp in enumerate(ORIGIN_COMPONENTS):
+            names.append(f"{joint}.origin.{comp}")
+            kinds.append("origin")
+            index.append(6 * i + c)
+    for frame, wanted in (("base", base), ("tool", tool)):
+        if wanted:
+            names += [f"{frame}.{c}" for c in FRAME_COMPONENTS]
+            kinds += [frame] * 6
+            index += list(range(6))
+    return Layout(tuple(names), tuple(kinds), tuple(index))
+
+
 def apply_errors(model: RobotModel, layout: Layout, errors: np.ndarray) -> RobotModel:
-    """The model with additive geometric errors; base/tool errors move those frames locally."""
+    """The model with additive geometric errors; base/tool errors move those frames locally;
+    URDF origin errors move the joint origins (and the model is converted again, exactly)."""
     errors = np.asarray(errors, dtype=float)
+    origin = [(i, e) for (k, i), e in zip(layout, errors, strict=False) if k == "origin"]
+    if origin and any(e != 0 for _, e in origin):
+        from relcal.robot.urdf import move_origins
+
+        motions = np.zeros((model.n_joints, 6))
+        for i, e in origin:
+            motions[i // 6, i % 6] += e
+        model = move_origins(model, motions)
     arrays = {k: model.geometric(k).copy() for k in ("theta_off", "a", "d", "alpha", "beta")}
     frames = {"base": np.zeros(6), "tool": np.zeros(6)}
     for (kind, i), e in zip(layout, errors, strict=False):
@@ -255,11 +295,12 @@ def _slots(layout: Layout, n_joints: int) -> tuple[np.ndarray, ...]:
     of :func:`_joint_screws` flattened (kind-major); frame parameters name their component."""
     kinds, index = np.array(layout.kinds), np.array(layout.index, dtype=int)
     joint = np.isin(kinds, _JOINT_KINDS)
-    if np.any(~joint & ~np.isin(kinds, ("base", "tool"))):
-        bad = kinds[~joint & ~np.isin(kinds, ("base", "tool"))][0]
+    frames = ("base", "tool", "origin")
+    if np.any(~joint & ~np.isin(kinds, frames)):
+        bad = kinds[~joint & ~np.isin(kinds, frames)][0]
         raise ValueError(f"parameter kind '{bad}' is not a kinematic parameter")
     table = np.array([_JOINT_KINDS.index(k) if j else 0 for k, j in zip(kinds, joint, strict=True)])
-    rotation = np.where(joint, np.isin(kinds, _ROTATIONS), index >= 3)
+    rotation = np.where(joint, np.isin(kinds, _ROTATIONS), index % 6 >= 3)
     return (
         np.flatnonzero(joint),
         table[joint] * n_joints + index[joint],
@@ -267,6 +308,8 @@ def _slots(layout: Layout, n_joints: int) -> tuple[np.ndarray, ...]:
         index[kinds == "base"] % 3,
         np.flatnonzero(kinds == "tool"),
         index[kinds == "tool"] % 3,
+        np.flatnonzero(kinds == "origin"),
+        index[kinds == "origin"],
         rotation,
     )
 
@@ -279,9 +322,17 @@ def _screws(
     (the others translate along their axis)."""
     frames, c, s = _chain(model, q)
     tip_pose = frames[:, -1] @ model.tool
-    joint_cols, joint_slots, base_cols, base_axes, tool_cols, tool_axes, rotation = _slots(
-        layout, model.n_joints
-    )
+    (
+        joint_cols,
+        joint_slots,
+        base_cols,
+        base_axes,
+        tool_cols,
+        tool_axes,
+        origin_cols,
+        origin_idx,
+        rotation,
+    ) = _slots(layout, model.n_joints)
     screw_axes, screw_points = _joint_screws(model, frames, c, s)  # (N, 5 n, 3) each
     axes = np.empty((len(tip_pose), layout.size, 3))
     points = np.empty((len(tip_pose), layout.size, 3))
@@ -292,7 +343,26 @@ def _screws(
     points[:, base_cols] = model.base[:3, 3]
     axes[:, tool_cols] = np.swapaxes(tip_pose[:, :3, tool_axes], -1, -2)
     points[:, tool_cols] = tip_pose[:, None, :3, 3]
+    if origin_cols.size:  # small motions of URDF joint origins, in the joint frame
+        origin_frames = _urdf_joint_frames(model, frames, q)
+        picked = origin_frames[:, origin_idx // 6]  # (N, P_origin, 4, 4)
+        columns = np.swapaxes(picked[..., :3, :3], -1, -2)  # [..., c] is column c
+        axes[:, origin_cols] = columns[:, np.arange(len(origin_idx)), origin_idx % 3]
+        points[:, origin_cols] = picked[..., :3, 3]
     return tip_pose, axes, points, rotation
+
+
+def _urdf_joint_frames(model: RobotModel, frames: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """The URDF joint frames before each joint's motion ``(N, n, 4, 4)``, base frame: relcal's
+    frame after joint i with the motion taken out, times the URDF frame in it."""
+    if model.urdf is None:
+        raise ValueError("origin parameters need a robot loaded from a URDF")
+    q = np.atleast_2d(np.asarray(q, dtype=float))
+    undo = np.broadcast_to(np.eye(4), (*q.shape, 4, 4)).copy()
+    rot = ~model.prismatic
+    undo[..., :3, :3] = np.where(rot[:, None, None], tf.rot_z(-q), np.eye(3))
+    undo[..., 2, 3] = np.where(model.prismatic, -q, 0.0)
+    return frames[:, 1:] @ undo @ model.urdf.frames
 
 
 def _columns(axes: np.ndarray, moments: np.ndarray, rotation: np.ndarray) -> np.ndarray:

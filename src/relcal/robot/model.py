@@ -273,16 +273,20 @@ def library_names() -> list[str]:
 
 
 def get_robot(
-    name_or_path: str | Path, root: str | None = None, tip: str | None = None
+    name_or_path: str | Path,
+    root: str | None = None,
+    tip: str | None = None,
+    parametrisation: str = "minimal",
 ) -> RobotModel:
     """A built-in robot by name (``a465``, ``puma560``, ...), a model YAML file by path, or the
     serial chain ``root`` -> ``tip`` of a URDF file (``.urdf``; root and tip may be omitted when
-    the tree has one obvious serial chain)."""
+    the tree has one obvious serial chain; ``parametrisation``: ``minimal`` or ``origins``, see
+    :func:`relcal.robot.urdf.load_urdf`)."""
     name = str(name_or_path)
     if Path(name).suffix.lower() == ".urdf":
         from relcal.robot.urdf import load_urdf
 
-        return load_urdf(name, root, tip)
+        return load_urdf(name, root, tip, parametrisation)
     if root is not None or tip is not None:
         raise RelcalError(f"robot '{name}': root and tip links apply to URDF files (.urdf) only")
     if name.lower() in library_names():

@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import difflib
 import io
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -34,6 +34,7 @@ from relcal.errors import RelcalError
 from relcal.robot.model import RobotModel
 
 MOVABLE = ("revolute", "continuous", "prismatic")
+PARAMETRISATIONS = ("minimal", "origins")
 PARALLEL_TOL_DEG = 1.0  # the tolerance of relcal.robot.model.auto_hayati
 
 
@@ -67,6 +68,7 @@ class UrdfChain:
     joints: tuple[ChainJoint, ...]
     movable: tuple[int, ...]  # indices into ``joints`` of the n movable joints
     frames: np.ndarray  # (n, 4, 4)
+    parametrisation: str = "minimal"  # the error parameters make_layout gives: minimal | origins
 
 
 @dataclass(frozen=True)
@@ -332,12 +334,17 @@ def chain_fk(chain: UrdfChain, q: np.ndarray, origins: dict | None = None) -> np
     return out
 
 
-def _to_mdh(axes_world: list[np.ndarray], tip: np.ndarray, tol_deg: float) -> dict:
-    """Modified-DH parameters, base and tool, and relcal's joint frames at ``q = 0``."""
+def _to_mdh(
+    axes_world: list[np.ndarray], tip: np.ndarray, tol_deg: float, hayati: np.ndarray | None = None
+) -> dict:
+    """Modified-DH parameters, base and tool, and relcal's joint frames at ``q = 0``, from the
+    joint frames and axes ``[(frame (4, 4), axis (3,)), ...]`` and the tip pose; ``hayati``
+    forces which joints get Hayati's beta (else: those parallel to the previous axis)."""
     n = len(axes_world)
     z = [f[:3, :3] @ a for f, a in axes_world]
     c = [f[:3, 3] for f, _ in axes_world]
     theta_off, d, a, alpha, beta = (np.zeros(n) for _ in range(5))
+    forced = hayati
     hayati = np.zeros(n, dtype=bool)
     sin_tol = np.sin(np.radians(tol_deg))
 
@@ -353,7 +360,8 @@ def _to_mdh(axes_world: list[np.ndarray], tip: np.ndarray, tol_deg: float) -> di
             break
         zn, cn = _unit(z[i + 1]), c[i + 1]
         cross = np.cross(zi, zn)
-        if np.linalg.norm(cross) < sin_tol:  # parallel: Hayati's beta, d[i] held at 0
+        parallel = np.linalg.norm(cross) < sin_tol if forced is None else forced[i + 1]
+        if parallel:  # parallel: Hayati's beta, d[i] held at 0
             hayati[i + 1] = True
             foot = oi
             w = np.cross(cn - oi, zn)
@@ -453,10 +461,9 @@ def load_urdf(
     conversion with Hayati's beta on parallel axes, base and tool).
     """
     path = str(path)
-    if parametrisation != "minimal":
+    if parametrisation not in PARAMETRISATIONS:
         raise RelcalError(
-            f"{path}: parametrisation '{parametrisation}' is not available for URDF robots yet; "
-            "use minimal"
+            f"{path}: unknown parametrisation '{parametrisation}': use minimal or origins"
         )
     try:
         data = Path(path).read_bytes()
@@ -489,7 +496,7 @@ def load_urdf(
         upper.append(float(hi))
         names.append(j.name)
         prismatic.append(j.type == "prismatic")
-    chain = UrdfChain(path, data, robot.name, root, tip, joints, movable, frames)
+    chain = UrdfChain(path, data, robot.name, root, tip, joints, movable, frames, parametrisation)
     return RobotModel(
         name=f"{robot.name} ({root} -> {tip})",
         convention="mdh",
@@ -508,4 +515,48 @@ def load_urdf(
         source=f"URDF {path}, chain {root} -> {tip}, exact modified DH",
         inertials=_inertials(robot, joints, mdh["frames"]),
         urdf=chain,
+    )
+
+
+# --- the origins parametrisation ------------------------------------------------------------------
+
+
+def mdh_frames(model: RobotModel) -> np.ndarray:
+    """relcal's joint frames ``base A_1(0) ... A_i(0)`` for i = 1..n, ``(n, 4, 4)``."""
+    out, t = [], model.base
+    for i in range(model.n_joints):
+        t = (
+            t
+            @ _twist(model.alpha[i], model.beta[i], model.a[i])
+            @ _screw(model.theta_off[i], model.d[i])
+        )
+        out.append(t)
+    return np.array(out)
+
+
+def move_origins(model: RobotModel, motions: np.ndarray) -> RobotModel:
+    """The model with each movable joint's URDF origin moved by a small motion in its own frame,
+    ``origin' = origin exp(motions[i])`` (``(n, 6)``: m, then rotation vector rad), the
+    distal chain and tool following; converted to modified DH again, exactly, keeping the
+    Hayati joints."""
+    chain = model.urdf
+    if chain is None:
+        raise RelcalError(f"'{model.name}': origin errors need a robot loaded from a URDF")
+    frames = mdh_frames(model)
+    world = frames @ chain.frames  # URDF joint frames at q = 0
+    tip = frames[-1] @ model.tool
+    moved, prev_old, prev_new = [], np.eye(4), np.eye(4)
+    for i in range(model.n_joints):
+        step = tf.invert(prev_old) @ world[i]  # fixed joints and the origin before joint i
+        prev_old = world[i]
+        prev_new = prev_new @ step @ tf.from_vector(motions[i])
+        moved.append(prev_new)
+    tip = moved[-1] @ tf.invert(world[-1]) @ tip
+    axes = [(w, chain.joints[k].axis) for w, k in zip(moved, chain.movable, strict=True)]
+    mdh = _to_mdh(axes, tip, PARALLEL_TOL_DEG, hayati=model.hayati)
+    new_frames = np.array([tf.invert(f) @ w for f, w in zip(mdh["frames"], moved, strict=True)])
+    return replace(
+        model,
+        **{k: mdh[k] for k in ("theta_off", "d", "a", "alpha", "beta", "base", "tool")},
+        urdf=replace(chain, frames=new_frames),
     )
