@@ -316,3 +316,30 @@ def test_origins_and_minimal_identify_the_same_motions(name, rng):
     # 4 per revolute joint, 2 per prismatic joint, 6 for the base (Everett's count)
     expected = 4 * int((~minimal.prismatic).sum()) + 2 * int(minimal.prismatic.sum()) + 6
     assert r_min == expected
+
+
+def test_redundant_origin_parameters_are_named_as_such(rng):
+    """A joint's zero offset and its origin's rotation about the joint axis are one motion: the
+    identifiability analysis says so (at any pose), instead of blaming the chosen poses."""
+    from helpers_sim import make_problem
+
+    from relcal.calibration.identifiability import analyse_problem, explainer
+
+    model = auto_hayati(load_urdf(*REAL["tiago_pro"], parametrisation="origins"))
+    problem, _ = make_problem(model, "invariant", "pose", rng, n_poses=30)
+    names = problem.full_layout.names
+    explain = explainer(problem)
+
+    def vector(**terms):
+        v = np.zeros(len(names))
+        for name, value in terms.items():
+            v[names.index(name.replace("__", "."))] = value
+        return v
+
+    same = vector(arm_right_5_joint__zero=1.0, arm_right_5_joint__origin__rz=-1.0)
+    assert "same motion described twice" in explain(same)
+    other = vector(arm_right_5_joint__zero=1.0, arm_right_5_joint__origin__rx=-1.0)
+    assert "at these poses" in explain(other)  # not a redundancy: blamed on the poses
+    combos = analyse_problem(problem).combinations
+    assert sum("same motion described twice" in c.reason for c in combos) >= 7
+    assert not any("at these poses" in c.reason for c in combos)

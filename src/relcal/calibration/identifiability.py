@@ -199,6 +199,25 @@ def explainer(problem: Problem):
         body = tf.rotate_twist(np.swapaxes(tip[:, :3, :3], -1, -2), jac)
         return jac, spatial, body
 
+    @functools.cache
+    def elsewhere() -> np.ndarray:
+        """The pose Jacobian at 20 other configurations (fixed seed), inside the limits."""
+        lo = np.where(np.isfinite(model.lower), model.lower, -np.pi)
+        hi = np.where(np.isfinite(model.upper), model.upper, np.pi)
+        q = np.random.default_rng(0).uniform(lo, hi, (20, model.n_joints))
+        return pose_jacobian(model, q, problem.layout)[1]
+
+    def still(jac: np.ndarray, geometric: np.ndarray) -> float:
+        """How little the combination moves the tool, relative to what its terms could."""
+        scale = np.abs(jac).max(axis=(0, 1)) @ np.abs(geometric)
+        return float(np.abs(jac @ geometric).max() / scale) if scale > 0 else 0.0
+
+    def same_motion(geometric: np.ndarray) -> bool:
+        """Whether the combination leaves the tool as still at other poses as at these (a
+        redundancy of the parametrisation, as in URDF origins, not of the chosen poses)."""
+        here, there = still(jacobians()[0], geometric), still(elsewhere(), geometric)
+        return there < DEFAULT_RCOND and there <= max(10 * here, 1e-9)
+
     def constant(twists: np.ndarray) -> bool:
         scale = np.abs(twists).max()
         return scale > 0 and np.abs(twists - twists.mean(axis=0)).max() < 1e-6 * scale
@@ -223,6 +242,11 @@ def explainer(problem: Problem):
             if problem.formulation == "invariant":
                 return "acts like a change of the hand-eye transform X, which absorbs it"
             return "acts like a change of the tool transform"
+        if same_motion(geometric):
+            return (
+                "the same motion described twice (e.g. a joint's zero offset and its origin's "
+                "rotation about the joint axis), at any pose: only their sum is identifiable"
+            )
         return "linearly dependent at these poses: vary the poses or fix one of them"
 
     return explain
