@@ -343,3 +343,48 @@ def test_redundant_origin_parameters_are_named_as_such(rng):
     combos = analyse_problem(problem).combinations
     assert sum("same motion described twice" in c.reason for c in combos) >= 7
     assert not any("at these poses" in c.reason for c in combos)
+
+
+def test_bad_numbers_and_missing_attributes(tmp_path):
+    nan = AWKWARD.replace('xyz="0.1 0 0.3"', 'xyz="nan 0 0.3"')
+    load_bad(tmp_path, nan, "joint 'j2'", "<origin xyz rpy> must be finite")
+    swapped = AWKWARD.replace(
+        '<limit lower="-2" upper="2" effort="1" velocity="1"/></joint>\n<joint name="j3"',
+        '<limit lower="2" upper="-2" effort="1" velocity="1"/></joint>\n<joint name="j3"',
+    )
+    load_bad(tmp_path, swapped, "joint 'j2'", "lower 2.0 is above upper -2.0")
+    load_bad(
+        tmp_path, AWKWARD.replace('<parent link="l2"/>', "<parent/>"), "joint 'j3' needs <parent"
+    )
+    load_bad(tmp_path, AWKWARD.replace('<link name="cam">', "<link>"), "<link> without a name")
+
+
+def test_mangled_urdfs_load_or_fail_clearly(tmp_path):
+    """Random cuts, reversals and insertions in a valid URDF: a model or a RelcalError, never
+    another exception, and never a model with non-finite numbers."""
+    rng = np.random.default_rng(5)
+    path = tmp_path / "mangled.urdf"
+    for _ in range(300):
+        text = AWKWARD
+        for _ in range(rng.integers(1, 4)):
+            i = int(rng.integers(0, len(text)))
+            j = i + int(rng.integers(1, 20))
+            choice = rng.integers(0, 4)
+            if choice == 0:
+                text = text[:i] + text[j:]
+            elif choice == 1:
+                text = text[:i] + text[i:j][::-1] + text[j:]
+            elif choice == 2:
+                text = text[:i] + str(rng.choice(list('<>"/= 0.-1axyzjoint'))) + text[i:]
+            else:
+                text = text[:i] + str(rng.choice(["nan", "inf", "1e308", "x", ""])) + text[j:]
+        path.write_text(text)
+        for tip in (None, "tip"):
+            try:
+                model = load_urdf(path, tip=tip)
+            except RelcalError as exc:
+                assert "mangled.urdf" in str(exc)
+                continue
+            arrays = (model.theta_off, model.d, model.a, model.alpha, model.beta, model.base)
+            assert all(np.all(np.isfinite(v)) for v in (*arrays, model.tool))
+            assert not np.isnan(model.lower).any() and not np.isnan(model.upper).any()

@@ -109,14 +109,20 @@ def _parse(path: str, data: bytes):
         name = el.get("name")
         if name is None:
             raise _fail(path, el.sourceline, "<joint> without a name attribute")
-        if el.find("parent") is None or el.find("child") is None:
-            raise _fail(
-                path, el.sourceline, f"joint '{name}' needs <parent link=/> and <child link=/>"
-            )
+        for role in ("parent", "child"):
+            sub = el.find(role)
+            if sub is None or not sub.get("link"):
+                raise _fail(path, el.sourceline, f"joint '{name}' needs <{role} link=\"LINK\"/>")
+        if not el.get("type"):
+            raise _fail(path, el.sourceline, f"joint '{name}' has no type attribute")
         if name in info:
             raise _fail(path, el.sourceline, f"joint name '{name}' is used twice")
         info[name] = (el.sourceline, el.find("axis") is not None)
-    link_lines = {el.get("name"): el.sourceline for el in root.findall("link")}
+    link_lines = {}
+    for el in root.findall("link"):
+        if not el.get("name"):
+            raise _fail(path, el.sourceline, "<link> without a name attribute")
+        link_lines[el.get("name")] = el.sourceline
     try:
         urdf = yourdfpy.URDF.load(
             io.BytesIO(data),
@@ -268,6 +274,10 @@ def _chain_joints(path: str, chain: list, info: dict) -> tuple[ChainJoint, ...]:
                 raise _fail(path, line, f"joint '{j.name}': <axis xyz> must be a non-zero 3-vector")
             axis = axis / norm
         origin = np.eye(4) if j.origin is None else np.asarray(j.origin, dtype=float)
+        if not np.all(np.isfinite(origin)) or np.abs(origin[:3, 3]).max() > 1e6:
+            raise _fail(
+                path, line, f"joint '{j.name}': <origin xyz rpy> must be finite numbers (m, rad)"
+            )
         out.append(ChainJoint(j.name, j.type, j.parent, j.child, origin, axis, line))
     if not any(c.type in MOVABLE for c in out):
         raise _fail(path, None, "the chain from root to tip has no movable joint")
@@ -490,13 +500,29 @@ def load_urdf(
         bounded = j.type != "continuous" and lim is not None
         lo = lim.lower if bounded and lim.lower is not None else -np.inf
         hi = lim.upper if bounded and lim.upper is not None else np.inf
-        if lo >= hi:  # some files write 0 0 for unlimited joints
+        if np.isnan(lo) or np.isnan(hi):
+            raise _fail(path, j.line, f"joint '{j.name}': <limit lower upper> must be numbers")
+        if lo > hi:
+            raise _fail(
+                path, j.line, f"joint '{j.name}': <limit> lower {lo} is above upper {hi}; swap them"
+            )
+        if lo == hi:  # some files write 0 0 for unlimited joints
             lo, hi = -np.inf, np.inf
         lower.append(float(lo))
         upper.append(float(hi))
         names.append(j.name)
         prismatic.append(j.type == "prismatic")
     chain = UrdfChain(path, data, robot.name, root, tip, joints, movable, frames, parametrisation)
+    inertials = _inertials(robot, joints, mdh["frames"])
+    for i, k in enumerate(movable):
+        values = (inertials.mass[i], inertials.com[i], inertials.inertia[i])
+        if not all(np.all(np.isfinite(v)) for v in values):
+            raise _fail(
+                path,
+                None,
+                f"the links moved by joint '{joints[k].name}' have a non-finite <inertial> "
+                "(mass, origin or inertia): fix the numbers",
+            )
     return RobotModel(
         name=f"{robot.name} ({root} -> {tip})",
         convention="mdh",
@@ -513,7 +539,7 @@ def load_urdf(
         base=mdh["base"],
         tool=mdh["tool"],
         source=f"URDF {path}, chain {root} -> {tip}, exact modified DH",
-        inertials=_inertials(robot, joints, mdh["frames"]),
+        inertials=inertials,
         urdf=chain,
     )
 
