@@ -135,7 +135,9 @@ def _parse(path: str, data: bytes):
     return urdf.robot, info, link_lines
 
 
-def _pick_chain(path, robot, info, link_lines, root: str | None, tip: str | None) -> list:
+def _pick_chain(
+    path: str, robot, info: dict, link_lines: dict, root: str | None, tip: str | None
+) -> tuple[str, str, list]:
     """The joints from ``root`` to ``tip`` (yourdfpy Joint objects), after checking the tree."""
     links = set(link_lines)
     parent_joint: dict[str, object] = {}
@@ -467,8 +469,11 @@ def load_urdf(
 
     ``root``/``tip`` default to the tree's root link and the end of its one serial chain.
     Joint names, limits (rad, m) and link inertials come from the URDF; relcal's ``q`` of each
-    joint is the URDF joint position. ``parametrisation``: ``minimal`` (the exact modified-DH
-    conversion with Hayati's beta on parallel axes, base and tool).
+    joint is the URDF joint position. The model is always the exact modified-DH conversion
+    (Hayati's beta where consecutive axes are parallel within ``parallel_tol_deg``, base and
+    tool); ``parametrisation`` chooses the error parameters that
+    :func:`relcal.robot.kinematics.make_layout` gives it: ``minimal`` (the DH parameters) or
+    ``origins`` (per joint a small motion of its URDF origin and a zero offset).
     """
     path = str(path)
     if parametrisation not in PARAMETRISATIONS:
@@ -548,7 +553,8 @@ def load_urdf(
 
 
 def mdh_frames(model: RobotModel) -> np.ndarray:
-    """relcal's joint frames ``base A_1(0) ... A_i(0)`` for i = 1..n, ``(n, 4, 4)``."""
+    """relcal's joint frames ``base A_1(0) ... A_i(0)`` for i = 1..n, ``(n, 4, 4)`` (as
+    ``kinematics.forward_frames`` at ``q = 0``, which this module cannot import)."""
     out, t = [], model.base
     for i in range(model.n_joints):
         t = (
