@@ -12,7 +12,7 @@ import yaml
 import yourdfpy
 from conftest import random_q
 from lxml import etree
-from urdf_helpers import REAL, TIAGO, pin_fk
+from urdf_helpers import REAL, TIAGO, UR5E_KINEMATICS, pin_fk, ur_description_urdf
 
 from relcal import geometry as tf
 from relcal.errors import RelcalError
@@ -147,17 +147,36 @@ def origin_of(entry: dict) -> np.ndarray:
 
 
 def test_ur_calibration_yaml_round_trip(tmp_path, rng):
-    nominal, model = planted("ur5", rng)
+    """A UR5e laid out as ur_description builds it from default kinematics: the exported
+    calibration.yaml, fed to the same construction, reproduces the calibrated model."""
+    nominal_path = tmp_path / "ur5e.urdf"
+    nominal_path.write_text(ur_description_urdf(UR5E_KINEMATICS))
+    model = load_urdf(nominal_path, "base_link", "tool0")
+    layout = make_layout(model)
+    model = calibrated_model(model, layout, rng.normal(0, 1e-3, layout.size))
     doc = yaml.safe_load(ur_calibration_yaml(model))
     kin = doc["kinematics"]
     segments = ["shoulder", "upper_arm", "forearm", "wrist_1", "wrist_2", "wrist_3"]
     assert list(kin) == [*segments, "hash"] and re.fullmatch(r"calib_\d+", kin["hash"])
     assert all(set(kin[s]) == {"x", "y", "z", "roll", "pitch", "yaw"} for s in segments)
-    # ur_description writes segment k's values as the origin of the k-th arm joint
-    origins = {j: origin_of(kin[s]) for j, s in zip(model.joint_names, segments, strict=True)}
-    path = tmp_path / "ur5_calibrated.urdf"
-    path.write_bytes(substitute(nominal.urdf.data, origins))
+    path = tmp_path / "ur5e_calibrated.urdf"
+    path.write_text(ur_description_urdf(kin))
     check_fk(path, model, random_q(model, 10, rng))
+    # a nominal model gives back the defaults (the same origins; rpy in canonical form)
+    nominal = yaml.safe_load(ur_calibration_yaml(load_urdf(nominal_path, "base_link", "tool0")))
+    for segment in segments:
+        np.testing.assert_allclose(
+            origin_of(nominal["kinematics"][segment]),
+            origin_of(UR5E_KINEMATICS[segment]),
+            atol=1e-15,
+        )
+
+
+def test_ur_export_refuses_other_layouts():
+    """example-robot-data's UR5 predates ur_description's layout (no base_link_inertia): its
+    joint origins are not what the driver's kinematics entries mean."""
+    with pytest.raises(RelcalError, match="base_link_inertia"):
+        ur_calibration_yaml(load_urdf(*REAL["ur5"]))
 
 
 def test_franka_kinematics_yaml_round_trip(tmp_path, rng):
@@ -180,26 +199,24 @@ def test_exports_need_a_urdf_robot():
 
 @pytest.mark.parametrize("parametrisation", ["minimal", "origins"])
 def test_calibrate_command_on_a_urdf_dataset(parametrisation, tmp_path, rng):
-    """A UR5 dataset whose robot: is the URDF: calibrate writes the URDF files, the written
+    """A UR5e dataset whose robot: is the URDF: calibrate writes the URDF files, the written
     URDF reproduces the calibrated model.yaml, and the planted errors are found (held-out
     error far below the baseline's)."""
-    import shutil
-
     from helpers_sim import BOARD, HANDEYE
 
     from relcal.cli import main
     from relcal.data.dataset import load_dataset, write_samples
     from relcal.robot.model import auto_hayati, load_model
 
-    root = tmp_path / "ur5_run"
+    root = tmp_path / "ur5e_run"
     root.mkdir()
-    shutil.copy(REAL["ur5"][0], root / "ur5.urdf")
+    (root / "ur5e.urdf").write_text(ur_description_urdf(UR5E_KINEMATICS))
     (root / "dataset.yaml").write_text(
-        "robot: {urdf: ur5.urdf, root: base_link, tip: tool0, parametrisation: "
+        "robot: {urdf: ur5e.urdf, root: base_link, tip: tool0, parametrisation: "
         f"{parametrisation}}}\njoint_unit: rad\n"
         "handeye: {xyz: [0, 0.04, 0.06]}\n"
     )
-    model = auto_hayati(load_urdf(root / "ur5.urdf", "base_link", "tool0", parametrisation))
+    model = auto_hayati(load_urdf(root / "ur5e.urdf", "base_link", "tool0", parametrisation))
     layout = make_layout(model)
     truth = calibrated_model(model, layout, rng.normal(0, 5e-4, layout.size))
     q = random_q(model, 40, rng, scale=0.8)

@@ -44,3 +44,62 @@ def pin_fk(path, root: str, tip: str, names, q: np.ndarray) -> np.ndarray:
         pin.framesForwardKinematics(model, data, config)
         out.append((data.oMf[root_id].inverse() * data.oMf[tip_id]).homogeneous)
     return np.array(out)
+
+
+# UR5e nominal kinematics in the layout of ur_description's default_kinematics.yaml (m, rad)
+UR5E_KINEMATICS = {
+    "shoulder": dict(x=0, y=0, z=0.1625, roll=0, pitch=0, yaw=0),
+    "upper_arm": dict(x=0, y=0, z=0, roll=np.pi / 2, pitch=0, yaw=0),
+    "forearm": dict(x=-0.425, y=0, z=0, roll=0, pitch=0, yaw=0),
+    "wrist_1": dict(x=-0.3922, y=0, z=0.1333, roll=0, pitch=0, yaw=0),
+    "wrist_2": dict(x=0, y=-0.0997, z=0, roll=np.pi / 2, pitch=0, yaw=0),
+    "wrist_3": dict(x=0, y=0.0996, z=0, roll=np.pi / 2, pitch=np.pi, yaw=np.pi),
+}
+UR_JOINTS = (
+    ("shoulder_pan_joint", "base_link_inertia", "shoulder_link", "shoulder"),
+    ("shoulder_lift_joint", "shoulder_link", "upper_arm_link", "upper_arm"),
+    ("elbow_joint", "upper_arm_link", "forearm_link", "forearm"),
+    ("wrist_1_joint", "forearm_link", "wrist_1_link", "wrist_1"),
+    ("wrist_2_joint", "wrist_1_link", "wrist_2_link", "wrist_2"),
+    ("wrist_3_joint", "wrist_2_link", "wrist_3_link", "wrist_3"),
+)
+
+
+def ur_description_urdf(kinematics: dict) -> str:
+    """The kinematic skeleton that ur_description's ur_macro.xacro builds from a
+    ``kinematics:`` mapping: base_link, base_link_inertia turned by pi about z, the six joints
+    with the mapping's origins (axis z), then flange and tool0."""
+
+    def origin(k):
+        return (
+            f'<origin xyz="{k["x"]!r} {k["y"]!r} {k["z"]!r}" '
+            f'rpy="{k["roll"]!r} {k["pitch"]!r} {k["yaw"]!r}"/>'
+        )
+
+    links = ["base_link", "base_link_inertia", *[j[2] for j in UR_JOINTS], "flange", "tool0"]
+    out = ['<?xml version="1.0"?>', '<robot name="ur5e">']
+    out += [f'  <link name="{name}"/>' for name in links]
+    out.append(
+        '  <joint name="base_link-base_link_inertia" type="fixed"><parent link="base_link"/>'
+        '<child link="base_link_inertia"/><origin xyz="0 0 0" rpy="0 0 3.141592653589793"/>'
+        "</joint>"
+    )
+    for name, parent, child, segment in UR_JOINTS:
+        out.append(
+            f'  <joint name="{name}" type="revolute"><parent link="{parent}"/>'
+            f'<child link="{child}"/>{origin(kinematics[segment])}<axis xyz="0 0 1"/>'
+            '<limit lower="-6.283185307179586" upper="6.283185307179586" effort="150" '
+            'velocity="3.14"/></joint>'
+        )
+    out.append(
+        '  <joint name="wrist_3-flange" type="fixed"><parent link="wrist_3_link"/>'
+        '<child link="flange"/><origin xyz="0 0 0" rpy="0 -1.5707963267948966 '
+        '-1.5707963267948966"/></joint>'
+    )
+    out.append(
+        '  <joint name="flange-tool0" type="fixed"><parent link="flange"/>'
+        '<child link="tool0"/><origin xyz="0 0 0" rpy="1.5707963267948966 0 '
+        '1.5707963267948966"/></joint>'
+    )
+    out += ["</robot>", ""]
+    return "\n".join(out)

@@ -293,6 +293,19 @@ UR_SEGMENTS = {
 }
 
 
+def _ur_layout_problem(model: RobotModel) -> str | None:
+    """Why the chain is not laid out as ur_description lays it out, or None."""
+    first = next(j for j in model.urdf.joints if j.name.endswith("shoulder_pan_joint"))
+    if not first.parent.endswith("base_link_inertia"):
+        return (
+            f"'{first.name}' hangs from '{first.parent}', not from ur_description's "
+            "'base_link_inertia': this URDF is not laid out as ur_description lays it out, so its "
+            "joint origins are not the driver's kinematics entries; use origin_corrections.yaml "
+            "or the calibrated URDF instead"
+        )
+    return None
+
+
 def ur_calibration_yaml(model: RobotModel) -> str:
     """The ``calibration.yaml`` that Universal Robots' ROS 2 description and driver read
     (``kinematics_parameters_file``): per segment the joint origin x, y, z (m), roll, pitch, yaw
@@ -304,6 +317,9 @@ def ur_calibration_yaml(model: RobotModel) -> str:
     values): the driver warns that it differs from the controller's own calibration hash.
     """
     kin = _entries(model, UR_SEGMENTS, "the UR calibration export")
+    problem = _ur_layout_problem(model)
+    if problem:
+        raise RelcalError(f"{model.urdf.path}: the UR calibration export: {problem}")
     digest = hashlib.sha256(json.dumps(kin, sort_keys=True).encode()).digest()
     kin["hash"] = f"calib_{int.from_bytes(digest[:8], 'big') >> 1}"
     return yaml.safe_dump({"kinematics": kin}, sort_keys=False)
@@ -337,7 +353,7 @@ def robot_files(model: RobotModel) -> dict[str, bytes]:
         "robot.urdf": calibrated_urdf(model),
         "origin_corrections.yaml": origin_corrections_yaml(model).encode(),
     }
-    if _has_joints(model, UR_SEGMENTS):
+    if _has_joints(model, UR_SEGMENTS) and _ur_layout_problem(model) is None:
         files["ur_calibration.yaml"] = ur_calibration_yaml(model).encode()
     if _has_joints(model, [f"joint{k}" for k in range(1, 8)]):
         files["franka_kinematics.yaml"] = franka_kinematics_yaml(model).encode()
