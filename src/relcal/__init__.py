@@ -10,7 +10,10 @@ The Python API, in the order of the flow of data::
     cal.validation.summary()                     # held-out errors before and after
     cal.model                                    # the calibrated RobotModel
 
-Lower-level pieces: :func:`get_robot` and :func:`load_model` (robot models),
+Lower-level pieces: :func:`get_robot`, :func:`load_model` and :func:`load_urdf` (robot
+models; a URDF chain converts exactly to modified DH), :func:`calibrated_urdf` and
+:func:`robot_files` (the calibrated robot's files, for a URDF robot its own URDF with the
+calibrated joint origins),
 :func:`make_layout` and :func:`fk` (parameters and kinematics), :class:`Problem` (an
 identification problem), :func:`identify` with :class:`SolverOptions` giving a :class:`Result`,
 :func:`analyse_problem` (identifiability), :func:`simulate` (the published simulation).
@@ -24,9 +27,10 @@ from relcal.calibration.pipeline import Calibration, calibrate
 from relcal.data.dataset import Dataset, load_dataset
 from relcal.data.imaging import Measurements, measure
 from relcal.errors import RelcalError
-from relcal.robot.export import calibrated_model
+from relcal.robot.export import calibrated_model, calibrated_urdf, robot_files
 from relcal.robot.kinematics import Layout, apply_errors, fk, make_layout
 from relcal.robot.model import RobotModel, get_robot, load_model
+from relcal.robot.urdf import load_urdf
 from relcal.sim.simulate import Simulation, simulate
 
 __version__ = "0.1.0"
@@ -48,13 +52,16 @@ __all__ = [
     "apply_errors",
     "calibrate",
     "calibrated_model",
+    "calibrated_urdf",
     "fk",
     "get_robot",
     "identify",
     "load_dataset",
     "load_model",
+    "load_urdf",
     "make_layout",
     "make_pairs",
     "measure",
+    "robot_files",
     "simulate",
 ]
