@@ -388,3 +388,10 @@ def test_mangled_urdfs_load_or_fail_clearly(tmp_path):
             arrays = (model.theta_off, model.d, model.a, model.alpha, model.beta, model.base)
             assert all(np.all(np.isfinite(v)) for v in (*arrays, model.tool))
             assert not np.isnan(model.lower).any() and not np.isnan(model.upper).any()
+
+
+def test_xacro_files_are_refused_with_the_fix():
+    with pytest.raises(
+        RelcalError, match=r"expand it to a URDF first \(xacro arm.urdf.xacro > arm.urdf\)"
+    ):
+        get_robot("robots/arm.urdf.xacro")

@@ -283,7 +283,7 @@ def get_robot(
     the tree has one obvious serial chain; ``parametrisation``: ``minimal`` or ``origins``, see
     :func:`relcal.robot.urdf.load_urdf`)."""
     name = str(name_or_path)
-    if Path(name).suffix.lower() == ".urdf":
+    if Path(name).suffix.lower() in (".urdf", ".xacro"):
         from relcal.robot.urdf import load_urdf
 
         return load_urdf(name, root, tip, parametrisation)

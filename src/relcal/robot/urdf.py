@@ -480,6 +480,11 @@ def load_urdf(
         raise RelcalError(
             f"{path}: unknown parametrisation '{parametrisation}': use minimal or origins"
         )
+    if Path(path).suffix.lower() == ".xacro":
+        raise RelcalError(
+            f"{path}: a xacro file: expand it to a URDF first (xacro {Path(path).name} > "
+            f"{Path(path).stem.removesuffix('.urdf')}.urdf) and give that file"
+        )
     try:
         data = Path(path).read_bytes()
     except FileNotFoundError:
