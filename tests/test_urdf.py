@@ -395,3 +395,49 @@ def test_xacro_files_are_refused_with_the_fix():
         RelcalError, match=r"expand it to a URDF first \(xacro arm.urdf.xacro > arm.urdf\)"
     ):
         get_robot("robots/arm.urdf.xacro")
+
+
+def random_chain(rng) -> str:
+    """A random serial URDF: origins with random rotations, or the degenerate cases (axes
+    parallel, antiparallel, collinear, intersecting, nearly parallel), random joint types."""
+    n = int(rng.integers(1, 8))
+    body, links = "", ["l0"]
+    for i in range(n):
+        case = rng.integers(0, 6)
+        xyz = rng.normal(0, 0.2, 3)
+        rpy = rng.uniform(-np.pi, np.pi, 3)
+        if case == 1:  # parallel to the previous axis (z), offset
+            rpy = [0, 0, rpy[2]]
+        elif case == 2:  # antiparallel
+            rpy = [np.pi, 0, rpy[2]]
+        elif case == 3:  # collinear
+            xyz, rpy = [0, 0, xyz[2]], [0, 0, rpy[2]]
+        elif case == 4:  # intersecting at the origin, perpendicular
+            xyz, rpy = [0, 0, 0], [np.pi / 2, 0, rpy[2]]
+        elif case == 5:  # nearly parallel
+            rpy = [rng.normal(0, 0.01), rng.normal(0, 0.01), rpy[2]]
+        kind = str(rng.choice(["revolute", "continuous", "prismatic"], p=[0.6, 0.2, 0.2]))
+        body += joint(
+            f"j{i + 1}",
+            kind,
+            f"l{i}",
+            f"l{i + 1}",
+            " ".join(repr(float(v)) for v in xyz),
+            " ".join(repr(float(v)) for v in rpy),
+            "0 0 1" if rng.random() < 0.7 else " ".join(repr(float(v)) for v in rng.normal(size=3)),
+        )
+        links.append(f"l{i + 1}")
+    body += joint("flange", "fixed", f"l{n}", "tip", "0.01 0.02 0.1", "0.1 0.2 0.3")
+    return robot(body, [*links, "tip"])
+
+
+def test_random_chains_match_pinocchio(tmp_path, rng):
+    path = tmp_path / "random.urdf"
+    for _ in range(60):
+        path.write_text(random_chain(rng))
+        model = load_urdf(path)
+        q = random_q(model, 10, rng, scale=1.0)
+        ours = fk(model, q)
+        theirs = pin_fk(path, "l0", "tip", model.joint_names, q)
+        assert np.abs(ours[:, :3, 3] - theirs[:, :3, 3]).max() < 1e-12
+        assert rotation_error(ours, theirs) < 1e-12
