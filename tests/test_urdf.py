@@ -6,7 +6,7 @@ inertials against Pinocchio, and a clear error for each kind of bad URDF."""
 import numpy as np
 import pytest
 from conftest import random_q
-from urdf_helpers import REAL, TIAGO, TIAGO_CHAIN, TIAGO_JOINTS, pin_fk
+from urdf_helpers import REAL, TIAGO, TIAGO_CHAIN, TIAGO_JOINTS, pin_fk, real
 
 from relcal import geometry as tf
 from relcal.errors import RelcalError
@@ -24,7 +24,7 @@ def rotation_error(a: np.ndarray, b: np.ndarray) -> float:
 
 @pytest.mark.parametrize("name", list(REAL))
 def test_fk_matches_pinocchio(name, rng):
-    path, root, tip = REAL[name]
+    path, root, tip = real(name)
     model = load_urdf(path, root, tip)
     q = random_q(model, 30, rng, scale=1.0)
     ours = fk(model, q)
@@ -59,7 +59,7 @@ def test_get_robot_gives_the_tiago_chain():
 
 
 def test_parallel_axes_get_hayati_beta_and_auto_hayati_agrees():
-    model = load_urdf(*REAL["ur5"])
+    model = load_urdf(*real("ur5"))
     # UR: shoulder_lift, elbow and wrist_1 axes are parallel -> beta on elbow and wrist_1
     assert model.hayati.tolist() == [False, False, True, True, False, False]
     np.testing.assert_array_equal(auto_hayati(model).hayati, model.hayati)
@@ -67,7 +67,7 @@ def test_parallel_axes_get_hayati_beta_and_auto_hayati_agrees():
 
 
 def test_identification_jacobian_matches_finite_differences(rng):
-    model = load_urdf(*REAL["tiago_pro"])
+    model = load_urdf(*real("tiago_pro"))
     layout = make_layout(model)
     q = random_q(model, 5, rng)
     _, jac = pose_jacobian(model, q, layout)
@@ -147,7 +147,7 @@ def test_awkward_chain_matches_pinocchio(tmp_path, rng):
 def test_inertials_match_pinocchio(tmp_path):
     import pinocchio as pin
 
-    for path, root, tip in [REAL["tiago_pro"], REAL["panda"]]:
+    for path, root, tip in [real("tiago_pro"), real("panda")]:
         model = load_urdf(path, root, tip)
         pm = pin.buildModelFromUrdf(str(path))
         for i, name in enumerate(model.joint_names):
@@ -244,7 +244,7 @@ def test_bad_mimic_in_chain_xml_and_file(tmp_path):
 
 def origins_model(name_or_text, tmp_path=None):
     if name_or_text in REAL:
-        return load_urdf(*REAL[name_or_text], parametrisation="origins")
+        return load_urdf(*real(name_or_text), parametrisation="origins")
     path = tmp_path / "awkward.urdf"
     path.write_text(name_or_text)
     return load_urdf(path, tip="tip", parametrisation="origins")
@@ -300,8 +300,8 @@ def test_origins_jacobian_matches_finite_differences(which, tmp_path, rng):
 def test_origins_and_minimal_identify_the_same_motions(name, rng):
     """Both parametrisations span the same space of tool motions (absolute poses, base and tool
     free): the origins one only adds redundant directions."""
-    minimal = load_urdf(*REAL[name])
-    origins = load_urdf(*REAL[name], parametrisation="origins")
+    minimal = load_urdf(*real(name))
+    origins = load_urdf(*real(name), parametrisation="origins")
     q = random_q(minimal, 40, rng)
 
     def rank(model):
@@ -325,7 +325,7 @@ def test_redundant_origin_parameters_are_named_as_such(rng):
 
     from relcal.calibration.identifiability import analyse_problem, explainer
 
-    model = auto_hayati(load_urdf(*REAL["tiago_pro"], parametrisation="origins"))
+    model = auto_hayati(load_urdf(*real("tiago_pro"), parametrisation="origins"))
     problem, _ = make_problem(model, "invariant", "pose", rng, n_poses=30)
     names = problem.full_layout.names
     explain = explainer(problem)

@@ -12,7 +12,7 @@ import yaml
 import yourdfpy
 from conftest import random_q
 from lxml import etree
-from urdf_helpers import REAL, TIAGO, UR5E_KINEMATICS, pin_fk, ur_description_urdf
+from urdf_helpers import TIAGO, UR5E_KINEMATICS, pin_fk, real, ur_description_urdf
 
 from relcal import geometry as tf
 from relcal.errors import RelcalError
@@ -30,7 +30,7 @@ from relcal.robot.urdf import load_urdf
 
 def planted(name, rng, tool=False, size=1e-3):
     """The URDF robot with random geometric errors (and a tool error if asked)."""
-    path, root, tip = REAL[name]
+    path, root, tip = real(name)
     model = load_urdf(path, root, tip)
     layout = make_layout(model, tool=tool)
     return model, calibrated_model(model, layout, rng.normal(0, size, layout.size))
@@ -71,7 +71,7 @@ def origins_masked(data: bytes, names) -> bytes:
 
 def test_nominal_export_is_the_input_file():
     for name in ("tiago_pro", "ur5"):
-        model = load_urdf(*REAL[name])
+        model = load_urdf(*real(name))
         assert calibrated_urdf(model) == model.urdf.data
 
 
@@ -176,7 +176,7 @@ def test_ur_export_refuses_other_layouts():
     """example-robot-data's UR5 predates ur_description's layout (no base_link_inertia): its
     joint origins are not what the driver's kinematics entries mean."""
     with pytest.raises(RelcalError, match="base_link_inertia"):
-        ur_calibration_yaml(load_urdf(*REAL["ur5"]))
+        ur_calibration_yaml(load_urdf(*real("ur5")))
 
 
 def test_franka_kinematics_yaml_round_trip(tmp_path, rng):
@@ -194,7 +194,7 @@ def test_exports_need_a_urdf_robot():
         with pytest.raises(RelcalError, match="needs a robot loaded from a URDF"):
             export(get_robot("a465"))
     with pytest.raises(RelcalError, match="shoulder_pan_joint"):
-        ur_calibration_yaml(load_urdf(*REAL["panda"]))
+        ur_calibration_yaml(load_urdf(*real("panda")))
 
 
 @pytest.mark.parametrize("parametrisation", ["minimal", "origins"])
