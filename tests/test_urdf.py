@@ -441,3 +441,17 @@ def test_random_chains_match_pinocchio(tmp_path, rng):
         theirs = pin_fk(path, "l0", "tip", model.joint_names, q)
         assert np.abs(ours[:, :3, 3] - theirs[:, :3, 3]).max() < 1e-12
         assert rotation_error(ours, theirs) < 1e-12
+
+
+def test_panda_converts_to_frankas_published_modified_dh():
+    """Franka's documented modified-DH table (a, d, alpha up to the sign choice of each x axis;
+    relcal keeps a >= 0) comes out of the Panda URDF."""
+    model = load_urdf(*real("panda"))
+    np.testing.assert_allclose(np.abs(model.a), [0, 0, 0, 0.0825, 0.0825, 0, 0.088], atol=1e-12)
+    np.testing.assert_allclose(model.d, [0.333, 0, 0.316, 0, 0.384, 0, 0], atol=1e-12)
+    np.testing.assert_allclose(
+        np.abs(np.degrees(model.alpha)), [0, 90, 90, 90, 90, 90, 90], atol=1e-9
+    )
+    assert not model.hayati.any() and np.all(model.beta == 0)
+    # the flange (panda_joint8): 0.107 m along joint 7's axis
+    np.testing.assert_allclose(model.tool[:3, 3], [0, 0, 0.107], atol=1e-12)

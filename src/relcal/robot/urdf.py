@@ -394,7 +394,8 @@ def _to_mdh(
         post = pre @ _screw(theta_off[i], d[i])
         frames.append(post)
         local = post[:3, :3].T @ zn
-        beta[i + 1] = np.arcsin(np.clip(local[0], -1.0, 1.0))
+        # x is the common normal unless the pair is parallel: beta is round-off there, keep 0
+        beta[i + 1] = np.arcsin(np.clip(local[0], -1.0, 1.0)) if parallel else 0.0
         alpha[i + 1] = np.arctan2(-local[1], local[2])
         head = _twist(alpha[i + 1], beta[i + 1], 0.0)
         a[i + 1] = (cn - post[:3, 3]) @ (post[:3, :3] @ head[:3, 0])
