@@ -228,7 +228,7 @@ def test_calibrate_command_on_a_urdf_dataset(parametrisation, tmp_path, rng):
     assert load_dataset(root).model.joint_names == model.joint_names
     assert main(["calibrate", str(root), "--out", str(out), "--quiet"]) == 0
     doc = json.loads((out / "results.json").read_text())
-    assert doc["validation"]["after"]["position_mm"]["rms"] < 0.2  # noise: 0.02 mm per pose
+    assert doc["validation"]["calibrated"]["position_mm"]["rms"] < 0.2  # noise: 0.02 mm per pose
     for name in ("robot.urdf", "origin_corrections.yaml", "ur_calibration.yaml"):
         assert (out / name).is_file()
     calibrated = load_model(out / "model.yaml")
