@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import difflib
 import io
+import math
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -295,23 +296,33 @@ def _unit(v: np.ndarray) -> np.ndarray:
 
 def _frame(x: np.ndarray, z: np.ndarray, origin: np.ndarray) -> np.ndarray:
     """A right-handed frame from its x and z axes (orthogonal unit vectors) and origin."""
-    return tf.homogeneous(np.column_stack([x, np.cross(z, x), z]), origin)
+    return tf.homogeneous(np.column_stack([x, _cross(z, x), z]), origin)
+
+
+def _cross(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """``u x v`` of two 3-vectors (``np.cross`` costs more at this size)."""
+    return np.array(
+        [u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2], u[0] * v[1] - u[1] * v[0]]
+    )
 
 
 def _twist(alpha: float, beta: float, a: float) -> np.ndarray:
     """``Rx(alpha) Ry(beta) Tx(a)``, the fixed head of a modified-DH link."""
-    out = np.eye(4)
-    out[:3, :3] = tf.rot_x(alpha) @ tf.rot_y(beta)
-    out[:3, 3] = a * out[:3, 0]
-    return out
+    ca, sa, cb, sb = math.cos(alpha), math.sin(alpha), math.cos(beta), math.sin(beta)
+    return np.array(
+        [
+            [cb, 0.0, sb, a * cb],
+            [sa * sb, ca, -sa * cb, a * sa * sb],
+            [-ca * sb, sa, ca * cb, -a * ca * sb],
+            [0.0, 0.0, 0.0, 1.0],
+        ]
+    )
 
 
 def _screw(theta: float, d: float) -> np.ndarray:
     """``Rz(theta) Tz(d)``."""
-    out = np.eye(4)
-    out[:3, :3] = tf.rot_z(theta)
-    out[2, 3] = d
-    return out
+    c, s = math.cos(theta), math.sin(theta)
+    return np.array([[c, -s, 0.0, 0.0], [s, c, 0.0, 0.0], [0.0, 0.0, 1.0, d], [0.0, 0.0, 0.0, 1.0]])
 
 
 def joint_frames(joints: tuple[ChainJoint, ...]) -> tuple[list[np.ndarray], np.ndarray]:
@@ -362,7 +373,7 @@ def _to_mdh(
 
     # Joint 1's frame: on axis 1 nearest the root origin, x from the root's x (or y) axis.
     z0 = _unit(z[0])
-    ref = np.eye(3)[0] if np.linalg.norm(np.cross(np.eye(3)[0], z0)) > 0.1 else np.eye(3)[1]
+    ref = np.eye(3)[0] if np.linalg.norm(_cross(np.eye(3)[0], z0)) > 0.1 else np.eye(3)[1]
     base = _frame(_unit(ref - (ref @ z0) * z0), z0, c[0] - (c[0] @ z0) * z0)
     pre, frames = base, []
     for i in range(n):
@@ -371,16 +382,16 @@ def _to_mdh(
             frames.append(pre)
             break
         zn, cn = _unit(z[i + 1]), c[i + 1]
-        cross = np.cross(zi, zn)
+        cross = _cross(zi, zn)
         parallel = np.linalg.norm(cross) < sin_tol if forced is None else forced[i + 1]
         if parallel:  # parallel: Hayati's beta, d[i] held at 0
             hayati[i + 1] = True
             foot = oi
-            w = np.cross(cn - oi, zn)
+            w = _cross(cn - oi, zn)
             if np.linalg.norm(w) < 1e-12:  # collinear axes: keep x
                 x = xpre
             else:
-                x = _unit(np.cross(zi, w))
+                x = _unit(_cross(zi, w))
                 x = -x if x @ (cn - oi) < 0 else x
         else:  # common normal between the two axes
             x = _unit(cross)
@@ -389,7 +400,7 @@ def _to_mdh(
             t, _ = np.linalg.solve(m, [(cn - oi) @ zi, (cn - oi) @ zn])
             foot = oi + t * zi
             x = -x if x @ (cn - foot) < -1e-12 else x
-        theta_off[i] = np.arctan2(np.cross(xpre, x) @ zi, xpre @ x)
+        theta_off[i] = np.arctan2(_cross(xpre, x) @ zi, xpre @ x)
         d[i] = (foot - oi) @ zi
         post = pre @ _screw(theta_off[i], d[i])
         frames.append(post)
