@@ -455,3 +455,13 @@ def test_panda_converts_to_frankas_published_modified_dh():
     assert not model.hayati.any() and np.all(model.beta == 0)
     # the flange (panda_joint8): 0.107 m along joint 7's axis
     np.testing.assert_allclose(model.tool[:3, 3], [0, 0, 0.107], atol=1e-12)
+
+
+def test_origin_corrections_are_judged_in_their_units():
+    from relcal.calibration.plausibility import check_corrections
+
+    with pytest.raises(RelcalError, match=r"j1.origin.x corrected by \+200 mm"):
+        check_corrections(["j1.origin.x"], ["origin"], np.array([0.2]), "here")
+    with pytest.raises(RelcalError, match=r"j1.origin.rz corrected by \+57.3 deg"):
+        check_corrections(["j1.origin.rz"], ["origin"], np.array([1.0]), "here")
+    check_corrections(["j1.origin.x", "j1.origin.ry"], ["origin"] * 2, np.array([1e-3, 1e-3]), "h")

@@ -428,7 +428,8 @@ def check_corrections(
     tolerances: Tolerances = Tolerances(),
 ) -> None:
     """Raise naming each identified correction larger than its kind's tolerance and the likely
-    cause. ``kinds`` per entry: ``a``, ``d``, ``theta_off``, ``alpha``, ``beta``, ``handeye``;
+    cause. ``kinds`` per entry: ``a``, ``d``, ``theta_off``, ``alpha``, ``beta``, ``handeye``,
+    ``origin`` (URDF origins: ``.x``, ``.y``, ``.z`` lengths, ``.rx`` .. ``.rz`` angles);
     ``params`` in m and rad (hand-eye as translation then rotation vector)."""
     lines = []
     for k, (name, kind) in enumerate(zip(names, kinds, strict=True)):
@@ -442,8 +443,8 @@ def check_corrections(
                 "estimate it), or the poses are wrong"
             )
             key = "handeye_deg" if angle else "handeye_mm"
-        elif kind in ("a", "d"):
-            angle, tol, key = False, tolerances.length, "length_mm"
+        elif kind in ("a", "d") or (kind == "origin" and name[-1] in "xyz" and name[-2] == "."):
+            angle, tol, key = False, tolerances.length, "length_mm"  # URDF origin x, y, z too
             cause = (
                 "a wrong board size, poses in the wrong unit or a wrong robot model (a missing "
                 "offset, another robot) absorbed by the link lengths"
