@@ -16,7 +16,8 @@ models; a URDF chain converts exactly to modified DH), :func:`calibrated_urdf` a
 calibrated joint origins),
 :func:`make_layout` and :func:`fk` (parameters and kinematics), :class:`Problem` (an
 identification problem), :func:`identify` with :class:`SolverOptions` giving a :class:`Result`,
-:func:`analyse_problem` (identifiability), :func:`simulate` (the published simulation).
+:func:`analyse_problem` (identifiability), :func:`simulate` (the published simulation),
+:func:`import_rosbag` (a recorded calibration run to a dataset folder).
 """
 
 from relcal.calibration.identifiability import Identifiability, analyse_problem
@@ -26,6 +27,7 @@ from relcal.calibration.noise import Noise
 from relcal.calibration.pipeline import Calibration, calibrate
 from relcal.data.dataset import Dataset, load_dataset
 from relcal.data.imaging import Measurements, measure
+from relcal.data.rosbag import import_rosbag
 from relcal.errors import RelcalError
 from relcal.robot.export import calibrated_model, calibrated_urdf, robot_files
 from relcal.robot.kinematics import Layout, apply_errors, fk, make_layout
@@ -56,6 +58,7 @@ __all__ = [
     "fk",
     "get_robot",
     "identify",
+    "import_rosbag",
     "load_dataset",
     "load_model",
     "load_urdf",

@@ -11,14 +11,32 @@ examples:
   relcal import rct-positioner positioner_kinematic_measurements.yaml --out positioner/
   relcal import rct-positioner measurements.yaml --out positioner/ --quiet --json import.json
   relcal calibrate positioner/                    # then calibrate the dataset folder
+  relcal import rosbag run.mcap --joints /joint_states --image /camera/image_raw --robot ur5e \
+      --out run/                                  # one sample per stop of the robot
+  relcal import rosbag run_bag/ --joints /joint_states --pose /mocap/tool_pose --out run/
 """
 
 
 def run(args: argparse.Namespace) -> int:
-    from relcal.data.importers import import_rct_positioner
     from relcal.io import write_json
 
-    done = import_rct_positioner(args.file, args.out)
+    extra: dict = {}
+    if args.format == "rosbag":
+        done = _rosbag(args)
+        extra = {
+            "joint_names": list(done.joint_names),
+            "velocity_source": "recorded" if done.measured_velocity else "finite differences",
+            "camera_info": done.camera_info,
+            "stops": [
+                {"start_s": s.start, "end_s": s.end, "q": [float(v) for v in s.q]}
+                for s in done.stops
+            ],
+            "skipped": list(done.skipped),
+        }
+    else:
+        from relcal.data.importers import import_rct_positioner
+
+        done = import_rct_positioner(args.file, args.out)
     if args.json:
         write_json(
             args.json,
@@ -28,26 +46,79 @@ def run(args: argparse.Namespace) -> int:
                 "dataset": str(done.folder),
                 "files": [str(f) for f in done.files],
                 "n_samples": done.n_samples,
+                **extra,
             },
         )
     if not args.quiet:
-        names = ", ".join(f.name for f in done.files)
-        print(f"dataset written to {done.folder} ({names})")
+        shown = [f.name for f in done.files if f.parent == done.folder]
+        n_images = len(done.files) - len(shown)
+        names = ", ".join(shown + ([f"{n_images} images"] if n_images else []))
+        print(f"dataset written to {done.folder} ({names}): {done.n_samples} samples")
+        if args.format == "rosbag":
+            print(
+                f"{len(done.stops)} stops of the robot found ({extra['velocity_source']} joint "
+                f"velocities below {args.velocity:g} for {args.settle:g} s)"
+            )
+            for reason in done.skipped:
+                print(f"  skipped {reason}")
+            if not args.robot:
+                print("set robot: in dataset.yaml (or import with --robot)")
     return 0
+
+
+def _rosbag(args: argparse.Namespace):
+    from relcal.data.rosbag import StopOptions, import_rosbag
+    from relcal.errors import RelcalError
+
+    if not args.joints:
+        raise RelcalError("relcal import rosbag: --joints TOPIC is required")
+    return import_rosbag(
+        args.file,
+        args.out,
+        joints=args.joints,
+        image=args.image,
+        pose=args.pose,
+        camera_info=args.camera_info,
+        robot=args.robot,
+        options=StopOptions(velocity=args.velocity, settle=args.settle),
+    )
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "import",
-        help="convert robot_cal_tools measurements into a dataset folder",
+        help="convert robot_cal_tools measurements or a ROS bag into a dataset folder",
         description="Convert ROS-Industrial robot_cal_tools' positioner kinematic measurements "
-        "(joint angles + camera-to-target poses) into a relcal dataset folder.",
+        "(joint angles + camera-to-target poses), or a ROS 1 / ROS 2 bag or MCAP file of a "
+        "calibration run (one sample per stop of the robot), into a relcal dataset folder.",
         epilog=EPILOG,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    p.add_argument("format", choices=("rct-positioner",), help="input format")
-    p.add_argument("file", help="input file")
+    p.add_argument("format", choices=("rct-positioner", "rosbag"), help="input format")
+    p.add_argument("file", help="input file (rosbag: a .bag, a ROS 2 bag folder, .mcap or .db3)")
     p.add_argument("--out", required=True, help="dataset folder to write")
+    ros = p.add_argument_group("rosbag")
+    ros.add_argument("--joints", metavar="TOPIC", help="sensor_msgs/JointState topic")
+    what = ros.add_mutually_exclusive_group()
+    what.add_argument("--image", metavar="TOPIC", help="sensor_msgs/Image or CompressedImage")
+    what.add_argument(
+        "--pose", metavar="TOPIC", help="geometry_msgs/PoseStamped or TransformStamped"
+    )
+    ros.add_argument(
+        "--camera-info",
+        metavar="TOPIC",
+        help="sensor_msgs/CameraInfo (default: camera_info beside the image topic, if recorded)",
+    )
+    ros.add_argument("--robot", help="robot: written into dataset.yaml (name or model file)")
+    ros.add_argument(
+        "--velocity",
+        type=float,
+        default=0.01,
+        help="a stop: every joint slower than this (rad/s, m/s; default 0.01)",
+    )
+    ros.add_argument(
+        "--settle", type=float, default=0.5, help="... for at least this long (s; default 0.5)"
+    )
     json_arg(p, "the list of files written and the number of samples")
     p.add_argument("--quiet", action="store_true", help="print nothing but errors")
     p.set_defaults(func=run)
