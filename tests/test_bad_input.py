@@ -180,7 +180,7 @@ def test_21_poses_that_do_not_vary_a_joint(capsys, tmp_path):
 def test_22_header_without_pose_or_image(capsys, tmp_path):
     root = write_dataset(tmp_path / "d")
     (root / "samples.csv").write_text("id,q1,q2,q3,q4,q5,q6\na,1,2,3,4,5,6\n")
-    run_bad(capsys, ["calibrate", root], "expected either an 'image' column or the pose columns")
+    run_bad(capsys, ["calibrate", root], "expected an 'image' column, or a pose", "exactly one")
 
 
 def test_23_empty_samples_file(capsys, tmp_path):

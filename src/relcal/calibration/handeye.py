@@ -34,3 +34,35 @@ def solve_handeye(flange: np.ndarray, measured: np.ndarray) -> np.ndarray:
     rhs = (np.einsum("ij,pj->pi", rot, b[:, :3, 3]) - a[:, :3, 3]).reshape(-1)
     trans = np.linalg.lstsq(lhs, rhs, rcond=None)[0]
     return tf.homogeneous(rot, trans)
+
+
+def solve_instrument(
+    flange: np.ndarray, points: np.ndarray, marker: np.ndarray | None = None, iterations: int = 20
+) -> tuple[np.ndarray, np.ndarray]:
+    """Starting guesses of the instrument-from-base transform ``T`` ``(4, 4)`` and the marker
+    position ``m`` ``(3,)`` (flange frame) from flange poses ``F_k`` ``(N, 4, 4)`` and measured
+    points ``p_k = T F_k m`` ``(N, 3)``.
+
+    Alternates a point-set registration (Kabsch) of the modelled points ``F_k m`` onto ``p_k``
+    with the linear least-squares solve of ``p_k - R_T t_k = R_T R_k m + t_T`` for ``m`` and
+    ``t_T``; starts from ``marker`` (default the flange origin).
+    """
+    points = np.asarray(points, dtype=float)
+    m = np.zeros(3) if marker is None else np.asarray(marker, dtype=float)
+    rot_f, t_f = flange[:, :3, :3], flange[:, :3, 3]
+    if len(points) < 3 or np.linalg.matrix_rank(t_f - t_f.mean(axis=0), tol=1e-4) < 3:
+        raise RelcalError(
+            "cannot guess the instrument-to-base transform: the measured points must span "
+            "three dimensions (move the robot over a volume, not a plane or a line)"
+        )
+    n = len(points)
+    for _ in range(iterations):
+        model = rot_f @ m + t_f
+        mc, pc = model.mean(axis=0), points.mean(axis=0)
+        u, _, vt = np.linalg.svd((points - pc).T @ (model - mc))
+        rot = u @ np.diag([1.0, 1.0, np.linalg.det(u @ vt)]) @ vt
+        lhs = np.concatenate([rot @ rot_f, np.broadcast_to(np.eye(3), (n, 3, 3))], axis=2)
+        rhs = points - t_f @ rot.T
+        sol = np.linalg.lstsq(lhs.reshape(-1, 6), rhs.reshape(-1), rcond=None)[0]
+        m = sol[:3]
+    return tf.homogeneous(rot, sol[3:]), m

@@ -25,6 +25,9 @@ from relcal.robot.model import RobotModel, parallel_axes
 DEFAULT_RCOND = 1e-6
 HandEye = Literal["estimated", "known"]
 INDEX_NAMES = ("O1", "O2", "O3", "O4", "O5")
+# Frames estimated alongside the geometry (not part of the robot): hand-eye X, or the tracker
+# formulation's instrument transform T and marker position m.
+NUISANCE_KINDS = ("handeye", "instrument", "marker")
 _INVOLVED = 1e-6  # a parameter with a larger share of a null vector is not identifiable alone
 
 
@@ -49,7 +52,9 @@ class Combination:
                 for c, a in zip(self.coefficients, self.is_angle, strict=True)
             ]
         )
-        lead = next((k for k, n in enumerate(self.names) if not n.startswith("handeye.")), None)
+        lead = next(
+            (k for k, n in enumerate(self.names) if n.split(".")[0] not in NUISANCE_KINDS), None
+        )
         shown /= shown[lead] if lead is not None else np.abs(shown).max()
         big = np.abs(shown) >= 1e-3 * np.abs(shown).max()
         terms = [
@@ -141,7 +146,7 @@ def analyse(
     # The hand-eye transform is estimated whole where it can be: the link parameters it absorbs
     # (the leads of the combinations below) stay at nominal, so the exported model changes only
     # what the data determine.
-    hand_eye = np.array([kind == "handeye" for kind in layout.kinds])
+    hand_eye = np.array([kind in NUISANCE_KINDS for kind in layout.kinds])
     _, _, piv = scipy.linalg.qr(
         unit * np.where(hand_eye, 10.0, 1.0), mode="economic", pivoting=True
     )
@@ -236,6 +241,18 @@ def explainer(problem: Problem):
                 f"translations along parallel axes of joints {', '.join(map(str, joints))}: "
                 "only their sum is identifiable (Hayati's beta cures it)"
             )
+        if problem.formulation == "tracker":
+            if constant(spatial @ geometric) or kinds <= {"instrument"}:
+                return (
+                    "acts as a rigid motion of the robot base: the instrument-to-base "
+                    "transform T absorbs it"
+                )
+            moved = body[:, :3] @ geometric + np.cross(body[:, 3:] @ geometric, problem.marker)
+            if len(involved) == 1 and np.abs(moved).max() < 1e-12:
+                return "does not move the marker point (a tracker measures no orientation)"
+            if constant(moved):
+                return "moves the marker by a constant amount in the flange frame: m absorbs it"
+            return "linearly dependent at these poses: vary the poses or fix one of them"
         if "handeye" not in kinds and constant(spatial @ geometric):
             return "acts as a rigid motion of the robot base: cancels in relative measurements"
         if "handeye" in kinds or constant(body @ geometric):

@@ -66,9 +66,9 @@ class Result:
     ``covariance`` ``(P, P)`` of the estimated subset, NaN for parameters held at nominal: for
     relative measurements (pairs share poses, so their residuals correlate) the least-squares
     covariance of :func:`uncertainty.parameter_covariance` with the pose noise estimated from
-    the residuals; for absolute poses ``s^2 (A^T A)^-1``; for the noise-weighted estimator its
-    Cramer-Rao form. Computed on first use. Costs are ``0.5 |r|^2`` per residual row, weighted
-    as solved.
+    the residuals; for absolute poses and tracker points ``s^2 (A^T A)^-1``; for the
+    noise-weighted estimator its Cramer-Rao form. Computed on first use. Costs are
+    ``0.5 |r|^2`` per residual row, weighted as solved.
     """
 
     params: np.ndarray
@@ -194,7 +194,7 @@ def result_covariance(
     r, a = residuals(problem, params)
     if whiten is not None:
         return least_squares_covariance(whiten @ a, whiten @ r, ident.subset)
-    if problem.formulation == "absolute":
+    if problem.formulation in ("absolute", "tracker"):  # independent poses or points
         return least_squares_covariance(a, r, ident.subset)
     if noise is None:
         sigma = robust_sigma(pair_errors(problem, params)) / np.sqrt(2)  # two poses per pair

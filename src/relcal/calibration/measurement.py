@@ -9,6 +9,12 @@ Residuals follow ``r ~ A (p_true - p)``: measured minus modelled, so a Gauss-New
 - ``invariant``: ``M_ij = C_i^-1 C_j`` against ``X^-1 F_i^-1 F_j X``; residual = 6-vector of
   ``model^-1 measured`` (in the camera frame). The board frame ``W`` cancels entirely; the hand-eye
   transform ``X`` is estimated with the geometry (6 extra parameters ``handeye.*``).
+- ``tracker``: points measured by an instrument (laser tracker reflector, mocap marker) whose
+  frame ``T`` relative to the robot base is unknown: ``r_k = p_meas - T F(q_k) m`` (3 rows), with
+  ``T`` (6 parameters ``instrument.*``, a small motion ``T0 exp(xi)`` of the guess) and the marker
+  position ``m`` in the flange frame (3 parameters ``marker.*``, added to the guess) estimated with
+  the geometry. ``T`` absorbs whatever moves the base rigidly, ``m`` whatever moves the flange
+  point by a constant amount in the flange frame.
 
 ``measure="position"`` keeps the 3 translation rows of each measurement, ``"pose"`` all 6.
 """
@@ -24,7 +30,9 @@ from relcal import geometry as tf
 from relcal.robot.kinematics import Layout, apply_errors, fk, pose_jacobian, spatial_jacobian
 from relcal.robot.model import RobotModel
 
-Formulation = Literal["absolute", "published", "invariant"]
+MARKER_COMPONENTS = ("x", "y", "z")  # the tracker formulation's marker position, m
+
+Formulation = Literal["absolute", "published", "invariant", "tracker"]
 Measure = Literal["position", "pose"]
 PairStrategy = Literal["consecutive", "star", "all"]
 
@@ -68,17 +76,22 @@ class Problem:
     # (P, 6, 6) per-measurement whitening blocks (pose measurements), applied after ``weights``:
     # a learned noise model's inverse Cholesky factors (:func:`noise.pair_whiteners`).
     pair_weights: np.ndarray | None = None
+    instrument: np.ndarray = field(default_factory=lambda: np.eye(4))  # tracker: guess of T
+    marker: np.ndarray = field(default_factory=lambda: np.zeros(3))  # tracker: guess of m (m)
 
     @property
     def full_layout(self) -> Layout:
-        """The parameter layout including the hand-eye 6-vector when it is estimated."""
+        """The parameter layout including the hand-eye 6-vector when it is estimated (or, for the
+        tracker formulation, the instrument 6-vector and the marker 3-vector)."""
         if self.formulation == "invariant":
             return self.layout.extended("handeye")
+        if self.formulation == "tracker":
+            return self.layout.extended("instrument").extended("marker", MARKER_COMPONENTS)
         return self.layout
 
     @property
     def rows_per_measurement(self) -> int:
-        return 3 if self.measure == "position" else 6
+        return 3 if self.measure == "position" or self.formulation == "tracker" else 6
 
     def pair_indices(self) -> np.ndarray:
         if self.pairs is not None:
@@ -86,7 +99,8 @@ class Problem:
         return make_pairs(len(self.q))
 
     def n_residuals(self) -> int:
-        count = len(self.q) if self.formulation == "absolute" else len(self.pair_indices())
+        per_pose = self.formulation in ("absolute", "tracker")
+        count = len(self.q) if per_pose else len(self.pair_indices())
         return count * self.rows_per_measurement
 
 
@@ -120,6 +134,8 @@ def residuals(problem: Problem, params: np.ndarray, jacobian: bool = True):
 
     Measurements are stacked measurement by measurement (3 or 6 rows each).
     """
+    if problem.formulation == "tracker":
+        return _tracker(problem, params, jacobian)
     model, handeye = split_params(problem, params)
     if jacobian and problem.formulation == "invariant":
         tip, jac = spatial_jacobian(model, problem.q, problem.layout)
@@ -172,8 +188,52 @@ def pair_errors(problem: Problem, params: np.ndarray) -> np.ndarray:
 
     With position-only measurements the rotation columns are NaN.
     """
+    if problem.formulation == "tracker":  # points: 3 rows per sample, no orientation
+        plain = replace(problem, weights=None, pair_weights=None)
+        r = residuals(plain, params, jacobian=False).reshape(-1, 3)
+        return np.concatenate([r, np.full_like(r, np.nan)], axis=1)
     plain = replace(problem, measure="pose", weights=None, pair_weights=None)
     r = residuals(plain, params, jacobian=False).reshape(-1, 6)
     if problem.measure == "position":
         r[:, 3:] = np.nan
     return r
+
+
+def tracker_frames(problem: Problem, params: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Instrument-from-base transform ``T`` ``(4, 4)`` and marker position ``m`` ``(3,)`` (flange
+    frame, m) of the tracker formulation at ``params``."""
+    n_geo = problem.layout.size
+    instrument = problem.instrument @ tf.from_vector(params[n_geo : n_geo + 6])
+    return instrument, problem.marker + params[n_geo + 6 : n_geo + 9]
+
+
+def _tracker(problem: Problem, params: np.ndarray, jacobian: bool):
+    """Residuals ``(3 N,)`` ``p_meas - T F(q) m`` and, if asked, the Jacobian ``(3 N, P)`` of the
+    modelled point ``T F(q) m`` with respect to the parameters (``r ~ A (p_true - p)``)."""
+    n_geo = problem.layout.size
+    model = apply_errors(problem.model, problem.layout, params[:n_geo])
+    instrument, marker = tracker_frames(problem, params)
+    if jacobian and n_geo:
+        tip, spatial = spatial_jacobian(model, problem.q, problem.layout)
+    elif jacobian:  # frames only (the baseline fit: nominal geometry)
+        tip, spatial = fk(model, problem.q), np.zeros((len(problem.q), 6, 0))
+    else:
+        tip, spatial = fk(model, problem.q), None
+    point = tip[:, :3, :3] @ marker + tip[:, :3, 3]  # F m in the base frame (N, 3)
+    rot = instrument[:3, :3]
+    r = problem.poses[:, :3, 3] - (point @ rot.T + instrument[:3, 3])
+    weights = None if problem.weights is None else np.asarray(problem.weights, float)[:3]
+    if weights is not None:
+        r = r * weights
+    if not jacobian:
+        return r.reshape(-1)
+    # F -> exp(S) F moves the point by v + w x y; T -> T exp(xi) by R_T (v_xi + w_xi x y);
+    # m -> m + dm by R_T R_F dm.
+    skew = tf.skew(point)  # (N, 3, 3): [y]x, so w x y = -[y]x w
+    geo = spatial[:, :3] - skew @ spatial[:, 3:]
+    inst = np.concatenate([np.broadcast_to(np.eye(3), skew.shape), -skew], axis=-1)
+    mark = tip[:, :3, :3]
+    a = rot @ np.concatenate([geo, inst, mark], axis=-1)  # (N, 3, P)
+    if weights is not None:
+        a = a * weights[:, None]
+    return r.reshape(-1), a.reshape(-1, a.shape[-1])

@@ -3,6 +3,9 @@
 ``measure`` turns images (or given poses) into camera poses ``C_k`` with rejected frames and their
 reasons; ``calibrate`` splits off held-out samples, identifies the geometry and the hand-eye
 transform with the frame-invariant formulation on the identifiable subset, and validates.
+Position-only samples (a tracker's reflector, a marker) take the tracker formulation instead: the
+instrument-to-base transform and the marker position are estimated with the geometry, and the
+held-out check is the absolute position error with both refitted on the training samples.
 """
 
 from __future__ import annotations
@@ -59,6 +62,9 @@ from relcal.robot.kinematics import fk, make_layout
 from relcal.robot.model import RobotModel
 
 ROBUST_SCALE = 3.0  # residual (in noise standard deviations) where the robust loss bends
+# Candidates without kinematic correction: the hand-eye transform alone, or (position-only data)
+# the instrument transform and the marker alone.
+BASELINE_CANDIDATES = ("hand-eye only", "instrument and marker only")
 
 
 def _sample_indices(dataset: Dataset, ids: Sequence[str]) -> np.ndarray:
@@ -123,7 +129,8 @@ class Calibration:
     def exported(self) -> str:
         """``calibrated``, or ``baseline`` when the hand-eye transform alone was chosen."""
         chosen = self.selection[self.chosen].candidate if self.selection else None
-        return "baseline" if chosen is not None and chosen.name == "hand-eye only" else "calibrated"
+        baseline = chosen is not None and chosen.name in BASELINE_CANDIDATES
+        return "baseline" if baseline else "calibrated"
 
     @property
     def worse(self) -> bool:
@@ -182,6 +189,22 @@ def calibrate(
     if selection not in ("cv", "conservative", "all"):
         raise RelcalError(f"unknown selection '{selection}': use cv, conservative or all")
     train, test = _split(dataset, measurements, holdout, seed, holdout_ids)
+    if dataset.measured == "position":
+        from relcal.calibration.tracker import calibrate_points
+
+        return calibrate_points(
+            dataset,
+            measurements,
+            train,
+            test,
+            holdout,
+            seed,
+            method,
+            loss,
+            reject_outliers,
+            select_folds,
+            selection,
+        )
     plausibility = check_dataset(dataset, measurements)  # a wrong unit, order or board size
     poses = measurements.poses
     handeye = dataset.handeye

@@ -50,10 +50,12 @@ def ratio_interval(
     the held-out *samples* (each pair counts as often as both its samples are drawn).
 
     Pairs share samples (``n`` samples make ``n (n - 1) / 2`` pairs), so resampling pairs would
-    pretend far more independent evidence than there is.
+    pretend far more independent evidence than there is. Per-sample errors (absolute and
+    tracker formulations) come as pairs ``(k, k)`` and count once per draw of their sample.
     """
     samples, index = np.unique(pairs, return_inverse=True)
     i, j = index.reshape(pairs.shape).T
+    per_sample = bool(np.all(i == j))
     n = len(samples)
     draws = np.random.default_rng(seed).integers(0, n, (n_boot, n))
     counts = np.zeros((n_boot, n))
@@ -63,6 +65,8 @@ def ratio_interval(
         """``sum_p counts[i_p] counts[j_p] values_p`` per draw, via an ``(n, n)`` table."""
         table = np.zeros((n, n))
         np.add.at(table, (i, j), values)
+        if per_sample:
+            return counts @ np.diag(table)
         return np.einsum("bi,ij,bj->b", counts, table, counts)
 
     drawn = resampled(np.ones(len(pairs))) > 0  # draws with at least one pair
@@ -155,11 +159,17 @@ def held_out(
     pairing: PairStrategy = "all",
     baseline: Result | None = None,
 ) -> Validation:
-    """Errors on pairs among ``samples`` (which the identification did not use) of the nominal
-    model with the hand-eye guess, the ``baseline`` fit (if given) and ``result``."""
+    """Errors on pairs among ``samples`` (which the identification did not use), or on each
+    sample alone (as pairs ``(k, k)``) for the per-pose formulations, of the nominal model with
+    the frame guesses, the ``baseline`` fit (if given) and ``result``."""
     test = subset(problem, samples, pairing)
+    samples = np.asarray(samples)
+    if problem.formulation in ("absolute", "tracker"):
+        pairs = np.stack([samples, samples], axis=1)
+    else:
+        pairs = samples[test.pair_indices()]
     return Validation(
-        pairs=np.asarray(samples)[test.pair_indices()],
+        pairs=pairs,
         guess=pair_errors(test, np.zeros_like(result.params)),
         calibrated=pair_errors(test, result.params),
         baseline=None if baseline is None else pair_errors(test, baseline.params),

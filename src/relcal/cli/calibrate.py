@@ -27,7 +27,13 @@ def run_measure(args: argparse.Namespace) -> int:
     ids = [dataset.ids[i] for i in range(len(ok)) if ok[i]]
     write_text(
         out / "poses.csv",
-        write_samples(out / "poses.csv", ids, _degrees(dataset)[ok], poses=m.poses[ok]),
+        write_samples(
+            out / "poses.csv",
+            ids,
+            _degrees(dataset)[ok],
+            poses=m.poses[ok],
+            positions_only=dataset.measured == "position",
+        ),
     )
     rejected = [{"id": dataset.ids[i], "reason": m.reasons[i]} for i in range(len(ok)) if not ok[i]]
     rms = {
@@ -170,6 +176,8 @@ def summary_text(doc: dict) -> str:
         f"{doc['robot']}: {doc['n_used']} of {doc['n_samples']} samples used, "
         f"{len(doc['held_out_ids'])} held out",
     ]
+    points = doc["settings"].get("formulation") == "tracker"
+    frames = "the instrument transform and marker" if points else "the hand-eye transform"
     sel = doc.get("model_selection")
     if sel and sel.get("candidates"):
         lines.append(
@@ -179,14 +187,18 @@ def summary_text(doc: dict) -> str:
             mark = "*" if c["chosen"] else " "
             lines.append(
                 f"  {mark} {c['name']:<32} {c['weighting']:<12} {c['n_params']:>3} parameters  "
-                f"held-out position RMS {c['cv_position_rms_mm']:.4f} mm, orientation "
-                f"{c['cv_orientation_rms_deg']:.4f} deg"
+                f"held-out position RMS {c['cv_position_rms_mm']:.4f} mm"
+                + (
+                    f", orientation {c['cv_orientation_rms_deg']:.4f} deg"
+                    if c["cv_orientation_rms_deg"] is not None
+                    else ""
+                )
             )
         lines.append(f"  chosen: {sel['chosen']} ({sel['weighting']}): {sel['reason']}")
         if sel["exported"] == "baseline":
             lines.append(
                 "  the data support no kinematic correction: the exported model is the nominal "
-                "kinematics with the fitted hand-eye transform"
+                f"kinematics with {frames} fitted"
             )
     lines.append(
         f"identification: rank {ident['rank']} of {ident['n_params']}, "
@@ -200,10 +212,18 @@ def summary_text(doc: dict) -> str:
             if key not in val["calibrated"]:
                 continue
             g, b, a = val["baseline_handeye_guess"][key], val[base][key], val["calibrated"][key]
+            if points:
+                what = f"absolute {key.split('_')[0]} error over {val['n_samples']} points"
+                guesses, fitted = "instrument and marker guesses", "instrument and marker fitted"
+            else:
+                what = (
+                    f"relative {key.split('_')[0]} error over {val['n_pairs']} pairs of "
+                    f"{val['n_samples']} samples"
+                )
+                guesses, fitted = "hand-eye guess", "hand-eye fitted"
             lines.append(
-                f"held-out relative {key.split('_')[0]} error over {val['n_pairs']} pairs of "
-                f"{val['n_samples']} samples, RMS: nominal with the hand-eye guess {g['rms']:.3f}, "
-                f"baseline (nominal, hand-eye fitted) {b['rms']:.3f}, calibrated {a['rms']:.3f} "
+                f"held-out {what}, RMS: nominal with the {guesses} {g['rms']:.3f}, "
+                f"baseline (nominal, {fitted}) {b['rms']:.3f}, calibrated {a['rms']:.3f} "
                 f"{unit} ({_ratio_text(val['ratio_to_baseline'][key])} of the baseline)"
             )
     shown = [r for r in doc["parameters"] if r["status"] in ("estimated", "combination")]
@@ -245,7 +265,8 @@ def summary_text(doc: dict) -> str:
         base = "baseline" if "baseline" in pooled else "baseline_handeye_guess"
         b, a = pooled[base]["position_mm"], pooled["calibrated"]["position_mm"]
         lines.append(
-            f"{cv['k']}-fold cross-validation over {pooled['n_pairs']} held-out pairs: position "
+            f"{cv['k']}-fold cross-validation over {pooled['n_pairs']} held-out "
+            f"{'points' if points else 'pairs'}: position "
             f"RMS baseline {b['rms']:.3f} -> calibrated {a['rms']:.3f} mm "
             f"({_ratio_text(pooled['ratio_to_baseline']['position_mm'])}); chosen per fold: "
             + ", ".join(cv["chosen"])
@@ -274,7 +295,9 @@ def register(sub: argparse._SubParsersAction) -> None:
         "calibrate",
         help="identify the robot's geometry from a dataset",
         description="Measure, pair, identify (frame-invariant formulation, hand-eye estimated, "
-        "identifiable subset only) and validate on held-out samples.",
+        "identifiable subset only) and validate on held-out samples. Position-only samples (x, y, "
+        "z of a tracker or marker) are fitted as absolute points with the instrument transform "
+        "and the marker position estimated, and validated against that refitted baseline.",
         epilog=EPILOG,
         formatter_class=fmt,
     )

@@ -13,15 +13,24 @@
       xyz: [0.0, 0.04, 0.06]   # m   (optional: without it, a hand-eye solve on the data
       rpy: [0.0, 0.0, 0.0]     # deg  (OpenCV's calibrateHandEye) gives the starting guess)
     joint_unit: deg            # deg | rad (prismatic joints always in m)
+    pose_angle_unit: rad       # rad | deg: unit of roll, pitch, yaw columns (default rad)
+    columns: {x: x1, roll: phix1}   # relcal column name: the file's header, for other layouts
     samples: samples.csv
     tolerances:                # optional plausibility thresholds (defaults shown)
       length_mm: 10            #   largest identified correction of a link length
       angle_deg: 2             #   of a joint offset or twist
 
-``samples.csv`` has a header: ``id``, one column per joint (``q1`` .. ``qn``), then either
-``image`` (a path relative to the folder) or a measured pose ``x, y, z, qx, qy, qz, qw`` (camera in
-board frame for eye-in-hand, board in camera frame for eye-to-hand; metres, unit quaternion), for
-users whose poses come from another pipeline or a tracker.
+``samples.csv`` has a header: ``id`` (optional: without it a sample's id is its line number), one
+column per joint, named ``q1`` .. ``qn`` or by the model's joint names (``torso_lift_joint``, ...,
+matched by name in any order), then what was measured, one of:
+
+- ``image``: a path relative to the folder;
+- a pose ``x, y, z, qx, qy, qz, qw`` (metres, unit quaternion) or ``x, y, z, roll, pitch, yaw``
+  (URDF convention ``R = Rz(yaw) Ry(pitch) Rx(roll)``, in ``pose_angle_unit``): the camera in the
+  board frame (eye-in-hand), the board in the camera frame (eye-to-hand), or a motion-capture
+  rigid body in the instrument's frame; the instrument-to-base transform cancels;
+- a position ``x, y, z`` alone: a laser tracker's reflector or a marker, in the instrument's
+  frame (calibrated with the instrument transform and the marker position estimated).
 """
 
 from __future__ import annotations
@@ -40,6 +49,9 @@ from relcal.io import load_yaml, read_table, validate
 from relcal.robot.model import RobotModel, auto_hayati, get_robot, model_from_dict
 
 POSE_COLUMNS = ("x", "y", "z", "qx", "qy", "qz", "qw")
+RPY_COLUMNS = ("x", "y", "z", "roll", "pitch", "yaw")
+POSITION_COLUMNS = ("x", "y", "z")
+Measured = Literal["image", "pose", "position"]
 
 
 class _Frame(pydantic.BaseModel):
@@ -81,6 +93,8 @@ class _DatasetSpec(pydantic.BaseModel):
     camera: str | dict[str, Any] | None = None
     handeye: _Frame | None = None
     joint_unit: Literal["deg", "rad"] = "deg"
+    pose_angle_unit: Literal["deg", "rad"] = "rad"
+    columns: dict[str, str] = {}
     samples: str = "samples.csv"
     tolerances: _Tolerances | None = None
 
@@ -111,6 +125,7 @@ class Dataset:
     camera: Any = None  # a relcal.vision.camera.Camera, or "calibrate"
     spec_path: Path | None = None
     tolerances: dict[str, float] | None = None  # plausibility thresholds (mm, deg, percent)
+    measured: Measured = "image"  # or "pose"; "position": poses hold points (rotation unused)
 
 
 def _resolve(root: Path, value: str | dict | None, loader, what: str, spec: Path):
@@ -138,7 +153,10 @@ def load_dataset(folder: str | Path) -> Dataset:
     handeye = None
     if spec.handeye is not None:
         handeye = tf.from_xyz_rpy(np.array(spec.handeye.xyz), np.radians(spec.handeye.rpy))
-    ids, q, images, poses = read_samples(root / spec.samples, model, spec.joint_unit)
+    table = read_sample_table(
+        root / spec.samples, model, spec.joint_unit, spec.pose_angle_unit, spec.columns
+    )
+    ids, q, images, poses = table.ids, table.q, table.images, table.poses
     board = camera = None
     if images is not None:
         from relcal.vision.boards import load_board
@@ -155,7 +173,19 @@ def load_dataset(folder: str | Path) -> Dataset:
         camera = _camera(root, spec.camera, spec_path, load_camera)
     tolerances = spec.tolerances.model_dump(exclude_none=True) if spec.tolerances else None
     return Dataset(
-        root, model, spec.mode, handeye, ids, q, images, poses, board, camera, spec_path, tolerances
+        root,
+        model,
+        spec.mode,
+        handeye,
+        ids,
+        q,
+        images,
+        poses,
+        board,
+        camera,
+        spec_path,
+        tolerances,
+        table.measured,
     )
 
 
@@ -193,31 +223,118 @@ def _camera(root: Path, value, spec_path: Path, load_camera):
     return load_camera(root / value)
 
 
+@dataclass(frozen=True)
+class SampleTable:
+    """A parsed samples table. ``q`` ``(N, n)`` in rad (m for prismatic joints), in the model's
+    joint order; ``poses`` ``(N, 4, 4)`` measured poses (for positions, identity rotations)."""
+
+    ids: tuple[str, ...]
+    q: np.ndarray
+    images: tuple[Path, ...] | None
+    poses: np.ndarray | None
+    measured: Measured
+
+
 def read_samples(
     path: Path, model: RobotModel, joint_unit: str
 ) -> tuple[tuple[str, ...], np.ndarray, tuple[Path, ...] | None, np.ndarray | None]:
     """Parse the samples table; errors name the file, the line and the column."""
-    header, data = read_table(path, "sample")
+    t = read_sample_table(path, model, joint_unit)
+    return t.ids, t.q, t.images, t.poses
+
+
+def _rename(path: Path, header: list[str], columns: dict[str, str], model: RobotModel) -> list[str]:
+    """The header with the file's names replaced by relcal's (``columns``: relcal name -> the
+    file's name), each mapped name required."""
+    known = ["id", "image", *POSE_COLUMNS, *RPY_COLUMNS[3:]]
+    known += [f"q{i + 1}" for i in range(model.n_joints)] + list(model.joint_names)
+    unknown = [ours for ours in columns if ours not in known]
+    if unknown:
+        raise RelcalError(
+            f"{path}: dataset.yaml columns: unknown column name(s) {', '.join(unknown)}; relcal's "
+            f"names are id, image, x, y, z, qx, qy, qz, qw, roll, pitch, yaw, q1..q{model.n_joints}"
+            " or the joint names"
+        )
+    inverse = {theirs.strip(): ours for ours, theirs in columns.items()}
+    missing = [theirs for theirs in inverse if theirs not in header]
+    if missing:
+        raise RelcalError(
+            f"{path} line 1: header: dataset.yaml columns: maps to "
+            f"{', '.join(repr(m) for m in missing)}, which the header lacks (it has "
+            f"{', '.join(header)})"
+        )
+    return [inverse.get(h, h) for h in header]
+
+
+def _joint_columns(path: Path, header: list[str], model: RobotModel) -> list[str]:
+    """The header names of the model's joints, in the model's order: ``q1`` .. ``qn`` or the
+    joint names."""
     n = model.n_joints
-    joints = [f"q{i + 1}" for i in range(n)]
-    has_image = "image" in header
-    has_pose = all(c in header for c in POSE_COLUMNS)
-    missing = [c for c in ["id", *joints] if c not in header]
-    extra_q = [h for h in header if h.startswith("q") and h[1:].isdigit() and h not in joints]
+    numbered = [f"q{i + 1}" for i in range(n)]
+    named = list(model.joint_names)
+    extra_q = [h for h in header if h.startswith("q") and h[1:].isdigit() and h not in numbered]
+    by_name = [h for h in named if h in header]
+    if by_name and len(set(named)) == n:
+        missing = [h for h in named if h not in header]
+        if missing:
+            raise RelcalError(
+                f"{path} line 1: header: joint columns by name for the {n}-joint robot "
+                f"'{model.name}' ({', '.join(named)}); missing {', '.join(missing)}"
+            )
+        return named
+    missing = [c for c in numbered if c not in header]
     if missing or extra_q:
         raise RelcalError(
-            f"{path} line 1: header: expected columns id, {', '.join(joints)} for the "
-            f"{n}-joint robot '{model.name}'"
+            f"{path} line 1: header: expected joint columns {', '.join(numbered)} (or the joint "
+            f"names {', '.join(named)}) for the {n}-joint robot '{model.name}'"
             + (f"; missing {', '.join(missing)}" if missing else "")
             + (f"; unexpected {', '.join(extra_q)} (wrong joint count?)" if extra_q else "")
         )
-    if has_image == has_pose:
+    return numbered
+
+
+def _measured_columns(path: Path, header: list[str]) -> tuple[Measured, tuple[str, ...]]:
+    """What the table measures and its columns: an image, a pose (quaternion or roll-pitch-yaw),
+    or a position alone."""
+    has = set(header)
+    orientation = [c for c in (*POSE_COLUMNS[3:], *RPY_COLUMNS[3:]) if c in has]
+    found: list[tuple[Measured, tuple[str, ...]]] = []
+    if "image" in has:
+        found.append(("image", ("image",)))
+    for cols in (POSE_COLUMNS, RPY_COLUMNS):
+        if has.issuperset(cols):
+            found.append(("pose", cols))
+    if has.issuperset(POSITION_COLUMNS) and not any(k == "pose" for k, _ in found):
+        found.append(("position", POSITION_COLUMNS))
+    complete = {c for _, cols in found for c in cols}
+    if len(found) != 1 or any(c not in complete for c in orientation):
         raise RelcalError(
-            f"{path} line 1: header: expected either an 'image' column or the pose columns "
-            f"{', '.join(POSE_COLUMNS)} (exactly one of the two)"
+            f"{path} line 1: header: expected an 'image' column, or a pose "
+            f"{', '.join(POSE_COLUMNS)} or {', '.join(RPY_COLUMNS)}, or a position x, y, z "
+            f"(exactly one of these; the header has {', '.join(header)}); map other names in "
+            "dataset.yaml, e.g. columns: {x: x1, y: y1, z: z1}"
         )
+    return found[0]
+
+
+def read_sample_table(
+    path: Path,
+    model: RobotModel,
+    joint_unit: str,
+    pose_angle_unit: str = "rad",
+    columns: dict[str, str] | None = None,
+) -> SampleTable:
+    """Parse the samples table; errors name the file, the line and the column."""
+    header, data = read_table(path, "sample")
+    header = _rename(path, header, columns or {}, model)
+    joints = _joint_columns(path, header, model)
+    measured, meas_cols = _measured_columns(path, header)
+    dupes = sorted({h for h in header if header.count(h) > 1})
+    if dupes:
+        raise RelcalError(f"{path} line 1: header: column(s) {', '.join(dupes)} appear twice")
     col = {h: i for i, h in enumerate(header)}
-    ids, q, images, poses, seen = [], [], [], [], {}
+    has_id = "id" in col
+    ids, q, images, values, seen = [], [], [], [], {}
     lines = []
     for row in data:
         line_no = row.line
@@ -226,24 +343,22 @@ def read_samples(
             raise RelcalError(
                 f"{path} line {line_no}: {len(row)} fields, expected {len(header)} as in the header"
             )
-        sid = row[col["id"]].strip()
+        sid = row[col["id"]].strip() if has_id else str(line_no)
         if sid in seen:
             raise RelcalError(f"{path} line {line_no}: id '{sid}' duplicates line {seen[sid]}")
         seen[sid] = line_no
         ids.append(sid)
         q.append([parse_number(path, line_no, c, row[col[c]]) for c in joints])
-        if has_image:
+        if measured == "image":
             name = row[col["image"]].strip()
             if not name:
                 raise RelcalError(f"{path} line {line_no}: image: empty; expected an image path")
             images.append(path.parent / name)
         else:
-            poses.append([parse_number(path, line_no, c, row[col[c]]) for c in POSE_COLUMNS])
+            values.append([parse_number(path, line_no, c, row[col[c]]) for c in meas_cols])
     q_arr = _joint_values(path, np.array(q, dtype=float), model, joint_unit)
     pose_arr = None
-    if has_pose:
-        pose_arr = _poses(path, np.array(poses), lines)
-    else:
+    if measured == "image":
         for line_no, image in zip(lines, images, strict=True):
             if image.is_dir():
                 raise RelcalError(
@@ -251,7 +366,16 @@ def read_samples(
                 )
             if not image.is_file():
                 raise RelcalError(f"{path} line {line_no}: image: file not found: {image}")
-    return tuple(ids), q_arr, (tuple(images) if has_image else None), pose_arr
+    elif meas_cols == POSE_COLUMNS:
+        pose_arr = _poses(path, np.array(values), lines)
+    elif meas_cols == RPY_COLUMNS:
+        pose_arr = _rpy_poses(path, np.array(values), pose_angle_unit)
+    else:
+        pose_arr = np.broadcast_to(np.eye(4), (len(values), 4, 4)).copy()
+        pose_arr[:, :3, 3] = values
+    return SampleTable(
+        tuple(ids), q_arr, tuple(images) if measured == "image" else None, pose_arr, measured
+    )
 
 
 def parse_number(path: Path, line_no: int, column: str, text: str) -> float:
@@ -300,16 +424,37 @@ def _poses(path: Path, values: np.ndarray, lines: list[int]) -> np.ndarray:
     return tf.homogeneous(rot, values[:, :3])
 
 
-def write_samples(path: Path, ids, q_deg: np.ndarray, images=None, poses=None) -> str:
-    """CSV text of a samples table (joint angles as given, poses as x..qw)."""
+def _rpy_poses(path: Path, values: np.ndarray, unit: str) -> np.ndarray:
+    """Poses from ``x, y, z, roll, pitch, yaw`` with ``R = Rz(yaw) Ry(pitch) Rx(roll)``."""
+    rpy = values[:, 3:]
+    if unit == "rad" and len(rpy) and np.abs(rpy).max() > 2 * np.pi + 0.1:
+        raise RelcalError(
+            f"{path}: roll, pitch, yaw reach {np.abs(rpy).max():.1f}, which looks like degrees, "
+            "but dataset.yaml declares pose_angle_unit: rad (the default)"
+        )
+    if unit == "deg":
+        rpy = np.radians(rpy)
+    return tf.homogeneous(Rotation.from_euler("xyz", rpy).as_matrix(), values[:, :3])
+
+
+def write_samples(
+    path: Path, ids, q_deg: np.ndarray, images=None, poses=None, positions_only: bool = False
+) -> str:
+    """CSV text of a samples table (joint angles as given, poses as x..qw, or with
+    ``positions_only`` the translations of ``poses`` as x, y, z)."""
     n = q_deg.shape[1]
     header = ["id", *[f"q{i + 1}" for i in range(n)]]
-    header += ["image"] if images is not None else list(POSE_COLUMNS)
+    if images is not None:
+        header.append("image")
+    else:
+        header += list(POSITION_COLUMNS if positions_only else POSE_COLUMNS)
     lines = [",".join(header)]
     for k, sid in enumerate(ids):
         cells = [str(sid), *[f"{v:.12g}" for v in q_deg[k]]]
         if images is not None:
             cells.append(str(images[k]))
+        elif positions_only:
+            cells += [f"{v:.12g}" for v in poses[k][:3, 3]]
         else:
             quat = Rotation.from_matrix(poses[k][:3, :3]).as_quat()
             cells += [f"{v:.12g}" for v in (*poses[k][:3, 3], *quat)]

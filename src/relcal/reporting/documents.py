@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from relcal.calibration.measurement import tracker_frames
 from relcal.calibration.pipeline import Calibration
 from relcal.geometry import to_xyz_rpy
 from relcal.robot.model import model_to_dict
@@ -105,7 +106,9 @@ def selection_document(cal: Calibration) -> dict:
                 "weighting": s.candidate.weighting,
                 "n_params": len(s.candidate.columns),
                 "cv_position_rms_mm": s.position_rms * 1e3,
-                "cv_orientation_rms_deg": float(np.degrees(s.orientation_rms)),
+                "cv_orientation_rms_deg": float(np.degrees(s.orientation_rms))
+                if cal.problem.formulation != "tracker"
+                else None,
                 "chosen": k == cal.chosen,
             }
             for k, s in enumerate(cal.selection)
@@ -162,6 +165,21 @@ def validation_document(cal: Calibration) -> dict | None:
     return {**val.summary(), "pairs": pairs}
 
 
+def _tracker_frames(cal: Calibration) -> dict:
+    """The estimated instrument-from-base transform and marker position (tracker formulation)."""
+    if cal.problem.formulation != "tracker":
+        return {}
+    instrument, marker = tracker_frames(cal.problem, cal.result.params)
+    xyz, rpy = to_xyz_rpy(instrument)
+    return {
+        "instrument": {
+            "xyz_m": [float(v) for v in xyz],
+            "rpy_deg": [float(np.degrees(v)) for v in rpy],
+        },
+        "marker_xyz_m": [float(v) for v in marker],
+    }
+
+
 def results_document(cal: Calibration) -> dict:
     """Everything a calibration found, JSON-ready."""
     r = cal.result
@@ -202,10 +220,13 @@ def results_document(cal: Calibration) -> dict:
         "model_selection": selection_document(cal),
         "noise_model": noise_document(cal),
         "exported": cal.exported,
-        "handeye": {
+        "handeye": None
+        if cal.problem.formulation == "tracker"
+        else {
             "xyz_m": [float(v) for v in xyz],
             "rpy_deg": [float(np.degrees(v)) for v in rpy],
         },
+        **_tracker_frames(cal),
         "validation": validation_document(cal),
         "calibrated_model": model_to_dict(cal.model),
     }

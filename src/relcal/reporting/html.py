@@ -336,6 +336,16 @@ def parameter_figure(sim: Simulation) -> Figure:
 
 def _error_sets(cal: Calibration) -> tuple[np.ndarray, np.ndarray, str, str]:
     """Per-pair errors before and after, a short label and a sentence saying where from."""
+    if cal.validation is not None and cal.problem.formulation == "tracker":
+        v = cal.validation
+        return (
+            v.before,
+            v.after,
+            "held-out points",
+            f"Held-out validation: absolute position errors of {len(v.pairs)} points that the "
+            "identification did not use; before = nominal model with the instrument transform and "
+            "marker fitted to the training points, after = calibrated model.",
+        )
     if cal.validation is not None:
         v = cal.validation
         return (

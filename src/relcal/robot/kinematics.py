@@ -54,10 +54,12 @@ class Layout:
     def __iter__(self):
         return iter(zip(self.kinds, self.index, strict=True))
 
-    def extended(self, prefix: str) -> Layout:
-        """This layout followed by a 6-vector frame named ``prefix`` (e.g. ``handeye``)."""
-        names = tuple(f"{prefix}.{c}" for c in FRAME_COMPONENTS)
-        return Layout(self.names + names, self.kinds + (prefix,) * 6, self.index + tuple(range(6)))
+    def extended(self, prefix: str, components: tuple[str, ...] = FRAME_COMPONENTS) -> Layout:
+        """This layout followed by a 6-vector frame named ``prefix`` (e.g. ``handeye``), or by
+        other ``components`` (``("x", "y", "z")``: a point, in metres)."""
+        names = tuple(f"{prefix}.{c}" for c in components)
+        k = len(components)
+        return Layout(self.names + names, self.kinds + (prefix,) * k, self.index + tuple(range(k)))
 
 
 def make_layout(model: RobotModel, base: bool = False, tool: bool = False) -> Layout:
