@@ -137,10 +137,10 @@ def test_real_tiago_files_read_by_joint_name():
 # --- position-only data calibrated end to end ----------------------------------------------------
 
 
-def _point_dataset(root, n, noise, rng, seed_model="franka_fr3"):
+def _point_dataset(root, n, noise, rng, seed_model="franka_fr3", planted=True):
     model = auto_hayati(get_robot(seed_model))
     layout = make_layout(model)
-    truth = true_errors(layout, rng)
+    truth = true_errors(layout, rng) * planted
     q = random_q(model, n, rng, scale=0.8)
     flange = fk(apply_errors(model, layout, truth), q)
     p = (flange[:, :3, :3] @ MARKER + flange[:, :3, 3]) @ INSTRUMENT[:3, :3].T + INSTRUMENT[:3, 3]
@@ -164,8 +164,8 @@ def test_points_calibrate_without_noise(tmp_path, rng):
     ok = cal.result.identifiable[:n_geo]
     assert ok.sum() == n_geo - 6  # base-like (4) and marker-like (2) combinations left out
     np.testing.assert_allclose(cal.result.params[:n_geo][ok], truth[ok], atol=1e-8)
-    after = cal.validation.summary()["after"]["position_mm"]
-    before = cal.validation.summary()["before"]["position_mm"]
+    after = cal.validation.summary()["calibrated"]["position_mm"]
+    before = cal.validation.summary()["baseline"]["position_mm"]
     assert after["max"] < 1e-6  # mm
     assert before["rms"] > 0.3  # the planted errors show with T and m fitted to nominal
 
@@ -178,9 +178,10 @@ def test_points_calibrate_with_noise_reaches_the_noise_floor(tmp_path, rng, caps
     val = cal.validation.summary()
     # The norm of a 3-D Gaussian error has RMS sqrt(3) sigma; estimation error adds a little.
     floor = np.sqrt(3) * sigma * 1e3
-    assert val["after"]["position_mm"]["rms"] < 1.3 * floor
-    assert val["before"]["position_mm"]["rms"] > 5 * floor
-    assert abs(cal.settings["row_sigma"]["position_m"] - sigma) < 0.3 * sigma
+    assert val["calibrated"]["position_mm"]["rms"] < 1.3 * floor
+    assert val["baseline"]["position_mm"]["rms"] > 5 * floor
+    assert abs(cal.settings["point_sigma_m"] - sigma) < 0.3 * sigma
+    assert cal.exported == "calibrated"  # model selection keeps the geometry
     std = cal.std[cal.result.identifiable]
     assert np.all(np.isfinite(std)) and np.all(std > 0)
     # Through the command: the summary names the absolute check, T's absorptions and the baseline.
@@ -191,11 +192,24 @@ def test_points_calibrate_with_noise_reaches_the_noise_floor(tmp_path, rng, caps
     out = capsys.readouterr().out
     assert "held-out absolute position error over 30 points" in out
     assert "instrument-to-base transform T absorbs it" in out
-    assert "baseline: nominal geometry with the instrument transform" in out
+    assert "baseline (nominal, instrument and marker fitted)" in out
+    assert "chosen: geometric" in out
     # relcal measure writes the points back as points (no invented orientation).
     assert main(["measure", str(tmp_path / "d"), "--out", str(tmp_path / "m"), "--quiet"]) == 0
     header = (tmp_path / "m" / "poses.csv").read_text().splitlines()[0]
     assert header == "id,q1,q2,q3,q4,q5,q6,q7,x,y,z"
+
+
+def test_points_without_errors_export_the_baseline(tmp_path, rng):
+    """Nothing planted: cross-validation finds no support for a kinematic correction, and the
+    nominal model with T and m fitted is what is kept."""
+    _point_dataset(tmp_path / "d", 80, 50e-6, rng, planted=False)
+    ds = load_dataset(tmp_path / "d")
+    cal = calibrate(ds, measure(ds, progress=False), holdout=0.25)
+    assert cal.exported == "baseline"
+    assert cal.selection[cal.chosen].candidate.name == "instrument and marker only"
+    n_geo = cal.problem.layout.size
+    assert np.all(cal.result.params[:n_geo] == 0.0)
 
 
 def test_mocap_poses_calibrate_with_the_invariant_formulation(tmp_path, rng):
@@ -213,7 +227,7 @@ def test_mocap_poses_calibrate_with_the_invariant_formulation(tmp_path, rng):
     ds = load_dataset(root)
     cal = calibrate(ds, measure(ds, progress=False), holdout=0.25, loss="linear")
     assert cal.problem.formulation == "invariant"
-    after = cal.validation.summary()["after"]
+    after = cal.validation.summary()["calibrated"]
     assert after["position_mm"]["max"] < 1e-6 and after["orientation_deg"]["max"] < 1e-7
     n_geo = cal.problem.layout.size
     ok = cal.result.identifiable[:n_geo]
@@ -242,7 +256,7 @@ def test_real_tiago_through_the_urdf(tmp_path, which):
     ds = load_dataset(tmp_path)
     assert ds.measured == which and len(ds.ids) == (48 if which == "pose" else 94)
     cal = calibrate(ds, measure(ds, progress=False))
-    ratio = cal.validation.summary()["rms_ratio"]["position_mm"]
+    ratio = cal.validation.summary()["ratio_to_baseline"]["position_mm"]
     assert ratio["ci95"][1] < 1.0, ratio
     texts = cal.result.unidentifiable
     if which == "position":

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from relcal.calibration.identifiability import NUISANCE_KINDS
 from relcal.calibration.measurement import tracker_frames
 from relcal.calibration.pipeline import Calibration
 from relcal.geometry import to_xyz_rpy
@@ -73,7 +74,7 @@ def combination_rows(cal: Calibration) -> list[dict]:
     std = cal.std
     out = []
     for combo in cal.result.identifiability.combinations:
-        if len(combo.names) != 2 or any(n.startswith("handeye.") for n in combo.names):
+        if len(combo.names) != 2 or any(n.split(".")[0] in NUISANCE_KINDS for n in combo.names):
             continue
         if combo.is_angle[0] != combo.is_angle[1]:
             continue
