@@ -14,7 +14,7 @@ from relcal.data.dataset import load_dataset, read_sample_table
 from relcal.data.imaging import measure
 from relcal.errors import RelcalError
 from relcal.robot.kinematics import apply_errors, fk, make_layout
-from relcal.robot.model import auto_hayati, get_robot, model_from_dict
+from relcal.robot.model import KINDS, auto_hayati, get_robot, model_from_dict
 
 INSTRUMENT = tf.from_vector(np.array([1.1, -0.3, 0.2, 0.05, -0.1, 2.0]))  # tracker from base
 MARKER = np.array([0.02, -0.01, 0.11])  # flange frame, m
@@ -210,6 +210,22 @@ def test_points_without_errors_export_the_baseline(tmp_path, rng):
     assert cal.selection[cal.chosen].candidate.name == "instrument and marker only"
     n_geo = cal.problem.layout.size
     assert np.all(cal.result.params[:n_geo] == 0.0)
+
+
+def test_points_conservative_keeps_only_significant_link_parameters(tmp_path, rng):
+    _point_dataset(tmp_path / "d", 60, 0.3e-3, rng)
+    ds = load_dataset(tmp_path / "d")
+    m = measure(ds, progress=False)
+    cv = calibrate(ds, m, selection="cv")
+    cal = calibrate(ds, m, selection="conservative")
+    kinds = cal.problem.full_layout.kinds
+    free = np.flatnonzero(np.isfinite(cal.result.std))
+    links = [k for k in free if kinds[k] not in ("instrument", "marker")]
+    z = np.abs(cal.result.params[links]) / cal.result.std[links]
+    assert np.all(z >= 3.0) and len(links) < len(
+        [k for k in np.flatnonzero(np.isfinite(cv.result.std)) if kinds[k] in KINDS]
+    )
+    assert "dropped (--select conservative)" in cal.reason
 
 
 def test_mocap_poses_calibrate_with_the_invariant_formulation(tmp_path, rng):

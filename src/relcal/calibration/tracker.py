@@ -88,6 +88,27 @@ def score_points(
     return scores
 
 
+def significant_fit(
+    problem: Problem,
+    ident: Identifiability,
+    full: Result,
+    method: str,
+    loss: str,
+    z_min: float = 3.0,
+) -> Result:
+    """``full`` refitted without the link parameters whose estimate is below ``z_min`` standard
+    deviations (``T`` and ``m`` always stay), until none is."""
+    kinds = problem.full_layout.kinds
+    result, cols = full, np.asarray(ident.subset)
+    while True:
+        z = np.abs(result.params) / np.where(np.isfinite(result.std), result.std, np.inf)
+        weak = [c for c in cols if kinds[c] not in ("instrument", "marker") and z[c] < z_min]
+        if not weak:
+            return result
+        cols = np.setdiff1d(cols, weak)
+        result = _fit(problem, ident, cols, method, loss, initial=full.params)
+
+
 def calibrate_points(
     dataset: Dataset,
     measurements: Measurements,
@@ -108,7 +129,8 @@ def calibrate_points(
     which weights the rows; a Huber fit flags outlier points (left out with ``reject_outliers``);
     the baseline (``T`` and ``m`` alone) and the geometric model are scored by cross-validation
     and the simpler one is kept unless the other is better by more than a standard error
-    (``selection="all"`` keeps the geometric model; ``"conservative"`` acts as ``"cv"`` here).
+    (``selection="all"`` keeps the geometric model; ``"conservative"`` then drops the link
+    parameters below 3 standard deviations, refitting until none is).
     """
     layout = make_layout(dataset.model)
     points = measurements.poses[:, :3, 3]
@@ -156,6 +178,9 @@ def calibrate_points(
         chosen, reason = choose(scores)
     baseline = _fit(problem, ident, frames, "lm", loss, initial=full.params)
     result = baseline if chosen == 0 else full
+    if selection == "conservative" and chosen != 0:
+        result = significant_fit(problem, ident, full, method, loss)
+        reason += "; parameters below 3 standard deviations dropped (--select conservative)"
 
     validation = None
     if len(test) >= 1:
