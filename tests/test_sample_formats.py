@@ -228,6 +228,18 @@ def test_points_conservative_keeps_only_significant_link_parameters(tmp_path, rn
     assert "dropped (--select conservative)" in cal.reason
 
 
+def test_points_in_millimetres_are_not_a_calibration(tmp_path, rng):
+    _point_dataset(tmp_path / "d", 40, 0.0, rng)
+    text = (tmp_path / "d" / "samples.csv").read_text().splitlines()
+    rows = [line.split(",") for line in text[1:]]
+    for row in rows:
+        row[1:4] = [f"{float(v) * 1e3:.12g}" for v in row[1:4]]  # x, y, z in mm
+    (tmp_path / "d" / "samples.csv").write_text("\n".join([text[0], *map(",".join, rows)]))
+    ds = load_dataset(tmp_path / "d")
+    with pytest.raises(RelcalError, match="identified corrections too large to be plausible"):
+        calibrate(ds, measure(ds, progress=False))
+
+
 def test_mocap_poses_calibrate_with_the_invariant_formulation(tmp_path, rng):
     """Full mocap poses (roll-pitch-yaw, named joints): the mocap-to-base transform cancels and
     the marker mounting is the hand-eye X; planted errors are recovered without noise."""

@@ -25,6 +25,7 @@ from relcal.calibration.pipeline import (
     Calibration,
     outlier_samples,
 )
+from relcal.calibration.plausibility import Tolerances, check_corrections
 from relcal.calibration.selection import Candidate, Score, choose, sample_folds
 from relcal.calibration.validate import held_out
 from relcal.data.dataset import Dataset
@@ -109,6 +110,20 @@ def significant_fit(
         result = _fit(problem, ident, cols, method, loss, initial=full.params)
 
 
+def check_link_corrections(dataset: Dataset, problem: Problem, result: Result) -> None:
+    """The plausibility check of the link corrections (points in the wrong unit, a wrong robot
+    model); ``T`` and ``m`` are free by design and not checked."""
+    layout = problem.full_layout
+    keep = [k for k, kind in enumerate(layout.kinds) if kind not in ("instrument", "marker")]
+    check_corrections(
+        [layout.names[k] for k in keep],
+        [layout.kinds[k] for k in keep],
+        result.params[keep],
+        str(dataset.spec_path or dataset.root),
+        Tolerances.from_display(dataset.tolerances),
+    )
+
+
 def calibrate_points(
     dataset: Dataset,
     measurements: Measurements,
@@ -182,6 +197,7 @@ def calibrate_points(
         result = significant_fit(problem, ident, full, method, loss)
         reason += "; parameters below 3 standard deviations dropped (--select conservative)"
 
+    check_link_corrections(dataset, problem, result)
     validation = None
     if len(test) >= 1:
         everything = replace(problem, q=dataset.q, poses=measurements.poses)
