@@ -268,7 +268,9 @@ def test_real_tiago_through_the_urdf(tmp_path, which):
     """The real TIAGo Pro motion-capture sessions through its URDF chain (needs the URDF loader):
     48 full poses (relative, hand-eye = marker mounting) and 94 marker positions (tracker
     formulation, instrument transform estimated). Held-out errors must improve on the baseline,
-    with the 95 % interval of the ratio below 1."""
+    with the 95 % interval of the ratio below 1. The arm's joint offsets reach 2.2 deg against its
+    URDF (above the default 2 deg plausibility tolerance), and the positions leave a few
+    parameters near the marker undetermined: tolerance 5 deg, conservative selection."""
     pytest.importorskip("relcal.robot.urdf")
     folder = DATA / "tiago_pro"
     chain = "root: base_footprint, tip: gripper_right_pal_atc_base_link"
@@ -279,11 +281,11 @@ def test_real_tiago_through_the_urdf(tmp_path, which):
         samples, cols = "mocap_position_20260702.csv", "x: x1, y: y1, z: z1"
     (tmp_path / "dataset.yaml").write_text(
         f"robot: {{urdf: {folder / 'tiago_pro.urdf'}, {chain}}}\njoint_unit: rad\n"
-        f"columns: {{{cols}}}\nsamples: {folder / samples}\n"
+        f"columns: {{{cols}}}\nsamples: {folder / samples}\ntolerances: {{angle_deg: 5}}\n"
     )
     ds = load_dataset(tmp_path)
     assert ds.measured == which and len(ds.ids) == (48 if which == "pose" else 94)
-    cal = calibrate(ds, measure(ds, progress=False))
+    cal = calibrate(ds, measure(ds, progress=False), selection="conservative")
     ratio = cal.validation.summary()["ratio_to_baseline"]["position_mm"]
     assert ratio["ci95"][1] < 1.0, ratio
     texts = cal.result.unidentifiable

@@ -30,6 +30,7 @@ from relcal.calibration.selection import Candidate, Score, choose, sample_folds
 from relcal.calibration.validate import held_out
 from relcal.data.dataset import Dataset
 from relcal.data.imaging import Measurements
+from relcal.errors import RelcalError
 from relcal.robot.kinematics import fk, make_layout
 
 BASELINE = BASELINE_CANDIDATES[1]
@@ -115,13 +116,28 @@ def check_link_corrections(dataset: Dataset, problem: Problem, result: Result) -
     model); ``T`` and ``m`` are free by design and not checked."""
     layout = problem.full_layout
     keep = [k for k, kind in enumerate(layout.kinds) if kind not in ("instrument", "marker")]
-    check_corrections(
-        [layout.names[k] for k in keep],
-        [layout.kinds[k] for k in keep],
-        result.params[keep],
-        str(dataset.spec_path or dataset.root),
-        Tolerances.from_display(dataset.tolerances),
-    )
+    try:
+        check_corrections(
+            [layout.names[k] for k in keep],
+            [layout.kinds[k] for k in keep],
+            result.params[keep],
+            str(dataset.spec_path or dataset.root),
+            Tolerances.from_display(dataset.tolerances),
+        )
+    except RelcalError as exc:
+        with np.errstate(divide="ignore", invalid="ignore"):
+            z = np.abs(result.params) / result.std
+        weak = [
+            layout.names[k]
+            for k in keep
+            if f"{layout.names[k]} corrected by" in str(exc) and z[k] < 3.0
+        ]
+        if not weak:
+            raise
+        raise RelcalError(
+            f"{exc}\n{', '.join(weak)}: not determined by these points (|error| below 3 standard "
+            "deviations); --select conservative leaves such parameters out"
+        ) from None
 
 
 def calibrate_points(
