@@ -47,7 +47,7 @@ class Tolerances:
     ``scale_percent``, ``joint_limit_deg``."""
 
     length: float = 0.010  # m, largest plausible correction of a link length (a, d)
-    angle: float = np.radians(2.0)  # rad, of a joint offset or twist (theta_off, alpha, beta)
+    angle: float = np.radians(5.0)  # rad, of a joint offset or twist (theta_off, alpha, beta)
     handeye_length: float = 0.05  # m, of the hand-eye translation from its starting value
     handeye_angle: float = np.radians(5.0)  # rad, of the hand-eye rotation
     rotation: float = np.radians(10.0)  # rad, median relative-rotation misfit
