@@ -8,6 +8,7 @@ import pytest
 from relcal.calibration.pipeline import calibrate
 from relcal.data.dataset import load_dataset
 from relcal.data.imaging import measure
+from relcal.reporting.documents import validation_document
 from relcal.robot.model import auto_hayati, get_robot
 from relcal.sim.synth import write_image_dataset
 from relcal.vision.camera import Camera
@@ -39,7 +40,7 @@ def test_images_are_posed_and_held_out_error_drops_fivefold(calibration):
     truth, measured, cal = calibration
     assert measured.ok.sum() >= 30
     assert np.nanmax(measured.rms_px) < 0.5
-    val = cal.validation.summary()
+    val = validation_document(cal.validation)
     base, cal = val["baseline"], val["calibrated"]
     assert base["position_mm"]["rms"] > 5 * cal["position_mm"]["rms"]
     assert base["orientation_deg"]["rms"] > 5 * cal["orientation_deg"]["rms"]

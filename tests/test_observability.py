@@ -18,8 +18,9 @@ from relcal.calibration.identifiability import (
 from relcal.calibration.measurement import residuals
 from relcal.calibration.noise import Noise
 from relcal.cli import main
-from relcal.design.observability import format_report, report
+from relcal.design.observability import report
 from relcal.geometry import DEG, MM
+from relcal.reporting.text import format_observability
 from relcal.robot.kinematics import make_layout
 from relcal.robot.model import auto_hayati, model_from_dict
 from relcal.sim.study import make_scenario, study
@@ -58,7 +59,7 @@ def test_a465_names_base_parallel_pair_and_handeye_combinations(a465, rng):
     assert pair.joints == (2, 3) and not pair.hayati
     median = np.nanmedian(rep.uncertainty.std)
     assert min(pair.std_d) > 1e4 * median
-    text = format_report(rep)
+    text = format_observability(rep)
     for expected in ("O1 Borm-Menq", "O4 noise amplification", "QR with column pivoting"):
         assert expected in text
     assert "d[2] +1 mm with d[3] -1 mm together" in text or "d[2] -1 mm with d[3] +1 mm" in text
@@ -69,7 +70,7 @@ def test_a465_names_base_parallel_pair_and_handeye_combinations(a465, rng):
     cured = report(replace(problem, model=model, layout=make_layout(model)), noise=NOISE)
     assert cured.identifiability.rank == rep.identifiability.rank + 1
     assert not any("parallel" in r for r in reasons(cured).values())
-    assert cured.parallel[0].hayati and "resolved" in format_report(cured)
+    assert cured.parallel[0].hayati and "resolved" in format_observability(cured)
 
     # A known hand-eye transform absorbs nothing: only the base combinations remain.
     known = report(problem, handeye="known")

@@ -26,6 +26,7 @@ from relcal.design.plan import (
     travel_order,
 )
 from relcal.errors import RelcalError
+from relcal.reporting.documents import accuracy_document
 from relcal.robot.model import auto_hayati
 from relcal.sim.study import make_scenario, study, worst
 
@@ -118,8 +119,8 @@ def test_planned_poses_beat_random_feasible_sets_and_the_study_confirms_it(hayat
     assert res.plan.worst_length[1] < median.worst_length[1]
     assert res.plan.worst_angle[1] < median.worst_angle[1]
     assert (
-        res.plan.accuracy.summary()["position_mm"]["p95"]
-        < median.accuracy.summary()["position_mm"]["p95"]
+        accuracy_document(res.plan.accuracy)["position_mm"]["p95"]
+        < accuracy_document(median.accuracy)["position_mm"]["p95"]
     )
     # Monte Carlo: noisy calibrations from the plan and from the median random set.
     spreads = {}

@@ -13,6 +13,7 @@ from relcal.cli import main
 from relcal.data.dataset import load_dataset, read_sample_table
 from relcal.data.imaging import measure
 from relcal.errors import RelcalError
+from relcal.reporting.documents import validation_document
 from relcal.robot.kinematics import apply_errors, fk, make_layout
 from relcal.robot.model import KINDS, auto_hayati, get_robot, model_from_dict
 
@@ -164,8 +165,8 @@ def test_points_calibrate_without_noise(tmp_path, rng):
     ok = cal.result.identifiable[:n_geo]
     assert ok.sum() == n_geo - 6  # base-like (4) and marker-like (2) combinations left out
     np.testing.assert_allclose(cal.result.params[:n_geo][ok], truth[ok], atol=1e-8)
-    after = cal.validation.summary()["calibrated"]["position_mm"]
-    before = cal.validation.summary()["baseline"]["position_mm"]
+    after = validation_document(cal.validation)["calibrated"]["position_mm"]
+    before = validation_document(cal.validation)["baseline"]["position_mm"]
     assert after["max"] < 1e-6  # mm
     assert before["rms"] > 0.3  # the planted errors show with T and m fitted to nominal
 
@@ -175,7 +176,7 @@ def test_points_calibrate_with_noise_reaches_the_noise_floor(tmp_path, rng, caps
     _point_dataset(tmp_path / "d", 120, sigma, rng)
     ds = load_dataset(tmp_path / "d")
     cal = calibrate(ds, measure(ds, progress=False), holdout=0.25)
-    val = cal.validation.summary()
+    val = validation_document(cal.validation)
     # The norm of a 3-D Gaussian error has RMS sqrt(3) sigma; estimation error adds a little.
     floor = np.sqrt(3) * sigma * 1e3
     assert val["calibrated"]["position_mm"]["rms"] < 1.3 * floor
@@ -255,7 +256,7 @@ def test_mocap_poses_calibrate_with_the_invariant_formulation(tmp_path, rng):
     ds = load_dataset(root)
     cal = calibrate(ds, measure(ds, progress=False), holdout=0.25, loss="linear")
     assert cal.problem.formulation == "invariant"
-    after = cal.validation.summary()["calibrated"]
+    after = validation_document(cal.validation)["calibrated"]
     assert after["position_mm"]["max"] < 1e-6 and after["orientation_deg"]["max"] < 1e-7
     n_geo = cal.problem.layout.size
     ok = cal.result.identifiable[:n_geo]
@@ -286,7 +287,7 @@ def test_real_tiago_through_the_urdf(tmp_path, which):
     ds = load_dataset(tmp_path)
     assert ds.measured == which and len(ds.ids) == (48 if which == "pose" else 94)
     cal = calibrate(ds, measure(ds, progress=False), selection="conservative")
-    ratio = cal.validation.summary()["ratio_to_baseline"]["position_mm"]
+    ratio = validation_document(cal.validation)["ratio_to_baseline"]["position_mm"]
     assert ratio["ci95"][1] < 1.0, ratio
     texts = cal.result.unidentifiable
     if which == "position":

@@ -21,6 +21,7 @@ from relcal.calibration.pipeline import cross_validate, pair_left_maps
 from relcal.calibration.validate import held_out, pooled
 from relcal.cli import main
 from relcal.data.importers import import_rct_positioner
+from relcal.reporting.documents import validation_document
 from relcal.robot.model import auto_hayati
 
 
@@ -81,10 +82,12 @@ def test_positioner_k_fold_no_worse_than_the_baseline_or_a_plain_fit(positioner)
             None,
             fold.problem.handeye,
         )
-        plain_rms = held_out(everything, fit, fold.test).summary()["calibrated"]["position_mm"]
-        ours = fold.validation.summary()["calibrated"]["position_mm"]
+        plain_rms = validation_document(held_out(everything, fit, fold.test))["calibrated"][
+            "position_mm"
+        ]
+        ours = validation_document(fold.validation)["calibrated"]["position_mm"]
         assert ours["rms"] <= plain_rms["rms"] * 1.001, (ours["rms"], plain_rms["rms"])
-    summary = pooled([f.validation for f in folds]).summary()
+    summary = validation_document(pooled([f.validation for f in folds]))
     assert summary["ratio_to_baseline"]["position_mm"]["after_over_before"] <= 1.0
     assert summary["ratio_to_baseline"]["position_mm"]["ci95"][0] < 1.0
 

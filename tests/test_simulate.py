@@ -9,8 +9,9 @@ import pytest
 from relcal.calibration.noise import Noise
 from relcal.cli import main
 from relcal.errors import RelcalError
+from relcal.reporting.text import format_simulation
 from relcal.robot.kinematics import make_layout
-from relcal.sim.simulate import format_table, load_errors, simulate
+from relcal.sim.simulate import load_errors, simulate
 
 
 @pytest.mark.parametrize("formulation", ["published", "invariant"])
@@ -21,7 +22,7 @@ def test_simulation_recovers_identifiable_errors(a465, formulation):
     ok = r.identifiable
     rel = np.linalg.norm(r.params[ok] - sim.specified[ok]) / np.linalg.norm(sim.specified[ok])
     assert rel < 1e-9
-    table = format_table(sim)
+    table = format_simulation(sim)
     assert "n/i" in table and "d[1]: acts as a rigid motion" in table
 
 

@@ -13,8 +13,9 @@ from relcal.calibration.noise import Noise
 from relcal.cli import main
 from relcal.errors import RelcalError
 from relcal.geometry import DEG, MM
+from relcal.reporting.text import format_study
 from relcal.robot.model import auto_hayati
-from relcal.sim.study import format_study, make_scenario, standard_normals, study
+from relcal.sim.study import make_scenario, standard_normals, study
 
 NOISE = Noise(0.05 * MM, 0.01 * DEG, 0.0)
 

@@ -25,6 +25,7 @@ from relcal.calibration.uncertainty import (
     whitener,
 )
 from relcal.geometry import DEG, MM
+from relcal.reporting.documents import accuracy_document
 from relcal.robot.model import auto_hayati
 
 NOISE = Noise(0.05 * MM, 0.01 * DEG, 0.002 * DEG)
@@ -208,6 +209,6 @@ def test_predicted_accuracy_matches_sampled_parameter_errors(hayati, rng):
         pos.append(np.linalg.norm(r[:, :3], axis=1))
     sampled = np.sqrt(np.mean(np.square(pos), axis=0))
     np.testing.assert_allclose(sampled, acc.position, rtol=0.15)
-    summary = acc.summary()
+    summary = accuracy_document(acc)
     assert summary["position_mm"]["max"] == pytest.approx(acc.position.max() * 1e3)
     assert summary["orientation_deg"]["mean"] == pytest.approx(np.degrees(acc.orientation).mean())

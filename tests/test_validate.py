@@ -5,6 +5,7 @@ import pytest
 
 from relcal.calibration.measurement import make_pairs
 from relcal.calibration.validate import Validation, ratio_interval, stats
+from relcal.reporting.documents import validation_document
 
 
 def test_stats_of_known_norms():
@@ -38,7 +39,7 @@ def test_interval_reflects_how_many_samples_there_are():
         before = rng.normal(0, 1e-3, (len(pairs), 6))
         after = before * np.sqrt(quality[pairs[:, 0]] * quality[pairs[:, 1]])[:, None]
         val = Validation(pairs, before, after)
-        r = val.summary()["ratio_to_baseline"]["position_mm"]
+        r = validation_document(val)["ratio_to_baseline"]["position_mm"]
         lo, hi = r["ci95"]
         assert lo < r["after_over_before"] < hi
         widths.append(hi - lo)

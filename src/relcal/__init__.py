@@ -7,7 +7,7 @@ The Python API, in the order of the flow of data::
     dataset = relcal.load_dataset("positioner")  # dataset.yaml + samples (+ images)
     cal = relcal.calibrate(dataset)              # measure, identify, validate
     cal.result.converged, cal.result.std         # the Result: estimate, covariance, costs
-    cal.validation.summary()                     # held-out errors before and after
+    cal.validation.improvement()                 # held-out position RMS, before / after
     cal.model                                    # the calibrated RobotModel
 
 Lower-level pieces: :func:`get_robot`, :func:`load_model` and :func:`load_urdf` (robot

@@ -352,9 +352,6 @@ class Indices:
     O5: float
     condition_number: float
 
-    def as_dict(self) -> dict[str, float]:
-        return {k: float(getattr(self, k)) for k in (*INDEX_NAMES, "condition_number")}
-
 
 def index_values(singular_values: np.ndarray, name: str, n_measurements: int) -> np.ndarray:
     """Observability index ``name`` (O1..O5) of singular values ``(..., L)`` (any order, all

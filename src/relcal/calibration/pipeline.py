@@ -53,7 +53,14 @@ from relcal.calibration.selection import (
     solve_normal,
 )
 from relcal.calibration.uncertainty import parameter_covariance
-from relcal.calibration.validate import Validation, folds, held_out, split
+from relcal.calibration.validate import (
+    Validation,
+    folds,
+    held_out,
+    ratio_interval,
+    split,
+    stats,
+)
 from relcal.data.dataset import Dataset
 from relcal.data.imaging import Measurements, measure
 from relcal.errors import RelcalError
@@ -137,8 +144,8 @@ class Calibration:
         """The exported calibrated model's held-out position RMS exceeds the baseline's."""
         if self.validation is None or self.exported == "baseline":
             return False
-        s = self.validation.summary()
-        return s["calibrated"]["position_mm"]["rms"] > s["baseline"]["position_mm"]["rms"]
+        val = self.validation
+        return stats(val.calibrated)["position_mm"]["rms"] > stats(val.before)["position_mm"]["rms"]
 
     @property
     def hurts(self) -> bool:
@@ -146,7 +153,9 @@ class Calibration:
         the baseline (bootstrap over held-out samples) lies above 1."""
         if not self.worse:
             return False
-        return self.validation.summary()["ratio_to_baseline"]["position_mm"]["ci95"][0] > 1.0
+        val = self.validation
+        ratio = ratio_interval(val.pairs, val.before, val.calibrated)
+        return ratio["position_mm"]["ci95"][0] > 1.0
 
     @property
     def model(self) -> RobotModel:

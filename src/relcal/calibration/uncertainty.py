@@ -470,21 +470,6 @@ class Accuracy:
     position: np.ndarray  # (P,) m
     orientation: np.ndarray  # (P,) rad
 
-    def summary(self) -> dict[str, dict[str, float]]:
-        """Mean, RMS, 95th percentile and maximum over the pairs, in mm and degrees."""
-        out = {}
-        for key, values in (
-            ("position_mm", self.position * 1e3),
-            ("orientation_deg", np.degrees(self.orientation)),
-        ):
-            out[key] = {
-                "mean": float(np.mean(values)),
-                "rms": float(np.sqrt(np.mean(values**2))),
-                "p95": float(np.percentile(values, 95)),
-                "max": float(np.max(values)),
-            }
-        return out
-
 
 def predicted_accuracy(
     problem: Problem,
@@ -519,47 +504,3 @@ def predicted_accuracy(
         position=np.sqrt(diag[:, :3].sum(axis=1)),
         orientation=np.sqrt(diag[:, 3:].sum(axis=1)),
     )
-
-
-# --- text ----------------------------------------------------------------------------------------
-
-
-def _unit(is_angle: bool) -> tuple[float, str]:
-    return (np.degrees(1.0), "deg") if is_angle else (1e3, "mm")
-
-
-def format_uncertainty(
-    unc: Uncertainty, accuracy: Accuracy | None = None, correlations: int = 8
-) -> str:
-    """Standard deviation of every estimated parameter (mm, deg) for the noise-weighted estimator
-    (the Cramer-Rao bound) and for least squares, the strongest correlations (of the chosen
-    estimator) and the predicted accuracy."""
-    crb, ls = unc.crb_std, unc.least_squares_std
-    lines = [f"{'parameter':<14s} {'unit':>4s} {'std CRB':>10s} {'std LS':>10s} {'LS/CRB':>6s}"]
-    for p, name in enumerate(unc.names):
-        scale, unit = _unit(bool(unc.is_angle[p]))
-        if np.isnan(crb[p]):
-            lines.append(f"{name:<14s} {unit:>4s} {'not estimated':>21s}")
-            continue
-        row = f"{name:<14s} {unit:>4s} {crb[p] * scale:>10.4g} {ls[p] * scale:>10.4g}"
-        row += f" {ls[p] / crb[p]:>6.2f}"
-        if not unc.identifiable[p]:
-            row += "  (absorbs an unidentifiable combination)"
-        lines.append(row)
-    strongest = unc.strongest_correlations(correlations)
-    if strongest:
-        which = "CRB" if unc.estimator == "weighted" else "least squares"
-        lines += ["", f"strongest correlations ({which}):"]
-        lines += [f"  {a:<14s} {b:<14s} {rho:+.3f}" for a, b, rho in strongest]
-    if accuracy is not None:
-        s = accuracy.summary()
-        lines += [
-            "",
-            f"predicted accuracy after calibration ({len(accuracy.pairs)} validation pairs, "
-            "RMS over repeated calibrations):",
-            f"  position    mean {s['position_mm']['mean']:.4f} mm, p95 "
-            f"{s['position_mm']['p95']:.4f} mm, max {s['position_mm']['max']:.4f} mm",
-            f"  orientation mean {s['orientation_deg']['mean']:.5f} deg, p95 "
-            f"{s['orientation_deg']['p95']:.5f} deg, max {s['orientation_deg']['max']:.5f} deg",
-        ]
-    return "\n".join(lines)

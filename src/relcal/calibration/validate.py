@@ -106,24 +106,6 @@ class Validation:
     def after(self) -> np.ndarray:
         return self.calibrated
 
-    def summary(self) -> dict:
-        """Statistics (mm, deg) of each model and the RMS ratio to the baseline with its
-        interval; keys name what is compared."""
-        out = {
-            "n_pairs": len(self.pairs),
-            "n_samples": len(np.unique(self.pairs)),
-            "baseline_handeye_guess": stats(self.guess),
-        }
-        if self.baseline is not None:
-            out["baseline"] = stats(self.baseline)
-        out["calibrated"] = stats(self.calibrated)
-        out["ratio_to_baseline"] = ratio_interval(self.pairs, self.before, self.calibrated)
-        if self.baseline is not None:
-            out["ratio_to_baseline_handeye_guess"] = ratio_interval(
-                self.pairs, self.guess, self.calibrated
-            )
-        return out
-
     def improvement(self) -> float:
         """Position RMS of the baseline over that of the calibrated model."""
         b, a = stats(self.before), stats(self.after)

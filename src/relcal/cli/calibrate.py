@@ -69,7 +69,8 @@ def run_calibrate(args: argparse.Namespace) -> int:
     from relcal.data.dataset import load_dataset
     from relcal.data.imaging import measure
     from relcal.io import write_json, write_text, write_with
-    from relcal.reporting.documents import results_document
+    from relcal.reporting.documents import cross_validation_document, results_document
+    from relcal.reporting.text import calibration_summary
     from relcal.robot.export import parameter_csv, robot_files
     from relcal.robot.model import dump_model
 
@@ -93,7 +94,7 @@ def run_calibrate(args: argparse.Namespace) -> int:
         val = doc["validation"]
         import sys
 
-        print(summary_text(doc), file=sys.stderr)
+        print(calibration_summary(doc), file=sys.stderr)
         print(
             f"relcal: error: the chosen model ({doc['model_selection']['chosen']}) is worse than "
             "the baseline on the held-out samples (position RMS "
@@ -108,7 +109,7 @@ def run_calibrate(args: argparse.Namespace) -> int:
         from relcal.calibration.pipeline import cross_validate
 
         folds = cross_validate(dataset, m, k=args.kfold, seed=args.seed, **options)
-        doc["cross_validation"] = cross_validation_summary(folds)
+        doc["cross_validation"] = cross_validation_document(folds)
     write_text(out / "model.yaml", dump_model(model))
     files = robot_files(model)  # robot.urdf (+ origin corrections, UR/Franka files for URDFs)
     for name, data in files.items():
@@ -122,7 +123,7 @@ def run_calibrate(args: argparse.Namespace) -> int:
 
         write_text(args.report, calibration_report(cal, doc))
     if not args.quiet:
-        print(summary_text(doc))
+        print(calibration_summary(doc))
         if cal.worse:
             print(
                 "note: on this held-out split the calibrated model is slightly worse than the "
@@ -148,132 +149,6 @@ def _ids(text: str) -> list[str]:
             raise RelcalError(f"--holdout-ids {text}: cannot read: {exc}") from None
         return [line.strip() for line in lines if line.strip()]
     return [t.strip() for t in text.split(",") if t.strip()]
-
-
-def cross_validation_summary(folds) -> dict:
-    """Held-out errors per fold and pooled over all folds (each sample held out once)."""
-    from relcal.calibration.validate import pooled
-
-    done = [f.validation for f in folds if f.validation]
-    return {
-        "k": len(folds),
-        "folds": [f.validation.summary() if f.validation else None for f in folds],
-        "chosen": [f.selection[f.chosen].candidate.name for f in folds],
-        "pooled": pooled(done).summary(),
-    }
-
-
-def _ratio_text(ratio: dict) -> str:
-    lo, hi = ratio["ci95"]
-    return f"x{ratio['after_over_before']:.3g}, 95% interval {lo:.3g}..{hi:.3g}"
-
-
-def summary_text(doc: dict) -> str:
-    """The terminal summary: the chosen model and why, held-out errors against the baselines,
-    the parameters with their standard deviations, and what the data cannot determine."""
-    ident = doc["identification"]
-    lines = [
-        f"{doc['robot']}: {doc['n_used']} of {doc['n_samples']} samples used, "
-        f"{len(doc['held_out_ids'])} held out",
-    ]
-    points = doc["settings"].get("formulation") == "tracker"
-    frames = "the instrument transform and marker" if points else "the hand-eye transform"
-    sel = doc.get("model_selection")
-    if sel and sel.get("candidates"):
-        lines.append(
-            f"model selection ({sel['folds']}-fold cross-validation on the training samples):"
-        )
-        for c in sel["candidates"]:
-            mark = "*" if c["chosen"] else " "
-            lines.append(
-                f"  {mark} {c['name']:<32} {c['weighting']:<12} {c['n_params']:>3} parameters  "
-                f"held-out position RMS {c['cv_position_rms_mm']:.4f} mm"
-                + (
-                    f", orientation {c['cv_orientation_rms_deg']:.4f} deg"
-                    if c["cv_orientation_rms_deg"] is not None
-                    else ""
-                )
-            )
-        lines.append(f"  chosen: {sel['chosen']} ({sel['weighting']}): {sel['reason']}")
-        if sel["exported"] == "baseline":
-            lines.append(
-                "  the data support no kinematic correction: the exported model is the nominal "
-                f"kinematics with {frames} fitted"
-            )
-    lines.append(
-        f"identification: rank {ident['rank']} of {ident['n_params']}, "
-        f"{'converged' if ident['converged'] else 'NOT converged'}, residual RMS "
-        f"{ident['initial_residual_rms']:.3g} -> {ident['residual_rms']:.3g} (weighted rows)"
-    )
-    val = doc["validation"]
-    if val:
-        base = "baseline" if "baseline" in val else "baseline_handeye_guess"
-        for key, unit in (("position_mm", "mm"), ("orientation_deg", "deg")):
-            if key not in val["calibrated"]:
-                continue
-            g, b, a = val["baseline_handeye_guess"][key], val[base][key], val["calibrated"][key]
-            if points:
-                what = f"absolute {key.split('_')[0]} error over {val['n_samples']} points"
-                guesses, fitted = "instrument and marker guesses", "instrument and marker fitted"
-            else:
-                what = (
-                    f"relative {key.split('_')[0]} error over {val['n_pairs']} pairs of "
-                    f"{val['n_samples']} samples"
-                )
-                guesses, fitted = "hand-eye guess", "hand-eye fitted"
-            lines.append(
-                f"held-out {what}, RMS: nominal with the {guesses} {g['rms']:.3f}, "
-                f"baseline (nominal, {fitted}) {b['rms']:.3f}, calibrated {a['rms']:.3f} "
-                f"{unit} ({_ratio_text(val['ratio_to_baseline'][key])} of the baseline)"
-            )
-    shown = [r for r in doc["parameters"] if r["status"] in ("estimated", "combination")]
-    if shown:
-        lines.append("parameters (error from nominal +- std; bootstrap std; |error| / std):")
-        for r in shown:
-            boot = f"{r['bootstrap_std']:.3g}" if r["bootstrap_std"] is not None else "-"
-            std = f"{r['std']:.3g}" if r["std"] is not None else "-"
-            sig = f"{r['significance']:.1f}" if r["significance"] is not None else "-"
-            note = "  (carries a combination)" if r["status"] == "combination" else ""
-            lines.append(
-                f"  {r['name']:<14} {r['error']:+.4g} +- {std} {r['unit']}  bootstrap {boot}  "
-                f"z {sig}{note}"
-            )
-    for c in doc.get("identifiable_combinations", []):
-        std = f" +- {c['std']:.3g}" if c["std"] is not None else ""
-        lines.append(f"  {c['text']} = {c['value']:+.4g}{std} {c['unit']} (identifiable sum)")
-    noise = doc.get("noise_model")
-    if noise:
-        lines.append(
-            "learned pose noise (camera frame): std "
-            + ", ".join(f"{v:.3g}" for v in noise["std_mm"])
-            + " mm, "
-            + ", ".join(f"{v:.3g}" for v in noise["std_deg"])
-            + f" deg; largest translation-rotation correlation "
-            f"{noise['max_translation_rotation_correlation']:.2f}"
-        )
-    if doc["rejected"]:
-        lines.append(f"rejected frames ({len(doc['rejected'])}):")
-        lines.extend(f"  {r['id']}: {r['reason']}" for r in doc["rejected"])
-    if doc["outliers"]:
-        lines.append(
-            "outliers (their pairs fit badly; left out unless --keep-outliers): "
-            + ", ".join(doc["outliers"])
-        )
-    cv = doc.get("cross_validation")
-    if cv:
-        pooled = cv["pooled"]
-        base = "baseline" if "baseline" in pooled else "baseline_handeye_guess"
-        b, a = pooled[base]["position_mm"], pooled["calibrated"]["position_mm"]
-        lines.append(
-            f"{cv['k']}-fold cross-validation over {pooled['n_pairs']} held-out "
-            f"{'points' if points else 'pairs'}: position "
-            f"RMS baseline {b['rms']:.3f} -> calibrated {a['rms']:.3f} mm "
-            f"({_ratio_text(pooled['ratio_to_baseline']['position_mm'])}); chosen per fold: "
-            + ", ".join(cv["chosen"])
-        )
-    for text in ident["unidentifiable"]:
-        lines.append(f"  not identifiable: {text}")
-    return "\n".join(lines)
 
 
 def _common(p: argparse.ArgumentParser) -> None:

@@ -79,8 +79,10 @@ def joint_source(args: argparse.Namespace, model) -> tuple[np.ndarray, str]:
 
 def run(args: argparse.Namespace) -> int:
     from relcal.calibration.noise import Noise
-    from relcal.design.observability import format_report, report
+    from relcal.design.observability import report
     from relcal.io import write_json
+    from relcal.reporting.documents import observability_document
+    from relcal.reporting.text import format_observability
 
     model = load_robot(args)
     q, source = joint_source(args, model)
@@ -99,9 +101,9 @@ def run(args: argparse.Namespace) -> int:
     )
     if not args.quiet:
         print(f"{source}, {args.pairs} pairs")
-        print(format_report(rep))
+        print(format_observability(rep))
     if args.json:
-        doc = rep.to_dict()
+        doc = observability_document(rep)
         doc["poses_source"] = source
         write_json(args.json, doc)
     return 0

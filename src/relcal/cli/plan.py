@@ -49,8 +49,10 @@ def build_cell(args: argparse.Namespace):
 
 def run(args: argparse.Namespace) -> int:
     from relcal.calibration.noise import Noise
-    from relcal.design.plan import Constraints, format_plan, joints_csv, plan
+    from relcal.design.plan import Constraints, joints_csv, plan
     from relcal.io import write_json, write_text
+    from relcal.reporting.documents import plan_document
+    from relcal.reporting.text import format_plan
 
     model = load_robot(args)
     cell = build_cell(args)
@@ -87,7 +89,7 @@ def run(args: argparse.Namespace) -> int:
         if args.random_out:
             print(f"wrote the median random set to {args.random_out}")
     if args.json:
-        write_json(args.json, res.summary(model))
+        write_json(args.json, plan_document(res, model))
     return 0
 
 

@@ -18,8 +18,10 @@ examples:
 def run(args: argparse.Namespace) -> int:
     from relcal.calibration.noise import Noise
     from relcal.io import write_json
+    from relcal.reporting.documents import simulation_document
+    from relcal.reporting.text import format_simulation
     from relcal.robot.kinematics import make_layout
-    from relcal.sim.simulate import format_table, load_errors, simulate
+    from relcal.sim.simulate import load_errors, simulate
 
     model = load_robot(args)
     if args.images:
@@ -47,9 +49,9 @@ def run(args: argparse.Namespace) -> int:
                 f"\n{model.name}: relative {what}, {args.formulation} formulation, "
                 f"{len(sim.problem.q)} poses, {args.pairs} pairs, {sim.result.method} solver"
             )
-            print(format_table(sim))
+            print(format_simulation(sim))
     if args.json:
-        reports = [s.report() for s in runs]
+        reports = [simulation_document(s) for s in runs]
         write_json(args.json, reports[0] if len(reports) == 1 else {"runs": reports})
     if args.report:
         from relcal.io import write_text
@@ -62,13 +64,11 @@ def run(args: argparse.Namespace) -> int:
 def run_images(args: argparse.Namespace, model) -> int:
     """Render a synthetic image dataset, run the real image pipeline and calibration on it, and
     compare with the truth."""
-    import numpy as np
-
     from relcal.calibration.pipeline import calibrate
-    from relcal.cli.calibrate import summary_text
     from relcal.data.dataset import load_dataset
     from relcal.data.imaging import measure
     from relcal.reporting.documents import results_document
+    from relcal.reporting.text import calibration_summary, format_truth
     from relcal.robot.model import auto_hayati
     from relcal.sim.synth import write_image_dataset
 
@@ -82,17 +82,8 @@ def run_images(args: argparse.Namespace, model) -> int:
     dataset = load_dataset(args.images)
     cal = calibrate(dataset, measure(dataset, progress=not args.quiet), seed=args.seed)
     if not args.quiet:
-        print(summary_text(results_document(cal)))
-        print(f"\n{'parameter':<14s} {'unit':>4s} {'true':>9s} {'identified':>10s}")
-        names, params = cal.problem.layout.names, cal.result.params
-        for k, name in enumerate(names):
-            if cal.result.identifiable[k]:
-                scale = np.degrees(1) if truth.layout.is_angle()[k] else 1e3
-                unit = "deg" if truth.layout.is_angle()[k] else "mm"
-                print(
-                    f"{name:<14s} {unit:>4s} {truth.errors[k] * scale:9.4f} "
-                    f"{params[k] * scale:10.4f}"
-                )
+        print(calibration_summary(results_document(cal)))
+        print(format_truth(cal.problem.layout, truth.errors, cal.result))
         print(f"dataset written to {args.images}")
     return 0 if cal.result.converged else 1
 

@@ -28,9 +28,11 @@ def run(args: argparse.Namespace) -> int:
     from relcal.calibration.noise import Noise
     from relcal.errors import RelcalError
     from relcal.io import write_json
+    from relcal.reporting.documents import study_document
+    from relcal.reporting.text import format_study
     from relcal.robot.kinematics import make_layout
     from relcal.sim.simulate import load_errors
-    from relcal.sim.study import format_study, make_scenario, study
+    from relcal.sim.study import make_scenario, study
 
     model = load_robot(args)
     if args.poses and Path(args.poses).exists():
@@ -73,7 +75,7 @@ def run(args: argparse.Namespace) -> int:
         )
         print(format_study(res, args.length_scale))
     if args.json:
-        doc = res.summary()
+        doc = study_document(res)
         doc.update(robot=model.name, poses=source, formulation=args.formulation)
         write_json(args.json, doc)
     return 0 if np.all(res.converged) else 1

@@ -41,11 +41,9 @@ from relcal.calibration.uncertainty import (
     Accuracy,
     Estimator,
     Uncertainty,
-    format_uncertainty,
     parameter_covariance,
     predicted_accuracy,
 )
-from relcal.geometry import DEG
 from relcal.robot.kinematics import fk, make_layout
 from relcal.robot.model import RobotModel
 
@@ -132,70 +130,6 @@ class Report:
         keep = set(self.identifiability.subset.tolist())
         return [n for k, n in enumerate(self.names) if k not in keep]
 
-    def to_dict(self) -> dict:
-        """JSON-ready (SI units)."""
-        ident = self.identifiability
-        out: dict = {
-            "robot": self.robot,
-            "formulation": self.formulation,
-            "measure": self.measure,
-            "handeye": self.handeye,
-            "n_poses": self.n_poses,
-            "n_measurements": self.n_measurements,
-            "n_rows": self.n_rows,
-            "n_params": len(self.names),
-            "rank": ident.rank,
-            "rcond": ident.rcond,
-            "singular_values": [float(s) for s in ident.singular_values],
-            "subset_singular_values": [float(s) for s in self.subset_singular_values],
-            "indices": self.indices.as_dict(),
-            "identifiable_subset": [self.names[k] for k in ident.subset],
-            "not_estimated": self.not_estimated,
-            "unidentifiable": [
-                {
-                    "names": list(c.names),
-                    "coefficients": list(c.coefficients),
-                    "reason": c.reason,
-                    "text": c.describe(),
-                }
-                for c in ident.combinations
-            ],
-            "parallel_axes": [
-                {
-                    "joints": list(p.joints),
-                    "angle_deg": p.angle_deg,
-                    "hayati": p.hayati,
-                    "misalignment_deg": p.misalignment_deg,
-                    "std_d_m": list(p.std_d) if p.std_d else None,
-                }
-                for p in self.parallel
-            ],
-        }
-        if self.uncertainty is not None and self.noise is not None:
-            unc = self.uncertainty
-            out["noise"] = {
-                "position_m": self.noise.position,
-                "orientation_rad": self.noise.orientation,
-                "joints_rad": self.noise.joints,
-            }
-            out["estimator"] = unc.estimator
-            out["parameters"] = [
-                {
-                    "name": unc.names[k],
-                    "unit": "rad" if unc.is_angle[k] else "m",
-                    "std": float(unc.std[k]),
-                    "crb_std": float(unc.crb_std[k]),
-                    "identifiable": bool(unc.identifiable[k]),
-                }
-                for k in unc.subset
-            ]
-            out["correlations"] = [
-                {"a": a, "b": b, "rho": rho} for a, b, rho in unc.strongest_correlations(12)
-            ]
-        if self.accuracy is not None:
-            out["predicted_accuracy"] = self.accuracy.summary()
-        return out
-
 
 def report(
     problem: Problem,
@@ -245,100 +179,3 @@ def report(
         uncertainty=unc,
         accuracy=acc,
     )
-
-
-def _wrap(items: list[str], width: int = 96, indent: str = "  ") -> list[str]:
-    lines, line = [], indent
-    for item in items:
-        if len(line) + len(item) + 1 > width and line.strip():
-            lines.append(line.rstrip())
-            line = indent
-        line += item + " "
-    if line.strip():
-        lines.append(line.rstrip())
-    return lines
-
-
-_FORMULATION_TEXT = {
-    "invariant": "frame-invariant formulation",
-    "published": "published formulation (base-aligned)",
-    "absolute": "absolute poses",
-}
-
-
-def format_report(rep: Report) -> str:
-    """The report as text for a person (mm and degrees)."""
-    ident = rep.identifiability
-    what = "relative position only" if rep.measure == "position" else "relative full pose"
-    if rep.formulation == "absolute":
-        what = "position only" if rep.measure == "position" else "full pose"
-    he = {"estimated": "hand-eye estimated", "known": "hand-eye known"}[rep.handeye]
-    lines = [
-        f"{rep.robot}: {_FORMULATION_TEXT[rep.formulation]}, {what}, {he}",
-        f"{rep.n_poses} poses, {rep.n_measurements} measurements, {rep.n_rows} rows, "
-        f"{len(rep.names)} parameters",
-        "",
-        "singular values of the identification Jacobian (unit-norm columns), largest first:",
-    ]
-    s = ident.singular_values
-    shown = [f"{v:.3g}" for v in s[: ident.rank]]
-    if ident.rank < len(s):
-        shown += ["|"] + [f"{v:.1e}" for v in s[ident.rank :]]
-    lines += _wrap(shown)
-    lines.append(
-        f"rank {ident.rank} of {len(s)} (relative tolerance {ident.rcond:g}; values after '|' "
-        "are zero up to round-off or too small to identify)"
-    )
-    ind = rep.indices
-    lines += [
-        "",
-        f"observability indices of the identifiable subset ({len(ident.subset)} parameters, "
-        f"m = {rep.n_measurements}):",
-        f"  O1 Borm-Menq (prod s)^(1/L)/sqrt(m)      {ind.O1:.4g}",
-        f"  O2 inverse condition number s_min/s_max  {ind.O2:.4g}"
-        f"   (condition number {ind.condition_number:.4g})",
-        f"  O3 minimum singular value s_min          {ind.O3:.4g}",
-        f"  O4 noise amplification s_min^2/s_max     {ind.O4:.4g}",
-        f"  O5 1 / sum(1/s_i)                        {ind.O5:.4g}",
-        "",
-        f"identifiable subset (QR with column pivoting), {len(ident.subset)} parameters:",
-    ]
-    lines += _wrap([rep.names[k] for k in ident.subset])
-    if rep.not_estimated:
-        lines.append("not estimated (held at nominal; each is part of a combination below):")
-        lines += _wrap(rep.not_estimated)
-    if ident.combinations:
-        lines += ["", "unidentifiable combinations, with the reason:"]
-        lines += [f"  - {c.describe()}" for c in ident.combinations]
-    else:
-        lines += ["", "every parameter is identifiable"]
-    for p in rep.parallel:
-        a, b = p.joints
-        lines.append("")
-        if p.hayati:
-            lines.append(
-                f"parallel axes {a} and {b} ({p.angle_deg:.3g} deg apart): Hayati's beta[{a}] "
-                f"replaces d[{a}], so the pair is resolved"
-            )
-            continue
-        lines.append(
-            f"parallel axes {a} and {b} ({p.angle_deg:.3g} deg apart): with standard DH d[{a}] "
-            f"and d[{b}] are inseparable (only their sum is identifiable)."
-        )
-        if p.std_d is not None:
-            lines.append(
-                f"  Real axes are never exactly parallel: {p.misalignment_deg:g} deg off, both "
-                f"count as identifiable and their standard deviations explode to "
-                f"{p.std_d[0] * 1e3:.3g} mm and {p.std_d[1] * 1e3:.3g} mm at this noise."
-            )
-        lines.append("  Cure: --hayati auto (Hayati's beta for the pair), or hayati: true in YAML")
-    if rep.uncertainty is not None and rep.noise is not None:
-        n = rep.noise
-        lines += [
-            "",
-            f"uncertainty with noise {n.position * 1e3:g} mm, {n.orientation / DEG:g} deg per "
-            f"pose, {np.max(n.joints) / DEG:g} deg per joint reading "
-            f"({rep.uncertainty.estimator.replace('_', ' ')} estimator):",
-            format_uncertainty(rep.uncertainty, rep.accuracy),
-        ]
-    return "\n".join(lines)

@@ -1,14 +1,26 @@
-"""The results document of a calibration (JSON): every number with its unit."""
+"""Every JSON document the commands write, one function per result: ``<what>_document(result)``.
+
+Every number carries its unit in its key or in a ``unit`` field (SI units unless the key says mm or
+deg). The domain modules return dataclasses; only this module turns them into dictionaries.
+"""
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
 
-from relcal.calibration.identifiability import NUISANCE_KINDS
+from relcal.calibration.identifiability import INDEX_NAMES, NUISANCE_KINDS, Indices
 from relcal.calibration.measurement import tracker_frames
 from relcal.calibration.pipeline import Calibration
+from relcal.calibration.uncertainty import Accuracy
+from relcal.calibration.validate import Validation, pooled, ratio_interval, stats
+from relcal.design.observability import Report
+from relcal.design.plan import PlanResult, Quality
 from relcal.geometry import to_xyz_rpy
-from relcal.robot.model import model_to_dict
+from relcal.robot.model import RobotModel, model_to_dict
+from relcal.sim.simulate import Simulation
+from relcal.sim.study import StudyResult
 
 
 def parameter_status(cal: Calibration) -> list[str]:
@@ -141,12 +153,25 @@ def noise_document(cal: Calibration) -> dict | None:
     }
 
 
-def validation_document(cal: Calibration) -> dict | None:
-    """Held-out summary and the error of every held-out pair before and after (mm, deg)."""
-    val = cal.validation
-    if val is None:
-        return None
-    ids = cal.dataset.ids
+def validation_document(val: Validation, ids: list[str] | None = None) -> dict:
+    """Held-out errors: statistics (mm, deg) of each model and the RMS ratio to the baseline with
+    its interval, keys naming what is compared; with the sample ``ids``, also the error of every
+    pair under each model."""
+    doc: dict = {
+        "n_pairs": len(val.pairs),
+        "n_samples": len(np.unique(val.pairs)),
+        "baseline_handeye_guess": stats(val.guess),
+    }
+    if val.baseline is not None:
+        doc["baseline"] = stats(val.baseline)
+    doc["calibrated"] = stats(val.calibrated)
+    doc["ratio_to_baseline"] = ratio_interval(val.pairs, val.before, val.calibrated)
+    if val.baseline is not None:
+        doc["ratio_to_baseline_handeye_guess"] = ratio_interval(
+            val.pairs, val.guess, val.calibrated
+        )
+    if ids is None:
+        return doc
 
     def norms(errors: np.ndarray, cols: slice, scale: float) -> list[float | None]:
         values = np.linalg.norm(errors[:, cols], axis=1) * scale
@@ -159,11 +184,22 @@ def validation_document(cal: Calibration) -> dict | None:
     for name, errors in models.items():
         columns[f"{name}_mm"] = norms(errors, slice(0, 3), 1e3)
         columns[f"{name}_deg"] = norms(errors, slice(3, 6), np.degrees(1.0))
-    pairs = [
+    doc["pairs"] = [
         {"ids": [ids[i], ids[j]], **{key: col[k] for key, col in columns.items()}}
         for k, (i, j) in enumerate(val.pairs)
     ]
-    return {**val.summary(), "pairs": pairs}
+    return doc
+
+
+def cross_validation_document(folds: Sequence[Calibration]) -> dict:
+    """Held-out errors per fold and pooled over all folds (each sample held out once)."""
+    done = [f.validation for f in folds if f.validation]
+    return {
+        "k": len(folds),
+        "folds": [validation_document(f.validation) if f.validation else None for f in folds],
+        "chosen": [f.selection[f.chosen].candidate.name for f in folds],
+        "pooled": validation_document(pooled(done)),
+    }
 
 
 def _tracker_frames(cal: Calibration) -> dict:
@@ -228,6 +264,210 @@ def results_document(cal: Calibration) -> dict:
             "rpy_deg": [float(np.degrees(v)) for v in rpy],
         },
         **_tracker_frames(cal),
-        "validation": validation_document(cal),
+        "validation": (
+            validation_document(cal.validation, cal.dataset.ids) if cal.validation else None
+        ),
         "calibrated_model": model_to_dict(cal.model),
+    }
+
+
+def indices_document(ind: Indices) -> dict[str, float]:
+    """O1..O5 and the condition number."""
+    return {k: float(getattr(ind, k)) for k in (*INDEX_NAMES, "condition_number")}
+
+
+def accuracy_document(acc: Accuracy) -> dict[str, dict[str, float]]:
+    """Mean, RMS, 95th percentile and maximum over the pairs, in mm and degrees."""
+    out = {}
+    for key, values in (
+        ("position_mm", acc.position * 1e3),
+        ("orientation_deg", np.degrees(acc.orientation)),
+    ):
+        out[key] = {
+            "mean": float(np.mean(values)),
+            "rms": float(np.sqrt(np.mean(values**2))),
+            "p95": float(np.percentile(values, 95)),
+            "max": float(np.max(values)),
+        }
+    return out
+
+
+def observability_document(rep: Report) -> dict:
+    """JSON-ready (SI units)."""
+    ident = rep.identifiability
+    out: dict = {
+        "robot": rep.robot,
+        "formulation": rep.formulation,
+        "measure": rep.measure,
+        "handeye": rep.handeye,
+        "n_poses": rep.n_poses,
+        "n_measurements": rep.n_measurements,
+        "n_rows": rep.n_rows,
+        "n_params": len(rep.names),
+        "rank": ident.rank,
+        "rcond": ident.rcond,
+        "singular_values": [float(s) for s in ident.singular_values],
+        "subset_singular_values": [float(s) for s in rep.subset_singular_values],
+        "indices": indices_document(rep.indices),
+        "identifiable_subset": [rep.names[k] for k in ident.subset],
+        "not_estimated": rep.not_estimated,
+        "unidentifiable": [
+            {
+                "names": list(c.names),
+                "coefficients": list(c.coefficients),
+                "reason": c.reason,
+                "text": c.describe(),
+            }
+            for c in ident.combinations
+        ],
+        "parallel_axes": [
+            {
+                "joints": list(p.joints),
+                "angle_deg": p.angle_deg,
+                "hayati": p.hayati,
+                "misalignment_deg": p.misalignment_deg,
+                "std_d_m": list(p.std_d) if p.std_d else None,
+            }
+            for p in rep.parallel
+        ],
+    }
+    if rep.uncertainty is not None and rep.noise is not None:
+        unc = rep.uncertainty
+        out["noise"] = {
+            "position_m": rep.noise.position,
+            "orientation_rad": rep.noise.orientation,
+            "joints_rad": rep.noise.joints,
+        }
+        out["estimator"] = unc.estimator
+        out["parameters"] = [
+            {
+                "name": unc.names[k],
+                "unit": "rad" if unc.is_angle[k] else "m",
+                "std": float(unc.std[k]),
+                "crb_std": float(unc.crb_std[k]),
+                "identifiable": bool(unc.identifiable[k]),
+            }
+            for k in unc.subset
+        ]
+        out["correlations"] = [
+            {"a": a, "b": b, "rho": rho} for a, b, rho in unc.strongest_correlations(12)
+        ]
+    if rep.accuracy is not None:
+        out["predicted_accuracy"] = accuracy_document(rep.accuracy)
+    return out
+
+
+def plan_document(res: PlanResult, model: RobotModel) -> dict:
+    """JSON-ready: the joints (rad, m), and per set the standard deviations (m, rad)."""
+
+    def one(q: Quality) -> dict:
+        unc = q.uncertainty
+        out = {
+            "worst": {"name": q.worst[0], "std_equivalent_m": q.worst[1]},
+            "worst_length": {"name": q.worst_length[0], "std_m": q.worst_length[1]},
+            "worst_angle": {"name": q.worst_angle[0], "std_rad": q.worst_angle[1]},
+            "median_std_equivalent_m": q.median,
+            "indices": indices_document(q.indices),
+            "std": {unc.names[p]: float(unc.crb_std[p]) for p in unc.subset},
+        }
+        if q.accuracy is not None:
+            out["predicted_accuracy"] = accuracy_document(q.accuracy)
+        return out
+
+    return {
+        "robot": model.name,
+        "criterion": res.criterion,
+        "algorithm": res.algorithm,
+        "exchanges": res.swaps,
+        "n_candidates": res.n_candidates,
+        "rejected": res.rejected,
+        "seconds": res.seconds,
+        "joints": [[float(v) for v in row] for row in res.q],
+        "plan": one(res.plan),
+        "random": [one(r) for r in res.random],
+        "random_median_worst_m": res.random_median_worst,
+        "improvement": res.improvement,
+    }
+
+
+def simulation_document(sim: Simulation) -> dict:
+    """The JSON document of the README (SI units)."""
+    r = sim.result
+    return {
+        "robot": sim.problem.model.name,
+        "formulation": sim.formulation,
+        "measure": sim.measure,
+        "method": r.method,
+        "n_poses": len(sim.problem.q),
+        "n_measurement_rows": r.n_residuals,
+        "noise": {
+            "position_m": sim.noise.position,
+            "orientation_rad": sim.noise.orientation,
+            "joints_rad": sim.noise.joints,
+        },
+        "rank": r.identifiability.rank,
+        "solver_rank": r.rank,
+        "n_params": len(r.params),
+        "unidentifiable": r.unidentifiable,
+        "iterations": r.iterations,
+        "converged": r.converged,
+        "initial_residual_norm": r.initial_residual_norm,
+        "residual_norm": r.residual_norm,
+        "seconds": r.seconds,
+        "parameters": [
+            {
+                "name": name,
+                "unit": "rad" if is_angle else "m",
+                "specified": float(s),
+                "identified": float(v),
+                "identifiable": bool(ok),
+            }
+            for name, is_angle, s, v, ok in zip(
+                sim.layout.names,
+                sim.layout.is_angle(),
+                sim.specified,
+                r.params,
+                r.identifiable,
+                strict=True,
+            )
+        ],
+    }
+
+
+def study_document(res: StudyResult) -> dict:
+    """JSON-ready numbers (SI units)."""
+    chi2, p = res.bias_test()
+    lo, hi = res.ratio_interval()
+    return {
+        "trials": res.trials,
+        "converged": int(res.converged.sum()),
+        "estimator": res.estimator,
+        "sampling": res.sampling,
+        "seconds": res.seconds,
+        "overall_ratio": res.overall_ratio,
+        "ratio_interval_95": [lo, hi],
+        "bias_chi2": chi2,
+        "bias_p": p,
+        "parameters": [
+            {
+                "name": res.names[p_],
+                "unit": "rad" if res.is_angle[p_] else "m",
+                "identifiable": bool(res.predicted.identifiable[p_]),
+                "truth": float(res.truth[p_]),
+                "reference": float(res.reference[p_]),
+                "predicted_std": float(ps),
+                "empirical_std": float(es),
+                "ratio": float(es / ps),
+                "bias": float(b),
+                "bias_t": float(t),
+            }
+            for p_, ps, es, b, t in zip(
+                res.subset,
+                res.predicted_std,
+                res.empirical_std,
+                res.bias,
+                res.bias_t,
+                strict=True,
+            )
+        ],
     }

@@ -310,44 +310,6 @@ class StudyResult:
         """``(P,)`` noise-free estimate minus truth (zero for individually identifiable ones)."""
         return self.reference - self.truth
 
-    def summary(self) -> dict:
-        """JSON-ready numbers (SI units)."""
-        chi2, p = self.bias_test()
-        lo, hi = self.ratio_interval()
-        return {
-            "trials": self.trials,
-            "converged": int(self.converged.sum()),
-            "estimator": self.estimator,
-            "sampling": self.sampling,
-            "seconds": self.seconds,
-            "overall_ratio": self.overall_ratio,
-            "ratio_interval_95": [lo, hi],
-            "bias_chi2": chi2,
-            "bias_p": p,
-            "parameters": [
-                {
-                    "name": self.names[p_],
-                    "unit": "rad" if self.is_angle[p_] else "m",
-                    "identifiable": bool(self.predicted.identifiable[p_]),
-                    "truth": float(self.truth[p_]),
-                    "reference": float(self.reference[p_]),
-                    "predicted_std": float(ps),
-                    "empirical_std": float(es),
-                    "ratio": float(es / ps),
-                    "bias": float(b),
-                    "bias_t": float(t),
-                }
-                for p_, ps, es, b, t in zip(
-                    self.subset,
-                    self.predicted_std,
-                    self.empirical_std,
-                    self.bias,
-                    self.bias_t,
-                    strict=True,
-                )
-            ],
-        }
-
 
 WORKER_STARTUP_S = 1.0  # s: a spawned worker imports NumPy, SciPy and relcal
 
@@ -435,44 +397,3 @@ def worst(res: StudyResult, length_scale: float = 0.5) -> tuple[str, float, str,
     p, e = res.predicted_std * w, res.empirical_std * w
     names = [res.names[k] for k in res.subset]
     return names[int(np.argmax(p))], float(p.max()), names[int(np.argmax(e))], float(e.max())
-
-
-def format_study(res: StudyResult, length_scale: float = 0.5) -> str:
-    """Per parameter: predicted and empirical standard deviation, their ratio, the bias in
-    standard errors; then the overall ratio, the worst parameter and the bias test."""
-    lo, hi = res.ratio_interval()
-    lines = [
-        f"{'parameter':<14s} {'unit':>4s} {'predicted':>10s} {'empirical':>10s} {'ratio':>6s} "
-        f"{'bias/se':>7s}"
-    ]
-    for k, p in enumerate(res.subset):
-        angle = bool(res.is_angle[p])
-        scale, unit = (np.degrees(1.0), "deg") if angle else (1e3, "mm")
-        flag = "" if lo <= res.ratio[k] <= hi else "  outside 95% interval"
-        if not res.predicted.identifiable[p]:
-            flag += "  (absorbs an unidentifiable combination)"
-        lines.append(
-            f"{res.names[p]:<14s} {unit:>4s} {res.predicted_std[k] * scale:>10.4g} "
-            f"{res.empirical_std[k] * scale:>10.4g} {res.ratio[k]:>6.3f} {res.bias_t[k]:>+7.2f}"
-            + flag
-        )
-    chi2, p = res.bias_test()
-    wp, pv, we, ev = worst(res, length_scale)
-    what = "Cramer-Rao bound" if res.estimator == "weighted" else "least-squares covariance"
-    outside = int(np.sum((res.ratio < lo) | (res.ratio > hi)))
-    lines += [
-        "",
-        f"{res.trials} trials ({int(res.converged.sum())} converged), {res.sampling} sampling, "
-        f"{res.estimator} estimator, predicted = {what}, {res.seconds:.1f} s",
-        f"empirical / predicted std: overall {res.overall_ratio:.3f}, per parameter "
-        f"{res.ratio.min():.3f} .. {res.ratio.max():.3f}, max |ratio - 1| "
-        f"{np.abs(res.ratio - 1).max():.3f}",
-        f"  {outside} of {len(res.ratio)} outside the 95% sampling interval "
-        f"[{lo:.3f}, {hi:.3f}] of {res.trials} independent trials",
-        f"worst parameter (angles x {length_scale:g} m): predicted {wp} {pv * 1e3:.4f} mm, "
-        f"empirical {we} {ev * 1e3:.4f} mm",
-        f"bias: max |mean - noise-free| = {np.abs(res.bias_t).max():.2f} standard errors; "
-        f"chi-square {chi2:.1f} on {len(res.subset)} dof, p = {p:.3f}"
-        + (" (unbiased)" if p > 0.01 else " (BIASED)"),
-    ]
-    return "\n".join(lines)

@@ -1,0 +1,487 @@
+"""Every text table and summary that the commands print, for a person (mm and degrees).
+
+The domain modules compute; these functions only format what they return.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from relcal.calibration.identify import Result
+from relcal.calibration.uncertainty import Accuracy, Uncertainty
+from relcal.design.observability import Report
+from relcal.design.plan import PlanResult, Quality
+from relcal.geometry import DEG, MM
+from relcal.reporting.documents import accuracy_document
+from relcal.robot.kinematics import Layout
+from relcal.sim.simulate import Simulation
+from relcal.sim.study import StudyResult, worst
+
+# --- the published simulation ---------------------------------------------------------------------
+
+
+_KIND_UNITS = {"theta_off": ("dtheta", "deg"), "alpha": ("dalpha", "deg"), "a": ("da", "mm")}
+_KIND_UNITS["d"] = ("dd", "mm")
+
+
+def _display(value: float, is_angle: bool) -> float:
+    return float(np.degrees(value)) if is_angle else value / MM
+
+
+def format_simulation(sim: Simulation) -> str:
+    """Per joint the specified and identified errors of theta, alpha, a and d with percent error,
+    RMS per kind, then beta/hand-eye rows, rank, residual, iterations, time and the unidentifiable
+    combinations. Unidentifiable parameters show ``n/i`` instead of a number."""
+    layout, r = sim.layout, sim.result
+    where = {(k, i): p for p, (k, i) in enumerate(layout)}
+    angle = layout.is_angle()
+    kinds = ("theta_off", "alpha", "a", "d")
+    head = " | ".join(f"{_KIND_UNITS[k][0] + ' (' + _KIND_UNITS[k][1] + ')':^27s}" for k in kinds)
+    sub = " | ".join(f"{'specified':>9s} {'identified':>10s} {'err%':>6s}" for _ in kinds)
+    lines = [f"joint | {head}", f"      | {sub}"]
+    sq_err: dict[str, list[float]] = {k: [] for k in kinds}
+    n_joints = sim.problem.model.n_joints
+    for j in range(n_joints):
+        cells = [_cell(sim, where.get((k, j)), sq_err[k]) for k in kinds]
+        lines.append(f"{j + 1:^5d} | " + " | ".join(cells))
+    rms = []
+    for k in kinds:
+        e = sq_err[k]
+        rms.append(f"{np.sqrt(np.mean(np.square(e))):>27.3g}" if e else f"{'-':>27s}")
+    lines.append("  RMS | " + " | ".join(rms) + "   (identified - specified, identifiable only)")
+    extra = [p for p, (k, _) in enumerate(layout) if k not in kinds]
+    if extra:
+        lines.append("")
+        lines.append(f"{'parameter':<14s} {'unit':>4s} {'specified':>10s} {'identified':>10s}")
+        for p in extra:
+            unit = "deg" if angle[p] else "mm"
+            lines.append(f"{layout.names[p]:<14s} {unit:>4s} " + _cell(sim, p, None))
+    lines += [
+        "",
+        f"rank {r.identifiability.rank} of {len(r.params)} parameters (scaled Jacobian at the "
+        f"nominal model, tolerance {r.identifiability.rcond:g} x the largest singular value); "
+        f"the solver's last step kept {r.rank}",
+        f"{r.n_residuals} measurement rows; "
+        f"{'converged' if r.converged else 'NOT converged'} in {r.iterations} iterations, "
+        f"{r.seconds * 1e3:.1f} ms",
+        f"residual norm {r.initial_residual_norm:.3e} -> {r.residual_norm:.3e} (m and rad)",
+    ]
+    if r.unidentifiable:
+        lines.append("unidentifiable (n/i), with the reason:")
+        lines += [f"  - {c}" for c in r.unidentifiable]
+    named = {n for c in r.identifiability.combinations for n in c.names}
+    curved = [
+        n for n, ok in zip(layout.names, r.identifiable, strict=True) if not ok and n not in named
+    ]
+    if curved:
+        lines.append(
+            f"  - {', '.join(curved)}: drawn into one of these combinations at the estimate "
+            "(the symmetry is curved), so not determined individually"
+        )
+    return "\n".join(lines)
+
+
+def _cell(sim: Simulation, p: int | None, errors: list[float] | None) -> str:
+    """``specified identified err%`` for parameter ``p`` (blank if not in the model)."""
+    if p is None:
+        return f"{'(fixed)':>27s}"
+    is_angle = bool(sim.layout.is_angle()[p])
+    spec = _display(sim.specified[p], is_angle)
+    if not sim.result.identifiable[p]:
+        return f"{spec:>9.4f} {'n/i':>10s} {'':>6s}"
+    ident = _display(sim.result.params[p], is_angle)
+    if errors is not None:
+        errors.append(ident - spec)
+    pct = f"{100 * abs(ident - spec) / abs(spec):6.2f}" if spec != 0 else f"{'-':>6s}"
+    return f"{spec:>9.4f} {ident:>10.4f} {pct}"
+
+
+def format_truth(layout: Layout, truth: np.ndarray, result: Result) -> str:
+    """True against identified error of every identifiable parameter of ``layout`` (mm, deg);
+    ``truth`` on the same layout."""
+    lines = ["", f"{'parameter':<14s} {'unit':>4s} {'true':>9s} {'identified':>10s}"]
+    angle = layout.is_angle()
+    for k, name in enumerate(layout.names):
+        if result.identifiable[k]:
+            scale = np.degrees(1) if angle[k] else 1e3
+            unit = "deg" if angle[k] else "mm"
+            lines.append(
+                f"{name:<14s} {unit:>4s} {truth[k] * scale:9.4f} {result.params[k] * scale:10.4f}"
+            )
+    return "\n".join(lines)
+
+
+# --- parameter uncertainty ------------------------------------------------------------------------
+
+
+def _unit(is_angle: bool) -> tuple[float, str]:
+    return (np.degrees(1.0), "deg") if is_angle else (1e3, "mm")
+
+
+def format_uncertainty(
+    unc: Uncertainty, accuracy: Accuracy | None = None, correlations: int = 8
+) -> str:
+    """Standard deviation of every estimated parameter (mm, deg) for the noise-weighted estimator
+    (the Cramer-Rao bound) and for least squares, the strongest correlations (of the chosen
+    estimator) and the predicted accuracy."""
+    crb, ls = unc.crb_std, unc.least_squares_std
+    lines = [f"{'parameter':<14s} {'unit':>4s} {'std CRB':>10s} {'std LS':>10s} {'LS/CRB':>6s}"]
+    for p, name in enumerate(unc.names):
+        scale, unit = _unit(bool(unc.is_angle[p]))
+        if np.isnan(crb[p]):
+            lines.append(f"{name:<14s} {unit:>4s} {'not estimated':>21s}")
+            continue
+        row = f"{name:<14s} {unit:>4s} {crb[p] * scale:>10.4g} {ls[p] * scale:>10.4g}"
+        row += f" {ls[p] / crb[p]:>6.2f}"
+        if not unc.identifiable[p]:
+            row += "  (absorbs an unidentifiable combination)"
+        lines.append(row)
+    strongest = unc.strongest_correlations(correlations)
+    if strongest:
+        which = "CRB" if unc.estimator == "weighted" else "least squares"
+        lines += ["", f"strongest correlations ({which}):"]
+        lines += [f"  {a:<14s} {b:<14s} {rho:+.3f}" for a, b, rho in strongest]
+    if accuracy is not None:
+        s = accuracy_document(accuracy)
+        lines += [
+            "",
+            f"predicted accuracy after calibration ({len(accuracy.pairs)} validation pairs, "
+            "RMS over repeated calibrations):",
+            f"  position    mean {s['position_mm']['mean']:.4f} mm, p95 "
+            f"{s['position_mm']['p95']:.4f} mm, max {s['position_mm']['max']:.4f} mm",
+            f"  orientation mean {s['orientation_deg']['mean']:.5f} deg, p95 "
+            f"{s['orientation_deg']['p95']:.5f} deg, max {s['orientation_deg']['max']:.5f} deg",
+        ]
+    return "\n".join(lines)
+
+
+# --- identifiability report (observability) -------------------------------------------------------
+
+
+def _wrap(items: list[str], width: int = 96, indent: str = "  ") -> list[str]:
+    lines, line = [], indent
+    for item in items:
+        if len(line) + len(item) + 1 > width and line.strip():
+            lines.append(line.rstrip())
+            line = indent
+        line += item + " "
+    if line.strip():
+        lines.append(line.rstrip())
+    return lines
+
+
+_FORMULATION_TEXT = {
+    "invariant": "frame-invariant formulation",
+    "published": "published formulation (base-aligned)",
+    "absolute": "absolute poses",
+}
+
+
+def format_observability(rep: Report) -> str:
+    """The report as text for a person (mm and degrees)."""
+    ident = rep.identifiability
+    what = "relative position only" if rep.measure == "position" else "relative full pose"
+    if rep.formulation == "absolute":
+        what = "position only" if rep.measure == "position" else "full pose"
+    he = {"estimated": "hand-eye estimated", "known": "hand-eye known"}[rep.handeye]
+    lines = [
+        f"{rep.robot}: {_FORMULATION_TEXT[rep.formulation]}, {what}, {he}",
+        f"{rep.n_poses} poses, {rep.n_measurements} measurements, {rep.n_rows} rows, "
+        f"{len(rep.names)} parameters",
+        "",
+        "singular values of the identification Jacobian (unit-norm columns), largest first:",
+    ]
+    s = ident.singular_values
+    shown = [f"{v:.3g}" for v in s[: ident.rank]]
+    if ident.rank < len(s):
+        shown += ["|"] + [f"{v:.1e}" for v in s[ident.rank :]]
+    lines += _wrap(shown)
+    lines.append(
+        f"rank {ident.rank} of {len(s)} (relative tolerance {ident.rcond:g}; values after '|' "
+        "are zero up to round-off or too small to identify)"
+    )
+    ind = rep.indices
+    lines += [
+        "",
+        f"observability indices of the identifiable subset ({len(ident.subset)} parameters, "
+        f"m = {rep.n_measurements}):",
+        f"  O1 Borm-Menq (prod s)^(1/L)/sqrt(m)      {ind.O1:.4g}",
+        f"  O2 inverse condition number s_min/s_max  {ind.O2:.4g}"
+        f"   (condition number {ind.condition_number:.4g})",
+        f"  O3 minimum singular value s_min          {ind.O3:.4g}",
+        f"  O4 noise amplification s_min^2/s_max     {ind.O4:.4g}",
+        f"  O5 1 / sum(1/s_i)                        {ind.O5:.4g}",
+        "",
+        f"identifiable subset (QR with column pivoting), {len(ident.subset)} parameters:",
+    ]
+    lines += _wrap([rep.names[k] for k in ident.subset])
+    if rep.not_estimated:
+        lines.append("not estimated (held at nominal; each is part of a combination below):")
+        lines += _wrap(rep.not_estimated)
+    if ident.combinations:
+        lines += ["", "unidentifiable combinations, with the reason:"]
+        lines += [f"  - {c.describe()}" for c in ident.combinations]
+    else:
+        lines += ["", "every parameter is identifiable"]
+    for p in rep.parallel:
+        a, b = p.joints
+        lines.append("")
+        if p.hayati:
+            lines.append(
+                f"parallel axes {a} and {b} ({p.angle_deg:.3g} deg apart): Hayati's beta[{a}] "
+                f"replaces d[{a}], so the pair is resolved"
+            )
+            continue
+        lines.append(
+            f"parallel axes {a} and {b} ({p.angle_deg:.3g} deg apart): with standard DH d[{a}] "
+            f"and d[{b}] are inseparable (only their sum is identifiable)."
+        )
+        if p.std_d is not None:
+            lines.append(
+                f"  Real axes are never exactly parallel: {p.misalignment_deg:g} deg off, both "
+                f"count as identifiable and their standard deviations explode to "
+                f"{p.std_d[0] * 1e3:.3g} mm and {p.std_d[1] * 1e3:.3g} mm at this noise."
+            )
+        lines.append("  Cure: --hayati auto (Hayati's beta for the pair), or hayati: true in YAML")
+    if rep.uncertainty is not None and rep.noise is not None:
+        n = rep.noise
+        lines += [
+            "",
+            f"uncertainty with noise {n.position * 1e3:g} mm, {n.orientation / DEG:g} deg per "
+            f"pose, {np.max(n.joints) / DEG:g} deg per joint reading "
+            f"({rep.uncertainty.estimator.replace('_', ' ')} estimator):",
+            format_uncertainty(rep.uncertainty, rep.accuracy),
+        ]
+    return "\n".join(lines)
+
+
+# --- pose plan ------------------------------------------------------------------------------------
+
+
+def _quality_row(label: str, q: Quality) -> str:
+    name, eq = q.worst
+    ln, lv = q.worst_length
+    an, av = q.worst_angle
+    acc = ""
+    if q.accuracy is not None:
+        s = accuracy_document(q.accuracy)
+        acc = (
+            f" {s['position_mm']['mean']:>8.4f} {s['position_mm']['p95']:>8.4f}"
+            f" {s['orientation_deg']['mean']:>9.5f}"
+        )
+    return (
+        f"{label:<22s} {eq * 1e3:>8.4f} {name:<13s} {q.median * 1e3:>8.4f} {lv * 1e3:>8.4f} "
+        f"{np.degrees(av):>9.5f} {q.indices.O1:>7.3g}{acc}"
+    )
+
+
+def format_plan(res: PlanResult, length_scale: float) -> str:
+    """The plan against random sets: predicted standard deviations and accuracy."""
+    k = len(res.q)
+    lines = [
+        f"{k} poses selected from {res.n_candidates} feasible candidates by {res.algorithm} "
+        f"({res.swaps} exchanges) maximising {res.criterion}, {res.seconds:.1f} s",
+        "rejected IK solutions: " + ", ".join(f"{n} {c}" for n, c in res.rejected.items()),
+        "",
+        f"predicted standard deviations (noise-weighted estimator, Cramer-Rao bound); angles "
+        f"count as the displacement {length_scale:g} m away:",
+        f"{'':<22s} {'worst':>8s} {'(param)':<13s} {'median':>8s} {'worst mm':>8s} "
+        f"{'worst deg':>9s} {'O1':>7s} {'acc mean':>8s} {'acc p95':>8s} {'acc deg':>9s}",
+        f"{'':<22s} {'mm':>8s} {'':<13s} {'mm':>8s} {'length':>8s} {'angle':>9s} {'':>7s} "
+        f"{'mm':>8s} {'mm':>8s} {'mean':>9s}",
+        _quality_row("plan", res.plan),
+    ]
+    if res.random:
+        worst = np.array([r.worst[1] for r in res.random])
+        median_set = res.random[int(np.argsort(worst)[len(worst) // 2])]
+        best_set = res.random[int(np.argmin(worst))]
+        lines += [
+            _quality_row(f"random (median of {len(res.random)})", median_set),
+            _quality_row("random (best)", best_set),
+            "",
+            f"worst-parameter std: plan {res.plan.worst[1] * 1e3:.4f} mm, random sets median "
+            f"{res.random_median_worst * 1e3:.4f} mm: {res.improvement:.2f}x lower",
+        ]
+    lines += [
+        "predicted accuracy: RMS error of relative camera poses between validation poses "
+        "caused by the parameter uncertainty alone",
+    ]
+    if res.random:
+        lines += ["", *_parameter_table(res.plan, median_set, len(res.random))]
+    return "\n".join(lines)
+
+
+def _parameter_table(plan_q: Quality, random_q: Quality, n_sets: int) -> list[str]:
+    """Per estimated parameter: predicted std for the plan and the median random set."""
+    a, b = plan_q.uncertainty, random_q.uncertainty
+    lines = [
+        f"{'parameter':<14s} {'unit':>4s} {'plan':>10s} {'random':>10s} {'ratio':>6s}"
+        f"   (predicted std; random = the median of {n_sets} sets)"
+    ]
+    for p in a.subset:
+        scale, unit = (np.degrees(1.0), "deg") if a.is_angle[p] else (1e3, "mm")
+        sa, sb = a.crb_std[p], b.crb_std[p]
+        lines.append(
+            f"{a.names[p]:<14s} {unit:>4s} {sa * scale:>10.4g} {sb * scale:>10.4g} {sb / sa:>6.2f}"
+        )
+    return lines
+
+
+# --- Monte Carlo study ----------------------------------------------------------------------------
+
+
+def format_study(res: StudyResult, length_scale: float = 0.5) -> str:
+    """Per parameter: predicted and empirical standard deviation, their ratio, the bias in
+    standard errors; then the overall ratio, the worst parameter and the bias test."""
+    lo, hi = res.ratio_interval()
+    lines = [
+        f"{'parameter':<14s} {'unit':>4s} {'predicted':>10s} {'empirical':>10s} {'ratio':>6s} "
+        f"{'bias/se':>7s}"
+    ]
+    for k, p in enumerate(res.subset):
+        angle = bool(res.is_angle[p])
+        scale, unit = (np.degrees(1.0), "deg") if angle else (1e3, "mm")
+        flag = "" if lo <= res.ratio[k] <= hi else "  outside 95% interval"
+        if not res.predicted.identifiable[p]:
+            flag += "  (absorbs an unidentifiable combination)"
+        lines.append(
+            f"{res.names[p]:<14s} {unit:>4s} {res.predicted_std[k] * scale:>10.4g} "
+            f"{res.empirical_std[k] * scale:>10.4g} {res.ratio[k]:>6.3f} {res.bias_t[k]:>+7.2f}"
+            + flag
+        )
+    chi2, p = res.bias_test()
+    wp, pv, we, ev = worst(res, length_scale)
+    what = "Cramer-Rao bound" if res.estimator == "weighted" else "least-squares covariance"
+    outside = int(np.sum((res.ratio < lo) | (res.ratio > hi)))
+    lines += [
+        "",
+        f"{res.trials} trials ({int(res.converged.sum())} converged), {res.sampling} sampling, "
+        f"{res.estimator} estimator, predicted = {what}, {res.seconds:.1f} s",
+        f"empirical / predicted std: overall {res.overall_ratio:.3f}, per parameter "
+        f"{res.ratio.min():.3f} .. {res.ratio.max():.3f}, max |ratio - 1| "
+        f"{np.abs(res.ratio - 1).max():.3f}",
+        f"  {outside} of {len(res.ratio)} outside the 95% sampling interval "
+        f"[{lo:.3f}, {hi:.3f}] of {res.trials} independent trials",
+        f"worst parameter (angles x {length_scale:g} m): predicted {wp} {pv * 1e3:.4f} mm, "
+        f"empirical {we} {ev * 1e3:.4f} mm",
+        f"bias: max |mean - noise-free| = {np.abs(res.bias_t).max():.2f} standard errors; "
+        f"chi-square {chi2:.1f} on {len(res.subset)} dof, p = {p:.3f}"
+        + (" (unbiased)" if p > 0.01 else " (BIASED)"),
+    ]
+    return "\n".join(lines)
+
+
+# --- calibration ----------------------------------------------------------------------------------
+
+
+def _ratio_text(ratio: dict) -> str:
+    lo, hi = ratio["ci95"]
+    return f"x{ratio['after_over_before']:.3g}, 95% interval {lo:.3g}..{hi:.3g}"
+
+
+def calibration_summary(doc: dict) -> str:
+    """The terminal summary: the chosen model and why, held-out errors against the baselines,
+    the parameters with their standard deviations, and what the data cannot determine."""
+    ident = doc["identification"]
+    lines = [
+        f"{doc['robot']}: {doc['n_used']} of {doc['n_samples']} samples used, "
+        f"{len(doc['held_out_ids'])} held out",
+    ]
+    points = doc["settings"].get("formulation") == "tracker"
+    frames = "the instrument transform and marker" if points else "the hand-eye transform"
+    sel = doc.get("model_selection")
+    if sel and sel.get("candidates"):
+        lines.append(
+            f"model selection ({sel['folds']}-fold cross-validation on the training samples):"
+        )
+        for c in sel["candidates"]:
+            mark = "*" if c["chosen"] else " "
+            lines.append(
+                f"  {mark} {c['name']:<32} {c['weighting']:<12} {c['n_params']:>3} parameters  "
+                f"held-out position RMS {c['cv_position_rms_mm']:.4f} mm"
+                + (
+                    f", orientation {c['cv_orientation_rms_deg']:.4f} deg"
+                    if c["cv_orientation_rms_deg"] is not None
+                    else ""
+                )
+            )
+        lines.append(f"  chosen: {sel['chosen']} ({sel['weighting']}): {sel['reason']}")
+        if sel["exported"] == "baseline":
+            lines.append(
+                "  the data support no kinematic correction: the exported model is the nominal "
+                f"kinematics with {frames} fitted"
+            )
+    lines.append(
+        f"identification: rank {ident['rank']} of {ident['n_params']}, "
+        f"{'converged' if ident['converged'] else 'NOT converged'}, residual RMS "
+        f"{ident['initial_residual_rms']:.3g} -> {ident['residual_rms']:.3g} (weighted rows)"
+    )
+    val = doc["validation"]
+    if val:
+        base = "baseline" if "baseline" in val else "baseline_handeye_guess"
+        for key, unit in (("position_mm", "mm"), ("orientation_deg", "deg")):
+            if key not in val["calibrated"]:
+                continue
+            g, b, a = val["baseline_handeye_guess"][key], val[base][key], val["calibrated"][key]
+            if points:
+                what = f"absolute {key.split('_')[0]} error over {val['n_samples']} points"
+                guesses, fitted = "instrument and marker guesses", "instrument and marker fitted"
+            else:
+                what = (
+                    f"relative {key.split('_')[0]} error over {val['n_pairs']} pairs of "
+                    f"{val['n_samples']} samples"
+                )
+                guesses, fitted = "hand-eye guess", "hand-eye fitted"
+            lines.append(
+                f"held-out {what}, RMS: nominal with the {guesses} {g['rms']:.3f}, "
+                f"baseline (nominal, {fitted}) {b['rms']:.3f}, calibrated {a['rms']:.3f} "
+                f"{unit} ({_ratio_text(val['ratio_to_baseline'][key])} of the baseline)"
+            )
+    shown = [r for r in doc["parameters"] if r["status"] in ("estimated", "combination")]
+    if shown:
+        lines.append("parameters (error from nominal +- std; bootstrap std; |error| / std):")
+        for r in shown:
+            boot = f"{r['bootstrap_std']:.3g}" if r["bootstrap_std"] is not None else "-"
+            std = f"{r['std']:.3g}" if r["std"] is not None else "-"
+            sig = f"{r['significance']:.1f}" if r["significance"] is not None else "-"
+            note = "  (carries a combination)" if r["status"] == "combination" else ""
+            lines.append(
+                f"  {r['name']:<14} {r['error']:+.4g} +- {std} {r['unit']}  bootstrap {boot}  "
+                f"z {sig}{note}"
+            )
+    for c in doc.get("identifiable_combinations", []):
+        std = f" +- {c['std']:.3g}" if c["std"] is not None else ""
+        lines.append(f"  {c['text']} = {c['value']:+.4g}{std} {c['unit']} (identifiable sum)")
+    noise = doc.get("noise_model")
+    if noise:
+        lines.append(
+            "learned pose noise (camera frame): std "
+            + ", ".join(f"{v:.3g}" for v in noise["std_mm"])
+            + " mm, "
+            + ", ".join(f"{v:.3g}" for v in noise["std_deg"])
+            + f" deg; largest translation-rotation correlation "
+            f"{noise['max_translation_rotation_correlation']:.2f}"
+        )
+    if doc["rejected"]:
+        lines.append(f"rejected frames ({len(doc['rejected'])}):")
+        lines.extend(f"  {r['id']}: {r['reason']}" for r in doc["rejected"])
+    if doc["outliers"]:
+        lines.append(
+            "outliers (their pairs fit badly; left out unless --keep-outliers): "
+            + ", ".join(doc["outliers"])
+        )
+    cv = doc.get("cross_validation")
+    if cv:
+        pooled = cv["pooled"]
+        base = "baseline" if "baseline" in pooled else "baseline_handeye_guess"
+        b, a = pooled[base]["position_mm"], pooled["calibrated"]["position_mm"]
+        lines.append(
+            f"{cv['k']}-fold cross-validation over {pooled['n_pairs']} held-out "
+            f"{'points' if points else 'pairs'}: position "
+            f"RMS baseline {b['rms']:.3f} -> calibrated {a['rms']:.3f} mm "
+            f"({_ratio_text(pooled['ratio_to_baseline']['position_mm'])}); chosen per fold: "
+            + ", ".join(cv["chosen"])
+        )
+    for text in ident["unidentifiable"]:
+        lines.append(f"  not identifiable: {text}")
+    return "\n".join(lines)
