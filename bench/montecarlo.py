@@ -40,18 +40,16 @@ from peers import fd_least_squares  # noqa: E402
 
 from relcal.calibration.identifiability import analyse_problem  # noqa: E402
 from relcal.calibration.noise import Noise  # noqa: E402
-from relcal.design.cell import Setup, joint_path  # noqa: E402
+from relcal.design.cell import Cell, joint_path  # noqa: E402
 from relcal.robot.model import auto_hayati, get_robot  # noqa: E402
-from relcal.sim.study import (  # noqa: E402
+from relcal.sim.scenario import (  # noqa: E402
     Scenario,
-    StudyResult,
     clean_poses,
     make_scenario,
     noisy_measurement,
     problem_for,
-    standard_normals,
-    study,
 )
+from relcal.sim.study import StudyResult, standard_normals, study  # noqa: E402
 
 N_POSES = 27
 NOISE = "0.05,0.01,0.001"  # POS_MM,ORI_DEG,JOINT_DEG: the default of ``relcal study --noise``
@@ -70,7 +68,7 @@ def scenario() -> Scenario:
     model = auto_hayati(get_robot("a465"))
     # Some spiral poses are out of reach: ask for a few more until N_POSES are reachable.
     for requested in range(N_POSES, N_POSES + 10):
-        q = joint_path(model, Setup(), requested, np.random.default_rng(SEED))
+        q = joint_path(model, Cell(), requested, np.random.default_rng(SEED))
         if len(q) >= N_POSES:
             break
     else:

@@ -56,9 +56,18 @@ from peers import fd_least_squares  # noqa: E402
 from relcal import geometry as tf  # noqa: E402
 from relcal.calibration.identifiability import analyse_problem  # noqa: E402
 from relcal.calibration.identify import identify_lm, identify_published  # noqa: E402
-from relcal.calibration.measurement import Problem, make_pairs, residuals, split_params  # noqa: E402
-from relcal.robot.kinematics import fk, make_layout  # noqa: E402
+from relcal.calibration.measurement import Problem, residuals  # noqa: E402
+from relcal.calibration.noise import Noise  # noqa: E402
+from relcal.design.cell import Cell  # noqa: E402
+from relcal.robot.kinematics import fk  # noqa: E402
 from relcal.robot.model import RobotModel, get_robot, library_names  # noqa: E402
+from relcal.sim.scenario import (  # noqa: E402
+    Scenario,
+    clean_poses,
+    make_scenario,
+    measure_once,
+    problem_for,
+)
 
 #: Benchmark modules other engineers add under bench/ (``run() -> list[dict]``), in table order.
 OPTIONAL_MODULES = ("images", "montecarlo", "selection")
@@ -263,47 +272,29 @@ def fk_rows(label: str, model: RobotModel, n_fast: int, n_peer: int) -> list[Row
 
 # --- identification ----------------------------------------------------------------------------
 
-HANDEYE = tf.from_vector(np.array([0.0, 0.04, 0.06, 0.05, -0.03, 0.2]))
-BOARD = tf.from_vector(np.array([0.5, 0.1, -0.2, 3.0, 0.1, 0.4]))
-
-
-NOISE = (0.05e-3, np.radians(0.01))  # camera pose noise per axis: 0.05 mm, 0.01 deg
+HANDEYE = tf.from_vector(np.array([0.0, 0.04, 0.06, 0.05, -0.03, 0.2]))  # the camera's mount
+NOISE = Noise(0.05e-3, np.radians(0.01))  # camera pose noise per axis: 0.05 mm, 0.01 deg
 
 
 def identification_problem(
     n_poses: int = 100, seed: int = 1, noisy: bool = False
-) -> tuple[Problem, np.ndarray]:
-    """A465 + hand-eye, full pose, invariant formulation, consecutive pairs, known errors; camera
-    poses exact or with ``NOISE``."""
+) -> tuple[Problem, Scenario]:
+    """A465 + hand-eye, full pose, invariant formulation, consecutive pairs, known errors (the
+    simulation's scenario at random joints, the camera tilted on its mount); camera poses exact
+    or with ``NOISE``."""
     rng = np.random.default_rng(seed)
     model = get_robot("a465")
-    layout = make_layout(model)
     q = random_q(model, n_poses, rng) * 0.9
-    pairs = make_pairs(n_poses)
-    angle = layout.is_angle()
-    truth = np.where(angle, np.radians(rng.uniform(0.01, 0.9, layout.size)), 0.0)
-    truth = np.where(angle, truth, rng.uniform(0.1, 0.9, layout.size) * 1e-3)
-    truth = np.concatenate([truth * rng.choice([-1.0, 1.0], layout.size), rng.normal(0, 1e-3, 6)])
-    shell = Problem(
-        model, layout, q, np.zeros((n_poses, 4, 4)), "invariant", "pose", pairs, HANDEYE
-    )
-    true_model, true_x = split_params(shell, truth)
-    poses = BOARD @ fk(true_model, q, backend="numpy") @ true_x
-    if noisy:
-        sigma = np.repeat(NOISE, 3)
-        poses = poses @ tf.from_vector(rng.normal(0.0, 1.0, (n_poses, 6)) * sigma)
-    return replace(shell, poses=poses), truth
+    sc = make_scenario(model, q, NOISE if noisy else Noise(), seed=rng, cell=Cell(handeye=HANDEYE))
+    return problem_for(sc, *measure_once(sc, rng)), sc
 
 
-def held_out(problem: Problem, params: np.ndarray, truth: np.ndarray) -> float:
-    """Largest residual of ``params`` on new noise-free pairs (0 when everything identifiable is
-    recovered)."""
-    rng = np.random.default_rng(99)
-    q = random_q(problem.model, 30, rng) * 0.9
-    shell = replace(problem, q=q, pairs=make_pairs(30, "all"))
-    true_model, true_x = split_params(shell, truth)
-    check = replace(shell, poses=BOARD @ fk(true_model, q, backend="numpy") @ true_x)
-    return float(np.abs(residuals(check, params, jacobian=False)).max())
+def held_out(sc: Scenario, params: np.ndarray) -> float:
+    """Largest residual of ``params`` on new noise-free pairs of the scenario (0 when everything
+    identifiable is recovered)."""
+    q = random_q(sc.model, 30, np.random.default_rng(99)) * 0.9
+    check = replace(sc, q=q, pairing="all")
+    return float(np.abs(residuals(problem_for(check, q, clean_poses(check)), params, False)).max())
 
 
 def scipy_fd_identification(problem: Problem):
@@ -345,16 +336,16 @@ def identification_rows() -> list[Row]:
     return rows
 
 
-def identify_rows(problem: Problem, truth: np.ndarray, noisy: bool) -> list[Row]:
+def identify_rows(problem: Problem, sc: Scenario, noisy: bool) -> list[Row]:
     peer = scipy_fd_identification(problem)
     peer_ms = 1e3 * best_time(peer)
-    peer_error = held_out(problem, peer(), truth)
+    peer_error = held_out(sc, peer())
     data = "noise 0.05 mm, 0.01 deg" if noisy else "exact data"
     task = f"identify 100 poses, A465 + hand-eye, pose, invariant, consecutive, {data}"
     rows = []
     for name, method in (("identify_published", identify_published), ("identify_lm", identify_lm)):
         result = method(problem)
-        error = held_out(problem, result.params, truth)
+        error = held_out(sc, result.params)
         ms = 1e3 * best_time(lambda m=method: m(problem))
         row = Row(
             f"{task}: {name}",

@@ -18,7 +18,7 @@ TOL = 1e-9
 
 
 def assert_reaches(model, q, targets, tol=TOL):
-    err = ik.pose_error(targets, fk(model, np.atleast_2d(q)))
+    err = tf.pose_error(targets, fk(model, np.atleast_2d(q)))
     assert np.abs(err).max() < tol
 
 
@@ -134,7 +134,7 @@ def test_joint_jacobian_matches_finite_differences(rng):
         for j in range(model.n_joints):
             dq = np.zeros(model.n_joints)
             dq[j] = h
-            numeric = ik.pose_error(fk(model, q + dq), poses) / h
+            numeric = tf.pose_error(fk(model, q + dq), poses) / h
             np.testing.assert_allclose(numeric, jac[:, :, j], atol=1e-6)
 
 

@@ -23,7 +23,8 @@ from relcal.geometry import DEG, MM
 from relcal.reporting.text import format_observability
 from relcal.robot.kinematics import make_layout
 from relcal.robot.model import auto_hayati, model_from_dict
-from relcal.sim.study import make_scenario, study
+from relcal.sim.scenario import make_scenario
+from relcal.sim.study import study
 
 NOISE = Noise(0.05 * MM, 0.01 * DEG, 0.001 * DEG)
 

@@ -6,8 +6,8 @@ import pytest
 
 from relcal import geometry as tf
 from relcal.cli import main
-from relcal.cli.observability import read_joints
-from relcal.design.cell import default_cell
+from relcal.data.dataset import read_joints
+from relcal.design.cell import Cell
 from relcal.design.plan import (
     CRITERIA,
     DEFAULT_NOISE,
@@ -28,9 +28,10 @@ from relcal.design.plan import (
 from relcal.errors import RelcalError
 from relcal.reporting.documents import accuracy_document
 from relcal.robot.model import auto_hayati
-from relcal.sim.study import make_scenario, study, worst
+from relcal.sim.scenario import make_scenario
+from relcal.sim.study import study, worst
 
-CELL = dict(center=(0.4, 0.0, 0.0))
+CELL = dict(center=np.array([0.4, 0.0, 0.0]))
 
 
 @pytest.fixture(scope="module")
@@ -42,21 +43,21 @@ def hayati():
 
 @pytest.fixture(scope="module")
 def pool(hayati):
-    q, rejected = candidates(hayati, default_cell(), Constraints(), 250, np.random.default_rng(0))
+    q, rejected = candidates(hayati, Cell(), Constraints(), 250, np.random.default_rng(0))
     return q, rejected
 
 
 def test_candidates_satisfy_every_constraint(hayati, pool):
     q, rejected = pool
     assert len(q) == 250
-    masks = check(hayati, default_cell(), q, Constraints())
+    masks = check(hayati, Cell(), q, Constraints())
     assert all(m.all() for m in masks.values())
     assert rejected["ik"] > 0 and rejected["board in view"] > 0  # the checks do reject
 
 
 def test_each_constraint_rejects_what_it_should(hayati, pool):
     q = pool[0][:1].copy()
-    cell, c = default_cell(), Constraints()
+    cell, c = Cell(), Constraints()
 
     def failing(qq, constraints=c):
         return {name for name, ok in check(hayati, cell, qq, constraints).items() if not ok[0]}
@@ -78,7 +79,7 @@ def test_each_constraint_rejects_what_it_should(hayati, pool):
 
 
 def test_fast_criteria_match_direct_evaluation(hayati, pool):
-    info = information(selection_problem(hayati, default_cell(), pool[0]), DEFAULT_NOISE, 0.5)
+    info = information(selection_problem(hayati, Cell(), pool[0]), DEFAULT_NOISE, 0.5)
     rng = np.random.default_rng(2)
     add = np.arange(40)
     for n_set in (0, 3, 29):
@@ -91,7 +92,7 @@ def test_fast_criteria_match_direct_evaluation(hayati, pool):
 
 
 def test_exchange_improves_on_greedy_which_beats_random(hayati, pool):
-    info = information(selection_problem(hayati, default_cell(), pool[0]), DEFAULT_NOISE, 0.5)
+    info = information(selection_problem(hayati, Cell(), pool[0]), DEFAULT_NOISE, 0.5)
     rng = np.random.default_rng(3)
     for name in ("worst", "O1", "O3"):
         g = greedy(info, 20, name)
@@ -109,7 +110,7 @@ def test_exchange_improves_on_greedy_which_beats_random(hayati, pool):
 
 
 def test_planned_poses_beat_random_feasible_sets_and_the_study_confirms_it(hayati, tmp_path):
-    cell = default_cell(**CELL)
+    cell = Cell(**CELL)
     res = plan(hayati, cell, k=30, n_candidates=1500, random_sets=20, seed=0)
     assert len(res.q) == 30 and len(res.random) == 20
     assert check(hayati, cell, res.q, Constraints())["board in view"].all()
@@ -149,7 +150,7 @@ def test_board_and_camera_arguments(tmp_path):
         parse_board("seven by ten")
     cam = parse_camera("2000,2000,640,480,1280,960")
     assert (cam.fx, cam.width, cam.height) == (2000, 1280, 960)
-    frame = default_cell(board=board, center=(0.5, 0.1, 0.0)).board_pose
+    frame = Cell(board=board, center=np.array([0.5, 0.1, 0.0])).board_pose
     middle = frame @ np.array([0.08, 0.05, 0.0, 1.0])  # pattern centre of 7x10 squares of 20 mm
     np.testing.assert_allclose(middle[:3], [0.5, 0.1, 0.0], atol=1e-12)
     assert frame[:3, 2] @ [0, 0, 1] == pytest.approx(-1)  # z into the table
@@ -167,5 +168,5 @@ def test_command_line_plan(tmp_path, hayati, capsys):
     assert "12 poses selected from 200 feasible candidates" in text and "x lower" in text
     q = read_joints(out, hayati, "deg")
     assert q.shape == (12, 6) and read_joints(rnd, hayati, "deg").shape == (12, 6)
-    assert check(hayati, default_cell(), q, Constraints())["board in view"].all()
+    assert check(hayati, Cell(), q, Constraints())["board in view"].all()
     assert main(["plan", "--board", "7 by 10"]) == 2

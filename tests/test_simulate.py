@@ -11,7 +11,8 @@ from relcal.cli import main
 from relcal.errors import RelcalError
 from relcal.reporting.text import format_simulation
 from relcal.robot.kinematics import make_layout
-from relcal.sim.simulate import load_errors, simulate
+from relcal.sim.scenario import load_errors
+from relcal.sim.simulate import simulate
 
 
 @pytest.mark.parametrize("formulation", ["published", "invariant"])

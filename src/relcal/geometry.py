@@ -144,6 +144,18 @@ def _axis_near_pi(r: np.ndarray, skew_part: np.ndarray, cos_t: np.ndarray) -> np
     return np.where(skew_part[rows, k, None] < 0, -axis, axis)
 
 
+def pose_error(target: np.ndarray, pose: np.ndarray) -> np.ndarray:
+    """Base-frame errors ``(..., 6)`` from ``pose`` to ``target`` (both ``(..., 4, 4)``): the
+    position difference ``t_target - t_pose`` (m), then the rotation vector (rad) of
+    ``R_target R_pose^T``; the rows of :func:`relcal.robot.kinematics.pose_jacobian`."""
+    target, pose = np.asarray(target, dtype=float), np.asarray(pose, dtype=float)
+    rot = target[..., :3, :3] @ np.swapaxes(pose[..., :3, :3], -1, -2)
+    out = np.empty((*rot.shape[:-2], 6))
+    out[..., :3] = target[..., :3, 3] - pose[..., :3, 3]
+    out[..., 3:] = log_rotation(rot)
+    return out
+
+
 def from_xyz_rpy(xyz: np.ndarray, rpy: np.ndarray) -> np.ndarray:
     """Transform from translation (m) and fixed-axis roll, pitch, yaw (rad), as in URDF."""
     rot = Rotation.from_euler("xyz", rpy).as_matrix()

@@ -27,7 +27,14 @@ from typing import Literal
 import numpy as np
 
 from relcal import geometry as tf
-from relcal.robot.kinematics import Layout, apply_errors, fk, pose_jacobian, spatial_jacobian
+from relcal.robot.kinematics import (
+    Layout,
+    apply_errors,
+    fk,
+    make_layout,
+    pose_jacobian,
+    spatial_jacobian,
+)
 from relcal.robot.model import RobotModel
 
 MARKER_COMPONENTS = ("x", "y", "z")  # the tracker formulation's marker position, m
@@ -104,14 +111,33 @@ class Problem:
         return count * self.rows_per_measurement
 
 
-def absolute_errors(measured: np.ndarray, modelled: np.ndarray) -> np.ndarray:
-    """Base-frame pose errors ``(N, 6)``: position difference (m) and rotation vector (rad) of
-    ``R_meas R_model^T``."""
-    rot = measured[..., :3, :3] @ np.swapaxes(modelled[..., :3, :3], -1, -2)
-    out = np.empty((*measured.shape[:-2], 6))
-    out[..., :3] = measured[..., :3, 3] - modelled[..., :3, 3]
-    out[..., 3:] = tf.to_vector(tf.homogeneous(rot, np.zeros(3)))[..., 3:]
-    return out
+def camera_problem(
+    model: RobotModel,
+    q: np.ndarray,
+    handeye: np.ndarray,
+    formulation: Formulation = "invariant",
+    measure: Measure = "pose",
+    pairing: PairStrategy = "consecutive",
+    poses: np.ndarray | None = None,
+) -> Problem:
+    """The identification problem of camera poses ``(N, 4, 4)`` at joints ``q`` ``(N, n)`` for a
+    camera mounted by the flange-from-camera ``handeye``: estimated with the geometry from that
+    guess (frame-invariant), or folded into the tool (published, absolute). Without ``poses``, the
+    nominal camera poses (the Jacobian does not depend on them)."""
+    x = handeye
+    ident_model = model
+    if formulation != "invariant":
+        ident_model, x = replace(model, tool=model.tool @ handeye), np.eye(4)
+    return Problem(
+        model=ident_model,
+        layout=make_layout(model),
+        q=q,
+        poses=fk(ident_model, q) @ x if poses is None else poses,
+        formulation=formulation,
+        measure=measure,
+        pairs=make_pairs(len(q), pairing),
+        handeye=x,
+    )
 
 
 def relative_measurements(poses: np.ndarray, pairs: np.ndarray) -> np.ndarray:
@@ -147,7 +173,7 @@ def residuals(problem: Problem, params: np.ndarray, jacobian: bool = True):
     if problem.formulation == "invariant":
         r, a = _invariant(problem, tip, jac, handeye)
     else:
-        r, a = absolute_errors(problem.poses, tip), jac
+        r, a = tf.pose_error(problem.poses, tip), jac
         if problem.formulation == "published":
             i, j = problem.pair_indices().T
             r, a = r[j] - r[i], (a[j] - a[i] if jacobian else None)

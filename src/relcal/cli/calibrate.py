@@ -16,7 +16,7 @@ examples:
 
 
 def run_measure(args: argparse.Namespace) -> int:
-    from relcal.data.dataset import load_dataset, write_samples
+    from relcal.data.dataset import joints_in_unit, load_dataset, write_samples
     from relcal.data.imaging import measure
     from relcal.io import write_json, write_text
 
@@ -30,7 +30,7 @@ def run_measure(args: argparse.Namespace) -> int:
         write_samples(
             out / "poses.csv",
             ids,
-            _degrees(dataset)[ok],
+            joints_in_unit(dataset.model, dataset.q, "deg")[ok],
             poses=m.poses[ok],
             positions_only=dataset.measured == "position",
         ),
@@ -56,12 +56,6 @@ def run_measure(args: argparse.Namespace) -> int:
         for r in rejected:
             print(f"  rejected {r['id']}: {r['reason']}")
     return 0
-
-
-def _degrees(dataset):
-    import numpy as np
-
-    return np.where(dataset.model.prismatic, dataset.q, np.degrees(dataset.q))
 
 
 def run_calibrate(args: argparse.Namespace) -> int:

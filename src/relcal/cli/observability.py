@@ -21,56 +21,19 @@ works too); angles in --joint-unit (prismatic joints in m)
 """
 
 
-def read_joints(path: Path, model, joint_unit: str) -> np.ndarray:
-    """Joint values ``(N, n)`` (rad, m) from a CSV with ``q1..qn`` columns."""
-    from relcal.data.dataset import parse_number
-    from relcal.errors import RelcalError
-    from relcal.io import read_table
-
-    header, data = read_table(path, "pose")
-    joints = [f"q{i + 1}" for i in range(model.n_joints)]
-    missing = [c for c in joints if c not in header]
-    if missing:
-        raise RelcalError(
-            f"{path} line 1: header: expected columns {', '.join(joints)} for the "
-            f"{model.n_joints}-joint robot '{model.name}'; missing {', '.join(missing)}"
-        )
-    idx = [header.index(c) for c in joints]
-    values = []
-    for row in data:
-        line = row.line
-        if len(row) != len(header):
-            raise RelcalError(f"{path} line {line}: {len(row)} fields, expected {len(header)}")
-        values.append(
-            [parse_number(path, line, c, row[i]) for c, i in zip(joints, idx, strict=True)]
-        )
-    q = np.array(values, dtype=float)
-    if joint_unit == "deg":
-        q = np.where(model.prismatic, q, np.radians(q))
-    return q
-
-
-def simulated_joints(model, n_poses: int, seed: int) -> np.ndarray:
-    """Joint values reaching the simulation's spiral of camera poses over the board."""
-    from relcal.design.cell import Setup, joint_path
-    from relcal.errors import RelcalError
-
-    q = joint_path(model, Setup(), n_poses, np.random.default_rng(seed))
-    if len(q) < 3:
-        raise RelcalError(f"only {len(q)} of {n_poses} simulated poses are reachable")
-    return q
-
-
 def build_problem(model, q: np.ndarray, formulation: str, measure: str, pairs: str):
     """The identification problem at configurations ``q`` with the simulation's hand-eye."""
-    from relcal.design.cell import Setup
-    from relcal.design.observability import nominal_problem
+    from relcal.calibration.measurement import camera_problem
+    from relcal.design.cell import Cell
 
-    return nominal_problem(model, q, Setup().handeye, formulation, measure, pairs)
+    return camera_problem(model, q, Cell().handeye, formulation, measure, pairs)
 
 
 def joint_source(args: argparse.Namespace, model) -> tuple[np.ndarray, str]:
     """Joint values from ``--poses`` or simulated, and a phrase saying which."""
+    from relcal.data.dataset import read_joints
+    from relcal.sim.scenario import simulated_joints
+
     if args.poses:
         return read_joints(Path(args.poses), model, args.joint_unit), f"poses from {args.poses}"
     q = simulated_joints(model, args.n_poses, args.seed)
@@ -88,6 +51,8 @@ def run(args: argparse.Namespace) -> int:
     q, source = joint_source(args, model)
     problem = build_problem(model, q, args.formulation, args.measure, args.pairs)
     noise = None if args.noise.lower() == "none" else Noise.parse(args.noise)
+    from relcal.sim.scenario import simulated_joints
+
     q_val = None
     if noise is not None and args.validation > 0:
         q_val = simulated_joints(model, args.validation, args.seed + 1)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+from dataclasses import replace
 
 import numpy as np
 
@@ -36,20 +37,24 @@ def _floats(text: str, count: tuple[int, ...], what: str) -> list[float]:
 def build_cell(args: argparse.Namespace):
     """The cell from the command line (board, its centre, camera, hand-eye guess)."""
     from relcal import geometry as tf
-    from relcal.design.cell import default_camera, default_cell
+    from relcal.design.cell import Cell
     from relcal.design.plan import parse_board, parse_camera
 
-    board = parse_board(args.board)
-    camera = parse_camera(args.camera) if args.camera else default_camera()
-    center = _floats(args.board_center, (3,), "--board-center")
-    he = _floats(args.handeye, (3, 6), "--handeye") + [0.0, 0.0, 0.0]
-    handeye = tf.from_xyz_rpy(np.array(he[:3]), np.radians(he[3:6]))
-    return default_cell(board=board, center=tuple(center), camera=camera, handeye=handeye)
+    cell = Cell(board=parse_board(args.board))
+    if args.camera:
+        cell = replace(cell, camera=parse_camera(args.camera))
+    if args.board_center:
+        cell = replace(cell, center=np.array(_floats(args.board_center, (3,), "--board-center")))
+    if args.handeye:
+        he = _floats(args.handeye, (3, 6), "--handeye") + [0.0, 0.0, 0.0]
+        cell = replace(cell, handeye=tf.from_xyz_rpy(np.array(he[:3]), np.radians(he[3:6])))
+    return cell
 
 
 def run(args: argparse.Namespace) -> int:
     from relcal.calibration.noise import Noise
-    from relcal.design.plan import Constraints, joints_csv, plan
+    from relcal.data.dataset import joints_in_unit, write_samples
+    from relcal.design.plan import Constraints, plan
     from relcal.io import write_json, write_text
     from relcal.reporting.documents import plan_document
     from relcal.reporting.text import format_plan
@@ -77,12 +82,18 @@ def run(args: argparse.Namespace) -> int:
         random_sets=args.random_sets,
         seed=args.seed,
     )
+
+    def joints_table(q: np.ndarray) -> str:
+        ids = [f"p{k + 1:03d}" for k in range(len(q))]
+        return write_samples(args.out, ids, joints_in_unit(model, q, args.joint_unit))
+
     if args.out:
-        write_text(args.out, joints_csv(model, res.q, args.joint_unit))
+        write_text(args.out, joints_table(res.q))
     if args.random_out and res.random_q is not None:
-        write_text(args.random_out, joints_csv(model, res.random_q, args.joint_unit))
+        write_text(args.random_out, joints_table(res.random_q))
     if not args.quiet:
-        print(f"{model.name}: {cell.board.describe()}, centre {args.board_center} m")
+        center = ",".join(f"{v:g}" for v in cell.center)
+        print(f"{model.name}: {cell.board.describe()}, centre {center} m")
         print(format_plan(res, args.length_scale))
         if args.out:
             print(f"wrote {len(res.q)} joint configurations to {args.out}")
@@ -119,14 +130,13 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument(
         "--board-center",
-        default="0.45,0,0",
         help="X,Y,Z of the pattern centre in the base frame, m; the board lies flat, face up "
-        "(default 0.45,0,0)",
+        "(default 0.45,0,0, the simulation's cell)",
     )
     p.add_argument(
         "--handeye",
-        default="0,0.04,0.06",
-        help="flange-from-camera guess X,Y,Z[,ROLL,PITCH,YAW] (m, deg; default 0,0.04,0.06)",
+        help="flange-from-camera guess X,Y,Z[,ROLL,PITCH,YAW] (m, deg; default 0,0.04,0.06, the "
+        "simulation's mount)",
     )
     p.add_argument("--poses", type=int, default=30, help="poses to select (default 30)")
     p.add_argument(

@@ -21,7 +21,8 @@ def run(args: argparse.Namespace) -> int:
     from relcal.reporting.documents import simulation_document
     from relcal.reporting.text import format_simulation
     from relcal.robot.kinematics import make_layout
-    from relcal.sim.simulate import load_errors, simulate
+    from relcal.sim.scenario import load_errors
+    from relcal.sim.simulate import simulate
 
     model = load_robot(args)
     if args.images:

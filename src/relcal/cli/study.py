@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from relcal.cli.common import json_arg, load_robot, robot_args
-from relcal.cli.observability import add_noise_arg, read_joints, simulated_joints
+from relcal.cli.observability import add_noise_arg
 
 EPILOG = """\
 examples:
@@ -26,13 +26,14 @@ with joint noise) times the number of poses.
 
 def run(args: argparse.Namespace) -> int:
     from relcal.calibration.noise import Noise
+    from relcal.data.dataset import read_joints
     from relcal.errors import RelcalError
     from relcal.io import write_json
     from relcal.reporting.documents import study_document
     from relcal.reporting.text import format_study
     from relcal.robot.kinematics import make_layout
-    from relcal.sim.simulate import load_errors
-    from relcal.sim.study import make_scenario, study
+    from relcal.sim.scenario import load_errors, make_scenario, simulated_joints
+    from relcal.sim.study import study
 
     model = load_robot(args)
     if args.poses and Path(args.poses).exists():

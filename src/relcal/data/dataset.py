@@ -407,9 +407,40 @@ def _joint_values(path: Path, q: np.ndarray, model: RobotModel, unit: str) -> np
                 f"{path}: no joint angle exceeds {peak:.2f}, which looks like radians, but "
                 "dataset.yaml declares joint_unit: deg"
             )
-    if unit == "deg":
-        q = np.where(revolute, np.radians(q), q)
-    return q
+    return joints_from_unit(model, q, unit)
+
+
+def read_joints(path: str | Path, model: RobotModel, joint_unit: str = "deg") -> np.ndarray:
+    """Joint values ``(N, n)`` (rad, m) from any CSV whose header names the joints (``q1..qn``
+    or the joint names; other columns are ignored, so a plan or a dataset's samples.csv both
+    work); angles in ``joint_unit``, prismatic joints in m."""
+    path = Path(path)
+    header, data = read_table(path, "pose")
+    joints = _joint_columns(path, header, model)
+    return joints_from_unit(model, _read_columns(path, header, data, joints), joint_unit)
+
+
+def _read_columns(path: Path, header: list[str], data: list, columns) -> np.ndarray:
+    """The numbers of ``columns`` ``(N, len(columns))``; errors name the file, line and column."""
+    idx = [header.index(c) for c in columns]
+    values = []
+    for row in data:
+        if len(row) != len(header):
+            raise RelcalError(f"{path} line {row.line}: {len(row)} fields, expected {len(header)}")
+        values.append(
+            [parse_number(path, row.line, c, row[i]) for c, i in zip(columns, idx, strict=True)]
+        )
+    return np.array(values, dtype=float).reshape(-1, len(idx))
+
+
+def joints_from_unit(model: RobotModel, q: np.ndarray, unit: str) -> np.ndarray:
+    """Joint values ``(N, n)`` in ``unit`` (deg or rad; prismatic joints in m) to rad and m."""
+    return np.where(model.prismatic, q, np.radians(q)) if unit == "deg" else q
+
+
+def joints_in_unit(model: RobotModel, q: np.ndarray, unit: str) -> np.ndarray:
+    """Joint values ``(N, n)`` in rad and m to ``unit`` (deg or rad; prismatic joints in m)."""
+    return np.where(model.prismatic, q, np.degrees(q)) if unit == "deg" else q
 
 
 def _poses(path: Path, values: np.ndarray, lines: list[int]) -> np.ndarray:
@@ -440,22 +471,23 @@ def _rpy_poses(path: Path, values: np.ndarray, unit: str) -> np.ndarray:
 def write_samples(
     path: Path, ids, q_deg: np.ndarray, images=None, poses=None, positions_only: bool = False
 ) -> str:
-    """CSV text of a samples table (joint angles as given, poses as x..qw, or with
-    ``positions_only`` the translations of ``poses`` as x, y, z)."""
+    """CSV text of a samples table (joint values as given, then an image path, a pose as x..qw,
+    with ``positions_only`` the translations of ``poses`` as x, y, z, or none of them: a table of
+    joint configurations)."""
     n = q_deg.shape[1]
     header = ["id", *[f"q{i + 1}" for i in range(n)]]
     if images is not None:
         header.append("image")
-    else:
+    elif poses is not None:
         header += list(POSITION_COLUMNS if positions_only else POSE_COLUMNS)
     lines = [",".join(header)]
     for k, sid in enumerate(ids):
         cells = [str(sid), *[f"{v:.12g}" for v in q_deg[k]]]
         if images is not None:
             cells.append(str(images[k]))
-        elif positions_only:
+        elif poses is not None and positions_only:
             cells += [f"{v:.12g}" for v in poses[k][:3, 3]]
-        else:
+        elif poses is not None:
             quat = Rotation.from_matrix(poses[k][:3, :3]).as_quat()
             cells += [f"{v:.12g}" for v in (*poses[k][:3, 3], *quat)]
         lines.append(",".join(cells))

@@ -35,7 +35,7 @@ from relcal.calibration.identifiability import (
     parallel_pairs,
     scaled,
 )
-from relcal.calibration.measurement import Problem, make_pairs, residuals
+from relcal.calibration.measurement import Problem, residuals
 from relcal.calibration.noise import Noise
 from relcal.calibration.uncertainty import (
     Accuracy,
@@ -44,35 +44,8 @@ from relcal.calibration.uncertainty import (
     parameter_covariance,
     predicted_accuracy,
 )
-from relcal.robot.kinematics import fk, make_layout
+from relcal.robot.kinematics import make_layout
 from relcal.robot.model import RobotModel
-
-
-def nominal_problem(
-    model: RobotModel,
-    q: np.ndarray,
-    handeye: np.ndarray,
-    formulation: str = "invariant",
-    measure: str = "pose",
-    pairing: str = "consecutive",
-) -> Problem:
-    """The identification problem at configurations ``q`` ``(N, n)`` with the nominal camera
-    poses as measurements (the Jacobian, and so everything here, does not depend on them).
-    ``handeye`` is the flange-from-camera ``X``: estimated (frame-invariant) or the tool."""
-    if formulation == "invariant":
-        ident_model, x = model, handeye
-    else:
-        ident_model, x = replace(model, tool=model.tool @ handeye), np.eye(4)
-    return Problem(
-        model=ident_model,
-        layout=make_layout(model),
-        q=q,
-        poses=fk(ident_model, q) @ x,
-        formulation=formulation,
-        measure=measure,
-        pairs=make_pairs(len(q), pairing),
-        handeye=x,
-    )
 
 
 def _misaligned(model: RobotModel, pair: ParallelPair, angle: float) -> RobotModel:

@@ -46,7 +46,7 @@ from relcal.calibration.identifiability import (
     index_values,
     observability_indices,
 )
-from relcal.calibration.measurement import Formulation, Measure, Problem
+from relcal.calibration.measurement import Formulation, Measure, Problem, camera_problem
 from relcal.calibration.noise import Noise
 from relcal.calibration.uncertainty import (
     Accuracy,
@@ -56,7 +56,6 @@ from relcal.calibration.uncertainty import (
     predicted_accuracy,
 )
 from relcal.design.cell import Cell
-from relcal.design.observability import nominal_problem
 from relcal.errors import RelcalError
 from relcal.geometry import DEG, MM, look_at
 from relcal.robot.ik import joint_layout, solve
@@ -274,7 +273,7 @@ def selection_problem(
     measure: Measure = "pose",
 ) -> Problem:
     """The identification problem the plan is for (poses are the nominal camera poses)."""
-    return nominal_problem(model, q, cell.handeye, formulation, measure)
+    return camera_problem(model, q, cell.handeye, formulation, measure)
 
 
 @dataclass(frozen=True)
@@ -588,13 +587,3 @@ def plan(
         names=problem.full_layout.names,
         random_q=random_q,
     )
-
-
-def joints_csv(model: RobotModel, q: np.ndarray, joint_unit: str = "deg") -> str:
-    """``id,q1..qn`` lines (angles in ``joint_unit``, prismatic joints in m)."""
-    values = np.where(model.prismatic, q, np.degrees(q)) if joint_unit == "deg" else q
-    header = ",".join(["id", *[f"q{i + 1}" for i in range(model.n_joints)]])
-    lines = [header] + [
-        ",".join([f"p{k + 1:03d}", *[f"{v:.6f}" for v in row]]) for k, row in enumerate(values)
-    ]
-    return "\n".join(lines) + "\n"

@@ -18,7 +18,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from relcal import geometry as tf
 from relcal.errors import RelcalError
@@ -96,20 +95,6 @@ def joint_layout(model: RobotModel) -> Layout:
     kinds = tuple("d" if p else "theta_off" for p in model.prismatic)
     names = tuple(f"q[{i + 1}]" for i in range(model.n_joints))
     return Layout(names, kinds, tuple(range(model.n_joints)))
-
-
-def pose_error(target: np.ndarray, pose: np.ndarray) -> np.ndarray:
-    """Error ``(N, 6)`` from ``pose`` to ``target`` (both ``(N, 4, 4)``), base frame.
-
-    Position difference (m), then the rotation vector (rad) of ``R_target R_pose^T``: the rows of
-    :func:`relcal.robot.kinematics.pose_jacobian`.
-    """
-    out = np.zeros((len(pose), 6))
-    if len(pose):
-        out[:, :3] = target[:, :3, 3] - pose[:, :3, 3]
-        rel = target[:, :3, :3] @ np.swapaxes(pose[:, :3, :3], -1, -2)
-        out[:, 3:] = Rotation.from_matrix(rel).as_rotvec()
-    return out
 
 
 def _as_targets(target: np.ndarray) -> tuple[np.ndarray, bool]:
@@ -351,7 +336,7 @@ def _drop_wrong(model: RobotModel, q: np.ndarray, targets: np.ndarray) -> np.nda
     ok = ~np.isnan(q).any(axis=-1)
     flat = np.where(ok[..., None], q, 0.0).reshape(-1, n)
     poses = fk(model, flat)
-    err_all = pose_error(np.repeat(targets, k, axis=0), poses).reshape(n_targets, k, 6)
+    err_all = tf.pose_error(np.repeat(targets, k, axis=0), poses).reshape(n_targets, k, 6)
     err = np.where(ok, np.abs(err_all).max(axis=-1), np.inf)
     return np.where((err <= _VERIFY_TOL)[..., None], q, np.nan)
 
@@ -462,7 +447,7 @@ def solve_numeric(
     """
     targets, single = _as_targets(target)
     q = np.clip(_as_joints(model, seed, len(targets), "seed"), model.lower, model.upper)
-    err = pose_error(targets, fk(model, q))
+    err = tf.pose_error(targets, fk(model, q))
     cost = np.einsum("ni,ni->n", err, err)
     lam = np.full(len(targets), float(damping))
     grow = np.full(len(targets), 2.0)
@@ -474,7 +459,7 @@ def solve_numeric(
             break
         step, predicted = _lm_step(model, q[act], err[act], lam[act])
         trial = np.clip(q[act] + step, model.lower, model.upper)
-        trial_err = pose_error(targets[act], fk(model, trial))
+        trial_err = tf.pose_error(targets[act], fk(model, trial))
         trial_cost = np.einsum("ni,ni->n", trial_err, trial_err)
         gain = (cost[act] - trial_cost) / np.maximum(predicted, 1e-300)
         better = trial_cost < cost[act]

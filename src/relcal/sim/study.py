@@ -1,12 +1,12 @@
 """Monte Carlo study: many noisy simulated calibrations against the predicted covariance.
 
-One :class:`Scenario` fixes the robot, the joint configurations, the true geometric errors and
-hand-eye transform, and the noise model. Each trial measures the same poses with new noise (seeded
-per trial, so results do not depend on the number of worker processes), identifies the parameters
-on the identifiable subset, and keeps the estimate. The empirical standard deviation of every
-estimated parameter is then compared with the prediction of :mod:`uncertainty` for the
-same estimator (the Cramer-Rao bound for the noise-weighted one), and the mean with the noise-free
-estimate (the bias test).
+One :class:`relcal.sim.scenario.Scenario` fixes the robot, the joint configurations, the true
+geometric errors and hand-eye transform, and the noise model. Each trial measures the same poses
+with new noise (seeded per trial, so results do not depend on the number of worker processes),
+identifies the parameters on the identifiable subset, and keeps the estimate. The empirical
+standard deviation of every estimated parameter is then compared with the prediction of
+:mod:`relcal.calibration.uncertainty` for the same estimator (the Cramer-Rao bound for the
+noise-weighted one), and the mean with the noise-free estimate (the bias test).
 
 With ``sampling="random"`` the trials are independent draws; the sample standard deviation of T
 trials then scatters by about ``1/sqrt(2 (T - 1))`` (5 % at 200 trials) around the true one, so a
@@ -24,147 +24,23 @@ import os
 import time
 from collections.abc import Iterator
 from concurrent.futures import ProcessPoolExecutor, as_completed
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import Literal
 
 import numpy as np
 
-from relcal import geometry as tf
 from relcal.calibration.identifiability import analyse_problem
 from relcal.calibration.identify import identify_lm, identify_weighted
-from relcal.calibration.measurement import Formulation, Measure, PairStrategy, Problem, make_pairs
-from relcal.calibration.noise import Noise
+from relcal.calibration.measurement import Problem
 from relcal.calibration.uncertainty import (
     Estimator,
     Uncertainty,
     parameter_covariance,
 )
 from relcal.errors import RelcalError
-from relcal.geometry import DEG, MM
-from relcal.robot.kinematics import apply_errors, fk, make_layout
-from relcal.robot.model import RobotModel
-from relcal.sim.simulate import random_errors
+from relcal.sim.scenario import Scenario, clean_poses, noisy_measurement, problem_for, truth_vector
 
 Sampling = Literal["random", "matched"]
-DEFAULT_HANDEYE = tf.from_vector(np.array([0.0, 0.04, 0.06, 0.0, 0.0, 0.0]))
-DEFAULT_BOARD = tf.from_vector(np.array([0.55, 0.0, 0.0, np.pi, 0.0, 0.3]))  # unknown W
-
-
-@dataclass(frozen=True)
-class Scenario:
-    """A simulated calibration: the truth and how it is measured.
-
-    ``q`` ``(N, n)`` commanded joints (rad); ``errors`` true geometric errors on
-    ``make_layout(model)`` (m, rad); ``handeye`` the true flange-from-camera ``X`` and
-    ``handeye_guess`` the one the identification starts from (frame-invariant formulation; the
-    published one uses the true ``X`` as the tool); ``board`` the board-from-base ``W``.
-    """
-
-    model: RobotModel
-    q: np.ndarray
-    errors: np.ndarray
-    handeye: np.ndarray
-    handeye_guess: np.ndarray
-    board: np.ndarray
-    noise: Noise
-    formulation: Formulation = "invariant"
-    measure: Measure = "pose"
-    pairing: PairStrategy = "consecutive"
-
-    @property
-    def noise_dimension(self) -> int:
-        """Independent standard normals per trial: 6 per pose, plus one per joint reading."""
-        n_pose, n_joint = self.q.shape
-        return n_pose * (6 + (n_joint if np.any(np.asarray(self.noise.joints) > 0) else 0))
-
-
-def make_scenario(
-    model: RobotModel,
-    q: np.ndarray,
-    noise: Noise,
-    seed: int = 0,
-    formulation: Formulation = "invariant",
-    measure: Measure = "pose",
-    pairing: PairStrategy = "consecutive",
-    errors: np.ndarray | None = None,
-    handeye: np.ndarray = DEFAULT_HANDEYE,
-) -> Scenario:
-    """A scenario with random errors (0.1..0.9 mm, 0.01..0.9 deg, seeded) unless given, and, for
-    the frame-invariant formulation, a hand-eye guess about 1 mm / 0.5 deg off the truth."""
-    rng = np.random.default_rng(seed)
-    layout = make_layout(model)
-    errors = random_errors(layout, rng) if errors is None else np.asarray(errors, dtype=float)
-    guess = handeye
-    if formulation == "invariant":
-        offset = np.concatenate([rng.normal(0, 1 * MM, 3), rng.normal(0, 0.5 * DEG, 3)])
-        guess = handeye @ tf.from_vector(offset)
-    return Scenario(
-        model=model,
-        q=np.asarray(q, dtype=float),
-        errors=errors,
-        handeye=handeye,
-        handeye_guess=guess,
-        board=DEFAULT_BOARD,
-        noise=noise,
-        formulation=formulation,
-        measure=measure,
-        pairing=pairing,
-    )
-
-
-def clean_poses(scenario: Scenario) -> np.ndarray:
-    """Noise-free measured poses ``(N, 4, 4)``: ``W F_true X`` (frame-invariant), else the camera
-    pose in a base-aligned frame shifted by an unknown translation (published) or not (absolute)."""
-    true_model = apply_errors(scenario.model, make_layout(scenario.model), scenario.errors)
-    camera = fk(true_model, scenario.q) @ scenario.handeye
-    if scenario.formulation == "invariant":
-        return scenario.board @ camera
-    if scenario.formulation == "published":
-        camera[:, :3, 3] -= scenario.board[:3, 3]
-    return camera
-
-
-def problem_for(scenario: Scenario, q: np.ndarray, poses: np.ndarray) -> Problem:
-    """The identification problem for measured joints ``q`` and poses."""
-    model = scenario.model
-    handeye = scenario.handeye_guess
-    if scenario.formulation != "invariant":
-        model = replace(model, tool=model.tool @ scenario.handeye)
-        handeye = np.eye(4)
-    return Problem(
-        model=model,
-        layout=make_layout(scenario.model),
-        q=q,
-        poses=poses,
-        formulation=scenario.formulation,
-        measure=scenario.measure,
-        pairs=make_pairs(len(q), scenario.pairing),
-        handeye=handeye,
-    )
-
-
-def truth_vector(scenario: Scenario) -> np.ndarray:
-    """The true parameters on the problem's full layout (hand-eye error as ``X_guess^-1 X``)."""
-    if scenario.formulation != "invariant":
-        return scenario.errors.copy()
-    offset = tf.to_vector(tf.invert(scenario.handeye_guess) @ scenario.handeye)
-    return np.concatenate([scenario.errors, offset])
-
-
-def noisy_measurement(
-    scenario: Scenario, clean: np.ndarray, z: np.ndarray
-) -> tuple[np.ndarray, np.ndarray]:
-    """Joint readings ``(N, n)`` and measured poses ``(N, 4, 4)`` for standard normals ``z``
-    ``(D,)``: pose errors ``C exp(eps)`` in the camera frame, joint errors added to the readings."""
-    n_pose, n_joint = scenario.q.shape
-    noise = scenario.noise
-    sd = np.r_[np.full(3, noise.position), np.full(3, noise.orientation)]
-    eps = z[: 6 * n_pose].reshape(n_pose, 6) * sd
-    poses = clean @ tf.from_vector(eps)
-    q = scenario.q
-    if z.size > 6 * n_pose:
-        q = q + z[6 * n_pose :].reshape(n_pose, n_joint) * np.asarray(noise.joints, dtype=float)
-    return q, poses
 
 
 def standard_normals(seed: int, trials: int, dim: int, sampling: Sampling) -> np.ndarray:

@@ -1,7 +1,8 @@
 """Synthetic image datasets: a robot with known errors photographs a board, rendered with the
 real camera model, so that the whole image pipeline can be checked against the truth.
 
-The board lies on the table with its centre at ``Setup.board_center`` and its z axis pointing
+The truth is a :class:`relcal.sim.scenario.Scenario` in a cell with this module's camera and
+board: the board lies on the table with its centre at ``Cell.center`` and its z axis pointing
 down (into the table), so a camera looking down at it sees its front, as OpenCV expects.
 """
 
@@ -9,7 +10,7 @@ from __future__ import annotations
 
 import multiprocessing
 from concurrent.futures import ProcessPoolExecutor
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import cv2
@@ -18,14 +19,14 @@ import yaml
 from tqdm import tqdm
 
 from relcal import geometry as tf
-from relcal.data.dataset import write_samples
-from relcal.design.cell import Setup, joint_path
-from relcal.geometry import DEG, MM
+from relcal.calibration.noise import Noise
+from relcal.data.dataset import joints_in_unit, write_samples
+from relcal.design.cell import Cell, default_board
 from relcal.io import write_text
-from relcal.robot.kinematics import Layout, apply_errors, fk, make_layout
+from relcal.robot.kinematics import Layout, make_layout
 from relcal.robot.model import RobotModel
-from relcal.sim.simulate import random_errors
-from relcal.vision.boards import Board, board_points, board_to_spec
+from relcal.sim.scenario import clean_poses, make_scenario, measure_once
+from relcal.vision.boards import Board, board_to_spec
 from relcal.vision.camera import Camera, save_camera
 from relcal.vision.render import render_board
 
@@ -38,7 +39,7 @@ DEFAULT_CAMERA = Camera(
     width=2448,
     height=2048,
 )  # 2448 x 2048 px, 3.45 um pixels, 8 mm lens
-DEFAULT_BOARD = Board(type="chessboard", rows=7, columns=10, spacing=0.02)
+DEFAULT_BOARD = default_board()
 
 
 @dataclass(frozen=True)
@@ -50,13 +51,6 @@ class Truth:
     errors: np.ndarray  # true geometric errors in ``layout``
     handeye: np.ndarray  # true flange-from-camera X
     board_pose: np.ndarray  # board frame in the robot base frame
-
-
-def board_pose(board: Board, center: np.ndarray) -> np.ndarray:
-    """Board frame in the base frame: centred on ``center``, z axis down, x along base x."""
-    middle = board_points(board).mean(axis=0)
-    rot = np.diag([1.0, -1.0, -1.0])
-    return tf.homogeneous(rot, center - rot @ middle)
 
 
 def _render_to_file(job: tuple) -> None:
@@ -75,7 +69,7 @@ def write_image_dataset(
     seed: int = 0,
     board: Board = DEFAULT_BOARD,
     camera: Camera = DEFAULT_CAMERA,
-    setup: Setup | None = None,
+    cell: Cell | None = None,
     blur_sigma: float = 0.8,
     noise_sigma: float = 2.0,
     joint_noise: float = 0.0,
@@ -88,16 +82,13 @@ def write_image_dataset(
     from relcal.robot.model import dump_model
 
     root = Path(root)
-    setup = setup or Setup()
     rng = np.random.default_rng(seed)
-    layout = make_layout(model)
-    errors = random_errors(layout, rng)
-    true_model = apply_errors(model, layout, errors)
-    handeye_error = np.concatenate([rng.normal(0, 1 * MM, 3), rng.normal(0, 0.5 * DEG, 3)])
-    true_x = setup.handeye @ tf.from_vector(handeye_error)
-    q = joint_path(model, setup, n_images, rng)
-    w = board_pose(board, setup.board_center)
-    cams = tf.invert(w) @ fk(true_model, q) @ true_x  # T_board_camera
+    cell = replace(cell or Cell(), board=board, camera=camera)
+    scenario = make_scenario(
+        model, noise=Noise(joints=joint_noise), seed=rng, cell=cell, n_poses=n_images
+    )
+    q = scenario.q
+    cams = clean_poses(scenario)  # T_board_camera
     (root / "images").mkdir(parents=True, exist_ok=True)
     names = [f"images/{k:03d}.png" for k in range(len(q))]
     jobs = [
@@ -108,14 +99,14 @@ def write_image_dataset(
     with ProcessPoolExecutor(workers, mp_context=context) as pool:
         done = pool.map(_render_to_file, jobs)
         list(tqdm(done, total=len(jobs), disable=not progress, desc="rendering", unit="image"))
-    q_read = q + rng.normal(0.0, joint_noise, q.shape) if joint_noise > 0 else q
+    q_read, _ = measure_once(scenario, rng, cams)
     ids = [f"{k:03d}" for k in range(len(q))]
-    q_deg = np.where(model.prismatic, q_read, np.degrees(q_read))
+    q_deg = joints_in_unit(model, q_read, "deg")
     write_text(root / "samples.csv", write_samples(root / "samples.csv", ids, q_deg, images=names))
     write_text(root / "board.yaml", yaml.safe_dump(board_to_spec(board), sort_keys=False))
     save_camera(camera, root / "camera.yaml")
     write_text(root / "robot.yaml", dump_model(model))
-    xyz, rpy = tf.to_xyz_rpy(setup.handeye)
+    xyz, rpy = tf.to_xyz_rpy(scenario.handeye_guess)
     spec = {
         "robot": "robot.yaml",
         "hayati": "auto",
@@ -127,4 +118,6 @@ def write_image_dataset(
         "samples": "samples.csv",
     }
     write_text(root / "dataset.yaml", yaml.safe_dump(spec, sort_keys=False))
-    return Truth(true_model, layout, errors, true_x, w)
+    return Truth(
+        scenario.true_model, make_layout(model), scenario.errors, scenario.handeye, cell.board_pose
+    )
