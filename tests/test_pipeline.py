@@ -2,8 +2,10 @@
 and the real 2-axis positioner of robot_cal_tools."""
 
 import json
+from dataclasses import replace
 
 import numpy as np
+import pytest
 from conftest import DATA
 from helpers_dataset import synthetic_dataset
 
@@ -12,6 +14,8 @@ from relcal.cli import main
 from relcal.data.dataset import load_dataset
 from relcal.data.imaging import measure
 from relcal.data.importers import import_rct_positioner
+from relcal.reporting.documents import validation_document
+from relcal.robot.kinematics import apply_errors, make_layout
 
 
 def parameter_error(cal, truth):
@@ -58,6 +62,24 @@ def test_real_positioner_calibration(tmp_path):
     assert len(dataset.ids) == 205 and dataset.mode == "eye_to_hand"
     cal = calibrate(dataset, measure(dataset), holdout=0.25, seed=0)
     assert cal.result.converged
+    # Planted errors on real data: tell the calibration that the positioner's first link is off
+    # by 2 mm and 0.3 deg. It must find exactly that much more error, and the held-out pairs,
+    # much worse with the planted nominal model, must come back to the unplanted result.
+    layout = make_layout(dataset.model)
+    planted = np.zeros(layout.size)
+    planted[layout.names.index("a[1]")] = 2e-3
+    planted[layout.names.index("alpha[1]")] = np.radians(0.3)
+    wrong = replace(dataset, model=apply_errors(dataset.model, layout, planted))
+    off = calibrate(wrong, measure(wrong), holdout=0.25, seed=0)
+    for name in ("a[1]", "alpha[1]"):
+        k = layout.names.index(name)
+        recovered = cal.result.params[k] - off.result.params[k]
+        assert abs(recovered - planted[k]) < 0.01 * cal.std[k], name
+    right, planted_doc = validation_document(cal.validation), validation_document(off.validation)
+    for key in ("position_mm", "orientation_deg"):
+        assert planted_doc["baseline"][key]["rms"] > 1.5 * right["baseline"][key]["rms"]
+        calibrated = right["calibrated"][key]["rms"]
+        assert planted_doc["calibrated"][key]["rms"] == pytest.approx(calibrated, 1e-6)
     names = [c for c in cal.result.unidentifiable]
     assert any("theta_off[1]" in c and "rigid motion" in c for c in names)
     # The second joint's link is absorbed by X: one combination per link parameter, each led

@@ -1,6 +1,7 @@
 """Pose planning: feasibility checks, fast criteria against direct evaluation, greedy and exchange
 selection, the plan against random feasible sets, and the Monte Carlo confirmation."""
 
+import cv2
 import numpy as np
 import pytest
 
@@ -27,9 +28,11 @@ from relcal.design.plan import (
 )
 from relcal.errors import RelcalError
 from relcal.reporting.documents import accuracy_document
+from relcal.robot.kinematics import fk
 from relcal.robot.model import auto_hayati
 from relcal.sim.scenario import make_scenario
 from relcal.sim.study import study, worst
+from relcal.vision.boards import pattern_extent
 
 CELL = dict(center=np.array([0.4, 0.0, 0.0]))
 
@@ -48,11 +51,45 @@ def pool(hayati):
 
 
 def test_candidates_satisfy_every_constraint(hayati, pool):
+    """Each candidate against the constraints computed independently: OpenCV's projection of the
+    board's outer corners, distances and angles from the forward kinematics, and the joint
+    Jacobian by finite differences."""
     q, rejected = pool
     assert len(q) == 250
-    masks = check(hayati, Cell(), q, Constraints())
-    assert all(m.all() for m in masks.values())
     assert rejected["ik"] > 0 and rejected["board in view"] > 0  # the checks do reject
+    cell, c = Cell(), Constraints()
+    cam = cell.camera
+    k_matrix = np.array([[cam.fx, 0, cam.cx], [0, cam.fy, cam.cy], [0, 0, 1.0]])
+    x0, y0, x1, y1 = pattern_extent(cell.board)
+    corners = np.array([[x0, y0, 0], [x1, y0, 0], [x1, y1, 0], [x0, y1, 0]], dtype=float)
+    for qk in q[::10]:
+        camera = fk(hayati, qk[None])[0] @ cell.handeye  # base-from-camera
+        in_camera = np.linalg.inv(camera) @ cell.board_pose
+        rvec, _ = cv2.Rodrigues(np.ascontiguousarray(in_camera[:3, :3]))
+        tvec = np.ascontiguousarray(in_camera[:3, 3])
+        pix, _ = cv2.projectPoints(corners, rvec, tvec, k_matrix, np.zeros(5))
+        pix = pix.reshape(-1, 2)
+        depth = (in_camera[:3, :3] @ corners.T).T[:, 2] + in_camera[2, 3]
+        assert (depth > 0).all()
+        assert (pix >= c.margin_px).all()
+        assert (pix[:, 0] <= cam.width - 1 - c.margin_px).all()
+        assert (pix[:, 1] <= cam.height - 1 - c.margin_px).all()
+        sight = camera[:3, 3] - np.array([0.45, 0.0, 0.0])  # the default board centre
+        assert c.distance[0] <= np.linalg.norm(sight) <= c.distance[1]
+        angle = np.degrees(np.arccos(sight[2] / np.linalg.norm(sight)))  # board faces up (+z)
+        assert angle <= c.max_view_angle_deg
+        assert sight[2] >= c.clearance
+        assert ((qk >= hayati.lower) & (qk <= hayati.upper)).all()
+        # Singularity: the camera's twist per joint by central differences, lengths over 0.5 m.
+        cols = []
+        for j in range(len(qk)):
+            dq = np.zeros(len(qk))
+            dq[j] = 1e-6
+            cols.append(tf.pose_error(fk(hayati, qk + dq), fk(hayati, qk - dq))[0] / 2e-6)
+        jac = np.array(cols).T
+        jac[:3] /= c.length_scale
+        s = np.linalg.svd(jac, compute_uv=False)
+        assert s[-1] / s[0] >= c.min_inverse_condition
 
 
 def test_each_constraint_rejects_what_it_should(hayati, pool):
@@ -151,10 +188,10 @@ def test_board_and_camera_arguments(tmp_path):
     cam = parse_camera("2000,2000,640,480,1280,960")
     assert (cam.fx, cam.width, cam.height) == (2000, 1280, 960)
     frame = Cell(board=board, center=np.array([0.5, 0.1, 0.0])).board_pose
-    middle = frame @ np.array([0.08, 0.05, 0.0, 1.0])  # pattern centre of 7x10 squares of 20 mm
-    np.testing.assert_allclose(middle[:3], [0.5, 0.1, 0.0], atol=1e-12)
-    assert frame[:3, 2] @ [0, 0, 1] == pytest.approx(-1)  # z into the table
-    np.testing.assert_allclose(tf.invert(frame) @ frame, np.eye(4), atol=1e-12)
+    # By hand: 7 x 10 squares of 20 mm put the pattern centre at (0.08, 0.05) in the board frame;
+    # lying face up with x along base x, the board's y and z axes point along base -y and -z.
+    np.testing.assert_allclose(frame[:3, :3], np.diag([1.0, -1.0, -1.0]), atol=1e-15)
+    np.testing.assert_allclose(frame[:3, 3], [0.5 - 0.08, 0.1 + 0.05, 0.0], atol=1e-15)
 
 
 def test_command_line_plan(tmp_path, hayati, capsys):
