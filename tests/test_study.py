@@ -9,8 +9,8 @@ import scipy.stats
 from conftest import random_q
 
 import relcal.sim.study
+from relcal.calibration.identify import identify_weighted
 from relcal.calibration.noise import Noise
-from relcal.calibration.uncertainty import identify_weighted
 from relcal.cli import main
 from relcal.errors import RelcalError
 from relcal.geometry import DEG, MM
