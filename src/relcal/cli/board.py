@@ -3,13 +3,8 @@
 from __future__ import annotations
 
 import argparse
-from pathlib import Path
-from typing import TYPE_CHECKING
 
 from relcal.cli.common import json_arg
-
-if TYPE_CHECKING:
-    from relcal.vision.boards import Board
 
 EPILOG = """\
 examples:
@@ -49,41 +44,13 @@ def run(args: argparse.Namespace) -> int:
         write_text(args.yaml, yaml.safe_dump(board_to_spec(board), sort_keys=False))
     if args.json:
         from relcal.io import write_json
+        from relcal.reporting.documents import board_document
 
-        doc = {**board_document(board), "file": str(path), **page_size(board, path, args.dpi)}
+        doc = board_document(board, path, args.dpi)
         write_json(args.json, {**doc, "yaml": args.yaml})
     if not args.quiet:
         print(f"{board.describe()}\nwritten to {path}")
     return 0
-
-
-def board_document(board: Board) -> dict:
-    """The board's geometry for ``--json``: the YAML fields with their unit (m) in the key,
-    the white margin and dot diameter in effect, and the one-line description."""
-    from relcal.vision.boards import board_to_spec
-
-    lengths = ("square", "spacing", "marker", "diameter", "margin")
-    doc = {f"{k}_m" if k in lengths else k: v for k, v in board_to_spec(board).items()}
-    doc["margin_m"] = board.border
-    if board.type in ("circles", "acircles"):
-        doc["diameter_m"] = board.dot_diameter
-    return {**doc, "description": board.describe()}
-
-
-def page_size(board: Board, path: Path, dpi: float) -> dict:
-    """The sheet size (mm; for PNG also pixels at ``dpi``)."""
-    from relcal.vision.boards import sheet_size
-
-    width, height = (v * 1e3 for v in sheet_size(board))
-    doc = {"page_width_mm": round(width, 3), "page_height_mm": round(height, 3)}
-    if path.suffix.lower() == ".png":
-        px = 1e-3 / 0.0254 * dpi
-        doc |= {
-            "page_width_px": round(width * px),
-            "page_height_px": round(height * px),
-            "dpi": dpi,
-        }
-    return doc
 
 
 def register(sub: argparse._SubParsersAction) -> None:

@@ -19,6 +19,7 @@ def run_measure(args: argparse.Namespace) -> int:
     from relcal.data.dataset import joints_in_unit, load_dataset, write_samples
     from relcal.data.imaging import measure
     from relcal.io import write_json, write_text
+    from relcal.reporting.documents import measurements_document
 
     dataset = load_dataset(args.dataset)
     m = measure(dataset, workers=args.workers, progress=not args.quiet)
@@ -35,25 +36,13 @@ def run_measure(args: argparse.Namespace) -> int:
             positions_only=dataset.measured == "position",
         ),
     )
-    rejected = [{"id": dataset.ids[i], "reason": m.reasons[i]} for i in range(len(ok)) if not ok[i]]
-    rms = {
-        dataset.ids[i]: float(m.rms_px[i])
-        for i in range(len(ok))
-        if ok[i] and m.rms_px[i] == m.rms_px[i]
-    }
-    doc = {
-        "n_samples": len(ok),
-        "n_posed": int(ok.sum()),
-        "rejected": rejected,
-        "reprojection_rms_px": rms,
-        "intrinsics": m.intrinsics_report,
-    }
+    doc = measurements_document(dataset, m)
     write_json(out / "measurements.json", doc)
     if args.json:
         write_json(args.json, doc)
     if not args.quiet:
         print(f"{int(ok.sum())} of {len(ok)} samples posed; written to {out}/poses.csv")
-        for r in rejected:
+        for r in doc["rejected"]:
             print(f"  rejected {r['id']}: {r['reason']}")
     return 0
 

@@ -5,14 +5,10 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import numpy as np
 
 from relcal.cli.common import json_arg
-
-if TYPE_CHECKING:
-    from relcal.calibration.compensate import Compensation
 
 EPILOG = """\
 examples:
@@ -29,48 +25,13 @@ output:  id, q1..qn (corrected), converged, dq1..dqn (correction), predicted_pos
 """
 
 
-def read_targets(path: Path, model, joint_unit: str):
-    """``(ids, poses (N,4,4) or None, q (N,n) or None)`` from a targets CSV."""
-    from scipy.spatial.transform import Rotation
-
-    from relcal import geometry as tf
-    from relcal.data.dataset import POSE_COLUMNS, parse_number
-    from relcal.errors import RelcalError
-    from relcal.io import read_table
-
-    header, data = read_table(path, "target")
-    joints = [f"q{i + 1}" for i in range(model.n_joints)]
-    cols = list(POSE_COLUMNS) if set(POSE_COLUMNS) <= set(header) else joints
-    if not set(cols) <= set(header) or "id" not in header:
-        raise RelcalError(
-            f"{path} line 1: header: expected id and either {', '.join(POSE_COLUMNS)} or "
-            f"{', '.join(joints)}"
-        )
-    idx = [header.index(c) for c in cols]
-    ids, values = [], []
-    for row in data:
-        line = row.line
-        if len(row) != len(header):
-            raise RelcalError(f"{path} line {line}: {len(row)} fields, expected {len(header)}")
-        ids.append(row[header.index("id")].strip())
-        values.append([parse_number(path, line, c, row[i]) for c, i in zip(cols, idx, strict=True)])
-    values = np.array(values)
-    if cols == joints:
-        q = np.where(model.prismatic, values, np.radians(values)) if joint_unit == "deg" else values
-        return ids, None, q
-    quat = values[:, 3:]
-    norms = np.linalg.norm(quat, axis=1)
-    if np.any(np.abs(norms - 1) > 1e-3):
-        line = int(np.argmax(np.abs(norms - 1))) + 2
-        raise RelcalError(f"{path} line {line}: qx, qy, qz, qw: expected a unit quaternion")
-    rot = Rotation.from_quat(quat / norms[:, None]).as_matrix()
-    return ids, tf.homogeneous(rot, values[:, :3]), None
-
-
 def run(args: argparse.Namespace) -> int:
     from relcal.calibration.compensate import compensate
+    from relcal.data.dataset import joints_in_unit, read_targets
     from relcal.errors import RelcalError
     from relcal.io import write_json, write_text
+    from relcal.reporting.documents import compensation_document
+    from relcal.reporting.text import compensation_csv
     from relcal.robot.kinematics import fk
     from relcal.robot.model import get_robot, load_model
 
@@ -90,12 +51,11 @@ def run(args: argparse.Namespace) -> int:
         poses = fk(nominal, q_program)
     comp = compensate(calibrated, poses, nominal=nominal, q_nominal=q_program)
 
-    def angles(q):
-        return np.where(calibrated.prismatic, q, np.degrees(q)) if args.joint_unit == "deg" else q
-
-    q = angles(comp.q)
-    dq = None if comp.q_nominal is None else q - angles(comp.q_nominal)
-    text = joints_csv(ids, q, comp, dq)
+    q = joints_in_unit(calibrated, comp.q, args.joint_unit)
+    dq = None
+    if comp.q_nominal is not None:
+        dq = q - joints_in_unit(calibrated, comp.q_nominal, args.joint_unit)
+    text = compensation_csv(ids, q, comp, dq)
     if args.out:
         write_text(args.out, text)
     else:
@@ -103,62 +63,11 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         units = np.where(calibrated.prismatic, "m", args.joint_unit).tolist()
         inputs = {"model": args.model, "targets_file": args.targets, "nominal": args.nominal}
-        write_json(args.json, {**inputs, **joints_document(ids, q, comp, dq, units)})
+        write_json(args.json, {**inputs, **compensation_document(ids, q, comp, dq, units)})
     failed = int((~comp.converged).sum())
     if failed and not args.quiet:
         print(f"relcal: {failed} target(s) not reached within joint limits", file=sys.stderr)
     return 0 if failed == 0 else 1
-
-
-def joints_csv(ids: list[str], q: np.ndarray, comp: Compensation, dq: np.ndarray | None) -> str:
-    """The output CSV: corrected joints ``q`` and corrections ``dq`` (display units) per id."""
-    n = q.shape[1]
-    header = ["id", *[f"q{i + 1}" for i in range(n)], "converged"]
-    if dq is not None:
-        header += [f"dq{i + 1}" for i in range(n)]
-        header += ["predicted_position_mm", "predicted_rotation_deg"]
-    lines = [",".join(header)]
-    for k, sid in enumerate(ids):
-        cells = [sid, *[f"{v:.10g}" for v in q[k]], str(bool(comp.converged[k]))]
-        if dq is not None:
-            cells += [f"{v:.6g}" for v in dq[k]]
-            cells += [
-                f"{comp.predicted_position_mm[k]:.6g}",
-                f"{comp.predicted_rotation_deg[k]:.6g}",
-            ]
-        lines.append(",".join(cells))
-    return "\n".join(lines) + "\n"
-
-
-def joints_document(
-    ids: list[str],
-    q: np.ndarray,
-    comp: Compensation,
-    dq: np.ndarray | None,
-    units: list[str],
-) -> dict:
-    """The ``--json`` document: the CSV's content per target (joints in ``units``, one per
-    joint), and a summary. Non-finite numbers become null."""
-
-    def number(v: float) -> float | None:
-        return float(v) if np.isfinite(v) else None
-
-    targets = []
-    for k, sid in enumerate(ids):
-        row = {"id": sid, "q": [number(v) for v in q[k]], "converged": bool(comp.converged[k])}
-        if dq is not None:
-            row["dq"] = [number(v) for v in dq[k]]
-            row["predicted_position_mm"] = number(comp.predicted_position_mm[k])
-            row["predicted_rotation_deg"] = number(comp.predicted_rotation_deg[k])
-        targets.append(row)
-    return {
-        "joint_units": units,
-        "targets": targets,
-        "summary": {
-            "n_targets": len(ids),
-            "n_not_converged": int((~comp.converged).sum()),
-        },
-    }
 
 
 def register(sub: argparse._SubParsersAction) -> None:

@@ -38,17 +38,9 @@ def run(args: argparse.Namespace) -> int:
 
         done = import_rct_positioner(args.file, args.out)
     if args.json:
-        write_json(
-            args.json,
-            {
-                "format": args.format,
-                "source": args.file,
-                "dataset": str(done.folder),
-                "files": [str(f) for f in done.files],
-                "n_samples": done.n_samples,
-                **extra,
-            },
-        )
+        from relcal.reporting.documents import import_document
+
+        write_json(args.json, {**import_document(done, args.format, args.file), **extra})
     if not args.quiet:
         shown = [f.name for f in done.files if f.parent == done.folder]
         n_images = len(done.files) - len(shown)

@@ -420,6 +420,28 @@ def read_joints(path: str | Path, model: RobotModel, joint_unit: str = "deg") ->
     return joints_from_unit(model, _read_columns(path, header, data, joints), joint_unit)
 
 
+def read_targets(
+    path: str | Path, model: RobotModel, joint_unit: str = "deg"
+) -> tuple[list[str], np.ndarray | None, np.ndarray | None]:
+    """``(ids, poses (N, 4, 4) or None, q (N, n) or None)`` from a CSV of targets: ``id`` and
+    either tool poses ``x..qw`` in the base frame (m, unit quaternion) or joints ``q1..qn`` (a
+    joint program; angles in ``joint_unit``, prismatic joints in m)."""
+    path = Path(path)
+    header, data = read_table(path, "target")
+    joints = [f"q{i + 1}" for i in range(model.n_joints)]
+    columns = list(POSE_COLUMNS) if set(POSE_COLUMNS) <= set(header) else joints
+    if not set(columns) <= set(header) or "id" not in header:
+        raise RelcalError(
+            f"{path} line 1: header: expected id and either {', '.join(POSE_COLUMNS)} or "
+            f"{', '.join(joints)}"
+        )
+    values = _read_columns(path, header, data, columns)
+    ids = [row[header.index("id")].strip() for row in data]
+    if columns == joints:
+        return ids, None, joints_from_unit(model, values, joint_unit)
+    return ids, _poses(path, values, [row.line for row in data]), None
+
+
 def _read_columns(path: Path, header: list[str], data: list, columns) -> np.ndarray:
     """The numbers of ``columns`` ``(N, len(columns))``; errors name the file, line and column."""
     idx = [header.index(c) for c in columns]

@@ -7,20 +7,45 @@ deg). The domain modules return dataclasses; only this module turns them into di
 from __future__ import annotations
 
 from collections.abc import Sequence
+from pathlib import Path
 
 import numpy as np
 
+from relcal.calibration.compensate import Compensation
 from relcal.calibration.identifiability import INDEX_NAMES, NUISANCE_KINDS, Indices
 from relcal.calibration.measurement import tracker_frames
 from relcal.calibration.pipeline import Calibration
 from relcal.calibration.uncertainty import Accuracy
 from relcal.calibration.validate import Validation, pooled, ratio_interval, stats
+from relcal.data.dataset import Dataset
+from relcal.data.imaging import Measurements
+from relcal.data.importers import Imported
 from relcal.design.observability import Report
 from relcal.design.plan import PlanResult, Quality
 from relcal.geometry import to_xyz_rpy
 from relcal.robot.model import RobotModel, model_to_dict
 from relcal.sim.simulate import Simulation
 from relcal.sim.study import StudyResult
+from relcal.vision.boards import Board, board_to_spec, sheet_size
+
+
+def measurements_document(dataset: Dataset, m: Measurements) -> dict:
+    """What ``relcal measure`` found: samples posed and rejected (with the reason), reprojection
+    RMS per posed sample (px), and the intrinsics report."""
+    ok = m.ok
+    return {
+        "n_samples": len(ok),
+        "n_posed": int(ok.sum()),
+        "rejected": [
+            {"id": dataset.ids[i], "reason": m.reasons[i]} for i in range(len(ok)) if not ok[i]
+        ],
+        "reprojection_rms_px": {
+            dataset.ids[i]: float(m.rms_px[i])
+            for i in range(len(ok))
+            if ok[i] and m.rms_px[i] == m.rms_px[i]
+        },
+        "intrinsics": m.intrinsics_report,
+    }
 
 
 def parameter_status(cal: Calibration) -> list[str]:
@@ -470,4 +495,76 @@ def study_document(res: StudyResult) -> dict:
                 strict=True,
             )
         ],
+    }
+
+
+def compensation_document(
+    ids: list[str],
+    q: np.ndarray,
+    comp: Compensation,
+    dq: np.ndarray | None,
+    units: list[str],
+) -> dict:
+    """The ``--json`` document: the CSV's content per target (joints in ``units``, one per
+    joint), and a summary. Non-finite numbers become null."""
+
+    def number(v: float) -> float | None:
+        return float(v) if np.isfinite(v) else None
+
+    targets = []
+    for k, sid in enumerate(ids):
+        row = {"id": sid, "q": [number(v) for v in q[k]], "converged": bool(comp.converged[k])}
+        if dq is not None:
+            row["dq"] = [number(v) for v in dq[k]]
+            row["predicted_position_mm"] = number(comp.predicted_position_mm[k])
+            row["predicted_rotation_deg"] = number(comp.predicted_rotation_deg[k])
+        targets.append(row)
+    return {
+        "joint_units": units,
+        "targets": targets,
+        "summary": {
+            "n_targets": len(ids),
+            "n_not_converged": int((~comp.converged).sum()),
+        },
+    }
+
+
+def board_document(board: Board, path: Path, dpi: float) -> dict:
+    """What ``relcal board`` wrote: the board's geometry (the YAML fields with their unit (m) in
+    the key, the white margin and dot diameter in effect, the one-line description), the file and
+    the sheet size (mm; for PNG also pixels at ``dpi``)."""
+    lengths = ("square", "spacing", "marker", "diameter", "margin")
+    doc = {f"{k}_m" if k in lengths else k: v for k, v in board_to_spec(board).items()}
+    doc["margin_m"] = board.border
+    if board.type in ("circles", "acircles"):
+        doc["diameter_m"] = board.dot_diameter
+    return {
+        **doc,
+        "description": board.describe(),
+        "file": str(path),
+        **_page_size(board, path, dpi),
+    }
+
+
+def _page_size(board: Board, path: Path, dpi: float) -> dict:
+    width, height = (v * 1e3 for v in sheet_size(board))
+    doc = {"page_width_mm": round(width, 3), "page_height_mm": round(height, 3)}
+    if path.suffix.lower() == ".png":
+        px = 1e-3 / 0.0254 * dpi
+        doc |= {
+            "page_width_px": round(width * px),
+            "page_height_px": round(height * px),
+            "dpi": dpi,
+        }
+    return doc
+
+
+def import_document(done: Imported, source_format: str, source: str) -> dict:
+    """What ``relcal import`` wrote: the source, the dataset folder, its files and samples."""
+    return {
+        "format": source_format,
+        "source": source,
+        "dataset": str(done.folder),
+        "files": [str(f) for f in done.files],
+        "n_samples": done.n_samples,
     }

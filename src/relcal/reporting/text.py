@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from relcal.calibration.compensate import Compensation
 from relcal.calibration.identify import Result
 from relcal.calibration.uncertainty import Accuracy, Uncertainty
 from relcal.design.observability import Report
@@ -485,3 +486,28 @@ def calibration_summary(doc: dict) -> str:
     for text in ident["unidentifiable"]:
         lines.append(f"  not identifiable: {text}")
     return "\n".join(lines)
+
+
+# --- compensation ---------------------------------------------------------------------------------
+
+
+def compensation_csv(
+    ids: list[str], q: np.ndarray, comp: Compensation, dq: np.ndarray | None
+) -> str:
+    """The output CSV: corrected joints ``q`` and corrections ``dq`` (display units) per id."""
+    n = q.shape[1]
+    header = ["id", *[f"q{i + 1}" for i in range(n)], "converged"]
+    if dq is not None:
+        header += [f"dq{i + 1}" for i in range(n)]
+        header += ["predicted_position_mm", "predicted_rotation_deg"]
+    lines = [",".join(header)]
+    for k, sid in enumerate(ids):
+        cells = [sid, *[f"{v:.10g}" for v in q[k]], str(bool(comp.converged[k]))]
+        if dq is not None:
+            cells += [f"{v:.6g}" for v in dq[k]]
+            cells += [
+                f"{comp.predicted_position_mm[k]:.6g}",
+                f"{comp.predicted_rotation_deg[k]:.6g}",
+            ]
+        lines.append(",".join(cells))
+    return "\n".join(lines) + "\n"
