@@ -26,6 +26,7 @@ from relcal.calibration.identifiability import Identifiability
 from relcal.calibration.measurement import pair_errors
 from relcal.calibration.pipeline import Calibration
 from relcal.calibration.validate import stats
+from relcal.reporting.text import pose_noise_parts
 from relcal.sim.simulate import Simulation
 
 BEFORE, AFTER, SPECIFIED, BAD = "#b0b8c1", "#1f6feb", "#e8833a", "#cf222e"
@@ -545,13 +546,10 @@ def _selection(doc: dict) -> Html:
         )
     noise = doc.get("noise_model")
     if noise:
+        mm, deg, rho = pose_noise_parts(noise)
         note += (
-            " Learned pose noise (camera frame): "
-            + ", ".join(f"{v:.3g}" for v in noise["std_mm"])
-            + " mm and "
-            + ", ".join(f"{v:.3g}" for v in noise["std_deg"])
-            + f" deg; largest translation-rotation correlation "
-            f"{noise['max_translation_rotation_correlation']:.2f}."
+            f" Learned pose noise (camera frame): {mm} mm and {deg} deg; largest "
+            f"translation-rotation correlation {rho}."
         )
     return Html(
         f"<h3>Model selection ({sel['folds']}-fold cross-validation on the training samples)</h3>"

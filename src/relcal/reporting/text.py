@@ -375,6 +375,14 @@ def format_study(res: StudyResult, length_scale: float = 0.5) -> str:
 # --- calibration ----------------------------------------------------------------------------------
 
 
+def pose_noise_parts(noise: dict) -> tuple[str, str, str]:
+    """The learned pose noise of a results document as text: the standard deviations in mm and
+    in deg (comma-separated) and the largest translation-rotation correlation."""
+    mm = ", ".join(f"{v:.3g}" for v in noise["std_mm"])
+    deg = ", ".join(f"{v:.3g}" for v in noise["std_deg"])
+    return mm, deg, f"{noise['max_translation_rotation_correlation']:.2f}"
+
+
 def _ratio_text(ratio: dict) -> str:
     lo, hi = ratio["ci95"]
     return f"x{ratio['after_over_before']:.3g}, 95% interval {lo:.3g}..{hi:.3g}"
@@ -455,13 +463,10 @@ def calibration_summary(doc: dict) -> str:
         lines.append(f"  {c['text']} = {c['value']:+.4g}{std} {c['unit']} (identifiable sum)")
     noise = doc.get("noise_model")
     if noise:
+        mm, deg, rho = pose_noise_parts(noise)
         lines.append(
-            "learned pose noise (camera frame): std "
-            + ", ".join(f"{v:.3g}" for v in noise["std_mm"])
-            + " mm, "
-            + ", ".join(f"{v:.3g}" for v in noise["std_deg"])
-            + f" deg; largest translation-rotation correlation "
-            f"{noise['max_translation_rotation_correlation']:.2f}"
+            f"learned pose noise (camera frame): std {mm} mm, {deg} deg; largest "
+            f"translation-rotation correlation {rho}"
         )
     if doc["rejected"]:
         lines.append(f"rejected frames ({len(doc['rejected'])}):")
