@@ -64,3 +64,41 @@ def held_out_error(problem, params, truth, rng, n=30):
     shell = replace(problem, q=q, pairs=make_pairs(n, "all"))
     held_out = replace(shell, poses=measured_poses(shell, truth, q))
     return np.abs(residuals(held_out, params, jacobian=False)).max()
+
+
+# Plausible link masses (kg) and centres of mass (m, in each link's frame), and a 1 kg payload
+# 5 cm beyond the tool: the A465 from its ~31 kg total (waist, upper arm, forearm, wrist), the FR3
+# rounded from the identified Panda parameters of Gaz et al. (IEEE RA-L 2019).
+LOADS = {
+    "a465": (
+        [8.0, 6.0, 4.0, 1.2, 0.8, 0.3],
+        [
+            [0.0, -0.1, 0.0],
+            [-0.15, 0.0, 0.02],
+            [0.0, -0.02, 0.15],
+            [0.0, 0.03, 0.0],
+            [0.0, 0.0, 0.02],
+            [0.0, 0.0, -0.02],
+        ],
+    ),
+    "franka_fr3": (
+        [4.97, 0.65, 3.23, 3.59, 1.23, 1.67, 0.74],
+        [
+            [0.004, 0.002, -0.048],
+            [-0.003, -0.029, 0.003],
+            [0.028, 0.039, -0.067],
+            [-0.053, 0.104, 0.028],
+            [-0.012, 0.041, -0.038],
+            [0.060, -0.014, -0.011],
+            [0.011, -0.004, 0.062],
+        ],
+    ),
+}
+
+
+def with_plausible_loads(model, name: str):
+    """``model`` (built-in ``name``) with the link masses of :data:`LOADS` and a 1 kg payload."""
+    from relcal.robot.model import with_loads
+
+    mass, com = LOADS[name]
+    return with_loads(model, np.array(mass), np.array(com), 1.0, np.array([0.0, 0.0, 0.05]))

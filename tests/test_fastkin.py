@@ -1,5 +1,7 @@
 """The compiled FK kernel against the NumPy reference: DH and MDH, Hayati's beta, prismatic
-joints, base and tool, to 1e-12; its sine/cosine; and the ``fk`` backend dispatch."""
+joints, base and tool, non-geometric terms, to 1e-12; its sine/cosine; and the ``fk`` backend
+dispatch. Numba is optional (the ``fast`` extra): without it this module is skipped, and
+``tests/test_nongeometric.py`` checks the error a ``backend="numba"`` call raises."""
 
 import subprocess
 import sys
@@ -9,7 +11,7 @@ import numpy as np
 import pytest
 from conftest import random_q
 
-pytest.importorskip("numba")
+pytest.importorskip("numba", reason="Numba is optional (pip install relcal[fast])")
 
 from relcal import geometry as tf  # noqa: E402
 from relcal.robot import fastkin, kinematics  # noqa: E402
@@ -77,12 +79,31 @@ def test_backends_agree_and_auto_dispatch(a465, rng):
     q = random_q(a465, 50, rng)
     reference = fk(a465, q, backend="numpy")
     np.testing.assert_allclose(fk(a465, q, backend="numba"), reference, atol=1e-12)
-    np.testing.assert_allclose(fk(a465, q), reference, atol=1e-12)
+    np.testing.assert_allclose(fk(a465, q, backend="auto"), reference, atol=1e-12)
+    assert np.array_equal(fk(a465, q), reference)  # the default is the NumPy path
     with pytest.raises(ValueError, match="unknown FK backend"):
         fk(a465, q, backend="fortran")
     # "auto" decides by batch size only, so every process rounds a given call the same way.
     assert not kinematics._use_fast("auto", kinematics._LOAD_MIN - 1)
     assert kinematics._use_fast("auto", kinematics._LOAD_MIN)
+
+
+def test_backends_agree_with_nongeometric_terms(a465, rng):
+    from relcal.robot.model import with_loads, with_nongeometric
+
+    model = with_loads(a465, mass=np.full(6, 2.0), com=rng.normal(0, 0.05, (6, 3)))
+    model = with_nongeometric(model, ["scale", "compliance", "harmonic"])
+    model = replace(
+        model,
+        scale=rng.normal(0, 1e-3, 6),
+        compliance=rng.normal(0, 1e-4, 6),
+        harmonic_c=rng.normal(0, 1e-3, 6),
+        harmonic_s=rng.normal(0, 1e-3, 6),
+    )
+    q = random_q(model, 2 * fastkin.BLOCK + 5, rng)
+    reference = fk(model, q, backend="numpy")
+    assert np.abs(reference - fk(a465, q)).max() > 1e-5  # the terms matter
+    np.testing.assert_allclose(fk(model, q, backend="numba"), reference, rtol=0, atol=1e-12)
 
 
 def test_small_batches_do_not_import_numba():

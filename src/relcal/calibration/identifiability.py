@@ -19,7 +19,7 @@ from relcal import geometry as tf
 from relcal.calibration.blas import one_blas_thread
 from relcal.calibration.measurement import Problem, residuals
 from relcal.errors import RelcalError
-from relcal.robot.kinematics import Layout, pose_jacobian
+from relcal.robot.kinematics import DISPLAY_UNITS, Layout, pose_jacobian
 from relcal.robot.model import RobotModel, parallel_axes
 
 DEFAULT_RCOND = 1e-6
@@ -39,6 +39,7 @@ class Combination:
     coefficients: tuple[float, ...]  # in SI units (m, rad)
     is_angle: tuple[bool, ...]
     reason: str
+    units: tuple[str, ...] = ()  # SI units (Layout.units) when not all m or rad
 
     def describe(self) -> str:
         """E.g. ``theta_off[6] +1 deg with a[6] +0.698 mm together: acts like ...``, in mm and
@@ -52,14 +53,19 @@ class Combination:
                 for c, a in zip(self.coefficients, self.is_angle, strict=True)
             ]
         )
+        shown_units = ["deg" if a else "mm" for a in self.is_angle]
+        for k, unit in enumerate(self.units):
+            if unit not in ("m", "rad"):  # scale, compliance
+                shown[k] = self.coefficients[k] * DISPLAY_UNITS[unit][0]
+                shown_units[k] = DISPLAY_UNITS[unit][1]
         lead = next(
             (k for k, n in enumerate(self.names) if n.split(".")[0] not in NUISANCE_KINDS), None
         )
         shown /= shown[lead] if lead is not None else np.abs(shown).max()
         big = np.abs(shown) >= 1e-3 * np.abs(shown).max()
         terms = [
-            f"{n} {c:+.3g} {'deg' if a else 'mm'}"
-            for n, c, a, keep in zip(self.names, shown, self.is_angle, big, strict=True)
+            f"{n} {c:+.3g} {u}"
+            for n, c, u, keep in zip(self.names, shown, shown_units, big, strict=True)
             if keep
         ]
         return f"{' with '.join(terms)} together: {self.reason}"
@@ -153,7 +159,7 @@ def analyse(
     subset = np.sort(piv[:rank])
 
     combos = []
-    angle = layout.is_angle()
+    angle, units = layout.is_angle(), layout.units()
     null = np.zeros((len(norms), 0))
     if null_scaled.shape[1]:
         # Each combination led by a geometric parameter where possible: "theta_off[2] with a
@@ -170,6 +176,7 @@ def analyse(
                     coefficients=tuple((v[idx] / np.abs(v[idx]).max()).tolist()),
                     is_angle=tuple(bool(angle[i]) for i in idx),
                     reason=reason,
+                    units=tuple(units[i] for i in idx),
                 )
             )
     return Identifiability(

@@ -341,6 +341,7 @@ class Uncertainty:
     least_squares: np.ndarray | None  # (k, k), None when not computed (pose planning)
     estimator: Estimator
     identifiable: np.ndarray  # (P,) individually identifiable (no share in the null space)
+    units: tuple[str, ...] = ()  # SI unit per parameter (Layout.units); () means m or rad
 
     @property
     def covariance(self) -> np.ndarray:
@@ -447,6 +448,7 @@ def parameter_covariance(
     return Uncertainty(
         names=problem.full_layout.names,
         is_angle=problem.full_layout.is_angle(),
+        units=problem.full_layout.units(),
         subset=subset,
         crb=0.5 * (crb + crb.T),
         least_squares=0.5 * (ls + ls.T),

@@ -12,7 +12,24 @@ examples:
   relcal simulate --robot a465 --measure pose --formulation invariant --noise 0.05,0.01
   relcal simulate --robot puma560 --errors errors.yaml --json out.json
   relcal simulate --robot a465 --images synthetic/ --poses 40   # rendered images, full pipeline
+  relcal simulate --robot a465 --measure pose --nongeometric scale,harmonic  # + joint scale, runout
+  relcal simulate --robot arm_with_masses.yaml --nongeometric compliance     # needs link masses
 """
+
+
+def nongeometric_model(args: argparse.Namespace, model):
+    """``model`` with the non-geometric terms of ``--nongeometric`` on every joint that can have
+    them, and those the ``--errors`` file names on their joints."""
+    from relcal.robot.model import with_nongeometric
+    from relcal.sim.scenario import nongeometric_in_errors
+
+    if args.nongeometric:
+        terms = [t.strip() for t in args.nongeometric.split(",") if t.strip()]
+        model = with_nongeometric(model, terms)
+    if args.errors:
+        for term, joints in nongeometric_in_errors(args.errors).items():
+            model = with_nongeometric(model, [term], joints)
+    return model
 
 
 def run(args: argparse.Namespace) -> int:
@@ -24,7 +41,7 @@ def run(args: argparse.Namespace) -> int:
     from relcal.sim.scenario import load_errors
     from relcal.sim.simulate import simulate
 
-    model = load_robot(args)
+    model = nongeometric_model(args, load_robot(args))
     if args.images:
         return run_images(args, model)
     noise = Noise.parse(args.noise) if args.noise else Noise()
@@ -107,6 +124,13 @@ def register(sub: argparse._SubParsersAction) -> None:
     sim.add_argument("--noise", help="POS_MM,ORI_DEG[,JOINT_DEG] standard deviations")
     sim.add_argument("--seed", type=int, default=0)
     sim.add_argument("--errors", help="YAML file of specified errors (default: random)")
+    sim.add_argument(
+        "--nongeometric",
+        metavar="TERMS",
+        help="plant and identify non-geometric terms on every joint: a comma list of scale "
+        "(gear ratio), compliance (under gravity; the model needs link masses or a payload), "
+        "harmonic (first harmonic, revolute joints); terms an --errors file names are added",
+    )
     json_arg(sim, "the results")
     sim.add_argument("--report", metavar="FILE", help="write an HTML report of the run(s) to FILE")
     sim.add_argument(

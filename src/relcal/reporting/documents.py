@@ -23,7 +23,8 @@ from relcal.data.importers import Imported
 from relcal.design.observability import Report
 from relcal.design.plan import PlanResult, Quality
 from relcal.geometry import to_xyz_rpy
-from relcal.robot.model import RobotModel, model_to_dict
+from relcal.robot.kinematics import DISPLAY_UNITS
+from relcal.robot.model import KINDS, NONGEOMETRIC_KINDS, RobotModel, model_to_dict
 from relcal.sim.simulate import Simulation
 from relcal.sim.study import StudyResult
 from relcal.vision.boards import Board, board_to_spec, sheet_size
@@ -70,26 +71,26 @@ def parameter_status(cal: Calibration) -> list[str]:
 def parameter_rows(cal: Calibration) -> list[dict]:
     """One row per parameter: name, unit, nominal value, identified error, standard deviation
     (predicted, and from a bootstrap over training samples), significance (error / std) and
-    status (:func:`parameter_status`). Lengths in mm, angles in degrees (the units people read).
+    status (:func:`parameter_status`). Lengths in mm, angles in degrees, scales in ppm,
+    compliances in urad/Nm (the units people read).
     """
     layout = cal.problem.full_layout
     angle = layout.is_angle()
+    factors, units = layout.display()
     std, boot = cal.std, cal.bootstrap_std
     model = cal.problem.model
     rows = []
     for k, ((kind, index), status) in enumerate(zip(layout, parameter_status(cal), strict=True)):
-        nominal = (
-            float(model.geometric(kind)[index])
-            if kind in ("theta_off", "a", "d", "alpha", "beta")
-            else 0.0
-        )
+        nominal = float(model.geometric(kind)[index]) if kind in KINDS + NONGEOMETRIC_KINDS else 0.0
         scale = np.degrees(1.0) if angle[k] else 1e3
+        if units[k] not in ("mm", "deg"):
+            scale = factors[k]
         ok = status in ("estimated", "combination")
         value = float(cal.result.params[k])
         rows.append(
             {
                 "name": layout.names[k],
-                "unit": "deg" if angle[k] else "mm",
+                "unit": units[k],
                 "nominal": nominal * scale,
                 "error": value * scale if ok else None,
                 "std": float(std[k]) * scale if ok and np.isfinite(std[k]) else None,
@@ -113,18 +114,20 @@ def combination_rows(cal: Calibration) -> list[dict]:
     for combo in cal.result.identifiability.combinations:
         if len(combo.names) != 2 or any(n.split(".")[0] in NUISANCE_KINDS for n in combo.names):
             continue
-        if combo.is_angle[0] != combo.is_angle[1]:
-            continue
+        if combo.is_angle[0] != combo.is_angle[1] or len(set(combo.units)) > 1:
+            continue  # e.g. a scale with a length: no sum to show
         (a, b), (va, vb) = combo.names, combo.coefficients
         c = -va / vb  # a + c b is orthogonal to the null direction (va, vb)
         ia, ib = names.index(a), names.index(b)
         value = cal.result.params[ia] + c * cal.result.params[ib]
         var = np.nansum([std[ia] ** 2, (c * std[ib]) ** 2])
-        scale = np.degrees(1.0) if combo.is_angle[0] else 1e3
+        scale, unit = (np.degrees(1.0), "deg") if combo.is_angle[0] else (1e3, "mm")
+        if combo.units and combo.units[0] not in ("m", "rad"):
+            scale, unit = DISPLAY_UNITS[combo.units[0]]  # scales, compliances
         out.append(
             {
                 "text": f"{a} {'+' if c >= 0 else '-'} {abs(c):.3g} {b}".replace(" 1 ", " "),
-                "unit": "deg" if combo.is_angle[0] else "mm",
+                "unit": unit,
                 "value": float(value) * scale,
                 "std": float(np.sqrt(var)) * scale if var > 0 else None,
                 "reason": combo.reason,
@@ -367,7 +370,7 @@ def observability_document(rep: Report) -> dict:
         out["parameters"] = [
             {
                 "name": unc.names[k],
-                "unit": "rad" if unc.is_angle[k] else "m",
+                "unit": unc.units[k] if unc.units else ("rad" if unc.is_angle[k] else "m"),
                 "std": float(unc.std[k]),
                 "crb_std": float(unc.crb_std[k]),
                 "identifiable": bool(unc.identifiable[k]),
@@ -442,14 +445,14 @@ def simulation_document(sim: Simulation) -> dict:
         "parameters": [
             {
                 "name": name,
-                "unit": "rad" if is_angle else "m",
+                "unit": unit,
                 "specified": float(s),
                 "identified": float(v),
                 "identifiable": bool(ok),
             }
-            for name, is_angle, s, v, ok in zip(
+            for name, unit, s, v, ok in zip(
                 sim.layout.names,
-                sim.layout.is_angle(),
+                sim.layout.units(),
                 sim.specified,
                 r.params,
                 r.identifiable,

@@ -308,13 +308,13 @@ def per_pair_figure(before: np.ndarray, after: np.ndarray, where: str) -> Figure
 
 def parameter_figure(sim: Simulation) -> Figure:
     """Specified and identified errors per parameter, lengths (mm) and angles (deg) apart;
-    unidentifiable parameters are marked ``n/i``."""
+    unidentifiable parameters are marked ``n/i`` (scales and compliances: in the table only)."""
     layout, result = sim.layout, sim.result
-    angle = layout.is_angle()
+    units = np.array(layout.units())
     fig = Figure(figsize=(FIG_WIDTH, 6.4), layout="constrained")
     axes = fig.subplots(2, 1)
     for ax, is_angle, unit in ((axes[0], False, "mm"), (axes[1], True, "deg")):
-        idx = np.flatnonzero(angle == is_angle)
+        idx = np.flatnonzero(units == ("rad" if is_angle else "m"))
         scale = np.degrees(1.0) if is_angle else 1e3
         x = np.arange(len(idx))
         ok = result.identifiable[idx]
@@ -703,10 +703,10 @@ def _sim_title(sim: Simulation) -> str:
 
 def _kind_rms(sim: Simulation) -> tuple[float, float]:
     """RMS of identified minus specified over identifiable parameters: lengths mm, angles deg."""
-    ok, angle = sim.result.identifiable, sim.layout.is_angle()
+    ok, units = sim.result.identifiable, np.array(sim.layout.units())
     diff = sim.result.params - sim.specified
     out = []
-    for mask, scale in ((~angle, 1e3), (angle, np.degrees(1.0))):
+    for mask, scale in ((units == "m", 1e3), (units == "rad", np.degrees(1.0))):
         d = diff[ok & mask] * scale
         out.append(float(np.sqrt(np.mean(d**2))) if d.size else float("nan"))
     return out[0], out[1]
@@ -757,19 +757,20 @@ def _sim_summary(runs: Sequence[Simulation]) -> tuple[str, str, Html]:
 
 def _sim_parameter_table(sim: Simulation) -> Html:
     rows = []
-    for name, is_angle, spec, value, ok in zip(
+    factors, units = sim.layout.display()
+    for name, scale, unit, spec, value, ok in zip(
         sim.layout.names,
-        sim.layout.is_angle(),
+        factors,
+        units,
         sim.specified,
         sim.result.params,
         sim.result.identifiable,
         strict=True,
     ):
-        scale = np.degrees(1.0) if is_angle else 1e3
         rows.append(
             [
                 Html(f"<code>{_text(name)}</code>"),
-                "deg" if is_angle else "mm",
+                unit,
                 _fmt(spec * scale, "+.4f"),
                 _fmt(value * scale, "+.4f") if ok else "n/i",
                 _fmt((value - spec) * scale, "+.2e") if ok else "–",

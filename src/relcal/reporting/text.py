@@ -14,7 +14,7 @@ from relcal.design.observability import Report
 from relcal.design.plan import PlanResult, Quality
 from relcal.geometry import DEG, MM
 from relcal.reporting.documents import accuracy_document
-from relcal.robot.kinematics import Layout
+from relcal.robot.kinematics import DISPLAY_UNITS, Layout
 from relcal.sim.simulate import Simulation
 from relcal.sim.study import StudyResult, worst
 
@@ -25,8 +25,12 @@ _KIND_UNITS = {"theta_off": ("dtheta", "deg"), "alpha": ("dalpha", "deg"), "a": 
 _KIND_UNITS["d"] = ("dd", "mm")
 
 
-def _display(value: float, is_angle: bool) -> float:
-    return float(np.degrees(value)) if is_angle else value / MM
+def _display(sim: Simulation, p: int, value: float) -> float:
+    """``value`` of parameter ``p`` in the unit a person reads (mm, deg, ppm, urad/Nm)."""
+    unit = sim.layout.units()[p]
+    if unit in ("m", "rad"):
+        return float(np.degrees(value)) if unit == "rad" else value / MM
+    return float(value * sim.layout.display()[0][p])
 
 
 def format_simulation(sim: Simulation) -> str:
@@ -35,7 +39,6 @@ def format_simulation(sim: Simulation) -> str:
     combinations. Unidentifiable parameters show ``n/i`` instead of a number."""
     layout, r = sim.layout, sim.result
     where = {(k, i): p for p, (k, i) in enumerate(layout)}
-    angle = layout.is_angle()
     kinds = ("theta_off", "alpha", "a", "d")
     head = " | ".join(f"{_KIND_UNITS[k][0] + ' (' + _KIND_UNITS[k][1] + ')':^27s}" for k in kinds)
     sub = " | ".join(f"{'specified':>9s} {'identified':>10s} {'err%':>6s}" for _ in kinds)
@@ -52,11 +55,14 @@ def format_simulation(sim: Simulation) -> str:
     lines.append("  RMS | " + " | ".join(rms) + "   (identified - specified, identifiable only)")
     extra = [p for p, (k, _) in enumerate(layout) if k not in kinds]
     if extra:
+        units = layout.display()[1]
+        width = max(4, *(len(units[p]) for p in extra))
         lines.append("")
-        lines.append(f"{'parameter':<14s} {'unit':>4s} {'specified':>10s} {'identified':>10s}")
+        lines.append(
+            f"{'parameter':<14s} {'unit':>{width}s} {'specified':>10s} {'identified':>10s}"
+        )
         for p in extra:
-            unit = "deg" if angle[p] else "mm"
-            lines.append(f"{layout.names[p]:<14s} {unit:>4s} " + _cell(sim, p, None))
+            lines.append(f"{layout.names[p]:<14s} {units[p]:>{width}s} " + _cell(sim, p, None))
     lines += [
         "",
         f"rank {r.identifiability.rank} of {len(r.params)} parameters (scaled Jacobian at the "
@@ -86,11 +92,10 @@ def _cell(sim: Simulation, p: int | None, errors: list[float] | None) -> str:
     """``specified identified err%`` for parameter ``p`` (blank if not in the model)."""
     if p is None:
         return f"{'(fixed)':>27s}"
-    is_angle = bool(sim.layout.is_angle()[p])
-    spec = _display(sim.specified[p], is_angle)
+    spec = _display(sim, p, sim.specified[p])
     if not sim.result.identifiable[p]:
         return f"{spec:>9.4f} {'n/i':>10s} {'':>6s}"
-    ident = _display(sim.result.params[p], is_angle)
+    ident = _display(sim, p, sim.result.params[p])
     if errors is not None:
         errors.append(ident - spec)
     pct = f"{100 * abs(ident - spec) / abs(spec):6.2f}" if spec != 0 else f"{'-':>6s}"
@@ -98,14 +103,13 @@ def _cell(sim: Simulation, p: int | None, errors: list[float] | None) -> str:
 
 
 def format_truth(layout: Layout, truth: np.ndarray, result: Result) -> str:
-    """True against identified error of every identifiable parameter of ``layout`` (mm, deg);
-    ``truth`` on the same layout."""
+    """True against identified error of every identifiable parameter of ``layout`` (mm, deg;
+    ppm, urad/Nm for non-geometric terms); ``truth`` on the same layout."""
     lines = ["", f"{'parameter':<14s} {'unit':>4s} {'true':>9s} {'identified':>10s}"]
-    angle = layout.is_angle()
+    factors, units = layout.display()
     for k, name in enumerate(layout.names):
         if result.identifiable[k]:
-            scale = np.degrees(1) if angle[k] else 1e3
-            unit = "deg" if angle[k] else "mm"
+            scale, unit = factors[k], units[k]
             lines.append(
                 f"{name:<14s} {unit:>4s} {truth[k] * scale:9.4f} {result.params[k] * scale:10.4f}"
             )
@@ -115,7 +119,9 @@ def format_truth(layout: Layout, truth: np.ndarray, result: Result) -> str:
 # --- parameter uncertainty ------------------------------------------------------------------------
 
 
-def _unit(is_angle: bool) -> tuple[float, str]:
+def _unit(is_angle: bool, unit: str | None = None) -> tuple[float, str]:
+    if unit not in (None, "m", "rad"):
+        return DISPLAY_UNITS[unit]  # scale (ppm), compliance (urad/Nm, um/N)
     return (np.degrees(1.0), "deg") if is_angle else (1e3, "mm")
 
 
@@ -128,7 +134,7 @@ def format_uncertainty(
     crb, ls = unc.crb_std, unc.least_squares_std
     lines = [f"{'parameter':<14s} {'unit':>4s} {'std CRB':>10s} {'std LS':>10s} {'LS/CRB':>6s}"]
     for p, name in enumerate(unc.names):
-        scale, unit = _unit(bool(unc.is_angle[p]))
+        scale, unit = _unit(bool(unc.is_angle[p]), unc.units[p] if unc.units else None)
         if np.isnan(crb[p]):
             lines.append(f"{name:<14s} {unit:>4s} {'not estimated':>21s}")
             continue

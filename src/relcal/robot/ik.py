@@ -15,14 +15,14 @@ Targets are tool poses in the base frame, as returned by :func:`relcal.robot.kin
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from relcal import geometry as tf
 from relcal.errors import RelcalError
 from relcal.robot.kinematics import Layout, fk, forward_frames, pose_jacobian
-from relcal.robot.model import RobotModel
+from relcal.robot.model import NONGEOMETRIC_KINDS, RobotModel
 
 TWO_PI = 2.0 * np.pi
 _LIMIT_SLACK = 1e-10  # rad or m a closed-form solution may sit outside a limit (then clipped)
@@ -484,9 +484,14 @@ def solve_numeric(
 
 
 def _closed_form_model(model: RobotModel, seed_model: RobotModel | None) -> RobotModel | None:
-    """The model whose closed form seeds ``model``: itself, ``seed_model``, or its idealisation."""
+    """The model whose closed form seeds ``model``: itself, ``seed_model``, or its idealisation.
+    A model with non-geometric terms is never its own exact closed form: its geometry's branches
+    are effective joint values, close to but not the readings, so they only seed."""
     if closed_form_problem(model) is None:
-        return model
+        if not model.has_nongeometric_values():
+            return model
+        if seed_model is None:
+            return replace(model, **{k: None for k in NONGEOMETRIC_KINDS})
     if seed_model is not None:
         if seed_model.n_joints != model.n_joints:
             raise RelcalError(

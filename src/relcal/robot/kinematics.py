@@ -3,13 +3,19 @@
 Everything is vectorised over N joint configurations ``q`` of shape ``(N, n)``.
 
 The parameter vector is ordered by kind, as in the published formulation: all ``theta_off``, all
-``a``, all ``d``, all ``alpha``, then ``beta`` of Hayati joints, then optionally the base and tool
-transforms as 6-vectors of small motions in their own frames (``base.tx`` ... ``base.rz``).
+``a``, all ``d``, all ``alpha``, then ``beta`` of Hayati joints, then the non-geometric terms the
+model asks for (``scale[i]``, ``compliance[i]``, ``harmonic_c[i]``, ``harmonic_s[i]``, kind by
+kind), then optionally the base and tool transforms as 6-vectors of small motions in their own
+frames (``base.tx`` ... ``base.rz``).
 
 Robots loaded from a URDF with the ``origins`` parametrisation get instead, per joint, its zero
 offset (``theta_off``, or ``d`` for a prismatic joint) and a small motion of its URDF origin in
 the joint's own frame (kind ``origin``, index ``6 * joint + component``), as robot_calibration
 and FIGAROH parametrise: redundant, and the identifiability analysis names the redundancy.
+
+Non-geometric terms change the effective joint value (:func:`effective_joints`), so each one
+moves the tool along its joint's screw, scaled by ``d q_eff / d parameter``: ``q``, the gravity
+torque ``tau``, ``cos q`` or ``sin q``.
 """
 
 from __future__ import annotations
@@ -23,9 +29,20 @@ import numpy as np
 
 from relcal import geometry as tf
 from relcal.errors import RelcalError
-from relcal.robot.model import ANGLE_KINDS, KINDS, RobotModel
+from relcal.robot.model import KINDS, NONGEOMETRIC_KINDS, RobotModel
 
 FRAME_COMPONENTS = ("tx", "ty", "tz", "rx", "ry", "rz")
+# SI unit of each kind of parameter; frame 6-vectors are m then rad.
+_UNITS = {"theta_off": "rad", "alpha": "rad", "beta": "rad", "a": "m", "d": "m"}
+_UNITS |= {"scale": "1", "compliance": "rad/(N m)", "harmonic_c": "rad", "harmonic_s": "rad"}
+# How a person reads each unit: factor from SI and the shown unit.
+DISPLAY_UNITS = {
+    "m": (1e3, "mm"),
+    "rad": (float(np.degrees(1.0)), "deg"),
+    "1": (1e6, "ppm"),
+    "rad/(N m)": (1e6, "urad/Nm"),
+    "m/N": (1e6, "um/N"),
+}
 
 
 @dataclass(frozen=True)
@@ -39,17 +56,37 @@ class Layout:
     names: tuple[str, ...]
     kinds: tuple[str, ...]
     index: tuple[int, ...]
+    prismatic: tuple[int, ...] = ()  # 0-based joints that slide (their compliance is in m/N)
 
     @property
     def size(self) -> int:
         return len(self.names)
 
+    def units(self) -> tuple[str, ...]:
+        """SI unit of each entry: ``m``, ``rad``, ``1`` (scale), ``rad/(N m)`` or ``m/N``
+        (compliance); frame 6-vectors and URDF origins are three lengths then three angles."""
+        out = []
+        for k, i in self:
+            if k == "compliance" and i in self.prismatic:
+                out.append("m/N")
+            elif k in _UNITS:
+                out.append(_UNITS[k])
+            else:
+                out.append("rad" if i % 6 >= 3 else "m")  # frames and URDF origins
+        return tuple(out)
+
+    def display(self) -> tuple[np.ndarray, tuple[str, ...]]:
+        """Factors from SI ``(P,)`` and the units a person reads (mm, deg, ppm, urad/Nm, um/N)."""
+        shown = [DISPLAY_UNITS[u] for u in self.units()]
+        return np.array([f for f, _ in shown]), tuple(u for _, u in shown)
+
     def is_angle(self) -> np.ndarray:
-        """Mask of entries in radians (the others are in metres); frame 6-vectors end in radians."""
-        return np.array(
-            [k in ANGLE_KINDS or (k not in KINDS and i % 6 >= 3) for k, i in self],
-            dtype=bool,
-        )
+        """Mask of entries in radians (lengths, scales and compliances are not)."""
+        return np.array([u == "rad" for u in self.units()], dtype=bool)
+
+    def is_geometric(self) -> np.ndarray:
+        """Mask of entries that are not non-geometric terms (``scale``, ``compliance``, ...)."""
+        return ~np.isin(np.array(self.kinds), NONGEOMETRIC_KINDS)
 
     def __iter__(self):
         return iter(zip(self.kinds, self.index, strict=True))
@@ -59,12 +96,27 @@ class Layout:
         other ``components`` (``("x", "y", "z")``: a point, in metres)."""
         names = tuple(f"{prefix}.{c}" for c in components)
         k = len(components)
-        return Layout(self.names + names, self.kinds + (prefix,) * k, self.index + tuple(range(k)))
+        return Layout(
+            self.names + names,
+            self.kinds + (prefix,) * k,
+            self.index + tuple(range(k)),
+            self.prismatic,
+        )
+
+
+def _nongeometric_entries(model: RobotModel) -> list[tuple[str, int]]:
+    """``(kind, joint)`` of the non-geometric terms that ``model.nongeometric`` asks for."""
+    entries = []
+    for kind in NONGEOMETRIC_KINDS:
+        term = "harmonic" if kind.startswith("harmonic") else kind
+        entries += [(kind, i) for i in range(model.n_joints) if term in model.nongeometric[i]]
+    return entries
 
 
 def make_layout(model: RobotModel, base: bool = False, tool: bool = False) -> Layout:
-    """The geometric parameters of ``model`` (plus base and tool 6-vectors if asked): the DH
-    parameters, or the URDF origins for URDF robots loaded with ``parametrisation: origins``."""
+    """The geometric parameters of ``model`` (the DH parameters, or the URDF origins for URDF
+    robots loaded with ``parametrisation: origins``), the non-geometric terms its joints ask for
+    (``model.nongeometric``), plus base and tool 6-vectors if asked."""
     if model.urdf is not None and model.urdf.parametrisation == "origins":
         return origins_layout(model, base, tool)
     n = model.n_joints
@@ -73,6 +125,7 @@ def make_layout(model: RobotModel, base: bool = False, tool: bool = False) -> La
     for kind in ("theta_off", "a", "d", "alpha"):
         entries += [(kind, i) for i in range(n) if not (kind == "d" and fixed_d[i])]
     entries += [("beta", i) for i in range(n) if model.hayati[i]]
+    entries += _nongeometric_entries(model)
     for frame, wanted in (("base", base), ("tool", tool)):
         if wanted:
             entries += [(frame, c) for c in range(6)]
@@ -80,7 +133,8 @@ def make_layout(model: RobotModel, base: bool = False, tool: bool = False) -> La
         f"{k}.{FRAME_COMPONENTS[i]}" if k in ("base", "tool") else f"{k}[{i + 1}]"
         for k, i in entries
     )
-    return Layout(names, tuple(k for k, _ in entries), tuple(i for _, i in entries))
+    prismatic = tuple(int(i) for i in np.flatnonzero(model.prismatic))
+    return Layout(names, tuple(k for k, _ in entries), tuple(i for _, i in entries), prismatic)
 
 
 ORIGIN_COMPONENTS = ("x", "y", "z", "rx", "ry", "rz")
@@ -98,17 +152,23 @@ def origins_layout(model: RobotModel, base: bool = False, tool: bool = False) ->
             names.append(f"{joint}.origin.{comp}")
             kinds.append("origin")
             index.append(6 * i + c)
+    for kind, i in _nongeometric_entries(model):
+        names.append(f"{kind}[{i + 1}]")
+        kinds.append(kind)
+        index.append(i)
     for frame, wanted in (("base", base), ("tool", tool)):
         if wanted:
             names += [f"{frame}.{c}" for c in FRAME_COMPONENTS]
             kinds += [frame] * 6
             index += list(range(6))
-    return Layout(tuple(names), tuple(kinds), tuple(index))
+    prismatic = tuple(int(i) for i in np.flatnonzero(model.prismatic))
+    return Layout(tuple(names), tuple(kinds), tuple(index), prismatic)
 
 
 def apply_errors(model: RobotModel, layout: Layout, errors: np.ndarray) -> RobotModel:
-    """The model with additive geometric errors; base/tool errors move those frames locally;
-    URDF origin errors move the joint origins (and the model is converted again, exactly)."""
+    """The model with additive errors (geometric and non-geometric values); base/tool errors
+    move those frames locally; URDF origin errors move the joint origins (and the model is
+    converted again, exactly)."""
     errors = np.asarray(errors, dtype=float)
     origin = [(i, e) for (k, i), e in zip(layout, errors, strict=False) if k == "origin"]
     if origin and any(e != 0 for _, e in origin):
@@ -118,7 +178,7 @@ def apply_errors(model: RobotModel, layout: Layout, errors: np.ndarray) -> Robot
         for i, e in origin:
             motions[i // 6, i % 6] += e
         model = move_origins(model, motions)
-    arrays = {k: model.geometric(k).copy() for k in ("theta_off", "a", "d", "alpha", "beta")}
+    arrays = {k: model.geometric(k).copy() for k in KINDS + NONGEOMETRIC_KINDS}
     frames = {"base": np.zeros(6), "tool": np.zeros(6)}
     for (kind, i), e in zip(layout, errors, strict=False):
         if kind in arrays:
@@ -133,9 +193,70 @@ def apply_errors(model: RobotModel, layout: Layout, errors: np.ndarray) -> Robot
     return replace(model, **arrays, **moved)
 
 
-def _joint_values(model: RobotModel, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Total joint angles and offsets ``(N, n)``: the joint variable goes to theta or d."""
+def gravity_torques(model: RobotModel, q: np.ndarray) -> np.ndarray:
+    """Gravity torque about each joint ``(N, n)`` (N m; force along the axis, N, for a prismatic
+    joint) at joint readings ``q`` ``(N, n)``: the links after joint i and the payload pull with
+    ``m g`` at their centres of mass. Computed with ``model.loads.reference`` (the geometry the
+    loads were given with, no non-geometric terms); zeros without loads."""
     q = np.atleast_2d(np.asarray(q, dtype=float))
+    loads = model.loads
+    if loads is None:
+        return np.zeros(q.shape)
+    ref = loads.reference
+    frames, c, s = _chain(ref, q)
+    n = ref.n_joints
+    centres = frames[:, 1:, :3, :3] @ loads.com[..., None]  # (N, n, 3, 1)
+    centres = centres[..., 0] + frames[:, 1:, :3, 3]
+    tip = frames[:, -1] @ ref.tool
+    payload = tip[:, :3, :3] @ loads.payload_com + tip[:, :3, 3]
+    weights = np.append(loads.mass, loads.payload_mass)[:, None] * loads.gravity  # (n + 1, 3)
+    points = np.concatenate([centres, payload[:, None]], axis=1)  # (N, n + 1, 3)
+    # Sums over the bodies beyond each joint: force, and moment about the base origin.
+    force = np.cumsum(weights[::-1], axis=0)[::-1][:n]  # (n, 3)
+    moment = np.cumsum(_cross(points, weights)[:, ::-1], axis=1)[:, ::-1][:, :n]  # (N, n, 3)
+    axes, origins = _joint_screws(ref, frames, c, s)
+    axis, origin = axes[:, :n], origins[:, :n]  # the theta_off screws: the joint axes
+    torque = np.einsum("nij,nij->ni", axis, moment - _cross(origin, force))
+    return np.where(ref.prismatic, np.einsum("nij,ij->ni", axis, force), torque)
+
+
+def effective_joints(model: RobotModel, q: np.ndarray) -> np.ndarray:
+    """Effective joint values ``(N, n)`` (rad or m) from readings ``q`` ``(N, n)``:
+    ``q (1 + scale) + compliance tau(q) + harmonic_c cos q + harmonic_s sin q`` (harmonic terms on
+    revolute joints only). ``q`` itself when the model has no non-geometric values."""
+    q = np.atleast_2d(np.asarray(q, dtype=float))
+    if not model.has_nongeometric_values():
+        return q
+    out = q * (1.0 + model.scale)
+    if model.compliance.any():
+        out = out + model.compliance * gravity_torques(model, q)
+    revolute = ~model.prismatic
+    return out + revolute * (model.harmonic_c * np.cos(q) + model.harmonic_s * np.sin(q))
+
+
+def _nongeometric_factors(model: RobotModel, q: np.ndarray, layout: Layout) -> np.ndarray:
+    """``d q_eff / d parameter`` ``(N, P)`` for the non-geometric entries of ``layout`` (the
+    others get 1)."""
+    q = np.atleast_2d(np.asarray(q, dtype=float))
+    out = np.ones((len(q), layout.size))
+    tau = None
+    for p, (kind, i) in enumerate(layout):
+        if kind == "scale":
+            out[:, p] = q[:, i]
+        elif kind == "compliance":
+            tau = gravity_torques(model, q) if tau is None else tau
+            out[:, p] = tau[:, i]
+        elif kind == "harmonic_c":
+            out[:, p] = np.cos(q[:, i])
+        elif kind == "harmonic_s":
+            out[:, p] = np.sin(q[:, i])
+    return out
+
+
+def _joint_values(model: RobotModel, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Total joint angles and offsets ``(N, n)``: the effective joint variable goes to theta or
+    d."""
+    q = effective_joints(model, q)
     theta = model.theta_off + np.where(model.prismatic, 0.0, q)
     d = model.d + np.where(model.prismatic, q, 0.0)
     return theta, d
@@ -214,7 +335,10 @@ def _use_fast(backend: Backend, n_conf: int) -> bool:
         return False
     if backend == "numba":
         if not _fast_available():
-            raise RelcalError("backend='numba' needs the numba package: pip install numba")
+            raise RelcalError(
+                "backend='numba' needs the numba package, which is optional: "
+                "pip install 'relcal[fast]' (or use backend='numpy', the default path)"
+            )
         return True
     if backend != "auto":
         raise ValueError(f"unknown FK backend '{backend}': use auto, numpy or numba")
@@ -223,14 +347,16 @@ def _use_fast(backend: Backend, n_conf: int) -> bool:
     return n_conf >= _LOAD_MIN and _fast_available()
 
 
-def fk(model: RobotModel, q: np.ndarray, backend: Backend = "auto") -> np.ndarray:
+def fk(model: RobotModel, q: np.ndarray, backend: Backend = "numpy") -> np.ndarray:
     """Flange/tool poses in the base frame ``F(q)``, shape ``(N, 4, 4)`` for ``q`` of ``(N, n)``.
 
-    ``backend="numpy"`` is the reference implementation; ``"numba"`` the compiled kernel of
-    :mod:`relcal.robot.fastkin` (same result to round-off, about 40 times faster on large batches);
-    ``"auto"`` takes the kernel when Numba is installed and the batch is large enough to pay for
-    loading it (``_LOAD_MIN`` configurations): small batches never import Numba, so short commands
-    start quickly.
+    ``backend="numpy"`` (the default) is the reference implementation; ``"numba"`` the compiled
+    kernel of :mod:`relcal.robot.fastkin` (same result to round-off, about 40 times faster on large
+    batches); ``"auto"`` takes the kernel when Numba is installed and the batch is large enough to
+    pay for loading it (``_LOAD_MIN`` configurations), so small batches never import Numba. Numba
+    is optional (the ``fast`` extra): ``"numba"`` without it raises :class:`RelcalError`; the
+    default never depends on whether it is installed. Non-geometric terms enter both paths
+    through :func:`effective_joints`.
     """
     q = np.atleast_2d(np.asarray(q, dtype=float))
     if _use_fast(backend, q.shape[0]):
@@ -240,7 +366,7 @@ def fk(model: RobotModel, q: np.ndarray, backend: Backend = "auto") -> np.ndarra
             if backend == "numba":
                 raise RelcalError(f"the compiled FK kernel could not be loaded: {exc}") from exc
         else:
-            return fastkin.fk(model, q)
+            return fastkin.fk(model, effective_joints(model, q))
     links = _link_transforms(model, q)
     out = np.broadcast_to(model.base, (links.shape[0], 4, 4))
     for i in range(links.shape[1]):
@@ -296,6 +422,10 @@ def _slots(layout: Layout, n_joints: int) -> tuple[np.ndarray, ...]:
     """Where each parameter's screw is found: joint parameters index the ``(kind, joint)`` table
     of :func:`_joint_screws` flattened (kind-major); frame parameters name their component."""
     kinds, index = np.array(layout.kinds), np.array(layout.index, dtype=int)
+    # A non-geometric term moves the tool along its joint's own screw (theta_off or d).
+    sliding = np.isin(index, layout.prismatic)
+    on_joint = np.isin(kinds, NONGEOMETRIC_KINDS)
+    kinds = np.where(on_joint, np.where(sliding, "d", "theta_off"), kinds)
     joint = np.isin(kinds, _JOINT_KINDS)
     frames = ("base", "tool", "origin")
     if np.any(~joint & ~np.isin(kinds, frames)):
@@ -340,6 +470,8 @@ def _screws(
     points = np.empty((len(tip_pose), layout.size, 3))
     axes[:, joint_cols] = screw_axes[:, joint_slots]
     points[:, joint_cols] = screw_points[:, joint_slots]
+    if not layout.is_geometric().all():  # unit screw times d q_eff / d parameter
+        axes *= _nongeometric_factors(model, q, layout)[..., None]
     # Base and tool 6-vectors are small motions in their own frames.
     axes[:, base_cols] = model.base[:3, base_axes].T
     points[:, base_cols] = model.base[:3, 3]

@@ -9,6 +9,16 @@ Conventions (DESIGN.md), per joint i (1-based in names):
 A prismatic joint adds its variable to ``d_i`` instead of ``theta_i``. ``F(q) = base A_1 ... A_n
 tool``. A joint marked ``hayati`` gets ``beta`` as a geometric parameter in place of the ``d`` that
 parallel axes make ill-posed: its own ``d`` in standard DH, the previous joint's in modified DH.
+
+Non-geometric terms act through the effective joint value (``q`` is the joint reading, rad or m):
+
+    q_eff = q (1 + scale) + compliance tau(q) + harmonic_c cos q + harmonic_s sin q   (per joint)
+
+``tau_i`` is the gravity torque about joint i (N m; the force along it for a prismatic joint)
+from the link masses and centres of mass and a lumped payload (:class:`Loads`), computed with
+the geometry the loads were attached to (nominal kinematics, so it does not move with the
+identified errors). ``nongeometric`` names, per joint, which of the terms are calibration
+parameters (see :func:`relcal.robot.kinematics.make_layout`); all are off by default.
 """
 
 from __future__ import annotations
@@ -30,6 +40,27 @@ if TYPE_CHECKING:
 
 KINDS = ("theta_off", "a", "d", "alpha", "beta")
 ANGLE_KINDS = ("theta_off", "alpha", "beta")
+NONGEOMETRIC = ("scale", "compliance", "harmonic")  # options per joint
+NONGEOMETRIC_KINDS = ("scale", "compliance", "harmonic_c", "harmonic_s")  # their parameters
+GRAVITY = (0.0, 0.0, -9.81)  # m/s^2 in the base frame
+
+
+@dataclass(frozen=True)
+class Loads:
+    """What gravity pulls on: per link the mass (kg) and centre of mass (m, in the frame after
+    its joint, ``base A_1 ... A_i``), a lumped payload (kg; centre in the tool frame), gravity
+    (m/s^2, base frame), and the geometry the torques are computed with (``reference``)."""
+
+    mass: np.ndarray  # (n,)
+    com: np.ndarray  # (n, 3)
+    payload_mass: float
+    payload_com: np.ndarray  # (3,)
+    gravity: np.ndarray  # (3,)
+    reference: RobotModel  # geometry only (no loads, no non-geometric values)
+
+    @property
+    def total_mass(self) -> float:
+        return float(self.mass.sum() + self.payload_mass)
 
 
 @dataclass(frozen=True)
@@ -53,10 +84,41 @@ class RobotModel:
     source: str = ""
     inertials: Inertials | None = None  # link masses in the joint frames (URDF models)
     urdf: UrdfChain | None = None  # the URDF it was loaded from, for exports back into it
+    # Non-geometric values per joint (zero: no effect): scale (1), compliance (rad/(N m), m/N
+    # for a prismatic joint), first harmonic (rad); None means zeros.
+    scale: np.ndarray | None = None
+    compliance: np.ndarray | None = None
+    harmonic_c: np.ndarray | None = None
+    harmonic_s: np.ndarray | None = None
+    nongeometric: tuple[tuple[str, ...], ...] = ()  # per joint, the terms calibrated (or ())
+    loads: Loads | None = None
+
+    def __post_init__(self) -> None:
+        # Zeros where not given; also when a copy changes the number of joints (``replace``
+        # with new geometry arrays) and there is nothing to carry over.
+        n = len(self.theta_off)
+        for kind in NONGEOMETRIC_KINDS:
+            value = getattr(self, kind)
+            value = np.zeros(n) if value is None else np.asarray(value, dtype=float)
+            if value.shape != (n,):
+                if value.any():
+                    raise ValueError(f"{kind} has shape {value.shape}, expected ({n},)")
+                value = np.zeros(n)
+            object.__setattr__(self, kind, value)
+        if len(self.nongeometric) != n:
+            if any(self.nongeometric):
+                raise ValueError(f"nongeometric has {len(self.nongeometric)} joints, expected {n}")
+            object.__setattr__(self, "nongeometric", ((),) * n)
+        if self.loads is not None and len(self.loads.mass) != n:
+            raise ValueError(f"loads have {len(self.loads.mass)} links, expected {n}")
 
     @property
     def n_joints(self) -> int:
         return len(self.theta_off)
+
+    def has_nongeometric_values(self) -> bool:
+        """Whether any non-geometric term changes the kinematics."""
+        return any(getattr(self, k).any() for k in NONGEOMETRIC_KINDS)
 
     def geometric(self, kind: str) -> np.ndarray:
         """The per-joint array of one parameter kind (``theta_off``, ``a``, ``d``, ...)."""
@@ -85,6 +147,7 @@ class _Strict(pydantic.BaseModel):
 
 # a number written as a number: "90" (quoted) is refused, not read as 90
 Number = Annotated[float, pydantic.Strict(), pydantic.AllowInfNan(False)]
+Mass = Annotated[float, pydantic.Strict(), pydantic.AllowInfNan(False), pydantic.Field(ge=0)]
 MAX_LINK = 5.0  # m: a longer link length or offset looks like millimetres
 MAX_FRAME = 20.0  # m: a base or tool offset beyond this looks like millimetres
 MAX_LENGTH = 1e3  # m: beyond any machine
@@ -124,17 +187,40 @@ class _Joint(_Strict):
     beta: Number = 0.0
     hayati: bool = False
     limits: tuple[Number, Number] | None = None
+    mass: Mass = 0.0
+    com: tuple[Number, Number, Number] = (0.0, 0.0, 0.0)
+    scale: Number = 0.0
+    compliance: Number = 0.0
+    harmonic: tuple[Number, Number] = (0.0, 0.0)
+    nongeometric: list[Literal["scale", "compliance", "harmonic"]] = []
 
     @pydantic.field_validator("d", "a")
     @classmethod
     def _metres(cls, value: float) -> float:
         return plausible_length(value, MAX_LINK, "link length or offset")
 
+    @pydantic.field_validator("com")
+    @classmethod
+    def _com_metres(cls, com: tuple[float, float, float]) -> tuple[float, float, float]:
+        for v in com:
+            plausible_length(v, MAX_LINK, "centre of mass coordinate")
+        return com
+
     @pydantic.model_validator(mode="after")
     def _ordered_limits(self) -> _Joint:
         if self.limits is not None and self.limits[0] >= self.limits[1]:
             raise ValueError(f"limits must be [lower, upper] with lower < upper, got {self.limits}")
+        if self.type == "prismatic" and ("harmonic" in self.nongeometric or any(self.harmonic)):
+            raise ValueError(
+                "a prismatic joint has no first harmonic (cos/sin of a length): "
+                "remove harmonic from this joint"
+            )
         return self
+
+
+class _Payload(_Strict):
+    mass: Mass
+    com: tuple[Number, Number, Number] = (0.0, 0.0, 0.0)
 
 
 class _Robot(_Strict):
@@ -145,6 +231,19 @@ class _Robot(_Strict):
     joints: list[_Joint] = pydantic.Field(min_length=1)
     base: _Transform = _Transform()
     tool: _Transform = _Transform()
+    payload: _Payload | None = None
+    gravity: tuple[Number, Number, Number] = GRAVITY
+
+    @pydantic.model_validator(mode="after")
+    def _masses_for_compliance(self) -> _Robot:
+        mass = sum(j.mass for j in self.joints) + (self.payload.mass if self.payload else 0.0)
+        wanted = any("compliance" in j.nongeometric or j.compliance for j in self.joints)
+        if wanted and mass == 0:
+            raise ValueError(
+                "compliance needs gravity torques: give link masses (mass, com per joint) or a "
+                "payload {mass, com}"
+            )
+        return self
 
     @pydantic.model_validator(mode="after")
     def _names_and_angles(self) -> _Robot:
@@ -173,6 +272,90 @@ class _Robot(_Strict):
         return self
 
 
+def with_loads(
+    model: RobotModel,
+    mass: np.ndarray | None = None,
+    com: np.ndarray | None = None,
+    payload_mass: float = 0.0,
+    payload_com: np.ndarray | None = None,
+    gravity: np.ndarray = GRAVITY,  # type: ignore[assignment]
+) -> RobotModel:
+    """``model`` with link masses (kg) ``(n,)``, centres of mass (m) ``(n, 3)`` in the link frames,
+    a payload (kg, centre in the tool frame) and gravity (m/s^2, base frame). The gravity torques
+    are computed with the present geometry of ``model`` from then on."""
+    n = model.n_joints
+    reference = replace(
+        model,
+        loads=None,
+        **{k: None for k in NONGEOMETRIC_KINDS},
+        nongeometric=(),
+    )
+    loads = Loads(
+        mass=np.zeros(n) if mass is None else np.asarray(mass, dtype=float).reshape(n),
+        com=np.zeros((n, 3)) if com is None else np.asarray(com, dtype=float).reshape(n, 3),
+        payload_mass=float(payload_mass),
+        payload_com=np.zeros(3) if payload_com is None else np.asarray(payload_com, float),
+        gravity=np.asarray(gravity, dtype=float).reshape(3),
+        reference=reference,
+    )
+    return replace(model, loads=loads)
+
+
+def _has_inertials(model: RobotModel) -> bool:
+    """Whether the model carries link masses from its URDF (in the same link frames as loads)."""
+    return model.inertials is not None and float(np.sum(model.inertials.mass)) > 0
+
+
+def nongeometric_options(model: RobotModel) -> tuple[str, ...]:
+    """The non-geometric terms ``model`` can have: ``scale`` always, ``compliance`` when it has
+    masses (loads, or a URDF's inertials), ``harmonic`` when it has a revolute joint (candidates
+    for model selection)."""
+    out = ["scale"]
+    if (model.loads is not None and model.loads.total_mass > 0) or _has_inertials(model):
+        out.append("compliance")
+    if not model.prismatic.all():
+        out.append("harmonic")
+    return tuple(out)
+
+
+def with_nongeometric(
+    model: RobotModel, terms: tuple[str, ...] | list[str], joints: list[int] | None = None
+) -> RobotModel:
+    """``model`` with non-geometric ``terms`` (``scale``, ``compliance``, ``harmonic``) calibrated
+    on ``joints`` (1-based; default all that can have them: harmonic skips prismatic joints).
+    Compliance of a URDF robot without loads takes the URDF's link masses."""
+    unknown = sorted(set(terms) - set(NONGEOMETRIC))
+    if unknown:
+        raise RelcalError(
+            f"unknown non-geometric term(s) {', '.join(unknown)}: expected "
+            f"{', '.join(NONGEOMETRIC)}"
+        )
+    chosen = range(1, model.n_joints + 1) if joints is None else joints
+    if "compliance" in terms and model.loads is None and _has_inertials(model):
+        model = with_loads(model, model.inertials.mass, model.inertials.com)  # from the URDF
+    flags = [set(f) for f in model.nongeometric]
+    for j in chosen:
+        if not 1 <= j <= model.n_joints:
+            raise RelcalError(f"joint {j} is not a joint of {model.name} (1..{model.n_joints})")
+        for term in terms:
+            if term == "harmonic" and model.prismatic[j - 1]:
+                if joints is not None:
+                    raise RelcalError(
+                        f"joint {j} of {model.name} is prismatic: it has no first harmonic"
+                    )
+                continue
+            flags[j - 1].add(term)
+    if any("compliance" in f for f in flags) and (
+        model.loads is None or model.loads.total_mass == 0
+    ):
+        raise RelcalError(
+            f"compliance on {model.name} needs gravity torques: give link masses (mass, com per "
+            "joint) or a payload {mass, com} in the robot model file"
+        )
+    ordered = tuple(tuple(t for t in NONGEOMETRIC if t in f) for f in flags)
+    return replace(model, nongeometric=ordered)
+
+
 def model_from_dict(data: object, path: str | Path = "<robot>", node: object = None) -> RobotModel:
     """Build a model from parsed YAML; errors name ``path``, the line and the field."""
     from relcal.io import validate
@@ -195,7 +378,7 @@ def model_from_dict(data: object, path: str | Path = "<robot>", node: object = N
     def frame(t: _Transform) -> np.ndarray:
         return tf.from_xyz_rpy(np.array(t.xyz), np.array([ang(v) for v in t.rpy]))
 
-    return RobotModel(
+    model = RobotModel(
         name=spec.name,
         convention=spec.convention,
         theta_off=np.array([ang(j.theta_off) for j in joints]),
@@ -212,6 +395,36 @@ def model_from_dict(data: object, path: str | Path = "<robot>", node: object = N
         tool=frame(spec.tool),
         source=spec.source,
     )
+    masses = [j.mass for j in joints]
+    if any(masses) or spec.payload is not None:
+        payload = spec.payload or _Payload(mass=0.0)
+        model = with_loads(
+            model,
+            mass=np.array(masses),
+            com=np.array([j.com for j in joints]),
+            payload_mass=payload.mass,
+            payload_com=np.array(payload.com),
+            gravity=np.array(spec.gravity),
+        )
+    if any(j.nongeometric for j in joints) or any(
+        j.scale or j.compliance or any(j.harmonic) for j in joints
+    ):
+        model = replace(
+            model,
+            scale=np.array([j.scale for j in joints]),
+            compliance=np.array(
+                [
+                    ang(j.compliance) if not p else j.compliance
+                    for j, p in zip(joints, prismatic, strict=True)
+                ]
+            ),
+            harmonic_c=np.array([ang(j.harmonic[0]) for j in joints]),
+            harmonic_s=np.array([ang(j.harmonic[1]) for j in joints]),
+            nongeometric=tuple(
+                tuple(t for t in NONGEOMETRIC if t in j.nongeometric) for j in joints
+            ),
+        )
+    return model
 
 
 def load_model(path: str | Path) -> RobotModel:
@@ -249,12 +462,31 @@ def model_to_dict(model: RobotModel) -> dict:
         if np.isfinite(model.lower[i]) or np.isfinite(model.upper[i]):
             conv = float if p else deg
             j["limits"] = [conv(model.lower[i]), conv(model.upper[i])]
+        loads = model.loads
+        if loads is not None and (loads.mass[i] or loads.com[i].any()):
+            j.update(mass=float(loads.mass[i]), com=[float(v) for v in loads.com[i]])
+        if model.scale[i]:
+            j["scale"] = float(model.scale[i])
+        if model.compliance[i]:
+            j["compliance"] = float(model.compliance[i]) if p else deg(model.compliance[i])
+        if model.harmonic_c[i] or model.harmonic_s[i]:
+            j["harmonic"] = [deg(model.harmonic_c[i]), deg(model.harmonic_s[i])]
+        if model.nongeometric[i]:
+            j["nongeometric"] = list(model.nongeometric[i])
         joints.append(j)
     out = {"name": model.name}
     if model.source:
         out["source"] = model.source
     out.update(convention=model.convention, angle_unit="deg", joints=joints)
     out.update(base=frame(model.base), tool=frame(model.tool))
+    if model.loads is not None:
+        if model.loads.payload_mass:
+            out["payload"] = {
+                "mass": model.loads.payload_mass,
+                "com": [float(v) for v in model.loads.payload_com],
+            }
+        if tuple(model.loads.gravity) != GRAVITY:
+            out["gravity"] = [float(v) for v in model.loads.gravity]
     return out
 
 

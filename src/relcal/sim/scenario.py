@@ -37,16 +37,25 @@ from relcal.errors import RelcalError
 from relcal.geometry import DEG, MM
 from relcal.io import load_validated
 from relcal.robot.kinematics import Layout, apply_errors, fk, make_layout
-from relcal.robot.model import RobotModel
+from relcal.robot.model import NONGEOMETRIC_KINDS, RobotModel
 
 HANDEYE_ERROR = (1 * MM, 0.5 * DEG)  # std per axis of the true hand-eye off the drawing (m, rad)
 
 
+# Random non-geometric errors, from the same draws as lengths (0.1..0.9 mm) and angles: scale
+# 100..900 ppm, compliance 10..90 urad/(N m) (1..9 um/N sliding), harmonics 0.001..0.09 deg.
+_RANDOM_FACTOR = {"scale": 1.0, "compliance": 0.1, "harmonic_c": 0.1, "harmonic_s": 0.1}
+
+
 def random_errors(layout: Layout, rng: np.random.Generator) -> np.ndarray:
-    """Random errors with magnitudes 0.1..0.9 mm and 0.01..0.9 deg, random signs."""
+    """Random errors with magnitudes 0.1..0.9 mm and 0.01..0.9 deg, random signs (non-geometric
+    terms: see ``_RANDOM_FACTOR``)."""
     angle = layout.is_angle()
     size = np.where(angle, rng.uniform(0.01, 0.9, layout.size) * DEG, 0.0)
     size = np.where(angle, size, rng.uniform(0.1, 0.9, layout.size) * MM)
+    factor = [_RANDOM_FACTOR.get(k, 1.0) for k in layout.kinds]
+    sliding = [u == "m/N" for u in layout.units()]
+    size = size * np.where(sliding, 0.01, factor)
     return size * rng.choice([-1.0, 1.0], layout.size)
 
 
@@ -59,19 +68,42 @@ class _ErrorsFile(pydantic.BaseModel):
 
 def load_errors(path: str | Path, layout: Layout) -> np.ndarray:
     """Errors from a YAML file: ``errors: {theta_off[2]: 0.1, d[3]: -0.4, ...}`` in the declared
-    units (default mm and deg); parameters not listed are zero."""
+    units (default mm and deg); parameters not listed are zero. Non-geometric terms: ``scale[i]``
+    as a plain number, ``compliance[i]`` in angle units per N m (length units per N for a
+    prismatic joint), ``harmonic_c[i]`` and ``harmonic_s[i]`` in angle units."""
     spec = load_validated(_ErrorsFile, path)
     unknown = sorted(set(spec.errors) - set(layout.names))
     if unknown:
+        hint = ""
+        if any(n.split("[")[0] in NONGEOMETRIC_KINDS for n in unknown):
+            hint = " (non-geometric terms need the joint's option: --nongeometric or the model)"
         raise RelcalError(
             f"{path}: errors: unknown parameter(s) {', '.join(unknown)}; "
-            f"expected names like {', '.join(layout.names[:3])}, ..."
+            f"expected names like {', '.join(layout.names[:3])}, ...{hint}"
         )
     length = MM if spec.length_unit == "mm" else 1.0
     angle = DEG if spec.angle_unit == "deg" else 1.0
-    scale = np.where(layout.is_angle(), angle, length)
+    per_unit = {"m": length, "rad": angle, "1": 1.0, "rad/(N m)": angle, "m/N": length}
+    scale = np.array([per_unit[u] for u in layout.units()])
     values = np.array([spec.errors.get(n, 0.0) for n in layout.names])
     return values * scale
+
+
+def nongeometric_in_errors(path: str | Path) -> dict[str, list[int]]:
+    """The non-geometric terms an errors file names, with their joints (1-based):
+    ``{"scale": [2], "harmonic": [1, 3]}``, so that a simulation can switch them on."""
+    import re
+
+    spec = load_validated(_ErrorsFile, path)
+    out: dict[str, list[int]] = {}
+    for name in spec.errors:
+        match = re.fullmatch(r"(scale|compliance|harmonic_[cs])\[(\d+)\]", name)
+        if match:
+            term = "harmonic" if match[1].startswith("harmonic") else match[1]
+            joints = out.setdefault(term, [])
+            if int(match[2]) not in joints:
+                joints.append(int(match[2]))
+    return out
 
 
 @dataclass(frozen=True)
