@@ -459,3 +459,35 @@ def test_errors_file_units_of_the_new_terms(tmp_path):
     assert np.isclose(values["d[4]"], 0.3e-3)
     with pytest.raises(RelcalError, match="need the joint's option"):
         load_errors(path, make_layout(get_robot("a465")))
+
+
+@pytest.mark.parametrize("name", ["panda", "tiago_pro"])
+def test_gravity_torques_match_pinocchio_on_urdf_robots(name, rng):
+    """A URDF robot's link inertials serve as loads; the torques are Pinocchio's generalised
+    gravity (negated), the TIAGo Pro's prismatic torso included (a force, N)."""
+    pin = pytest.importorskip("pinocchio", reason="Pinocchio is in the dev extra")
+    from urdf_helpers import real
+
+    from relcal.robot.urdf import load_urdf
+
+    path, root, tip = real(name)
+    model = with_nongeometric(load_urdf(path, root, tip), ALL)
+    assert model.loads is not None and "compliance" in model.nongeometric[0]
+    if model.prismatic.any():
+        assert "harmonic" not in model.nongeometric[int(np.flatnonzero(model.prismatic)[0])]
+    full = pin.buildModelFromUrdf(str(path))
+    ids = [full.getJointId(n) for n in model.joint_names]
+    for j in range(1, full.njoints):  # only the chain's bodies pull, as in relcal's inertials
+        if j not in ids:
+            full.inertias[j] = pin.Inertia.Zero()
+    data = full.createData()
+    q = random_q(model, 4, rng, scale=0.5)
+    ours = gravity_torques(model, q)
+    for k in range(len(q)):
+        config = pin.neutral(full)
+        for i, joint in enumerate(ids):
+            config[full.joints[joint].idx_q] = q[k, i]
+        g = pin.computeGeneralizedGravity(full, data, config)
+        theirs = -np.array([g[full.joints[joint].idx_v] for joint in ids])
+        np.testing.assert_allclose(ours[k], theirs, rtol=0, atol=1e-9)
+    assert np.abs(ours).max() > 1.0
