@@ -18,7 +18,7 @@ from relcal.calibration.identify import identify_lm
 from relcal.calibration.measurement import Problem, make_pairs, pair_errors
 from relcal.calibration.noise import _moment_design, estimate_pose_noise, pair_covariances
 from relcal.calibration.pipeline import cross_validate, pair_left_maps
-from relcal.calibration.validate import held_out, pooled
+from relcal.calibration.validate import held_out, pooled, stats
 from relcal.cli import main
 from relcal.data.importers import import_rct_positioner
 from relcal.reporting.documents import validation_document
@@ -65,15 +65,21 @@ def positioner(tmp_path_factory):
 
 def test_positioner_k_fold_no_worse_than_the_baseline_or_a_plain_fit(positioner):
     """On every held-out fold of the real positioner, relcal's chosen model is at least as good
-    as a plain unweighted Levenberg-Marquardt fit of every identifiable parameter (rotation rows
-    x 0.1 m/rad, all pairs), and pooled over the folds no worse than the baseline."""
+    as a plain unweighted Levenberg-Marquardt fit (rotation rows x 0.1 m/rad, all pairs) of the
+    identifiable geometry and hand-eye, within 1 % of a plain fit of every identifiable parameter
+    including the non-geometric candidates, and pooled over the folds better than the baseline
+    beyond its interval."""
     dataset, measured = positioner
     folds = cross_validate(dataset, measured, k=5, seed=0)
     for fold in folds:
         plain = replace(fold.problem, weights=np.r_[np.ones(3), np.full(3, 0.1)], pair_weights=None)
-        fit = identify_lm(plain, 200, analyse_problem(plain))
+        ident = analyse_problem(plain)
+        kinds = plain.full_layout.kinds
+        geometric = np.array(
+            [c for c in ident.subset if kinds[c] in ("theta_off", "a", "d", "alpha", "handeye")]
+        )
         everything = Problem(
-            dataset.model,
+            fold.problem.model,
             fold.problem.layout,
             dataset.q,
             measured.poses,
@@ -82,14 +88,17 @@ def test_positioner_k_fold_no_worse_than_the_baseline_or_a_plain_fit(positioner)
             None,
             fold.problem.handeye,
         )
-        plain_rms = validation_document(held_out(everything, fit, fold.test))["calibrated"][
-            "position_mm"
-        ]
-        ours = validation_document(fold.validation)["calibrated"]["position_mm"]
-        assert ours["rms"] <= plain_rms["rms"] * 1.001, (ours["rms"], plain_rms["rms"])
+
+        plain_rms = []
+        for subset in (geometric, ident.subset):
+            fit = identify_lm(plain, 200, replace(ident, subset=subset))
+            errors = held_out(everything, fit, fold.test).calibrated
+            plain_rms.append(stats(errors)["position_mm"]["rms"])
+        ours = stats(fold.validation.calibrated)["position_mm"]["rms"]
+        assert ours <= plain_rms[0] * 1.001 and ours <= plain_rms[1] * 1.01, (ours, plain_rms)
     summary = validation_document(pooled([f.validation for f in folds]))
-    assert summary["ratio_to_baseline"]["position_mm"]["after_over_before"] <= 1.0
-    assert summary["ratio_to_baseline"]["position_mm"]["ci95"][0] < 1.0
+    ratio = summary["ratio_to_baseline"]["position_mm"]
+    assert ratio["after_over_before"] < 0.95 and ratio["ci95"][1] < 1.0
 
 
 def test_selection_keeps_the_baseline_when_nothing_is_planted(tmp_path):

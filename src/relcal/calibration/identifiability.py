@@ -134,6 +134,18 @@ def sparse_basis(
     return (basis / np.linalg.norm(basis, axis=1, keepdims=True)).T
 
 
+def pivot_weights(layout: Layout) -> np.ndarray:
+    """How strongly each parameter is preferred into the identifiable subset: the hand-eye
+    transform first (estimated whole, so the link parameters it absorbs stay at nominal), then
+    the geometry, then non-geometric terms (a term that duplicates a geometric parameter at these
+    poses is the one left out)."""
+    frames = ("handeye", "instrument", "marker")  # estimated whole where they can be
+    geometric = ("theta_off", "a", "d", "alpha", "beta", "base", "tool", "origin")
+    return np.array(
+        [10.0 if k in frames else 1.0 if k in geometric else 0.1 for k in layout.kinds]
+    )
+
+
 def analyse(
     jac: np.ndarray,
     layout: Layout,
@@ -153,9 +165,7 @@ def analyse(
     # (the leads of the combinations below) stay at nominal, so the exported model changes only
     # what the data determine.
     hand_eye = np.array([kind in NUISANCE_KINDS for kind in layout.kinds])
-    _, _, piv = scipy.linalg.qr(
-        unit * np.where(hand_eye, 10.0, 1.0), mode="economic", pivoting=True
-    )
+    _, _, piv = scipy.linalg.qr(unit * pivot_weights(layout), mode="economic", pivoting=True)
     subset = np.sort(piv[:rank])
 
     combos = []

@@ -46,6 +46,7 @@ from relcal.calibration.selection import (
     Score,
     candidates,
     choose,
+    family,
     fit,
     linearise,
     plain_whiteners,
@@ -66,7 +67,7 @@ from relcal.data.imaging import Measurements, measure
 from relcal.errors import RelcalError
 from relcal.robot.export import calibrated_model
 from relcal.robot.kinematics import fk, make_layout
-from relcal.robot.model import RobotModel
+from relcal.robot.model import RobotModel, nongeometric_options, with_nongeometric
 
 ROBUST_SCALE = 3.0  # residual (in noise standard deviations) where the robust loss bends
 # Candidates without kinematic correction: the hand-eye transform alone, or (position-only data)
@@ -159,8 +160,14 @@ class Calibration:
 
     @property
     def model(self) -> RobotModel:
-        """The exported robot model (the identified geometric errors applied)."""
-        return calibrated_model(self.problem.model, self.problem.layout, self.result.params)
+        """The exported robot model (the identified errors applied; only the non-geometric
+        terms of the chosen model switched on)."""
+        layout = self.problem.layout
+        model = calibrated_model(self.problem.model, layout, self.result.params)
+        if not self.selection:
+            return model
+        columns = self.selection[self.chosen].candidate.columns
+        return exported_model(model, {layout.kinds[c] for c in columns if c < layout.size})
 
     @property
     def handeye(self) -> np.ndarray:
@@ -180,6 +187,7 @@ def calibrate(
     holdout_ids: Sequence[str] | None = None,
     select_folds: int = 5,
     selection: str = "cv",
+    nongeometric: str | Sequence[str] = "auto",
 ) -> Calibration:
     """Choose, fit and validate a model on the training samples; validate on the held-out ones.
 
@@ -191,7 +199,9 @@ def calibrate(
     takes the largest, ``"conservative"`` then drops parameters below 3 standard deviations).
     ``holdout_ids`` names the validation samples (instead of a random share ``holdout``);
     ``measurements``: the camera poses of :func:`data.imaging.measure` (measured here if not
-    given).
+    given). ``nongeometric``: the families of non-geometric terms offered to model selection on
+    top of those the model file enables: ``"auto"`` every family the model can have
+    (:func:`robot.model.nongeometric_options`), ``"none"``, or a list.
     """
     if measurements is None:
         measurements = measure(dataset)
@@ -214,6 +224,7 @@ def calibrate(
             select_folds,
             selection,
         )
+    dataset = replace(dataset, model=candidate_model(dataset.model, nongeometric))
     plausibility = check_dataset(dataset, measurements)  # a wrong unit, order or board size
     poses = measurements.poses
     handeye = dataset.handeye
@@ -236,19 +247,22 @@ def calibrate(
     problem = problem_on(train)
     ident = check_pose_set(problem, str(dataset.spec_path))
     # A robust fit finds the samples whose pairs fit badly; the fits after it use ``loss``.
-    full = _fit(problem, ident, ident.subset, "plain", method, "huber")
+    # The geometry (with the hand-eye) finds the samples whose pairs fit badly, robustly, and
+    # gives the residuals the noise is learned from and the point the candidates are linearised
+    # at; non-geometric terms are small there and enter the candidates only.
+    kinds = problem.full_layout.kinds
+    geometric = np.array([c for c in ident.subset if family(kinds[c]) in ("hand-eye", "geometric")])
+    full = _fit(problem, ident, geometric, "plain", method, "huber")
     outliers = outlier_samples(_normalised(pair_errors(problem, full.params)), problem.pairs)
     outlier_ids = tuple(dataset.ids[train[i]] for i in outliers)
     if reject_outliers and outliers.size:
         train = np.delete(train, outliers)
         problem = problem_on(train)
     if (reject_outliers and outliers.size) or loss != "huber":
-        full = _fit(problem, ident, ident.subset, "plain", method, loss, initial=full.params)
+        full = _fit(problem, ident, geometric, "plain", method, loss, initial=full.params)
 
     left = pair_left_maps(problem)
-    noise = estimate_pose_noise(
-        pair_errors(problem, full.params), left, len(ident.subset), len(train)
-    )
+    noise = estimate_pose_noise(pair_errors(problem, full.params), left, len(geometric), len(train))
     lin = linearise(problem, full.params)
     whiteners = {
         "plain": plain_whiteners(len(left)),
@@ -320,6 +334,22 @@ def calibrate(
         reason,
         boot,
     )
+
+
+def candidate_model(model: RobotModel, nongeometric: str | Sequence[str]) -> RobotModel:
+    """``model`` with the non-geometric families that model selection may choose switched on."""
+    if nongeometric == "none":
+        return model
+    terms = nongeometric_options(model) if nongeometric == "auto" else tuple(nongeometric)
+    return with_nongeometric(model, terms) if terms else model
+
+
+def exported_model(model: RobotModel, kinds: set[str]) -> RobotModel:
+    """``model`` keeping only the non-geometric terms of the parameter ``kinds`` chosen (the
+    families model selection left out are switched off again, their values are zero)."""
+    keep = {k.split("_")[0] for k in kinds}
+    flags = tuple(tuple(t for t in f if t in keep) for f in model.nongeometric)
+    return replace(model, nongeometric=flags)
 
 
 def _split(
