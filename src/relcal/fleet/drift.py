@@ -1,0 +1,172 @@
+"""Did the robot change? The difference of two calibrations and its uncertainty.
+
+Two calibrations ``A`` and ``B`` of one robot estimate the same geometric errors from independent
+data, so their difference ``d = p_B - p_A`` over the parameters both determine has covariance
+``C = C_A + C_B`` (each calibration's own covariance of its estimated subset). Two tests, each at
+level ``alpha`` (default 0.01):
+
+- the chi-square test of ``d^T C^+ d`` with as many degrees of freedom as ``C`` has rank, over the
+  common identifiable subset: are the two sessions compatible as a whole?
+- per parameter, ``z_i = d_i / sqrt(C_ii)`` against a two-sided normal threshold with a Bonferroni
+  correction over the ``k`` compared parameters (``alpha / k``): which parameter moved?
+
+Drift is flagged when either rejects; with no change, the chance of a false flag is at most
+``2 alpha`` (2 % by default). Otherwise the sessions agree: the repeatability of the calibration
+is the spread of ``d``, and ``sqrt(C_ii)`` is what one session pair can resolve.
+
+The hand-eye parameters are left out by default (a remounted camera is not a change of the robot;
+``include_handeye`` puts them in). Only parameters estimated and individually identifiable in both
+runs are compared: values of unidentifiable combinations depend on which member was held at
+nominal, and are no evidence of change.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import scipy.stats
+
+from relcal.errors import RelcalError
+from relcal.fleet.registry import Run
+
+ALPHA = 0.01
+
+
+@dataclass(frozen=True)
+class ParameterChange:
+    """One compared parameter, SI units (``unit`` is ``m`` or ``rad``)."""
+
+    name: str
+    unit: str
+    a: float
+    b: float
+    std: float  # of the difference, sqrt(C_A,ii + C_B,ii)
+    z: float
+    p_value: float  # two-sided, uncorrected
+    flagged: bool  # beyond the Bonferroni-corrected threshold
+
+    @property
+    def difference(self) -> float:
+        return self.b - self.a
+
+
+@dataclass(frozen=True)
+class Comparison:
+    """The outcome of :func:`compare`."""
+
+    run_a: Run
+    run_b: Run
+    alpha: float
+    chi2: float
+    dof: int
+    p_value: float
+    z_threshold: float  # |z| above it flags a parameter (Bonferroni over the compared ones)
+    parameters: tuple[ParameterChange, ...]
+    left_out: tuple[str, ...]  # estimated in at most one run, or not identifiable in both
+    notes: tuple[str, ...] = field(default=())
+
+    @property
+    def drift(self) -> bool:
+        return self.p_value < self.alpha or any(p.flagged for p in self.parameters)
+
+    @property
+    def verdict(self) -> str:
+        return "drift" if self.drift else "agree"
+
+    @property
+    def flagged(self) -> list[str]:
+        return [p.name for p in self.parameters if p.flagged]
+
+
+def common_parameters(a: Run, b: Run, include_handeye: bool = False) -> tuple[list[str], list[str]]:
+    """Names compared (estimated and identifiable in both, hand-eye only if asked) and the names
+    left out, in the order of run ``a``."""
+    usable_b = {p["name"] for p in b.parameters if p["estimated"] and p["identifiable"]}
+    common, left_out = [], []
+    for p in a.parameters:
+        if p["name"].startswith("handeye.") and not include_handeye:
+            continue
+        if p["estimated"] and p["identifiable"] and p["name"] in usable_b:
+            common.append(p["name"])
+        else:
+            left_out.append(p["name"])
+    return common, left_out
+
+
+def compare(a: Run, b: Run, alpha: float = ALPHA, include_handeye: bool = False) -> Comparison:
+    """Compare calibration ``b`` with the earlier ``a`` of the same robot model."""
+    if not 0 < alpha < 1:
+        raise RelcalError(f"--alpha {alpha}: expected a significance level between 0 and 1")
+    if a.model_name != b.model_name:
+        raise RelcalError(
+            f"runs {a.id} and {b.id} calibrate different robot models ({a.model_name!r} and "
+            f"{b.model_name!r}): their parameters do not compare"
+        )
+    notes = []
+    if a.robot_id != b.robot_id:
+        notes.append(
+            f"different robots ({a.robot_id} and {b.robot_id}): the difference is between two "
+            "arms of one model, not a change of one arm"
+        )
+    names, left_out = common_parameters(a, b, include_handeye)
+    if not names:
+        raise RelcalError(f"runs {a.id} and {b.id} have no identifiable parameter in common")
+    sub_a = sorted(n for n in a.covariance["names"] if n in names)
+    sub_b = sorted(n for n in b.covariance["names"] if n in names)
+    if sub_a != sub_b:  # pragma: no cover - guarded by common_parameters
+        raise RelcalError(f"runs {a.id} and {b.id}: covariances miss compared parameters")
+    value_a = np.array([a.parameter(n)["value"] for n in names], dtype=float)
+    value_b = np.array([b.parameter(n)["value"] for n in names], dtype=float)
+    cov = a.covariance_of(names) + b.covariance_of(names)
+    d = value_b - value_a
+    chi2, dof = _chi_square(d, cov)
+    p_value = float(scipy.stats.chi2.sf(chi2, dof)) if dof else 1.0
+    std = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+    z = d / np.where(std > 0, std, np.inf)
+    z_threshold = float(scipy.stats.norm.isf(alpha / (2 * len(names))))
+    changes = tuple(
+        ParameterChange(
+            name=n,
+            unit=a.parameter(n)["unit"],
+            a=float(value_a[i]),
+            b=float(value_b[i]),
+            std=float(std[i]),
+            z=float(z[i]),
+            p_value=float(2 * scipy.stats.norm.sf(abs(z[i]))),
+            flagged=bool(abs(z[i]) > z_threshold),
+        )
+        for i, n in enumerate(names)
+    )
+    if a.settings.get("hayati_joints") != b.settings.get("hayati_joints"):
+        notes.append("the runs use different Hayati joints: parameters may not correspond")
+    return Comparison(
+        a, b, alpha, chi2, dof, p_value, z_threshold, changes, tuple(left_out), tuple(notes)
+    )
+
+
+def _chi_square(d: np.ndarray, cov: np.ndarray) -> tuple[float, int]:
+    """``d^T C^+ d`` and the rank of ``C``, on unit-diagonal scaling (metres and radians mix)."""
+    s = np.sqrt(np.clip(np.diag(cov), 1e-300, None))
+    unit = cov / np.outer(s, s)
+    w, v = np.linalg.eigh(unit)
+    keep = w > 1e-10 * max(w.max(initial=0.0), 1e-300)
+    y = v[:, keep].T @ (d / s)
+    return float(np.sum(y**2 / w[keep])), int(keep.sum())
+
+
+def display(value: float, unit: str) -> tuple[float, str]:
+    """An SI value in the unit people read: mm for lengths, degrees for angles."""
+    return (value * 1e3, "mm") if unit == "m" else (float(np.degrees(value)), "deg")
+
+
+def consecutive(runs: list[Run], alpha: float = ALPHA) -> list[Comparison | None]:
+    """Each run against the one before it (None for the first, and where they do not compare:
+    another robot model, or no common identifiable parameter)."""
+    out: list[Comparison | None] = [None]
+    for before, after in zip(runs, runs[1:], strict=False):
+        try:
+            out.append(compare(before, after, alpha))
+        except RelcalError:
+            out.append(None)
+    return out[: len(runs)]
