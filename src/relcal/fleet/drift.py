@@ -31,6 +31,7 @@ from relcal.errors import RelcalError
 from relcal.fleet.registry import Run
 
 ALPHA = 0.01
+MAD_EFFICIENCY = 0.37  # of the median absolute deviation against the standard deviation (normal)
 
 
 @dataclass(frozen=True)
@@ -86,8 +87,8 @@ def common_parameters(a: Run, b: Run, include_handeye: bool = False) -> tuple[li
     common, left_out = [], []
     for p in a.parameters:
         if p["name"].startswith("handeye.") and not include_handeye:
-            continue
-        if p["estimated"] and p["identifiable"] and p["name"] in usable_b:
+            left_out.append(p["name"])
+        elif p["estimated"] and p["identifiable"] and p["name"] in usable_b:
             common.append(p["name"])
         else:
             left_out.append(p["name"])
@@ -118,13 +119,28 @@ def compare(a: Run, b: Run, alpha: float = ALPHA, include_handeye: bool = False)
         raise RelcalError(f"runs {a.id} and {b.id}: covariances miss compared parameters")
     value_a = np.array([a.parameter(n)["value"] for n in names], dtype=float)
     value_b = np.array([b.parameter(n)["value"] for n in names], dtype=float)
-    cov = a.covariance_of(names) + b.covariance_of(names)
+    cov_a, nu_a = _estimated_covariance(a, names)
+    cov_b, nu_b = _estimated_covariance(b, names)
+    cov = cov_a + cov_b
     d = value_b - value_a
     chi2, dof = _chi_square(d, cov)
-    p_value = float(scipy.stats.chi2.sf(chi2, dof)) if dof else 1.0
+    # per parameter: Welch-Satterthwaite degrees of freedom of the summed variance
+    va, vb = np.diag(cov_a), np.diag(cov_b)
+    denom = va**2 / nu_a + vb**2 / nu_b
+    nu = np.where(denom > 0, (va + vb) ** 2 / np.where(denom > 0, denom, 1.0), np.inf)
+    nu_all = float(np.median(nu)) if np.isfinite(nu).all() else np.inf
+    if not dof:
+        p_value = 1.0
+    elif np.isfinite(nu_all):  # the noise scale is estimated: chi2 / k ~ F(k, nu)
+        p_value = float(scipy.stats.f.sf(chi2 / dof, dof, nu_all))
+    else:
+        p_value = float(scipy.stats.chi2.sf(chi2, dof))
     std = np.sqrt(np.clip(np.diag(cov), 0.0, None))
     z = d / np.where(std > 0, std, np.inf)
-    z_threshold = float(scipy.stats.norm.isf(alpha / (2 * len(names))))
+    level = alpha / (2 * len(names))
+    thresholds = np.where(np.isfinite(nu), scipy.stats.t.isf(level, np.minimum(nu, 1e6)), 0.0)
+    thresholds = np.where(np.isfinite(nu), thresholds, scipy.stats.norm.isf(level))
+    z_threshold = float(np.median(thresholds))
     changes = tuple(
         ParameterChange(
             name=n,
@@ -133,8 +149,8 @@ def compare(a: Run, b: Run, alpha: float = ALPHA, include_handeye: bool = False)
             b=float(value_b[i]),
             std=float(std[i]),
             z=float(z[i]),
-            p_value=float(2 * scipy.stats.norm.sf(abs(z[i]))),
-            flagged=bool(abs(z[i]) > z_threshold),
+            p_value=float(2 * _tail(abs(z[i]), nu[i])),
+            flagged=bool(abs(z[i]) > thresholds[i]),
         )
         for i, n in enumerate(names)
     )
@@ -143,6 +159,22 @@ def compare(a: Run, b: Run, alpha: float = ALPHA, include_handeye: bool = False)
     return Comparison(
         a, b, alpha, chi2, dof, p_value, z_threshold, changes, tuple(left_out), tuple(notes)
     )
+
+
+def _tail(z: float, nu: float) -> float:
+    return float(scipy.stats.t.sf(z, nu) if np.isfinite(nu) else scipy.stats.norm.sf(z))
+
+
+def _estimated_covariance(run: Run, names: list[str]) -> tuple[np.ndarray, float]:
+    """A run's covariance of ``names`` corrected for the fit's shrinkage of the residuals
+    (``rows / (rows - k)``), and the degrees of freedom of its noise estimate (MAD of the
+    translation and of the rotation rows: half the residual degrees of freedom each, at the
+    MAD's efficiency); infinite when the record does not say."""
+    cov = run.covariance_of(names)
+    dof, rows = run.covariance.get("residual_dof"), run.covariance.get("noise_rows")
+    if not dof or not rows or dof <= 0:
+        return cov, np.inf
+    return cov, max(MAD_EFFICIENCY * dof / 2, 1.0)
 
 
 def _chi_square(d: np.ndarray, cov: np.ndarray) -> tuple[float, int]:

@@ -127,7 +127,14 @@ def calibration_record(
         "converged": bool(cal.result.converged),
         "rank": int(cal.result.identifiability.rank),
         "parameters": parameters,
-        "covariance": {"names": names, "matrix": cov.tolist()},
+        "covariance": {
+            "names": names,
+            "matrix": cov.tolist(),
+            # independent relative-pose noise components left after the fit (6 per training
+            # sample but one, less the estimated parameters): what the noise level rests on
+            "residual_dof": 6 * (len(cal.train) - 1) - len(names),
+            "noise_rows": 6 * (len(cal.train) - 1),
+        },
         "errors": held_out_errors(doc),
         "validation": {k: v for k, v in (doc.get("validation") or {}).items() if k != "pairs"}
         or None,
