@@ -229,13 +229,19 @@ def run_fleet(
 ) -> list[dict[str, Any]]:
     """Calibrate every session on the cluster, record the successful ones in ``registry`` (a
     :class:`relcal.fleet.registry.Registry`, or None) and return the entries in session order,
-    each with its run id (``run_id``) when recorded; ``on_entry`` is called as each finishes."""
-    by_name = {}
+    each with its run id (``run_id``) when recorded; ``on_entry`` is called as each finishes.
+
+    Records are written in session order (each as soon as it and every session before it have
+    finished), so that a robot's sessions enter its history in the order of their folders."""
+    by_name: dict[str, dict] = {}
+    next_up = 0
     for entry in iterate_fleet(sessions, out_root, options, workers, scheduler, client):
-        record = entry.get("record")
-        if registry is not None and record is not None:
-            entry["run_id"] = registry.add(record)
         by_name[entry["session"]] = entry
+        while next_up < len(sessions) and sessions[next_up].name in by_name:
+            done = by_name[sessions[next_up].name]
+            if registry is not None and done.get("record") is not None:
+                done["run_id"] = registry.add(done["record"])
+            next_up += 1
         if on_entry is not None:
             on_entry(entry)
     return [by_name[s.name] for s in sessions]

@@ -80,6 +80,12 @@ def history_text(robot_id: str, runs: list[Run], comparisons: list, where: str) 
     return "\n".join(lines)
 
 
+def _test_name(c: Comparison) -> str:
+    if c.noise_dof == float("inf"):
+        return f"chi-square test on {c.dof} degrees of freedom"
+    return f"F test on ({c.dof}, {c.noise_dof:.0f}) degrees of freedom (noise levels estimated)"
+
+
 def comparison_text(c: Comparison) -> str:
     """The verdict, the chi-square test, and per parameter: both values, the difference, its
     standard deviation from both covariances and z."""
@@ -87,8 +93,8 @@ def comparison_text(c: Comparison) -> str:
     lines = [
         f"run {a.id} ({a.robot_id}, {a.session}, {_time(a)}) -> run {b.id} ({b.robot_id}, "
         f"{b.session}, {_time(b)}): {'DRIFT' if c.drift else 'the two calibrations agree'}",
-        f"chi-square {c.chi2:.1f} on {c.dof} degrees of freedom over the {len(c.parameters)} "
-        f"parameters both determine: p = {c.p_value:.3g} (drift below alpha {c.alpha:g})",
+        f"chi-square {c.chi2:.1f} over the {len(c.parameters)} parameters both determine (rank "
+        f"{c.dof}), " + _test_name(c) + f": p = {c.p_value:.3g} (drift below alpha {c.alpha:g})",
         f"per parameter: |z| > {c.z_threshold:.2f} flags a change (alpha {c.alpha:g}, Bonferroni "
         f"over {len(c.parameters)})",
         "",
@@ -159,6 +165,7 @@ def comparison_document(c: Comparison) -> dict[str, Any]:
         "alpha": c.alpha,
         "chi2": c.chi2,
         "dof": c.dof,
+        "noise_dof": None if c.noise_dof == float("inf") else c.noise_dof,
         "p_value": c.p_value,
         "z_threshold": c.z_threshold,
         "flagged": c.flagged,

@@ -1,0 +1,128 @@
+"""A synthetic fleet on a local Dask cluster of 2 worker processes: 10 robots of 2 models, two
+sessions each, one corrupt dataset, one robot whose second session has a[2] 0.3 mm longer."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import threading
+import time
+
+import pytest
+from helpers_fleet import make_robot, write_session
+
+from relcal.cli import main
+from relcal.fleet.registry import Registry, registry_url
+from relcal.fleet.runner import discover, run_fleet
+
+pytest.importorskip("distributed")
+
+CHANGED, CORRUPT = "r04", "r09"
+
+
+@pytest.fixture(scope="module")
+def fleet(tmp_path_factory):
+    root = tmp_path_factory.mktemp("fleet") / "plant"
+    for i in range(10):
+        robot = make_robot(("a465", "ur5e")[i % 2], f"r{i:02d}", 40 + i)
+        write_session(root / f"r{i:02d}" / "2026-01", robot, 100 + i)
+        change = {"a[2]": 3e-4} if robot.robot_id == CHANGED else None
+        write_session(root / f"r{i:02d}" / "2026-06", robot, 200 + i, change=change)
+    samples = root / CORRUPT / "2026-06" / "samples.csv"
+    lines = samples.read_text().splitlines()
+    lines[5] = lines[5].replace(",", ",x", 1)  # a joint value that is not a number
+    samples.write_text("\n".join(lines) + "\n")
+    return root
+
+
+def test_fleet_command_calibrates_every_session_and_flags_the_changed_robot(
+    fleet, tmp_path, capsys
+):
+    db, out = tmp_path / "history.sqlite", tmp_path / "fleet.json"
+    argv = ["fleet", "calibrate", str(fleet), "--workers", "2", "--registry", str(db)]
+    assert main([*argv, "--json", str(out), "--report", str(tmp_path / "fleet.html")]) == 1
+    text = capsys.readouterr().out
+    doc = json.loads(out.read_text())
+    entries = {e["session"]: e for e in doc["sessions"]}
+    assert doc["n_sessions"] == 20 and doc["n_ok"] == 19 and doc["workers"] == 2
+    # the corrupt dataset fails alone, with its reason (file, line, field)
+    failed = [e for e in doc["sessions"] if e["status"] != "ok"]
+    assert [e["session"] for e in failed] == [f"{CORRUPT}/2026-06"]
+    assert "samples.csv line 6: q1" in failed[0]["reason"] and "x" in failed[0]["reason"]
+    assert f"failed {CORRUPT}/2026-06: " in text
+    # every other session: the outputs of `relcal calibrate`, errors, a registry run
+    for name, e in entries.items():
+        if e["status"] != "ok":
+            continue
+        assert e["robot_id"] == name.split("/")[0]
+        for file in ("model.yaml", "robot.urdf", "parameters.csv", "results.json"):
+            assert (fleet / name / "calibration" / file).is_file(), (name, file)
+        assert e["outputs"] == str(fleet / name / "calibration")
+        assert e["calibrated_position_rms_mm"] < 0.1 * e["baseline_position_rms_mm"]
+        assert isinstance(e["run_id"], int)
+    # drift: the planted change is flagged on its link, the unchanged robots agree
+    for i in range(10):
+        robot = f"r{i:02d}"
+        if robot == CORRUPT:
+            assert entries[f"{robot}/2026-06"]["drift"] is None
+            continue
+        drift = entries[f"{robot}/2026-06"]["drift"]
+        assert drift["against"] == f"{robot}/2026-01"
+        if robot == CHANGED:
+            assert drift["verdict"] == "drift" and "a[2]" in drift["flagged"], drift
+        else:
+            assert drift["verdict"] == "agree", (robot, drift)
+        assert entries[f"{robot}/2026-01"]["drift"] is None
+    with Registry(registry_url(db)) as registry:
+        assert len(registry.runs()) == 19
+        assert [r.session for r in registry.runs(CHANGED)] == [
+            f"{CHANGED}/2026-01",
+            f"{CHANGED}/2026-06",
+        ]
+    assert main(["history", CHANGED, "--registry", str(db)]) == 0
+    assert "DRIFT" in capsys.readouterr().out
+
+
+def test_a_killed_worker_does_not_stop_the_fleet(fleet, tmp_path):
+    """SIGKILL one of the two worker processes while sessions run: its tasks run again
+    elsewhere (the nanny starts a new worker), and the fleet completes."""
+    from distributed import Client, LocalCluster
+
+    sessions = discover(fleet)
+    out = tmp_path / "out"
+    with (
+        LocalCluster(
+            n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None
+        ) as cluster,
+        Client(cluster) as client,
+    ):
+        pids = client.run(os.getpid)
+        victim = sorted(pids.values())[0]
+        killed = threading.Event()
+
+        def killer() -> None:
+            deadline = time.monotonic() + 120
+            while time.monotonic() < deadline:
+                if any(out.rglob("results.json")):  # sessions are running
+                    os.kill(victim, signal.SIGKILL)
+                    killed.set()
+                    return
+                time.sleep(0.01)
+
+        thread = threading.Thread(target=killer, daemon=True)
+        thread.start()
+        entries = run_fleet(sessions, out_root=out, client=client)
+        thread.join(timeout=5)
+        assert killed.is_set()
+        assert victim not in client.run(os.getpid).values()
+        rerun = {
+            key
+            for key, start, finish, *_ in cluster.scheduler.transition_log
+            if start == "processing" and finish in ("released", "waiting")
+        }
+    assert rerun, "no task was running on the killed worker"
+    status = {e["session"]: e["status"] for e in entries}
+    assert len(status) == 20
+    assert [s for s, v in status.items() if v != "ok"] == [f"{CORRUPT}/2026-06"]
+    assert len(list(out.rglob("results.json"))) == 19
