@@ -3,6 +3,8 @@ sessions each, one corrupt dataset, one robot whose second session has a[2] 0.3 
 
 from __future__ import annotations
 
+import contextlib
+import io
 import json
 import os
 import signal
@@ -36,14 +38,22 @@ def fleet(tmp_path_factory):
     return root
 
 
-def test_fleet_command_calibrates_every_session_and_flags_the_changed_robot(
-    fleet, tmp_path, capsys
-):
-    db, out = tmp_path / "history.sqlite", tmp_path / "fleet.json"
+@pytest.fixture(scope="module")
+def fleet_run(fleet, tmp_path_factory):
+    """``relcal fleet calibrate`` on the fleet (2 local worker processes), with a registry, the
+    JSON and the report; its printed text."""
+    tmp = tmp_path_factory.mktemp("fleet-run")
+    db, out, report = tmp / "history.sqlite", tmp / "fleet.json", tmp / "fleet.html"
     argv = ["fleet", "calibrate", str(fleet), "--workers", "2", "--registry", str(db)]
-    assert main([*argv, "--json", str(out), "--report", str(tmp_path / "fleet.html")]) == 1
-    text = capsys.readouterr().out
-    doc = json.loads(out.read_text())
+    with contextlib.redirect_stdout(io.StringIO()) as text:
+        assert main([*argv, "--json", str(out), "--report", str(report)]) == 1
+    return json.loads(out.read_text()), text.getvalue(), db, report
+
+
+def test_fleet_command_calibrates_every_session_and_flags_the_changed_robot(
+    fleet, fleet_run, capsys
+):
+    doc, text, db, _ = fleet_run
     entries = {e["session"]: e for e in doc["sessions"]}
     assert doc["n_sessions"] == 20 and doc["n_ok"] == 19 and doc["workers"] == 2
     # the corrupt dataset fails alone, with its reason (file, line, field)
@@ -82,6 +92,36 @@ def test_fleet_command_calibrates_every_session_and_flags_the_changed_robot(
         ]
     assert main(["history", CHANGED, "--registry", str(db)]) == 0
     assert "DRIFT" in capsys.readouterr().out
+
+
+def test_fleet_report_renders_in_chromium(fleet_run, tmp_path):
+    from test_report_browser import check_page, check_rendering, check_section_drawn
+
+    doc, _, _, report = fleet_run
+    models = {"thermo-crs-a465", "universal-robots-ur5e"}
+    sections = {"summary", "robots", "failed"} | {f"parameters-{m}" for m in models}
+    plots = {f"plot-parameters-{m}" for m in models}
+    page = check_page(report.read_text(), sections, plots)
+    cells = page.cells
+    # one row per session: status, errors as in the JSON, drift flags
+    for e in doc["sessions"]:
+        k = cells.index(e["session"])
+        assert cells[k + 1] == e["robot_id"] and cells[k + 3] == e["status"]
+        if e["status"] == "ok":
+            assert float(cells[k + 4]) == pytest.approx(e["baseline_position_rms_mm"], abs=1e-3)
+            assert float(cells[k + 5]) == pytest.approx(e["calibrated_position_rms_mm"], abs=1e-3)
+        drift = e["drift"]
+        if drift is None:
+            assert cells[k + 8] == "–"
+        elif drift["verdict"] == "drift":
+            assert cells[k + 8].startswith("drift: a[2]")
+        else:
+            assert cells[k + 8].startswith("agree")
+    failed = next(e for e in doc["sessions"] if e["status"] == "failed")
+    assert failed["reason"] in cells
+    found, shot = check_rendering(report, tmp_path, plots)
+    for ident in sections:
+        check_section_drawn(found, shot, ident)
 
 
 def test_a_killed_worker_does_not_stop_the_fleet(fleet, tmp_path):
