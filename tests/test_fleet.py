@@ -11,7 +11,9 @@ import signal
 import threading
 import time
 
+import numpy as np
 import pytest
+from conftest import random_q
 from helpers_fleet import make_robot, write_session
 
 from relcal.cli import main
@@ -124,19 +126,49 @@ def test_fleet_report_renders_in_chromium(fleet_run, tmp_path):
         check_section_drawn(found, shot, ident)
 
 
-def test_a_killed_worker_does_not_stop_the_fleet(fleet, tmp_path):
+@pytest.fixture(scope="module")
+def cluster():
+    """A local cluster of 2 single-threaded worker processes (as `--workers 2` makes)."""
+    from distributed import LocalCluster
+
+    with LocalCluster(
+        n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None
+    ) as cluster:
+        yield cluster
+
+
+def test_study_on_the_cluster_gives_the_same_trials(cluster, tmp_path, capsys):
+    """`relcal study --scheduler`: the trials run as Dask tasks, with the same estimates as in
+    one process (each trial's noise is seeded by its index)."""
+    from distributed import Client
+
+    from relcal.calibration.noise import Noise
+    from relcal.geometry import DEG, MM
+    from relcal.robot.model import auto_hayati, get_robot
+    from relcal.sim.study import make_scenario, study
+
+    model = auto_hayati(get_robot("a465"))
+    q = random_q(model, 12, np.random.default_rng(11))
+    scenario = make_scenario(model, q, Noise(0.05 * MM, 0.01 * DEG), seed=4)
+    here = study(scenario, trials=30, workers=1, progress=False)
+    with Client(cluster) as client:
+        there = study(scenario, trials=30, progress=False, client=client)
+    np.testing.assert_array_equal(there.estimates, here.estimates)
+    out = tmp_path / "study.json"
+    argv = ["study", "--robot", "a465", "--hayati", "auto", "--poses", "12", "--trials", "20"]
+    assert main([*argv, "--scheduler", cluster.scheduler_address, "--json", str(out)]) == 0
+    assert json.loads(out.read_text())["trials"] == 20
+    assert "trials" in capsys.readouterr().out
+
+
+def test_a_killed_worker_does_not_stop_the_fleet(fleet, cluster, tmp_path):
     """SIGKILL one of the two worker processes while sessions run: its tasks run again
     elsewhere (the nanny starts a new worker), and the fleet completes."""
-    from distributed import Client, LocalCluster
+    from distributed import Client
 
     sessions = discover(fleet)
     out = tmp_path / "out"
-    with (
-        LocalCluster(
-            n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None
-        ) as cluster,
-        Client(cluster) as client,
-    ):
+    with Client(cluster) as client:
         pids = client.run(os.getpid)
         victim = sorted(pids.values())[0]
         killed = threading.Event()
