@@ -42,8 +42,10 @@ body { line-height:22px; } header h1 { line-height:32px; } header .meta, nav a {
 h2 { line-height:28px; } h3 { line-height:22px; } th, td { line-height:20px; }
 p.hint, figcaption, .note { line-height:20px; } .card .label, .badge { line-height:18px; }
 .card .value { line-height:26px; } .cards.wide .card .value { line-height:30px; }
+#robots td:first-child { white-space:nowrap; }
 """
 OUTLIER_Z = 3.5  # robust z (median, 1.4826 MAD) among the robots of one model
+MIN_ROBOTS = 8  # fewer robots of a model: no robust spread to judge "far" by
 
 
 def _slug(text: str) -> str:
@@ -166,11 +168,11 @@ def _parameter_values(group: list[dict]) -> tuple[list[str], dict]:
 
 def _outliers(robot: np.ndarray, values: np.ndarray, std: np.ndarray) -> np.ndarray:
     """Points of robots whose latest value lies more than ``OUTLIER_Z`` robust standard
-    deviations from the median of the robots (at least 5 robots; the spread is at least the
+    deviations from the median of the robots (at least ``MIN_ROBOTS``; the spread is at least the
     median standard deviation, so that noise alone is never an outlier)."""
     far = np.zeros(len(values), dtype=bool)
     latest = {int(r): k for k, r in enumerate(robot)}  # the last point of each robot
-    if len(latest) < 5:
+    if len(latest) < MIN_ROBOTS:
         return far
     last = np.array([values[k] for k in latest.values()])
     median = np.median(last)
@@ -233,7 +235,7 @@ def _parameters(entries: list[dict]) -> list[tuple]:
                     + ", ".join(robots)
                     + f", left to right). Red: a robot whose latest value lies more than "
                     f"{OUTLIER_Z} robust standard deviations from the median of the robots of "
-                    "this model (with 5 robots or more)."
+                    f"this model (with {MIN_ROBOTS} robots or more)."
                 ),
                 _figure_html(
                     f"plot-parameters-{slug}",

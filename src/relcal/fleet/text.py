@@ -61,6 +61,7 @@ def history_text(robot_id: str, runs: list[Run], comparisons: list, where: str) 
     lines += ["", "parameters (identified error, mm or deg, +- one standard deviation):"]
     header = ["name", "unit"] + [f"run {r.id}" for r in runs]
     table = [header]
+    never = []
     for name in runs[-1].names:
         cells, unit = [], ""
         for run in runs:
@@ -75,8 +76,13 @@ def history_text(robot_id: str, runs: list[Run], comparisons: list, where: str) 
             value, unit = display(p["value"], p["unit"])
             std = display(p["std"], p["unit"])[0] if p["std"] is not None else float("nan")
             cells.append(f"{value:+.4f} +- {std:.4f}")
-        table.append([name, unit, *cells])
+        if all(c in ("n/i", "") for c in cells):
+            never.append(name)
+        else:
+            table.append([name, unit, *cells])
     lines += _table(table, set(range(2, len(header))))
+    if never:
+        lines.append("not identifiable (n/i) in any run: " + ", ".join(never))
     return "\n".join(lines)
 
 
