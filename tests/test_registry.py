@@ -45,21 +45,26 @@ def test_a_record_holds_what_the_calibration_found(calibrated, tmp_path):
     assert run.settings == json.loads(json.dumps(cal.settings))
     assert set(run.input_hashes) == {"dataset.yaml", "samples.csv"}
     assert run.outputs_path == str((tmp_path / "out").resolve())
-    # parameters, standard deviations and covariance in SI units, as the calibration has them
-    unc = cal.uncertainty
-    names = [unc.names[k] for k in unc.subset]
-    assert run.covariance["names"] == names
-    np.testing.assert_allclose(run.covariance_of(names), unc.covariance, rtol=1e-12)
+    # parameters, standard deviations and covariance in SI units, over the estimated subset
+    names = [n for k, n in enumerate(cal.problem.full_layout.names) if np.isfinite(cal.std[k])]
+    assert run.covariance["names"] == names and len(names) == cal.result.identifiability.rank
+    cov = run.covariance_of(names)
+    np.testing.assert_allclose(cov, cov.T)
+    assert np.linalg.eigvalsh(cov).min() > 0
     for k, name in enumerate(cal.problem.full_layout.names):
         p = run.parameter(name)
         assert p["estimated"] == (name in names)
         if p["estimated"]:
             assert p["value"] == pytest.approx(cal.result.params[k], rel=1e-12, abs=1e-300)
-            assert p["std"] == pytest.approx(cal.std[k], rel=1e-12)
-    # the held-out errors of the results document (baseline: the nominal model)
+            assert p["calibration_std"] == pytest.approx(cal.std[k], rel=1e-12)
+            assert p["std"] == pytest.approx(np.sqrt(cov[names.index(name)][names.index(name)]))
+            assert 0.5 < p["std"] / p["calibration_std"] < 3
+    # the held-out errors of the results document (baseline: the hand-eye-only fit)
     val = doc["validation"]
-    assert run.errors["baseline_position_rms_mm"] == val["before"]["position_mm"]["rms"]
-    assert run.errors["calibrated_orientation_rms_deg"] == val["after"]["orientation_deg"]["rms"]
+    assert run.errors["baseline_position_rms_mm"] == val["baseline"]["position_mm"]["rms"]
+    assert (
+        run.errors["calibrated_orientation_rms_deg"] == val["calibrated"]["orientation_deg"]["rms"]
+    )
     with pytest.raises(reg.RelcalError, match="no run with id"):
         reg.Registry(reg.registry_url(tmp_path / "h.sqlite")).get(99)
 

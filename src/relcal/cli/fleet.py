@@ -33,6 +33,7 @@ def run_fleet_calibrate(args: argparse.Namespace) -> int:
         "method": args.method,
         "loss": args.loss,
         "reject_outliers": not args.keep_outliers,
+        "selection": args.select,
     }
     started = datetime.now(UTC)
     bar = None
@@ -142,7 +143,13 @@ def register(sub: argparse._SubParsersAction) -> None:
     cp.add_argument("--seed", type=int, default=0, help="seed of the held-out split")
     cp.add_argument("--pairs", choices=("consecutive", "star", "all"), default="all")
     cp.add_argument("--method", choices=("lm", "published"), default="lm")
-    cp.add_argument("--loss", choices=("linear", "huber", "cauchy", "soft_l1"), default="huber")
+    cp.add_argument("--loss", choices=("linear", "huber", "cauchy", "soft_l1"), default="linear")
+    cp.add_argument(
+        "--select",
+        choices=("cv", "conservative", "all"),
+        default="cv",
+        help="model selection, as `relcal calibrate --select` (default cv)",
+    )
     cp.add_argument("--keep-outliers", action="store_true", help="keep detected outliers")
     cp.add_argument(
         "--alpha", type=float, default=ALPHA, help=f"drift test level (default {ALPHA})"

@@ -309,14 +309,13 @@ class Registry:
     def get(self, ref: str | int) -> Run:
         """A run by id (``12``) or by a unique prefix of its uid (at least 6 characters)."""
         text = str(ref).strip()
+        found = []
         if text.isdigit():
             found = self._select(sa.select(calibrations).where(calibrations.c.id == int(text)))
-        elif len(text) >= 6:
+        if not found and len(text) >= 6:  # a uid prefix (which may be all digits)
             found = self._select(
                 sa.select(calibrations).where(calibrations.c.uid.startswith(text.lower()))
             )
-        else:
-            found = []
         if len(found) != 1:
             what = "no run" if not found else f"{len(found)} runs"
             raise RelcalError(

@@ -20,15 +20,6 @@ from typing import Any
 
 from relcal.errors import RelcalError
 
-DEFAULT_OPTIONS = {
-    "holdout": 0.25,
-    "seed": 0,
-    "pairing": "all",
-    "method": "lm",
-    "loss": "huber",
-    "reject_outliers": True,
-}
-
 
 @dataclass(frozen=True)
 class Session:
@@ -77,10 +68,10 @@ def outputs_folder(session: Session, out_root: str | Path | None) -> Path:
 def _write_outputs(cal, doc: dict, out: Path) -> None:
     """The files of ``relcal calibrate``: model.yaml, robot.urdf, parameters.csv, results.json."""
     from relcal.io import write_json, write_text
-    from relcal.robot.export import calibrated_model, parameter_csv, urdf
+    from relcal.robot.export import parameter_csv, urdf
     from relcal.robot.model import dump_model
 
-    model = calibrated_model(cal.problem.model, cal.problem.layout, cal.result.params)
+    model = cal.model
     write_text(out / "model.yaml", dump_model(model))
     write_text(out / "robot.urdf", urdf(model))
     write_text(out / "parameters.csv", parameter_csv(doc["parameters"]))
@@ -98,9 +89,7 @@ def calibrate_session(
     entry: dict[str, Any] = {"session": name, "path": str(Path(path).resolve())}
     try:
         with threadpool_limits(limits=1):
-            entry.update(
-                _calibrate(Path(path), name, Path(out), {**DEFAULT_OPTIONS, **(options or {})})
-            )
+            entry.update(_calibrate(Path(path), name, Path(out), dict(options or {})))
     except RelcalError as exc:
         entry.update(status="failed", reason=str(exc))
     except Exception as exc:  # a bug or a broken file: still this session's failure alone
@@ -127,6 +116,18 @@ def _calibrate(path: Path, name: str, out: Path, options: dict) -> dict[str, Any
         m = measure(dataset, workers=1, progress=False)
         cal = calibrate(dataset, m, **options)
         doc = results_document(cal)
+    if cal.hurts:  # as `relcal calibrate`: a model worse than the baseline is not written
+        val = doc["validation"]
+        return {
+            "robot_id": dataset.robot_id,
+            "model": dataset.model.name,
+            "status": "rejected",
+            "reason": f"the chosen model ({doc['model_selection']['chosen']}) is worse than the "
+            f"baseline on the held-out samples (position RMS "
+            f"{val['calibrated']['position_mm']['rms']:.3f} mm against "
+            f"{val['baseline']['position_mm']['rms']:.3f} mm); nothing written",
+            **held_out_errors(doc),
+        }
     _write_outputs(cal, doc, out)
     record = calibration_record(cal, doc, outputs=out, session=name)
     return {
