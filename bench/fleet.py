@@ -13,7 +13,6 @@ warmed up before timing.
 
 from __future__ import annotations
 
-import logging
 import sys
 import tempfile
 import time
@@ -45,20 +44,11 @@ def _noop(x: int) -> int:
 def fleet_seconds(sessions, workers: int, out: Path) -> tuple[float, float | None]:
     """Wall time of the fleet on a warmed-up local cluster of ``workers`` processes, and (for
     the cluster) the mean round trip of no-op tasks."""
-    from distributed import Client, LocalCluster, wait
+    from distributed import Client, wait
 
-    from relcal.fleet.runner import run_fleet
+    from relcal.fleet.runner import local_cluster, run_fleet
 
-    with (
-        LocalCluster(
-            n_workers=workers,
-            threads_per_worker=1,
-            processes=True,
-            dashboard_address=None,
-            silence_logs=logging.CRITICAL,
-        ) as cluster,
-        Client(cluster) as client,
-    ):
+    with local_cluster(workers) as cluster, Client(cluster) as client:
         run_fleet(sessions[:workers], out_root=out / "warm", client=client)  # imports, caches
         seconds = float("inf")
         for repeat in range(REPEAT):  # the least of a few runs: bursts of load from others pass

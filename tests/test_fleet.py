@@ -129,11 +129,9 @@ def test_fleet_report_renders_in_chromium(fleet_run, tmp_path):
 @pytest.fixture(scope="module")
 def cluster():
     """A local cluster of 2 single-threaded worker processes (as `--workers 2` makes)."""
-    from distributed import LocalCluster
+    from relcal.fleet.runner import local_cluster
 
-    with LocalCluster(
-        n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None
-    ) as cluster:
+    with local_cluster(2) as cluster:
         yield cluster
 
 

@@ -145,7 +145,7 @@ def _client(workers: int, scheduler: str | None):
     """A Dask client of the cluster at ``scheduler``, or of a new local cluster of ``workers``
     single-threaded worker processes (closed with the client)."""
     try:
-        from distributed import Client, LocalCluster
+        from distributed import Client
     except ImportError:
         raise RelcalError(
             "fleet work needs Dask distributed: pip install 'relcal[fleet]'"
@@ -157,14 +157,26 @@ def _client(workers: int, scheduler: str | None):
             raise RelcalError(f"--scheduler {scheduler}: cannot connect: {exc}") from None
     if workers < 1:
         raise RelcalError(f"--workers {workers}: expected at least 1 worker process")
-    cluster = LocalCluster(
-        n_workers=workers,
-        threads_per_worker=1,
-        processes=True,
-        dashboard_address=None,
-        silence_logs=logging.CRITICAL,
-    )
+    cluster = local_cluster(workers)
     return Client(cluster), cluster
+
+
+def local_cluster(workers: int):
+    """A local Dask cluster of ``workers`` single-threaded worker processes, without the
+    workers' statistical profiler: it samples the task thread's stack every few milliseconds
+    and so holds the GIL often enough to make calibrations about twice as slow (measured: 12
+    sessions in 3.2 s with it, 1.75 s without, 1.8 s in the main process)."""
+    import dask
+    from distributed import LocalCluster
+
+    with dask.config.set({"distributed.worker.profile.enabled": False}):
+        return LocalCluster(
+            n_workers=workers,
+            threads_per_worker=1,
+            processes=True,
+            dashboard_address=None,
+            silence_logs=logging.CRITICAL,
+        )
 
 
 def iterate_fleet(
