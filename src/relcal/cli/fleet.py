@@ -12,7 +12,9 @@ examples:
   relcal fleet calibrate plant/ --workers 2 --registry history.sqlite --json fleet.json
   relcal fleet calibrate plant/ --scheduler tcp://10.0.0.5:8786 --report fleet.html
   (a remote cluster: `dask scheduler` on one machine, `dask worker tcp://HOST:8786 --nthreads 1`
-  on each worker machine, with relcal installed and the dataset folders at the same path)
+  on each worker machine, with relcal installed and the dataset folders at the same path; set
+  DASK_DISTRIBUTED__WORKER__PROFILE__ENABLED=False for the workers: their profiler slows
+  calibrations about twice)
 
 exit status: 0 every session calibrated, 1 some session failed or did not converge, 2 bad input
 """
