@@ -143,7 +143,8 @@ def test_study_on_the_cluster_gives_the_same_trials(cluster, tmp_path, capsys):
     from relcal.calibration.noise import Noise
     from relcal.geometry import DEG, MM
     from relcal.robot.model import auto_hayati, get_robot
-    from relcal.sim.study import make_scenario, study
+    from relcal.sim.scenario import make_scenario
+    from relcal.sim.study import study
 
     model = auto_hayati(get_robot("a465"))
     q = random_q(model, 12, np.random.default_rng(11))
