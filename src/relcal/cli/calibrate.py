@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from relcal.cli.common import json_arg
+from relcal.cli.common import json_arg, registry_arg
 
 EPILOG = """\
 examples:
@@ -51,6 +51,7 @@ def run_calibrate(args: argparse.Namespace) -> int:
     from relcal.calibration.pipeline import calibrate
     from relcal.data.dataset import load_dataset
     from relcal.data.imaging import measure
+    from relcal.fleet.records import record_calibration
     from relcal.io import write_json, write_text, write_with
     from relcal.reporting.documents import cross_validation_document, results_document
     from relcal.reporting.text import calibration_summary
@@ -105,6 +106,7 @@ def run_calibrate(args: argparse.Namespace) -> int:
         from relcal.reporting.html import calibration_report
 
         write_text(args.report, calibration_report(cal, doc))
+    run_id = record_calibration(args.registry, cal, doc, out)
     if not args.quiet:
         print(calibration_summary(doc))
         if cal.worse:
@@ -116,6 +118,8 @@ def run_calibrate(args: argparse.Namespace) -> int:
         print(f"written: {out}/model.yaml, {', '.join(files)}, parameters.csv, results.json")
         if args.report:
             print(f"report: {args.report}")
+        if run_id is not None:
+            print(f"recorded in the registry as run {run_id}")
     if not cal.result.converged:
         return 1
     return 0
@@ -189,5 +193,6 @@ def register(sub: argparse._SubParsersAction) -> None:
         "every identifiable parameter",
     )
     cp.add_argument("--report", metavar="FILE", help="write the HTML calibration report to FILE")
+    registry_arg(cp)
     json_arg(cp, "a copy of results.json (parameters, hand-eye, validation, calibrated model)")
     cp.set_defaults(func=run_calibrate)

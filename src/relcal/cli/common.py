@@ -17,6 +17,8 @@ COMMANDS = [
     "observability",
     "study",
     "plan",
+    "fleet",
+    "history",
 ]
 
 
@@ -74,3 +76,13 @@ def load_robot(args: argparse.Namespace):
 def json_arg(parser: argparse.ArgumentParser, what: str) -> None:
     """``--json FILE``, shared by every command: ``what`` is the document written."""
     parser.add_argument("--json", metavar="FILE", help=f"write {what} as JSON to FILE")
+
+
+def registry_arg(parser: argparse.ArgumentParser) -> None:
+    """``--registry PATH|URL``: the calibration registry (default ``$RELCAL_REGISTRY``)."""
+    parser.add_argument(
+        "--registry",
+        metavar="PATH|URL",
+        help="calibration registry: a SQLite file or a SQLAlchemy URL "
+        "(default $RELCAL_REGISTRY; none if unset)",
+    )

@@ -60,15 +60,21 @@ def run(args: argparse.Namespace) -> int:
         pairing=args.pairs,
         errors=errors,
     )
-    res = study(
-        scenario,
-        trials=args.trials,
-        seed=args.seed,
-        workers=args.workers,
-        estimator=args.estimator,
-        sampling=args.sampling,
-        progress=not args.quiet,
-    )
+    client = _client(args.scheduler)
+    try:
+        res = study(
+            scenario,
+            trials=args.trials,
+            seed=args.seed,
+            workers=args.workers,
+            estimator=args.estimator,
+            sampling=args.sampling,
+            progress=not args.quiet,
+            client=client,
+        )
+    finally:
+        if client is not None:
+            client.close()
     if not args.quiet:
         print(
             f"\n{model.name}: {args.formulation} formulation, {args.measure}, {source}, "
@@ -80,6 +86,24 @@ def run(args: argparse.Namespace) -> int:
         doc.update(robot=model.name, poses=source, formulation=args.formulation)
         write_json(args.json, doc)
     return 0 if np.all(res.converged) else 1
+
+
+def _client(scheduler: str | None):
+    """A Dask client of the cluster at ``--scheduler`` (None without it)."""
+    if not scheduler:
+        return None
+    from relcal.errors import RelcalError
+
+    try:
+        from distributed import Client
+    except ImportError:
+        raise RelcalError(
+            "--scheduler needs Dask distributed: pip install 'relcal[fleet]'"
+        ) from None
+    try:
+        return Client(scheduler, timeout="20s")
+    except (OSError, TimeoutError) as exc:
+        raise RelcalError(f"--scheduler {scheduler}: cannot connect: {exc}") from None
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -102,6 +126,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_noise_arg(p)
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--workers", type=int, default=2, help="worker processes (default 2)")
+    p.add_argument(
+        "--scheduler",
+        metavar="tcp://HOST:8786",
+        help="run the trials as tasks on this Dask cluster (instead of --workers processes)",
+    )
     p.add_argument(
         "--estimator",
         choices=("weighted", "least_squares"),

@@ -19,6 +19,7 @@
     tolerances:                # optional plausibility thresholds (defaults shown)
       length_mm: 10            #   largest identified correction of a link length
       angle_deg: 2             #   of a joint offset or twist
+    robot_id: cell4-arm2       # optional: which physical robot (history); default folder name
 
 ``samples.csv`` has a header: ``id`` (optional: without it a sample's id is its line number), one
 column per joint, named ``q1`` .. ``qn`` or by the model's joint names (``torso_lift_joint``, ...,
@@ -97,6 +98,7 @@ class _DatasetSpec(pydantic.BaseModel):
     columns: dict[str, str] = {}
     samples: str = "samples.csv"
     tolerances: _Tolerances | None = None
+    robot_id: str | None = None  # which physical robot (fleet history); default the folder name
 
     @pydantic.field_validator("hayati", mode="before")
     @classmethod
@@ -126,6 +128,7 @@ class Dataset:
     spec_path: Path | None = None
     tolerances: dict[str, float] | None = None  # plausibility thresholds (mm, deg, percent)
     measured: Measured = "image"  # or "pose"; "position": poses hold points (rotation unused)
+    robot_id: str | None = None  # ``robot_id`` of dataset.yaml (the folder name when absent)
 
 
 def _resolve(root: Path, value: str | dict | None, loader, what: str, spec: Path):
@@ -186,6 +189,7 @@ def load_dataset(folder: str | Path) -> Dataset:
         spec_path,
         tolerances,
         table.measured,
+        robot_id=spec.robot_id or root.resolve().name,
     )
 
 

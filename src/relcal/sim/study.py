@@ -100,6 +100,35 @@ def _estimate(problem: Problem, context: dict) -> tuple[np.ndarray, bool]:
     return result.params, result.converged
 
 
+def _run_on_worker(context: dict, rows: list[tuple[int, np.ndarray]]) -> list:
+    """A Dask task: ``rows`` with ``context`` (scattered once, the same object for every task of
+    one worker), BLAS on one thread."""
+    from threadpoolctl import threadpool_limits
+
+    if _CONTEXT.get("token") != context["token"]:
+        _init(context)
+    with threadpool_limits(limits=1):
+        return _run_trials(rows)
+
+
+def _dask_results(client, context: dict, rows: list, trial_seconds: float):
+    """Results of the trials as Dask tasks on ``client``'s cluster: the context scattered to
+    every worker once, trials in chunks of about ``TASK_SECONDS`` (so that Dask's few
+    milliseconds per task stay a small share), yielded as they finish."""
+    from distributed import as_completed as dask_completed
+
+    n_workers = max(1, len(client.scheduler_info().get("workers", {})))
+    chunk = int(np.clip(TASK_SECONDS / max(trial_seconds, 1e-6), 1, len(rows) / n_workers))
+    token = f"study-{os.getpid()}-{time.time_ns()}"
+    shared = client.scatter({**context, "token": token}, broadcast=True, hash=False)
+    futures = [
+        client.submit(_run_on_worker, shared, rows[i : i + chunk], pure=False)
+        for i in range(0, len(rows), chunk)
+    ]
+    for future in dask_completed(futures):
+        yield future.result()
+
+
 def _run_trials(rows: list[tuple[int, np.ndarray]]) -> list[tuple[int, np.ndarray, bool]]:
     ctx = _CONTEXT
     out = []
@@ -188,6 +217,7 @@ class StudyResult:
 
 
 WORKER_STARTUP_S = 1.0  # s: a spawned worker imports NumPy, SciPy and relcal
+TASK_SECONDS = 0.25  # s: the work of one Dask task of a study (its overhead is a few ms)
 
 
 def study(
@@ -199,9 +229,11 @@ def study(
     sampling: Sampling = "random",
     progress: bool = True,
     chunk: int = 5,
+    client=None,
 ) -> StudyResult:
     """Run ``trials`` noisy calibrations of ``scenario`` over up to ``workers`` processes (1: in
-    this process) with a progress bar, and compare them with the predicted covariance.
+    this process), or as tasks on the Dask cluster of ``client`` (a ``distributed.Client``),
+    with a progress bar, and compare them with the predicted covariance.
 
     A study whose trials would take less than :data:`WORKER_STARTUP_S` in all (judged by the
     noise-free reference estimate) runs in this process: starting a worker costs about that much.
@@ -217,7 +249,8 @@ def study(
     tick = time.perf_counter()
     reference, _ = _estimate(base, context)
     # Noisy trials take about twice the noise-free reference (more iterations).
-    if 2 * trials * (time.perf_counter() - tick) < WORKER_STARTUP_S:
+    trial_seconds = 2 * (time.perf_counter() - tick)
+    if trials * trial_seconds < WORKER_STARTUP_S and client is None:
         workers = 1
     predicted = parameter_covariance(
         base, scenario.noise, ident, params=reference, estimator=estimator
@@ -228,7 +261,12 @@ def study(
     estimates = np.empty((trials, base.full_layout.size))
     converged = np.zeros(trials, dtype=bool)
     with tqdm(total=trials, desc="trials", disable=not progress, unit="trial") as bar:
-        if workers <= 1:
+        if client is not None:
+            for out in _dask_results(client, context, rows, trial_seconds):
+                for t, params, ok in out:
+                    estimates[t], converged[t] = params, ok
+                bar.update(len(out))
+        elif workers <= 1:
             _init(context)
             done = (_run_trials(b) for b in batches)
             for out in done:

@@ -1,0 +1,114 @@
+"""``relcal history ROBOT_ID`` and ``relcal compare RUN_A RUN_B``: the calibration registry."""
+
+from __future__ import annotations
+
+import argparse
+
+from relcal.cli.common import json_arg, registry_arg
+
+EPILOG = """\
+examples:
+  relcal history arm07 --registry history.sqlite           # every calibration of arm07
+  relcal compare 12 31 --registry history.sqlite --json c.json   # did arm07 change?
+  RELCAL_REGISTRY=postgresql+psycopg://cal@db/relcal relcal history arm07
+
+Drift: the difference of two calibrations over the parameters both identify, with its
+covariance the sum of both runs' covariances; flagged when the chi-square test or a parameter's
+z (Bonferroni) rejects at --alpha (default 0.01). Without a change, at most 2 alpha of
+comparisons are flagged.
+"""
+
+
+def run_history(args: argparse.Namespace) -> int:
+    from relcal.fleet.drift import consecutive
+    from relcal.fleet.registry import require_registry
+    from relcal.fleet.text import drift_summary, history_text, run_document
+    from relcal.io import write_json
+
+    with require_registry(args.registry) as registry:
+        runs = registry.runs(args.robot_id)
+        where = registry.engine.url.render_as_string(hide_password=True)
+        if not runs:
+            from relcal.errors import RelcalError
+
+            known = registry.robots()
+            hint = f" (robots: {', '.join(known[:10])})" if known else " (the registry is empty)"
+            raise RelcalError(f"registry {where}: no calibration of robot {args.robot_id!r}{hint}")
+    if args.last:
+        runs = runs[-args.last :]
+    comparisons = consecutive(runs, args.alpha)
+    if args.json:
+        write_json(
+            args.json,
+            {
+                "robot_id": args.robot_id,
+                "alpha": args.alpha,
+                "runs": [
+                    {
+                        **run_document(r),
+                        "drift": drift_summary(c, str(runs[k - 1].id) if k else None),
+                    }
+                    for k, (r, c) in enumerate(zip(runs, comparisons, strict=True))
+                ],
+            },
+        )
+    if not args.quiet:
+        print(history_text(args.robot_id, runs, comparisons, where))
+    return 0
+
+
+def run_compare(args: argparse.Namespace) -> int:
+    from relcal.fleet.drift import compare
+    from relcal.fleet.registry import require_registry
+    from relcal.fleet.text import comparison_document, comparison_text
+    from relcal.io import write_json
+
+    with require_registry(args.registry) as registry:
+        a, b = registry.get(args.run_a), registry.get(args.run_b)
+    c = compare(a, b, args.alpha, include_handeye=args.with_handeye)
+    if args.json:
+        write_json(args.json, comparison_document(c))
+    if not args.quiet:
+        print(comparison_text(c))
+    return 0
+
+
+def _common(p: argparse.ArgumentParser) -> None:
+    from relcal.fleet.drift import ALPHA
+
+    registry_arg(p)
+    p.add_argument("--alpha", type=float, default=ALPHA, help=f"drift test level (default {ALPHA})")
+    p.add_argument("--quiet", action="store_true", help="no text (use with --json)")
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    fmt = argparse.RawDescriptionHelpFormatter
+    hp = sub.add_parser(
+        "history",
+        help="calibrations of one robot over time",
+        description="Every recorded calibration of ROBOT_ID, oldest first: held-out errors, "
+        "drift against the previous run, and the parameters with their standard deviations.",
+        epilog=EPILOG,
+        formatter_class=fmt,
+    )
+    hp.add_argument("robot_id")
+    hp.add_argument("--last", type=int, metavar="N", help="only the N latest runs")
+    _common(hp)
+    json_arg(hp, "the runs (parameters in SI units) with their drift verdicts")
+    hp.set_defaults(func=run_history)
+    cp = sub.add_parser(
+        "compare",
+        help="did the robot change between two calibrations?",
+        description="The difference of two recorded calibrations with its uncertainty: "
+        "chi-square test over the common identifiable subset and z per parameter.",
+        epilog=EPILOG,
+        formatter_class=fmt,
+    )
+    cp.add_argument("run_a", help="run id (from `relcal history`) or uid prefix")
+    cp.add_argument("run_b", help="the later run")
+    cp.add_argument(
+        "--with-handeye", action="store_true", help="compare the hand-eye parameters too"
+    )
+    _common(cp)
+    json_arg(cp, "the comparison (SI units)")
+    cp.set_defaults(func=run_compare)

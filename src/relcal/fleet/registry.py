@@ -1,0 +1,381 @@
+"""The calibration registry: one record per calibration, in any SQL database SQLAlchemy reaches.
+
+A registry is a SQLite file by default (``--registry PATH`` or the ``RELCAL_REGISTRY`` variable)
+or any SQLAlchemy URL (``postgresql+psycopg://user@host/relcal``), so a plant can point all its
+cells at one server. The schema is versioned by the Alembic migrations shipped in
+``relcal/fleet/migrations`` and brought to the newest revision whenever a registry is opened.
+
+Concurrent writers are safe: every record is one short ``INSERT`` transaction; SQLite runs in WAL
+mode with a busy timeout (readers never block the writer, writers queue), and a write that still
+finds the database locked is retried with a randomised back-off. Migrations of a SQLite file are
+serialised by a lock file beside it.
+
+Parameters, standard deviations and covariances are stored in SI units (m, rad) with their names.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import random
+import time
+import uuid
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any, TypeVar
+
+import numpy as np
+import sqlalchemy as sa
+
+from relcal.errors import RelcalError
+
+ENV = "RELCAL_REGISTRY"
+MIGRATIONS = Path(__file__).resolve().parent / "migrations"
+BUSY_TIMEOUT_S = 30.0
+RETRIES = 12
+
+T = TypeVar("T")
+
+metadata = sa.MetaData()
+calibrations = sa.Table(
+    "calibrations",
+    metadata,
+    sa.Column("id", sa.Integer, primary_key=True, autoincrement=True),
+    sa.Column("uid", sa.String(32), nullable=False, unique=True),
+    sa.Column("robot_id", sa.String(200), nullable=False),
+    sa.Column("session", sa.String(200)),
+    sa.Column("created_at", sa.DateTime(timezone=True), nullable=False),
+    sa.Column("relcal_version", sa.String(40), nullable=False),
+    sa.Column("model_name", sa.String(200), nullable=False),
+    sa.Column("dataset_path", sa.Text, nullable=False),
+    sa.Column("outputs_path", sa.Text),
+    sa.Column("settings", sa.JSON, nullable=False),
+    sa.Column("input_hashes", sa.JSON, nullable=False),
+    sa.Column("converged", sa.Boolean, nullable=False),
+    sa.Column("rank", sa.Integer, nullable=False),
+    sa.Column("parameters", sa.JSON, nullable=False),
+    sa.Column("covariance", sa.JSON, nullable=False),
+    sa.Column("baseline_position_rms_mm", sa.Float),
+    sa.Column("baseline_orientation_rms_deg", sa.Float),
+    sa.Column("calibrated_position_rms_mm", sa.Float),
+    sa.Column("calibrated_orientation_rms_deg", sa.Float),
+    sa.Column("validation", sa.JSON),
+)
+ERROR_COLUMNS = (
+    "baseline_position_rms_mm",
+    "baseline_orientation_rms_deg",
+    "calibrated_position_rms_mm",
+    "calibrated_orientation_rms_deg",
+)
+
+
+@dataclass(frozen=True)
+class Run:
+    """One stored calibration. ``parameters``: one mapping per parameter with ``name``, ``unit``
+    (``m`` or ``rad``), ``value`` (identified error relative to nominal, or None when not
+    estimated), ``std`` (or None), ``identifiable`` and ``estimated`` (in the solved subset).
+    ``covariance``: ``{"names": [...], "matrix": [[...]]}`` over the estimated subset, SI."""
+
+    id: int
+    uid: str
+    robot_id: str
+    session: str | None
+    created_at: datetime
+    relcal_version: str
+    model_name: str
+    dataset_path: str
+    outputs_path: str | None
+    settings: dict
+    input_hashes: dict
+    converged: bool
+    rank: int
+    parameters: list[dict]
+    covariance: dict
+    errors: dict  # the four ERROR_COLUMNS (mm, deg), None where no held-out set
+    validation: dict | None
+
+    @property
+    def names(self) -> list[str]:
+        return [p["name"] for p in self.parameters]
+
+    def parameter(self, name: str) -> dict:
+        for p in self.parameters:
+            if p["name"] == name:
+                return p
+        raise KeyError(name)
+
+    def covariance_of(self, names: list[str]) -> np.ndarray:
+        """The ``(k, k)`` covariance (SI) of ``names``, all in the estimated subset."""
+        where = {n: i for i, n in enumerate(self.covariance["names"])}
+        idx = [where[n] for n in names]
+        matrix = np.asarray(self.covariance["matrix"], dtype=float)
+        return matrix[np.ix_(idx, idx)] if idx else np.zeros((0, 0))
+
+
+def registry_url(where: str | os.PathLike | None = None) -> str | None:
+    """The SQLAlchemy URL of ``where`` (a URL, or a path of a SQLite file), else of
+    ``$RELCAL_REGISTRY``, else None (no registry)."""
+    where = where if where not in (None, "") else os.environ.get(ENV) or None
+    if where is None:
+        return None
+    text = str(where)
+    if "://" in text:
+        return text
+    path = Path(text).expanduser().resolve()
+    return f"sqlite:///{path}"
+
+
+def _is_sqlite(url: sa.URL) -> bool:
+    return url.get_backend_name() == "sqlite"
+
+
+def _locked(exc: BaseException) -> bool:
+    """A transient lock or serialisation conflict worth retrying."""
+    text = str(getattr(exc, "orig", exc)).lower()
+    return any(
+        word in text for word in ("locked", "busy", "could not serialize", "deadlock", "exists")
+    )
+
+
+def _retry(action: Callable[[], T], what: str) -> T:
+    """``action()``, retried with a randomised exponential back-off while the database is busy."""
+    delay = 0.05
+    for attempt in range(RETRIES + 1):
+        try:
+            return action()
+        except (sa.exc.OperationalError, sa.exc.IntegrityError, sa.exc.ProgrammingError) as exc:
+            if attempt == RETRIES or not _locked(exc):
+                raise RelcalError(f"registry: {what} failed: {getattr(exc, 'orig', exc)}") from None
+            time.sleep(delay * (1 + random.random()))
+            delay = min(delay * 2, 2.0)
+    raise AssertionError("unreachable")
+
+
+@contextlib.contextmanager
+def _file_lock(path: Path | None) -> Iterator[None]:
+    """An exclusive lock on ``path`` (POSIX ``flock``); a no-op without a path or ``fcntl``."""
+    if path is None:
+        yield
+        return
+    try:
+        import fcntl
+    except ImportError:  # not POSIX: rely on the retries
+        yield
+        return
+    with open(path, "a") as handle:
+        fcntl.flock(handle, fcntl.LOCK_EX)
+        try:
+            yield
+        finally:
+            fcntl.flock(handle, fcntl.LOCK_UN)
+
+
+def _alembic_config(connection: sa.Connection):
+    from alembic.config import Config
+
+    config = Config()
+    config.set_main_option("script_location", str(MIGRATIONS))
+    config.attributes["connection"] = connection
+    return config
+
+
+def head_revision() -> str:
+    """The newest schema revision shipped with this relcal."""
+    from alembic.script import ScriptDirectory
+
+    config = _alembic_config(None)  # type: ignore[arg-type]
+    return ScriptDirectory.from_config(config).get_current_head()
+
+
+def current_revision(engine: sa.Engine) -> str | None:
+    """The schema revision of the database (None for an empty one)."""
+    from alembic.runtime.migration import MigrationContext
+
+    with engine.connect() as conn:
+        return MigrationContext.configure(conn).get_current_revision()
+
+
+def migrate(engine: sa.Engine, revision: str = "head") -> None:
+    """Bring the schema to ``revision`` (default the newest) with the shipped migrations."""
+    from alembic import command
+
+    def upgrade() -> None:
+        with engine.begin() as conn:
+            command.upgrade(_alembic_config(conn), revision)
+
+    url = engine.url
+    lock = Path(url.database + ".lock") if _is_sqlite(url) and url.database else None
+    with _file_lock(lock):
+        _retry(upgrade, "schema migration")
+
+
+def _engine(url: str) -> sa.Engine:
+    try:
+        parsed = sa.make_url(url)
+    except sa.exc.ArgumentError as exc:
+        raise RelcalError(f"registry {url!r}: not a SQLAlchemy URL or file path ({exc})") from None
+    if _is_sqlite(parsed):
+        if parsed.database and parsed.database != ":memory:":
+            folder = Path(parsed.database).parent
+            if not folder.is_dir():
+                raise RelcalError(f"registry {parsed.database}: folder {folder} does not exist")
+        engine = sa.create_engine(parsed, connect_args={"timeout": BUSY_TIMEOUT_S})
+
+        @sa.event.listens_for(engine, "connect")
+        def _pragmas(dbapi_connection, _record) -> None:
+            cursor = dbapi_connection.cursor()
+            cursor.execute(f"PRAGMA busy_timeout = {int(BUSY_TIMEOUT_S * 1000)}")
+            with contextlib.suppress(Exception):  # another process may be switching it too
+                cursor.execute("PRAGMA journal_mode = WAL")
+            cursor.execute("PRAGMA synchronous = NORMAL")
+            cursor.close()
+
+        return engine
+    try:
+        return sa.create_engine(parsed, pool_pre_ping=True)
+    except (ImportError, sa.exc.NoSuchModuleError) as exc:
+        raise RelcalError(
+            f"registry {parsed.render_as_string(hide_password=True)}: no database driver "
+            f"({exc}); install it, e.g. pip install 'relcal[postgresql]'"
+        ) from None
+
+
+class Registry:
+    """A calibration registry at a SQLAlchemy URL (see :func:`registry_url`), migrated on open."""
+
+    def __init__(self, url: str) -> None:
+        self.url = url
+        self.engine = _engine(url)
+        try:
+            migrate(self.engine)
+        except sa.exc.OperationalError as exc:
+            raise RelcalError(
+                f"registry {self.engine.url.render_as_string(hide_password=True)}: cannot open: "
+                f"{getattr(exc, 'orig', exc)}"
+            ) from None
+
+    def __repr__(self) -> str:
+        return f"Registry({self.engine.url.render_as_string(hide_password=True)!r})"
+
+    def close(self) -> None:
+        self.engine.dispose()
+
+    def __enter__(self) -> Registry:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def add(self, record: dict[str, Any]) -> int:
+        """Store one record (the keys of :class:`Run` but ``id``; ``uid`` and ``created_at``
+        are filled in when missing); its id."""
+        row = {k: v for k, v in record.items() if k != "errors"}
+        row.update(record.get("errors") or {})
+        row.setdefault("uid", uuid.uuid4().hex)
+        row.setdefault("created_at", datetime.now(UTC))
+        unknown = set(row) - set(calibrations.c.keys())
+        if unknown:
+            raise ValueError(f"unknown registry fields: {sorted(unknown)}")
+
+        def insert() -> int:
+            with self.engine.begin() as conn:
+                return int(
+                    conn.execute(calibrations.insert().values(**row)).inserted_primary_key[0]
+                )
+
+        return _retry(insert, f"recording the calibration of {row.get('robot_id')}")
+
+    def _select(self, query) -> list[Run]:
+        def read() -> list[Run]:
+            with self.engine.connect() as conn:
+                return [_run(r) for r in conn.execute(query).mappings()]
+
+        return _retry(read, "reading")
+
+    def runs(self, robot_id: str | None = None) -> list[Run]:
+        """Every run (of one robot), oldest first."""
+        query = sa.select(calibrations).order_by(calibrations.c.created_at, calibrations.c.id)
+        if robot_id is not None:
+            query = query.where(calibrations.c.robot_id == robot_id)
+        return self._select(query)
+
+    def robots(self) -> list[str]:
+        query = sa.select(calibrations.c.robot_id).distinct().order_by(calibrations.c.robot_id)
+        with self.engine.connect() as conn:
+            return [r[0] for r in conn.execute(query)]
+
+    def get(self, ref: str | int) -> Run:
+        """A run by id (``12``) or by a unique prefix of its uid (at least 6 characters)."""
+        text = str(ref).strip()
+        found = []
+        if text.isdigit():
+            found = self._select(sa.select(calibrations).where(calibrations.c.id == int(text)))
+        if not found and len(text) >= 6:  # a uid prefix (which may be all digits)
+            found = self._select(
+                sa.select(calibrations).where(calibrations.c.uid.startswith(text.lower()))
+            )
+        if len(found) != 1:
+            what = "no run" if not found else f"{len(found)} runs"
+            raise RelcalError(
+                f"registry {self.engine.url.render_as_string(hide_password=True)}: {what} with "
+                f"id or uid {text!r} (give the number of `relcal history`, or 6+ uid characters)"
+            )
+        return found[0]
+
+
+def _run(row) -> Run:
+    created = row["created_at"]
+    if created.tzinfo is None:  # SQLite stores naive datetimes; relcal writes UTC
+        created = created.replace(tzinfo=UTC)
+    return Run(
+        id=row["id"],
+        uid=row["uid"],
+        robot_id=row["robot_id"],
+        session=row["session"],
+        created_at=created,
+        relcal_version=row["relcal_version"],
+        model_name=row["model_name"],
+        dataset_path=row["dataset_path"],
+        outputs_path=row["outputs_path"],
+        settings=row["settings"],
+        input_hashes=row["input_hashes"],
+        converged=bool(row["converged"]),
+        rank=row["rank"],
+        parameters=row["parameters"],
+        covariance=row["covariance"],
+        errors={k: row[k] for k in ERROR_COLUMNS},
+        validation=row["validation"],
+    )
+
+
+def open_registry(where: str | os.PathLike | None = None, create: bool = True) -> Registry | None:
+    """The registry at ``where`` (URL or SQLite path), else at ``$RELCAL_REGISTRY``, else None.
+    ``create=False``: a SQLite file that does not exist is an error (reading commands)."""
+    url = registry_url(where)
+    if url is None:
+        return None
+    parsed = sa.make_url(url) if "://" in url else None
+    if not create and parsed is not None and _is_sqlite(parsed) and parsed.database:
+        if not Path(parsed.database).is_file():
+            raise RelcalError(f"registry {parsed.database}: no such file (nothing recorded yet?)")
+    return Registry(url)
+
+
+def require_registry(where: str | os.PathLike | None) -> Registry:
+    """:func:`open_registry` for commands that read one: an error naming both ways to give it."""
+    registry = open_registry(where, create=False)
+    if registry is None:
+        raise RelcalError(f"no registry: give --registry PATH|URL or set {ENV}")
+    return registry
+
+
+def run_from_record(record: dict[str, Any], id: int = 0) -> Run:
+    """A :class:`Run` of a record not (yet) stored: for comparisons without a registry."""
+    fields = {k: v for k, v in record.items() if k != "errors"}
+    fields.setdefault("uid", "")
+    fields.setdefault("session", None)
+    fields.setdefault("created_at", datetime.now(UTC))
+    errors = {k: (record.get("errors") or {}).get(k) for k in ERROR_COLUMNS}
+    return Run(id=id, errors=errors, **fields)

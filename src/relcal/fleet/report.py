@@ -1,0 +1,263 @@
+"""The fleet report: one self-contained HTML page of a fleet run (like the calibration report:
+inline CSS, plots as PNG ``data:`` URIs, no script, nothing fetched).
+
+Sections: ``summary`` (cards), ``robots`` (one row per session: status, baseline and calibrated
+held-out errors, drift against the previous calibration), ``failed`` (the reasons), and one
+``parameters-<model>`` section per robot model with the identified errors of every robot, one
+small plot per parameter (image ``plot-parameters-<model>``): robots whose value lies far from
+the others of their model (robust z above 3.5) are drawn in red and listed.
+"""
+
+from __future__ import annotations
+
+import re
+
+import matplotlib
+import numpy as np
+from matplotlib.figure import Figure
+
+from relcal.fleet.drift import display
+from relcal.reporting.html import (
+    AFTER,
+    BAD,
+    BEFORE,
+    DPI,
+    FIG_WIDTH,
+    PLOT_STYLE,
+    Html,
+    _badge,
+    _cards,
+    _figure_html,
+    _fmt,
+    _p,
+    _page,
+    _section,
+    _table,
+)
+
+# Whole-pixel line heights: every box, and so every plot, starts on a pixel row (a plot of fine
+# lines drawn half a pixel off would be resampled, and blurred, by the browser).
+PIXEL_CSS = """
+body { line-height:22px; } header h1 { line-height:32px; } header .meta, nav a { line-height:20px; }
+h2 { line-height:28px; } h3 { line-height:22px; } th, td { line-height:20px; }
+p.hint, figcaption, .note { line-height:20px; } .card .label, .badge { line-height:18px; }
+.card .value { line-height:26px; } .cards.wide .card .value { line-height:30px; }
+#robots td:first-child { white-space:nowrap; }
+"""
+OUTLIER_Z = 3.5  # robust z (median, 1.4826 MAD) among the robots of one model
+MIN_ROBOTS = 8  # fewer robots of a model: no robust spread to judge "far" by
+
+
+def _slug(text: str) -> str:
+    return re.sub(r"[^a-z0-9]+", "-", text.lower()).strip("-") or "model"
+
+
+def _median(values: list) -> float | None:
+    values = [v for v in values if v is not None]
+    return float(np.median(values)) if values else None
+
+
+def _summary(doc: dict, entries: list[dict]) -> tuple:
+    ok = [e for e in entries if e["status"] == "ok"]
+    drifted = [e for e in entries if (e.get("drift") or {}).get("verdict") == "drift"]
+    base = _median([e.get("baseline_position_rms_mm") for e in ok])
+    after = _median([e.get("calibrated_position_rms_mm") for e in ok])
+    robots = {e.get("robot_id") for e in entries}
+    cards = [
+        ("sessions", str(len(entries)), f"{len(robots)} robots"),
+        ("calibrated", str(len(ok)), f"{len(entries) - len(ok)} failed"),
+        ("drift flagged", str(len(drifted)), ", ".join(e["robot_id"] for e in drifted) or "none"),
+        (
+            "held-out position RMS",
+            f"{_fmt(base, '.3g')} → {_fmt(after, '.3g')} mm",
+            "median over sessions, baseline → calibrated",
+        ),
+        ("time", f"{doc.get('seconds', 0):.1f} s", _where(doc)),
+    ]
+    return _section(
+        "summary",
+        "Summary",
+        _cards(cards, "wide"),
+        _p(
+            "Drift: each session against the robot's previous calibration, over the parameters "
+            f"both identify (alpha {doc.get('alpha', 0.01):g}; without a change at most "
+            f"{2 * doc.get('alpha', 0.01):.0%} of comparisons are flagged)."
+        ),
+    )
+
+
+def _where(doc: dict) -> str:
+    if doc.get("scheduler"):
+        return f"cluster {doc['scheduler']}"
+    return f"{doc.get('workers')} local worker processes"
+
+
+def _drift_cell(e: dict) -> Html | str:
+    drift = e.get("drift")
+    if not drift:
+        return "–"
+    if drift["verdict"] == "agree":
+        return _badge(True, f"agree (p={drift['p_value']:.2g})")
+    what = ", ".join(drift["flagged"]) or "as a whole"
+    return _badge(False, no=f"drift: {what} (p={drift['p_value']:.2g})")
+
+
+def _robots(entries: list[dict]) -> tuple:
+    rows = []
+    for e in entries:
+        ok = e["status"] == "ok"
+        rows.append(
+            [
+                e["session"],
+                e.get("robot_id", ""),
+                e.get("model") or "–",
+                _badge(ok, e["status"], e["status"]),
+                _fmt(e.get("baseline_position_rms_mm"), ".3f"),
+                _fmt(e.get("calibrated_position_rms_mm"), ".3f"),
+                _fmt(e.get("baseline_orientation_rms_deg"), ".4f"),
+                _fmt(e.get("calibrated_orientation_rms_deg"), ".4f"),
+                _drift_cell(e),
+            ]
+        )
+    head = [
+        "session",
+        "robot",
+        "model",
+        "status",
+        "baseline mm",
+        "calibrated mm",
+        "baseline deg",
+        "calibrated deg",
+        "drift vs previous",
+    ]
+    return _section(
+        "robots",
+        "Robots",
+        _p("Held-out relative errors (RMS over the held-out pairs of each session)."),
+        _table(head, rows, "num"),
+    )
+
+
+def _failed(entries: list[dict]) -> tuple:
+    failed = [e for e in entries if e["status"] != "ok"]
+    if not failed:
+        return _section("failed", "Failed sessions", Html('<p class="none">none</p>'))
+    rows = [[e["session"], e.get("reason") or ""] for e in failed]
+    return _section("failed", "Failed sessions", _table(["session", "reason"], rows, "ids"))
+
+
+def _parameter_values(group: list[dict]) -> tuple[list[str], dict]:
+    """Geometric parameter names estimated in the group, and per name the points
+    ``(robot index, value, std, session)`` in mm or deg."""
+    robots = sorted({e["robot_id"] for e in group})
+    names: list[str] = []
+    points: dict[str, list] = {}
+    for e in group:
+        for p in e["record"]["parameters"]:
+            name = p["name"]
+            if name.startswith("handeye.") or p["value"] is None or not p["identifiable"]:
+                continue
+            if name not in points:
+                names.append(name)
+                points[name] = []
+            value, unit = display(p["value"], p["unit"])
+            std = display(p["std"], p["unit"])[0] if p["std"] is not None else 0.0
+            points[name].append((robots.index(e["robot_id"]), value, std, e["session"], unit))
+    return names, points
+
+
+def _outliers(robot: np.ndarray, values: np.ndarray, std: np.ndarray) -> np.ndarray:
+    """Points of robots whose latest value lies more than ``OUTLIER_Z`` robust standard
+    deviations from the median of the robots (at least ``MIN_ROBOTS``; the spread is at least the
+    median standard deviation, so that noise alone is never an outlier)."""
+    far = np.zeros(len(values), dtype=bool)
+    latest = {int(r): k for k, r in enumerate(robot)}  # the last point of each robot
+    if len(latest) < MIN_ROBOTS:
+        return far
+    last = np.array([values[k] for k in latest.values()])
+    median = np.median(last)
+    spread = max(1.4826 * np.median(np.abs(last - median)), float(np.median(std)), 1e-12)
+    for k in latest.values():
+        far[k] = abs(values[k] - median) / spread > OUTLIER_Z
+    return far
+
+
+def parameter_figure(group: list[dict], model: str) -> tuple[Figure, list[str]]:
+    """One small plot per parameter: each robot's identified error (+- std) per session; far
+    values among the robots of this model in red. Returns the figure and the outliers."""
+    names, points = _parameter_values(group)
+    robots = sorted({e["robot_id"] for e in group})
+    cols = 6
+    rows = max(1, -(-len(names) // cols))
+    flagged = []
+    with matplotlib.rc_context(PLOT_STYLE):
+        fig = Figure(figsize=(FIG_WIDTH, 1.75 * rows + 0.6), layout="constrained")
+        axes = fig.subplots(rows, cols, squeeze=False)
+        for ax in axes.flat[len(names) :]:
+            ax.set_visible(False)
+        for ax, name in zip(axes.flat, names, strict=False):
+            pts = points[name]
+            x = np.array([p[0] for p in pts], dtype=float)
+            v = np.array([p[1] for p in pts])
+            s = np.array([p[2] for p in pts])
+            far = _outliers(x, v, s)
+            jitter = (np.arange(len(x)) % 3 - 1) * 0.12
+            ax.errorbar(x + jitter, v, yerr=s, fmt="none", ecolor=BEFORE, elinewidth=1)
+            ax.scatter(x[~far] + jitter[~far], v[~far], s=10, color=AFTER, zorder=3)
+            ax.scatter(x[far] + jitter[far], v[far], s=16, color=BAD, zorder=4)
+            flagged += [
+                f"{name}: {pts[k][3]} ({v[k]:+.4f} {pts[k][4]})" for k in np.flatnonzero(far)
+            ]
+            ax.set_title(f"{name} ({pts[0][4]})", fontsize=9)
+            ax.set_xticks(range(len(robots)))
+            ax.set_xticklabels(robots if len(robots) <= 8 else [], rotation=90, fontsize=6)
+            ax.tick_params(axis="y", labelsize=7)
+            ax.set_xlim(-0.6, len(robots) - 0.4)
+        fig.suptitle(f"{model}: identified errors per robot (+- one std)", fontsize=10.5)
+    return fig, flagged
+
+
+def _parameters(entries: list[dict]) -> list[tuple]:
+    ok = [e for e in entries if e["status"] == "ok" and e.get("record")]
+    models = sorted({e["model"] for e in ok})
+    sections = []
+    for model in models:
+        group = [e for e in ok if e["model"] == model]
+        slug = _slug(model)
+        fig, flagged = parameter_figure(group, model)
+        robots = sorted({e["robot_id"] for e in group})
+        sections.append(
+            _section(
+                f"parameters-{slug}",
+                f"Parameters across the fleet: {model}",
+                _p(
+                    f"{len(group)} sessions of {len(robots)} robots ("
+                    + ", ".join(robots)
+                    + f", left to right). Red: a robot whose latest value lies more than "
+                    f"{OUTLIER_Z} robust standard deviations from the median of the robots of "
+                    f"this model (with {MIN_ROBOTS} robots or more)."
+                ),
+                _figure_html(
+                    f"plot-parameters-{slug}",
+                    f"identified errors of every {model} robot, one plot per parameter",
+                    fig,
+                ),
+                _p("Far from the others: " + ("; ".join(flagged) if flagged else "none")),
+            )
+        )
+    return sections
+
+
+def fleet_report(doc: dict, entries: list[dict]) -> str:
+    """The page of a fleet run: ``doc`` as ``relcal fleet calibrate --json`` writes it, and the
+    entries of :func:`relcal.fleet.runner.run_fleet` (with their registry records)."""
+    sections = [_summary(doc, entries), _robots(entries), _failed(entries)]
+    sections += _parameters(entries)
+    meta = [("root", str(doc.get("root", ""))), ("sessions", str(len(entries)))]
+    if doc.get("registry"):
+        meta.append(("registry", doc["registry"]))
+    page = _page("relcal fleet report", meta, sections)
+    return page.replace("</style>", PIXEL_CSS + "</style>", 1)
+
+
+__all__ = ["fleet_report", "parameter_figure", "DPI"]

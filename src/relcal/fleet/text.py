@@ -1,0 +1,233 @@
+"""Text and JSON of the fleet commands: history, comparisons, fleet runs (mm and degrees)."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from relcal.fleet.drift import Comparison, display
+from relcal.fleet.registry import Run
+
+
+def _time(run: Run) -> str:
+    return run.created_at.strftime("%Y-%m-%d %H:%M:%S")
+
+
+def _errors(errors: dict) -> str:
+    b, a = errors.get("baseline_position_rms_mm"), errors.get("calibrated_position_rms_mm")
+    if b is None or a is None:
+        return "no held-out set"
+    return f"{b:.3f} -> {a:.3f}"
+
+
+def _table(rows: list[list[str]], right: set[int] = frozenset()) -> list[str]:
+    widths = [max(len(r[k]) for r in rows) for k in range(len(rows[0]))]
+    return [
+        "  ".join(
+            c.rjust(w) if k in right else c.ljust(w)
+            for k, (c, w) in enumerate(zip(r, widths, strict=True))
+        ).rstrip()
+        for r in rows
+    ]
+
+
+def verdict_text(c: Comparison | None) -> str:
+    if c is None:
+        return ""
+    if not c.drift:
+        return f"agree (p={c.p_value:.2g})"
+    moved = ", ".join(c.flagged) or "as a whole"
+    return f"DRIFT (p={c.p_value:.2g}; {moved})"
+
+
+def history_text(robot_id: str, runs: list[Run], comparisons: list, where: str) -> str:
+    """The runs of one robot over time, the verdict against the previous run, and the
+    parameters (identified error +- std) per run."""
+    if not runs:
+        return f"{robot_id}: no calibration in {where}"
+    lines = [f"{robot_id} ({runs[-1].model_name}): {len(runs)} calibration(s) in {where}", ""]
+    rows = [["run", "time (UTC)", "session", "relcal", "held-out position RMS mm", "vs previous"]]
+    for run, c in zip(runs, comparisons, strict=True):
+        rows.append(
+            [
+                str(run.id),
+                _time(run),
+                run.session or "",
+                run.relcal_version,
+                _errors(run.errors) + ("" if run.converged else " (not converged)"),
+                verdict_text(c),
+            ]
+        )
+    lines += _table(rows, {0})
+    lines += ["", "parameters (identified error, mm or deg, +- one standard deviation):"]
+    header = ["name", "unit"] + [f"run {r.id}" for r in runs]
+    table = [header]
+    never = []
+    for name in runs[-1].names:
+        cells, unit = [], ""
+        for run in runs:
+            try:
+                p = run.parameter(name)
+            except KeyError:
+                cells.append("")
+                continue
+            if p["value"] is None or not p["identifiable"]:
+                cells.append("n/i")
+                continue
+            value, unit = display(p["value"], p["unit"])
+            std = display(p["std"], p["unit"])[0] if p["std"] is not None else float("nan")
+            cells.append(f"{value:+.4f} +- {std:.4f}")
+        if all(c in ("n/i", "") for c in cells):
+            never.append(name)
+        else:
+            table.append([name, unit, *cells])
+    lines += _table(table, set(range(2, len(header))))
+    if never:
+        lines.append("not identifiable (n/i) in any run: " + ", ".join(never))
+    return "\n".join(lines)
+
+
+def _test_name(c: Comparison) -> str:
+    if c.noise_dof == float("inf"):
+        return f"chi-square test on {c.dof} degrees of freedom"
+    return f"F test on ({c.dof}, {c.noise_dof:.0f}) degrees of freedom (noise levels estimated)"
+
+
+def comparison_text(c: Comparison) -> str:
+    """The verdict, the chi-square test, and per parameter: both values, the difference, its
+    standard deviation from both covariances and z."""
+    a, b = c.run_a, c.run_b
+    lines = [
+        f"run {a.id} ({a.robot_id}, {a.session}, {_time(a)}) -> run {b.id} ({b.robot_id}, "
+        f"{b.session}, {_time(b)}): {'DRIFT' if c.drift else 'the two calibrations agree'}",
+        f"chi-square {c.chi2:.1f} over the {len(c.parameters)} parameters both determine (rank "
+        f"{c.dof}), " + _test_name(c) + f": p = {c.p_value:.3g} (drift below alpha {c.alpha:g})",
+        f"per parameter: |z| > {c.z_threshold:.2f} flags a change (alpha {c.alpha:g}, Bonferroni "
+        f"over {len(c.parameters)})",
+        "",
+    ]
+    rows = [["name", "unit", f"run {a.id}", f"run {b.id}", "difference", "std", "z", ""]]
+    for p in c.parameters:
+        va, unit = display(p.a, p.unit)
+        vb = display(p.b, p.unit)[0]
+        d = display(p.difference, p.unit)[0]
+        s = display(p.std, p.unit)[0]
+        rows.append(
+            [
+                p.name,
+                unit,
+                f"{va:+.4f}",
+                f"{vb:+.4f}",
+                f"{d:+.4f}",
+                f"{s:.4f}",
+                f"{p.z:+.2f}",
+                "changed" if p.flagged else "",
+            ]
+        )
+    lines += _table(rows, {2, 3, 4, 5, 6})
+    lengths = [display(p.std, p.unit)[0] for p in c.parameters if p.unit == "m"]
+    angles = [display(p.std, p.unit)[0] for p in c.parameters if p.unit == "rad"]
+    if lengths or angles:
+        parts = []
+        if lengths:
+            parts.append(f"{min(lengths):.4f} to {max(lengths):.4f} mm")
+        if angles:
+            parts.append(f"{min(angles):.5f} to {max(angles):.5f} deg")
+        lines += ["", "repeatability (std of the difference of two sessions): " + ", ".join(parts)]
+    if c.left_out:
+        lines.append(
+            "not compared (not identifiable in both, or hand-eye): " + ", ".join(c.left_out)
+        )
+    lines += [f"note: {n}" for n in c.notes]
+    return "\n".join(lines)
+
+
+def run_document(run: Run) -> dict[str, Any]:
+    return {
+        "id": run.id,
+        "uid": run.uid,
+        "robot_id": run.robot_id,
+        "session": run.session,
+        "created_at": run.created_at.isoformat(),
+        "relcal_version": run.relcal_version,
+        "model": run.model_name,
+        "dataset": run.dataset_path,
+        "outputs": run.outputs_path,
+        "converged": run.converged,
+        "rank": run.rank,
+        "settings": run.settings,
+        "input_hashes": run.input_hashes,
+        "errors": run.errors,
+        "parameters": run.parameters,
+        "parameter_unit": "values and std in SI: m for lengths, rad for angles",
+    }
+
+
+def comparison_document(c: Comparison) -> dict[str, Any]:
+    return {
+        "run_a": c.run_a.id,
+        "run_b": c.run_b.id,
+        "robot_id": [c.run_a.robot_id, c.run_b.robot_id],
+        "verdict": c.verdict,
+        "alpha": c.alpha,
+        "chi2": c.chi2,
+        "dof": c.dof,
+        "noise_dof": None if c.noise_dof == float("inf") else c.noise_dof,
+        "p_value": c.p_value,
+        "z_threshold": c.z_threshold,
+        "flagged": c.flagged,
+        "parameters": [
+            {
+                "name": p.name,
+                "unit": p.unit,
+                "a": p.a,
+                "b": p.b,
+                "difference": p.difference,
+                "std": p.std,
+                "z": p.z,
+                "p_value": p.p_value,
+                "flagged": p.flagged,
+            }
+            for p in c.parameters
+        ],
+        "parameter_unit": "a, b, difference and std in SI: m for lengths, rad for angles",
+        "left_out": list(c.left_out),
+        "notes": list(c.notes),
+    }
+
+
+def drift_summary(c: Comparison | None, against: str | None) -> dict[str, Any] | None:
+    """The short drift entry of a fleet session (against the previous calibration)."""
+    if c is None:
+        return None
+    return {
+        "against": against,
+        "verdict": c.verdict,
+        "p_value": c.p_value,
+        "chi2": c.chi2,
+        "dof": c.dof,
+        "flagged": c.flagged,
+    }
+
+
+def fleet_text(entries: list[dict]) -> str:
+    rows = [["session", "robot", "status", "held-out position RMS mm", "drift vs previous"]]
+    for e in entries:
+        drift = e.get("drift")
+        text = ""
+        if drift:
+            text = f"{drift['verdict']} (p={drift['p_value']:.2g}"
+            text += f"; {', '.join(drift['flagged'])})" if drift["flagged"] else ")"
+        rows.append(
+            [
+                e["session"],
+                str(e.get("robot_id", "")),
+                e["status"],
+                _errors(e) if e["status"] != "failed" else "",
+                text,
+            ]
+        )
+    lines = _table(rows)
+    for e in entries:
+        if e["status"] == "failed":
+            lines.append(f"failed {e['session']}: {e['reason']}")
+    return "\n".join(lines)

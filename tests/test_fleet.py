@@ -1,0 +1,199 @@
+"""A synthetic fleet on a local Dask cluster of 2 worker processes: 10 robots of 2 models, two
+sessions each, one corrupt dataset, one robot whose second session has a[2] 0.3 mm longer."""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import json
+import os
+import signal
+import threading
+import time
+
+import numpy as np
+import pytest
+from conftest import random_q
+from helpers_fleet import make_robot, write_session
+
+from relcal.cli import main
+from relcal.fleet.registry import Registry, registry_url
+from relcal.fleet.runner import discover, run_fleet
+
+pytest.importorskip("distributed")
+
+CHANGED, CORRUPT = "r04", "r09"
+
+
+@pytest.fixture(scope="module")
+def fleet(tmp_path_factory):
+    root = tmp_path_factory.mktemp("fleet") / "plant"
+    for i in range(10):
+        robot = make_robot(("a465", "ur5e")[i % 2], f"r{i:02d}", 40 + i)
+        write_session(root / f"r{i:02d}" / "2026-01", robot, 100 + i)
+        change = {"a[2]": 3e-4} if robot.robot_id == CHANGED else None
+        write_session(root / f"r{i:02d}" / "2026-06", robot, 200 + i, change=change)
+    samples = root / CORRUPT / "2026-06" / "samples.csv"
+    lines = samples.read_text().splitlines()
+    lines[5] = lines[5].replace(",", ",x", 1)  # a joint value that is not a number
+    samples.write_text("\n".join(lines) + "\n")
+    return root
+
+
+@pytest.fixture(scope="module")
+def fleet_run(fleet, tmp_path_factory):
+    """``relcal fleet calibrate`` on the fleet (2 local worker processes), with a registry, the
+    JSON and the report; its printed text."""
+    tmp = tmp_path_factory.mktemp("fleet-run")
+    db, out, report = tmp / "history.sqlite", tmp / "fleet.json", tmp / "fleet.html"
+    argv = ["fleet", "calibrate", str(fleet), "--workers", "2", "--registry", str(db)]
+    with contextlib.redirect_stdout(io.StringIO()) as text:
+        assert main([*argv, "--json", str(out), "--report", str(report)]) == 1
+    return json.loads(out.read_text()), text.getvalue(), db, report
+
+
+def test_fleet_command_calibrates_every_session_and_flags_the_changed_robot(
+    fleet, fleet_run, capsys
+):
+    doc, text, db, _ = fleet_run
+    entries = {e["session"]: e for e in doc["sessions"]}
+    assert doc["n_sessions"] == 20 and doc["n_ok"] == 19 and doc["workers"] == 2
+    # the corrupt dataset fails alone, with its reason (file, line, field)
+    failed = [e for e in doc["sessions"] if e["status"] != "ok"]
+    assert [e["session"] for e in failed] == [f"{CORRUPT}/2026-06"]
+    assert "samples.csv line 6: q1" in failed[0]["reason"] and "x" in failed[0]["reason"]
+    assert f"failed {CORRUPT}/2026-06: " in text
+    # every other session: the outputs of `relcal calibrate`, errors, a registry run
+    for name, e in entries.items():
+        if e["status"] != "ok":
+            continue
+        assert e["robot_id"] == name.split("/")[0]
+        for file in ("model.yaml", "robot.urdf", "parameters.csv", "results.json"):
+            assert (fleet / name / "calibration" / file).is_file(), (name, file)
+        assert e["outputs"] == str(fleet / name / "calibration")
+        assert e["calibrated_position_rms_mm"] < 0.1 * e["baseline_position_rms_mm"]
+        assert isinstance(e["run_id"], int)
+    # drift: the planted change is flagged on its link, the unchanged robots agree
+    for i in range(10):
+        robot = f"r{i:02d}"
+        if robot == CORRUPT:
+            assert entries[f"{robot}/2026-06"]["drift"] is None
+            continue
+        drift = entries[f"{robot}/2026-06"]["drift"]
+        assert drift["against"] == f"{robot}/2026-01"
+        if robot == CHANGED:
+            assert drift["verdict"] == "drift" and "a[2]" in drift["flagged"], drift
+        else:
+            assert drift["verdict"] == "agree", (robot, drift)
+        assert entries[f"{robot}/2026-01"]["drift"] is None
+    with Registry(registry_url(db)) as registry:
+        assert len(registry.runs()) == 19
+        assert [r.session for r in registry.runs(CHANGED)] == [
+            f"{CHANGED}/2026-01",
+            f"{CHANGED}/2026-06",
+        ]
+    assert main(["history", CHANGED, "--registry", str(db)]) == 0
+    assert "DRIFT" in capsys.readouterr().out
+
+
+def test_fleet_report_renders_in_chromium(fleet_run, tmp_path):
+    from test_report_browser import check_page, check_rendering, check_section_drawn
+
+    doc, _, _, report = fleet_run
+    models = {"thermo-crs-a465", "universal-robots-ur5e"}
+    sections = {"summary", "robots", "failed"} | {f"parameters-{m}" for m in models}
+    plots = {f"plot-parameters-{m}" for m in models}
+    page = check_page(report.read_text(), sections, plots)
+    cells = page.cells
+    # one row per session: status, errors as in the JSON, drift flags
+    for e in doc["sessions"]:
+        k = cells.index(e["session"])
+        assert cells[k + 1] == e["robot_id"] and cells[k + 3] == e["status"]
+        if e["status"] == "ok":
+            assert float(cells[k + 4]) == pytest.approx(e["baseline_position_rms_mm"], abs=1e-3)
+            assert float(cells[k + 5]) == pytest.approx(e["calibrated_position_rms_mm"], abs=1e-3)
+        drift = e["drift"]
+        if drift is None:
+            assert cells[k + 8] == "–"
+        elif drift["verdict"] == "drift":
+            assert cells[k + 8].startswith("drift: a[2]")
+        else:
+            assert cells[k + 8].startswith("agree")
+    failed = next(e for e in doc["sessions"] if e["status"] == "failed")
+    assert failed["reason"] in cells
+    found, shot = check_rendering(report, tmp_path, plots)
+    for ident in sections:
+        check_section_drawn(found, shot, ident)
+
+
+@pytest.fixture(scope="module")
+def cluster():
+    """A local cluster of 2 single-threaded worker processes (as `--workers 2` makes)."""
+    from relcal.fleet.runner import local_cluster
+
+    with local_cluster(2) as cluster:
+        yield cluster
+
+
+def test_study_on_the_cluster_gives_the_same_trials(cluster, tmp_path, capsys):
+    """`relcal study --scheduler`: the trials run as Dask tasks, with the same estimates as in
+    one process (each trial's noise is seeded by its index)."""
+    from distributed import Client
+
+    from relcal.calibration.noise import Noise
+    from relcal.geometry import DEG, MM
+    from relcal.robot.model import auto_hayati, get_robot
+    from relcal.sim.scenario import make_scenario
+    from relcal.sim.study import study
+
+    model = auto_hayati(get_robot("a465"))
+    q = random_q(model, 12, np.random.default_rng(11))
+    scenario = make_scenario(model, q, Noise(0.05 * MM, 0.01 * DEG), seed=4)
+    here = study(scenario, trials=30, workers=1, progress=False)
+    with Client(cluster) as client:
+        there = study(scenario, trials=30, progress=False, client=client)
+    np.testing.assert_array_equal(there.estimates, here.estimates)
+    out = tmp_path / "study.json"
+    argv = ["study", "--robot", "a465", "--hayati", "auto", "--poses", "12", "--trials", "20"]
+    assert main([*argv, "--scheduler", cluster.scheduler_address, "--json", str(out)]) == 0
+    assert json.loads(out.read_text())["trials"] == 20
+    assert "trials" in capsys.readouterr().out
+
+
+def test_a_killed_worker_does_not_stop_the_fleet(fleet, cluster, tmp_path):
+    """SIGKILL one of the two worker processes while sessions run: its tasks run again
+    elsewhere (the nanny starts a new worker), and the fleet completes."""
+    from distributed import Client
+
+    sessions = discover(fleet)
+    out = tmp_path / "out"
+    with Client(cluster) as client:
+        pids = client.run(os.getpid)
+        victim = sorted(pids.values())[0]
+        killed = threading.Event()
+
+        def killer() -> None:
+            deadline = time.monotonic() + 120
+            while time.monotonic() < deadline:
+                if any(out.rglob("results.json")):  # sessions are running
+                    os.kill(victim, signal.SIGKILL)
+                    killed.set()
+                    return
+                time.sleep(0.01)
+
+        thread = threading.Thread(target=killer, daemon=True)
+        thread.start()
+        entries = run_fleet(sessions, out_root=out, client=client)
+        thread.join(timeout=5)
+        assert killed.is_set()
+        assert victim not in client.run(os.getpid).values()
+        rerun = {
+            key
+            for key, start, finish, *_ in cluster.scheduler.transition_log
+            if start == "processing" and finish in ("released", "waiting")
+        }
+    assert rerun, "no task was running on the killed worker"
+    status = {e["session"]: e["status"] for e in entries}
+    assert len(status) == 20
+    assert [s for s, v in status.items() if v != "ok"] == [f"{CORRUPT}/2026-06"]
+    assert len(list(out.rglob("results.json"))) == 19

@@ -1,0 +1,181 @@
+"""The calibration registry: records, schema migrations, concurrent writers, and the commands
+that read it (history, compare) or write it (calibrate --registry)."""
+
+from __future__ import annotations
+
+import json
+import multiprocessing
+import os
+
+import numpy as np
+import pytest
+import sqlalchemy as sa
+from helpers_fleet import make_robot, write_session
+from helpers_registry import writer
+
+from relcal.calibration.pipeline import calibrate
+from relcal.cli import main
+from relcal.data.dataset import load_dataset
+from relcal.data.imaging import measure
+from relcal.fleet import registry as reg
+from relcal.fleet.records import calibration_record
+from relcal.reporting.documents import results_document
+
+
+@pytest.fixture(scope="module")
+def calibrated(tmp_path_factory):
+    """A calibration of a synthetic A465 session and its results document."""
+    root = write_session(
+        tmp_path_factory.mktemp("registry") / "cell1", make_robot("a465", "arm1", 1), 7
+    )
+    dataset = load_dataset(root)
+    cal = calibrate(dataset, measure(dataset, progress=False))
+    return cal, results_document(cal)
+
+
+def test_a_record_holds_what_the_calibration_found(calibrated, tmp_path):
+    cal, doc = calibrated
+    with reg.open_registry(tmp_path / "h.sqlite") as registry:
+        run_id = registry.add(calibration_record(cal, doc, outputs=tmp_path / "out"))
+        run = registry.get(run_id)
+        assert registry.get(run.uid[:8]).id == run_id
+        assert registry.robots() == ["arm1"]
+    assert run.robot_id == "arm1" and run.session == "cell1"
+    assert run.model_name == cal.dataset.model.name
+    assert run.settings == json.loads(json.dumps(cal.settings))
+    assert set(run.input_hashes) == {"dataset.yaml", "samples.csv"}
+    assert run.outputs_path == str((tmp_path / "out").resolve())
+    # parameters, standard deviations and covariance in SI units, over the estimated subset
+    names = [n for k, n in enumerate(cal.problem.full_layout.names) if np.isfinite(cal.std[k])]
+    assert run.covariance["names"] == names and len(names) == cal.result.identifiability.rank
+    cov = run.covariance_of(names)
+    np.testing.assert_allclose(cov, cov.T)
+    assert np.linalg.eigvalsh(cov).min() > 0
+    for k, name in enumerate(cal.problem.full_layout.names):
+        p = run.parameter(name)
+        assert p["estimated"] == (name in names)
+        if p["estimated"]:
+            assert p["value"] == pytest.approx(cal.result.params[k], rel=1e-12, abs=1e-300)
+            assert p["calibration_std"] == pytest.approx(cal.std[k], rel=1e-12)
+            assert p["std"] == pytest.approx(np.sqrt(cov[names.index(name)][names.index(name)]))
+            assert 0.5 < p["std"] / p["calibration_std"] < 3
+    # the held-out errors of the results document (baseline: the hand-eye-only fit)
+    val = doc["validation"]
+    assert run.errors["baseline_position_rms_mm"] == val["baseline"]["position_mm"]["rms"]
+    assert (
+        run.errors["calibrated_orientation_rms_deg"] == val["calibrated"]["orientation_deg"]["rms"]
+    )
+    with pytest.raises(reg.RelcalError, match="no run with id"):
+        reg.Registry(reg.registry_url(tmp_path / "h.sqlite")).get(99)
+
+
+def test_schema_is_migrated_on_open_and_keeps_old_rows(calibrated, tmp_path):
+    cal, doc = calibrated
+    path = tmp_path / "old.sqlite"
+    engine = sa.create_engine(f"sqlite:///{path}")
+    reg.migrate(engine, "0001")  # a registry written by the first schema
+    record = calibration_record(cal, doc)
+    row = {k: v for k, v in record.items() if k not in ("errors", "session")}
+    row.update(record["errors"], uid="a" * 32, created_at=reg.datetime.now(reg.UTC))
+    with engine.begin() as conn:
+        conn.execute(sa.text("SELECT 1"))
+        old = sa.Table("calibrations", sa.MetaData(), autoload_with=conn)
+        assert "session" not in old.c
+        conn.execute(old.insert().values(**row))
+    assert reg.current_revision(engine) == "0001"
+    engine.dispose()
+    with reg.open_registry(path) as registry:
+        assert reg.current_revision(registry.engine) == reg.head_revision() == "0002"
+        (run,) = registry.runs("arm1")
+        assert run.session is None and run.uid == "a" * 32
+        with registry.engine.connect() as conn:
+            mode = conn.execute(sa.text("PRAGMA journal_mode")).scalar()
+        assert mode == "wal"
+
+
+def test_concurrent_writers_lose_nothing(calibrated, tmp_path):
+    """Four processes open a fresh SQLite registry at once (racing for the migration), then write
+    25 records each at the same time: every record lands, with distinct ids."""
+    cal, doc = calibrated
+    record = calibration_record(cal, doc)
+    url = reg.registry_url(tmp_path / "shared.sqlite")
+    ctx = multiprocessing.get_context("spawn")
+    queue = ctx.Queue()
+    n_proc, count = 4, 25
+    barrier = ctx.Barrier(n_proc)
+    procs = [
+        ctx.Process(target=writer, args=(url, record, w, count, barrier, queue))
+        for w in range(n_proc)
+    ]
+    for p in procs:
+        p.start()
+    results = [queue.get(timeout=120) for _ in procs]
+    for p in procs:
+        p.join(timeout=60)
+    assert all(status == "ok" for status, _ in results), results
+    ids = [i for _, got in results for i in got]
+    assert len(set(ids)) == n_proc * count
+    with reg.Registry(url) as registry:
+        runs = registry.runs("arm1")
+    assert len(runs) == n_proc * count
+    assert {r.session for r in runs} == {f"w{w}-{k}" for w in range(n_proc) for k in range(count)}
+
+
+def test_calibrate_records_and_history_compare_read(tmp_path, capsys, monkeypatch):
+    robot = make_robot("a465", "cell7-arm2", 3)
+    first = write_session(tmp_path / "monday", robot, 11)
+    second = write_session(tmp_path / "friday", robot, 12, change={"d[4]": 3e-4})
+    path = tmp_path / "history.sqlite"
+    assert main(["calibrate", str(first), "--quiet", "--registry", str(path)]) == 0
+    monkeypatch.setenv(reg.ENV, str(path))  # the variable works as --registry does
+    assert main(["calibrate", str(second), "--quiet"]) == 0
+    capsys.readouterr()
+
+    assert main(["history", "cell7-arm2", "--json", str(tmp_path / "h.json")]) == 0
+    text = capsys.readouterr().out
+    assert "2 calibration(s)" in text and "monday" in text and "friday" in text
+    assert "DRIFT" in text and "d[4]" in text
+    history = json.loads((tmp_path / "h.json").read_text())
+    assert [r["session"] for r in history["runs"]] == ["monday", "friday"]
+    assert history["runs"][1]["drift"]["verdict"] == "drift"
+    assert history["runs"][1]["drift"]["flagged"] == ["d[4]"]
+
+    a, b = (r["id"] for r in history["runs"])
+    assert main(["compare", str(a), str(b), "--json", str(tmp_path / "c.json")]) == 0
+    text = capsys.readouterr().out
+    assert "DRIFT" in text and "chi-square" in text
+    doc = json.loads((tmp_path / "c.json").read_text())
+    change = next(p for p in doc["parameters"] if p["name"] == "d[4]")
+    assert change["difference"] == pytest.approx(3e-4, abs=4 * change["std"])
+    assert change["flagged"] and doc["flagged"] == ["d[4]"]
+
+
+@pytest.mark.parametrize(
+    "argv, message",
+    [
+        (["history", "arm1"], "no registry: give --registry"),
+        (["history", "arm1", "--registry", "{tmp}/none.sqlite"], "no such file"),
+        (["history", "ghost", "--registry", "{tmp}/h.sqlite"], "no calibration of robot 'ghost'"),
+        (["compare", "1", "7", "--registry", "{tmp}/h.sqlite"], "no run with id or uid '7'"),
+        (["history", "arm1", "--registry", "nosuchdb://x"], "registry"),
+    ],
+)
+def test_registry_errors_are_one_line(argv, message, calibrated, tmp_path, capsys, monkeypatch):
+    monkeypatch.delenv(reg.ENV, raising=False)
+    cal, doc = calibrated
+    with reg.open_registry(tmp_path / "h.sqlite") as registry:
+        registry.add(calibration_record(cal, doc))
+    argv = [a.replace("{tmp}", str(tmp_path)) for a in argv]
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert message in err and "Traceback" not in err and err.count("\n") == 1
+
+
+def test_registry_url_rules(tmp_path, monkeypatch):
+    monkeypatch.delenv(reg.ENV, raising=False)
+    assert reg.registry_url(None) is None
+    assert reg.registry_url("postgresql+psycopg://u@h/db") == "postgresql+psycopg://u@h/db"
+    assert reg.registry_url(tmp_path / "x.db") == f"sqlite:///{(tmp_path / 'x.db').resolve()}"
+    monkeypatch.setenv(reg.ENV, str(tmp_path / "env.db"))
+    assert reg.registry_url(None).endswith("env.db")
+    assert os.environ[reg.ENV]
