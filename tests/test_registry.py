@@ -47,7 +47,8 @@ def test_a_record_holds_what_the_calibration_found(calibrated, tmp_path):
     assert run.outputs_path == str((tmp_path / "out").resolve())
     # parameters, standard deviations and covariance in SI units, over the estimated subset
     names = [n for k, n in enumerate(cal.problem.full_layout.names) if np.isfinite(cal.std[k])]
-    assert run.covariance["names"] == names and len(names) == cal.result.identifiability.rank
+    chosen = cal.selection[cal.chosen].candidate.columns
+    assert run.covariance["names"] == names and len(names) == len(chosen)
     cov = run.covariance_of(names)
     np.testing.assert_allclose(cov, cov.T)
     assert np.linalg.eigvalsh(cov).min() > 0

@@ -141,9 +141,7 @@ def pivot_weights(layout: Layout) -> np.ndarray:
     poses is the one left out)."""
     frames = ("handeye", "instrument", "marker")  # estimated whole where they can be
     geometric = ("theta_off", "a", "d", "alpha", "beta", "base", "tool", "origin")
-    return np.array(
-        [10.0 if k in frames else 1.0 if k in geometric else 0.1 for k in layout.kinds]
-    )
+    return np.array([10.0 if k in frames else 1.0 if k in geometric else 0.1 for k in layout.kinds])
 
 
 def analyse(
