@@ -66,6 +66,10 @@ def run_calibrate(args: argparse.Namespace) -> int:
         "loss": args.loss,
         "reject_outliers": not args.keep_outliers,
         "selection": args.select,
+        "nongeometric": args.nongeometric
+        if args.nongeometric in ("auto", "none")
+        else [s.strip() for s in args.nongeometric.split(",") if s.strip()],
+        "weightings": ("plain",) if args.weighting == "plain" else ("plain", "noise model"),
     }
     holdout_ids = _ids(args.holdout_ids) if args.holdout_ids else None
     cal = calibrate(
@@ -191,6 +195,21 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="model selection: cv (default) the simplest candidate within a standard error of "
         "the best cross-validated one; conservative: then only parameters above 3 std; all: "
         "every identifiable parameter",
+    )
+    cp.add_argument(
+        "--nongeometric",
+        default="auto",
+        metavar="auto|none|TERMS",
+        help="non-geometric candidates for model selection: auto (default: joint scale, first "
+        "harmonic, and compliance where the model has masses), none, or a list such as "
+        "scale,harmonic",
+    )
+    cp.add_argument(
+        "--weighting",
+        choices=("plain", "both"),
+        default="plain",
+        help="row weightings tried per candidate: plain (default; translation in m, rotation x "
+        "0.1 m/rad) or both (also each pair whitened by the learned 6x6 noise)",
     )
     cp.add_argument("--report", metavar="FILE", help="write the HTML calibration report to FILE")
     registry_arg(cp)
