@@ -434,6 +434,8 @@ def check_corrections(
     lines = []
     for k, (name, kind) in enumerate(zip(names, kinds, strict=True)):
         value = float(params[k])
+        if kind in ("scale", "compliance"):
+            continue  # not lengths or angles; their size is judged by model selection
         if kind == "handeye":
             comp = name.rsplit(".", 1)[-1]
             angle = comp.startswith("r")
