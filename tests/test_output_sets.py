@@ -61,13 +61,12 @@ def test_a_run_that_does_not_converge_writes_nothing(dataset, tmp_path, monkeypa
     out, doc = tmp_path / "cal", tmp_path / "r.json"
     assert calibrate(dataset, out) == 0
     before = {p: p.read_bytes() for p in tmp_path.rglob("*") if p.is_file()}
-    real = pipeline.weighted_fit
+    real = pipeline._fit
 
     def not_converged(*args, **kwargs):
-        problem, result, sigma = real(*args, **kwargs)
-        return problem, dataclasses.replace(result, converged=False), sigma
+        return dataclasses.replace(real(*args, **kwargs), converged=False)
 
-    monkeypatch.setattr(pipeline, "weighted_fit", not_converged)
+    monkeypatch.setattr(pipeline, "_fit", not_converged)
     assert calibrate(dataset, out, "--seed", 5, "--json", doc) == 1
     assert "did not converge; nothing written" in capsys.readouterr().err
     assert {p: p.read_bytes() for p in tmp_path.rglob("*") if p.is_file()} == before
@@ -79,7 +78,7 @@ def test_internal_error_is_one_line_exit_3_and_a_traceback_on_request(
     def bug(*args, **kwargs):
         raise ZeroDivisionError("planted")
 
-    monkeypatch.setattr(pipeline, "weighted_fit", bug)
+    monkeypatch.setattr(pipeline, "_fit", bug)
     assert calibrate(dataset, tmp_path / "o") == 3
     err = capsys.readouterr().err
     assert "internal error: ZeroDivisionError: planted; please report" in err
