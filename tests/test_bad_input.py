@@ -55,6 +55,18 @@ def write_dataset(
     return root
 
 
+def run_bad(capsys, argv, *patterns):
+    """Run one command that must fail with exit 2, no traceback, and every pattern in the
+    message; return the message (for cases kept outside the table)."""
+    code = main([str(a) for a in argv])
+    err = capsys.readouterr().err
+    assert code == 2, err
+    assert "Traceback" not in err
+    for pattern in patterns:
+        assert pattern in err, err
+    return err
+
+
 # ------------------------------------------------------------------------------------ setups
 
 
