@@ -8,6 +8,7 @@ import dataclasses
 import json
 import os
 import signal
+import sys
 import time
 from pathlib import Path
 
@@ -193,6 +194,7 @@ def test_calibrate_interrupted_at_20_random_moments(dataset, tmp_path):
                 signal.signal(signal.SIGINT, signal.default_int_handler)
                 os.dup2(os.open(os.devnull, os.O_WRONLY), 1)
                 os.dup2(os.open(log, os.O_WRONLY | os.O_CREAT | os.O_TRUNC), 2)
+                sys.stderr = open(2, "w", closefd=False)  # not the parent's capture buffer
                 code = calibrate(dataset, out, "--seed", seed)
             finally:
                 os._exit(code)
