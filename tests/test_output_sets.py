@@ -9,10 +9,8 @@ import json
 import os
 import signal
 import sys
-import time
 from pathlib import Path
 
-import numpy as np
 import pytest
 from helpers_dataset import synthetic_dataset
 
@@ -180,51 +178,78 @@ def test_a_crash_at_any_step_of_the_write_leaves_one_whole_set(tmp_path, monkeyp
     assert total >= 10 and seen == {"old", "new"}
 
 
-def test_calibrate_interrupted_at_20_random_moments(dataset, tmp_path):
-    """A calibration in a child process, interrupted (SIGINT or SIGTERM) at 20 seeded random
-    moments of its run: every time the output folder holds one whole set, the old or the new."""
-    out = tmp_path / "cal"
-    log = tmp_path.parent / f"{tmp_path.name}.stderr"  # outside the folder checked for leftovers
+DRIVER = """
+import json, os, signal, sys, time
+sys.path.insert(0, sys.argv[1])
+import numpy as np
+from relcal.cli import main
+from test_output_sets import whole_set
 
-    def child(seed: int) -> int:
-        pid = os.fork()
-        if pid == 0:  # the child: one calibration, never back into pytest
-            code = 99
-            try:
-                signal.signal(signal.SIGINT, signal.default_int_handler)
-                os.dup2(os.open(os.devnull, os.O_WRONLY), 1)
-                os.dup2(os.open(log, os.O_WRONLY | os.O_CREAT | os.O_TRUNC), 2)
-                sys.stderr = open(2, "w", closefd=False)  # not the parent's capture buffer
-                code = calibrate(dataset, out, "--seed", seed)
-            finally:
-                os._exit(code)
-        return pid
+dataset, out, log = sys.argv[2:5]
 
-    start = time.perf_counter()
-    _, status = os.waitpid(child(0), 0)
-    duration = time.perf_counter() - start
-    assert os.waitstatus_to_exitcode(status) == 0
-    previous = whole_set(out)
-    rng = np.random.default_rng(12)
-    outcomes = []
-    for trial in range(20):
-        delay = rng.uniform(0.0, 1.2 * duration)
-        sig = (signal.SIGINT, signal.SIGTERM)[trial % 2]
-        pid = child(trial + 1)
-        time.sleep(delay)
+
+def child(seed):
+    pid = os.fork()
+    if pid == 0:  # one calibration, as the command line runs it
+        code = 99
         try:
-            os.kill(pid, sig)
-        except ProcessLookupError:
-            pass
-        _, status = os.waitpid(pid, 0)
-        code = os.waitstatus_to_exitcode(status)
-        # 130/143: the handlers ran; 99 or -15: the signal came before the command started
-        assert code in (0, 130, 143, 99, -15), (code, log.read_text())
-        run = whole_set(out)
-        if code == 0:
-            assert run != previous
-        outcomes.append("new" if run != previous else "old")
-        previous = run
+            os.dup2(os.open(os.devnull, os.O_WRONLY), 1)
+            os.dup2(os.open(log, os.O_WRONLY | os.O_CREAT | os.O_TRUNC), 2)
+            code = main(["calibrate", dataset, "--out", out, "--quiet", "--seed", str(seed)])
+        finally:
+            sys.stderr.flush()
+            os._exit(code)
+    return pid
+
+
+start = time.perf_counter()
+_, status = os.waitpid(child(0), 0)
+duration = time.perf_counter() - start
+assert os.waitstatus_to_exitcode(status) == 0
+from pathlib import Path
+previous = whole_set(Path(out))
+rng = np.random.default_rng(12)
+for trial in range(20):
+    delay = rng.uniform(0.0, 1.2 * duration)
+    sig = (signal.SIGINT, signal.SIGTERM)[trial % 2]
+    pid = child(trial + 1)
+    time.sleep(delay)
+    try:
+        os.kill(pid, sig)
+    except ProcessLookupError:
+        pass
+    _, status = os.waitpid(pid, 0)
+    code = os.waitstatus_to_exitcode(status)
+    err = Path(log).read_text()
+    try:
+        run = whole_set(Path(out))
+    except Exception as exc:  # reported, then the test fails on it
+        run = f"NOT WHOLE: {exc!r}"
+    print(json.dumps({"code": code, "run": run, "previous": previous, "stderr": err}), flush=True)
+    previous = run
+"""
+
+
+def test_calibrate_interrupted_at_20_random_moments(dataset, tmp_path):
+    """``relcal calibrate`` in a fresh process, interrupted (SIGINT or SIGTERM) at 20 seeded
+    random moments of its run (each run a child forked from it after the imports): every time
+    the output folder holds one whole set, the old or the new."""
+    import subprocess
+
+    out, log = tmp_path / "cal", tmp_path.parent / f"{tmp_path.name}.stderr"
+    argv = [sys.executable, "-c", DRIVER, str(Path(__file__).parent), str(dataset), str(out)]
+    done = subprocess.run([*argv, str(log)], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    trials = [json.loads(line) for line in done.stdout.splitlines()]
+    assert len(trials) == 20
+    outcomes = []
+    for t in trials:
+        # 130/143: the handlers ran; -15: SIGTERM came before the command started
+        assert t["code"] in (0, 130, 143, 99, -15), t
+        assert not t["run"].startswith("NOT WHOLE"), t
+        if t["code"] == 0:
+            assert t["run"] != t["previous"], t
+        outcomes.append("new" if t["run"] != t["previous"] else "old")
     assert set(outcomes) == {"old", "new"}
     leftovers = [p.name for p in tmp_path.iterdir() if p.name not in ("cal", "cal.prev")]
     assert leftovers == []
