@@ -196,4 +196,11 @@ def test_a_killed_worker_does_not_stop_the_fleet(fleet, cluster, tmp_path):
     status = {e["session"]: e["status"] for e in entries}
     assert len(status) == 20
     assert [s for s, v in status.items() if v != "ok"] == [f"{CORRUPT}/2026-06"]
-    assert len(list(out.rglob("results.json"))) == 19
+    # a task rerun after the kill may find its set already written (kept as .prev/), and a
+    # worker killed while staging leaves a hidden temporary: neither is a session's output
+    sets = [
+        p
+        for p in out.rglob("results.json")
+        if not any(x.startswith(".") or x.endswith(".prev") for x in p.relative_to(out).parts)
+    ]
+    assert len(sets) == 19

@@ -8,15 +8,20 @@ from helpers_dataset import synthetic_dataset
 
 from relcal.calibration import pipeline
 from relcal.cli import main
-from relcal.io import atomic_write, write_text
+from relcal.io import File, Folder, write_set, write_text
 
 
-def test_atomic_write_keeps_the_old_file_when_interrupted(tmp_path):
+def test_a_write_interrupted_while_staging_keeps_the_old_files(tmp_path):
     path = tmp_path / "model.yaml"
     write_text(path, "old\n")
-    with pytest.raises(KeyboardInterrupt), atomic_write(path) as handle:
-        handle.write("half of the new")
+
+    def half_written(folder):
+        (folder / "big.bin").write_bytes(b"half of the new")
         raise KeyboardInterrupt
+
+    new = Folder(tmp_path / "set", {"a.txt": "new"}, fill=half_written)
+    with pytest.raises(KeyboardInterrupt):
+        write_set(File(path, "new\n"), new)
     assert path.read_text() == "old\n"
     assert [p.name for p in tmp_path.iterdir()] == ["model.yaml"]  # no temporary left behind
 
@@ -38,7 +43,7 @@ def test_interrupted_calibration_leaves_earlier_outputs_intact(tmp_path, monkeyp
 
 def _without_timing(doc):
     if isinstance(doc, dict):
-        return {k: _without_timing(v) for k, v in doc.items() if k != "seconds"}
+        return {k: _without_timing(v) for k, v in doc.items() if k not in ("seconds", "run_id")}
     if isinstance(doc, list):
         return [_without_timing(v) for v in doc]
     return doc

@@ -1,14 +1,11 @@
-"""YAML with line numbers for error messages, validation, and atomic file writes."""
+"""YAML with line numbers for error messages, validation, and file writes (through
+:mod:`relcal.outputset`: whole sets, never over an input)."""
 
 from __future__ import annotations
 
 import csv
 import json
-import os
 import re
-import tempfile
-from collections.abc import Callable, Iterator
-from contextlib import contextmanager
 from pathlib import Path
 from typing import Any, TypeVar
 
@@ -16,6 +13,9 @@ import pydantic
 import yaml
 
 from relcal.errors import RelcalError
+from relcal.outputset import File, Folder, note_input, write_set
+
+__all__ = ["File", "Folder", "note_input", "write_set"]
 
 M = TypeVar("M", bound=pydantic.BaseModel)
 
@@ -57,6 +57,7 @@ def read_table(path: str | Path, what: str) -> tuple[list[str], list[TableRow]]:
     file without a header and at least one data row is an error naming the file.
     """
     path = Path(path)
+    note_input(path)
     try:
         with open(path, newline="", encoding="utf-8-sig") as handle:
             text = handle.read()
@@ -102,6 +103,7 @@ _Loader.add_implicit_resolver(
 def load_yaml(path: str | Path) -> tuple[Any, yaml.Node | None]:
     """Parse a YAML file; return the data and its node tree (for line numbers)."""
     path = Path(path)
+    note_input(path)
     try:
         text = path.read_text()
     except FileNotFoundError:
@@ -151,40 +153,22 @@ def load_validated(schema: type[M], path: str | Path) -> M:
     return validate(schema, data, path, node)
 
 
-@contextmanager
-def atomic_write(path: str | Path, mode: str = "w") -> Iterator[Any]:
-    """Open a temporary file beside ``path``; rename it over ``path`` only if the block succeeds."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, mode) as handle:
-            yield handle
-        os.chmod(tmp, 0o666 & ~_umask())  # mkstemp makes 0600; outputs get the usual mode
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+def write_text(path: str | Path, text: str, what: str = "output") -> None:
+    """Write one text file as a unit (:func:`relcal.outputset.write_set`); ``what`` names the
+    option or role in messages."""
+    write_set(File(path, text, what))
 
 
-def _umask() -> int:
-    mask = os.umask(0)
-    os.umask(mask)
-    return mask
+def write_bytes(path: str | Path, data: bytes, what: str = "output") -> None:
+    """Write one binary file as a unit."""
+    write_set(File(path, data, what))
 
 
-def write_text(path: str | Path, text: str) -> None:
-    """Write a text file atomically."""
-    with atomic_write(path) as handle:
-        handle.write(text)
+def json_text(data: Any) -> str:
+    """JSON, indented, with NaN refused (it is not JSON)."""
+    return json.dumps(data, indent=2, allow_nan=False) + "\n"
 
 
-def write_json(path: str | Path, data: Any) -> None:
-    """Write JSON atomically, indented, with NaN refused (it is not JSON)."""
-    write_text(path, json.dumps(data, indent=2, allow_nan=False) + "\n")
-
-
-def write_with(path: str | Path, writer: Callable[[Any], None], mode: str = "w") -> None:
-    """Call ``writer(handle)`` on a temporary file and rename it over ``path``."""
-    with atomic_write(path, mode) as handle:
-        writer(handle)
+def write_json(path: str | Path, data: Any, what: str = "--json") -> None:
+    """Write JSON as a unit, indented, with NaN refused (it is not JSON)."""
+    write_text(path, json_text(data), what)

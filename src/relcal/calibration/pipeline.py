@@ -87,10 +87,19 @@ def _sample_indices(dataset: Dataset, ids: Sequence[str]) -> np.ndarray:
 
 
 def cross_validate(
-    dataset: Dataset, measurements: Measurements, k: int = 5, seed: int = 0, **options
+    dataset: Dataset,
+    measurements: Measurements,
+    k: int = 5,
+    seed: int = 0,
+    progress: bool = False,
+    **options,
 ) -> list[Calibration]:
-    """k-fold cross-validation: each fold of the usable samples held out once."""
+    """k-fold cross-validation: each fold of the usable samples held out once (``progress``: a
+    progress bar over the folds)."""
+    from tqdm import tqdm
+
     usable = np.flatnonzero(measurements.ok)
+    parts = folds(len(usable), k, seed)
     return [
         calibrate(
             dataset,
@@ -99,7 +108,7 @@ def cross_validate(
             holdout_ids=[dataset.ids[i] for i in usable[f]],
             **options,
         )
-        for f in folds(len(usable), k, seed)
+        for f in tqdm(parts, disable=not progress, desc="cross-validation", unit="fold")
     ]
 
 

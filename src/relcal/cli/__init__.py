@@ -1,7 +1,10 @@
 """The ``relcal`` command line. Subcommands live in :mod:`relcal.cli`.
 
-Exit codes: 0 success, 1 the run finished but a check failed (e.g. no convergence), 2 bad input
-(the message names the file and field), 130 interrupted.
+Exit codes (:data:`EXIT_CODES`): 0 success; 1 the run finished but a check failed (a calibration
+that did not converge: nothing written; an unreached target: marked in the outputs); 2 bad input,
+a bad option or a refused or unwritable output (the message names the file or option), nothing
+written; 3 internal error (a bug: please report it; ``RELCAL_DEBUG=1`` shows the traceback); 130
+interrupted (SIGINT), 143 terminated (SIGTERM), both with the previous outputs left whole.
 """
 
 from __future__ import annotations
@@ -14,38 +17,99 @@ for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
 
 import argparse  # noqa: E402
+import signal  # noqa: E402
 import sys  # noqa: E402
 from collections.abc import Callable, Sequence  # noqa: E402
 
-import numpy as np  # noqa: E402
-
-from relcal.cli.common import register_all  # noqa: E402
 from relcal.errors import RelcalError  # noqa: E402
+
+EXIT_CODES = {
+    0: "ok",
+    1: "finished, but a calibration did not converge (nothing written) or a target was missed",
+    2: "bad input, bad option or refused output (nothing written)",
+    3: "internal error (please report; RELCAL_DEBUG=1 shows the traceback)",
+    130: "interrupted (SIGINT)",
+    143: "terminated (SIGTERM)",
+}
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM, raised like Ctrl-C so that staged outputs are cleaned up."""
+
+
+def _terminate(signum, frame):  # noqa: ARG001
+    raise Terminated
 
 
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="relcal",
         description="Calibrate serial robot kinematics from relative camera measurements.",
-        epilog="exit codes: 0 ok, 1 finished but did not converge, 2 bad input, 130 interrupted",
+        epilog="exit codes: " + "; ".join(f"{k} {v}" for k, v in EXIT_CODES.items()),
+        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
+    from relcal.cli.common import register_all
+
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     register_all(sub)
     return parser
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
-    func: Callable[[argparse.Namespace], int] = args.func
+    """Run one command; the one place where errors become messages and exit codes."""
+    previous = signal.getsignal(signal.SIGTERM)
+    in_main = _main_thread()
+    if in_main:
+        signal.signal(signal.SIGTERM, _terminate)
     try:
-        with np.errstate(all="ignore"):
+        return _run(argv)
+    except SystemExit as exc:  # argparse: --help (0) or a bad option (2, message printed)
+        return exc.code if isinstance(exc.code, int) else 2
+    except Terminated:
+        print("relcal: terminated; earlier outputs left as they were", file=sys.stderr)
+        return 143
+    except KeyboardInterrupt:
+        print("relcal: interrupted; earlier outputs left as they were", file=sys.stderr)
+        return 130
+    finally:
+        if in_main:
+            signal.signal(signal.SIGTERM, previous)
+
+
+def _main_thread() -> bool:
+    import threading
+
+    return threading.current_thread() is threading.main_thread()
+
+
+def _run(argv: Sequence[str] | None) -> int:
+    from relcal.outputset import tracking
+
+    try:
+        args = build_parser().parse_args(argv)
+        func: Callable[[argparse.Namespace], int] = args.func
+        import numpy as np
+
+        with tracking(), np.errstate(all="ignore"):
             return func(args)
     except RelcalError as exc:
         print(f"relcal: error: {exc}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
-        print("relcal: interrupted", file=sys.stderr)
-        return 130
+    except OSError as exc:
+        where = f" {exc.filename}" if exc.filename else ""
+        print(f"relcal: error:{where}: {exc.strerror or exc}; nothing written", file=sys.stderr)
+        return 2
+    except (KeyboardInterrupt, SystemExit):
+        raise
+    except Exception as exc:  # a bug: one line, the traceback only on request
+        if os.environ.get("RELCAL_DEBUG") == "1":
+            raise
+        print(
+            f"relcal: internal error: {type(exc).__name__}: {exc}; please report it "
+            "(RELCAL_DEBUG=1 shows the traceback)",
+            file=sys.stderr,
+        )
+        return 3
 
 
 if __name__ == "__main__":

@@ -3,8 +3,16 @@
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
 
-from relcal.cli.common import json_arg
+from relcal.cli.common import (
+    existing_file,
+    json_arg,
+    length_m,
+    output_file,
+    positive_float,
+    positive_int,
+)
 
 EPILOG = """\
 examples:
@@ -19,9 +27,11 @@ Print at 100 % (no "fit to page") and check the 50 mm bar with a ruler.
 
 def run(args: argparse.Namespace) -> int:
     from relcal.errors import RelcalError
-    from relcal.io import validate, write_text
-    from relcal.vision.boards import BoardSpec, board_to_spec, load_board, write_printable
+    from relcal.io import File, json_text, validate, write_set
+    from relcal.outputset import check
+    from relcal.vision.boards import BoardSpec, board_to_spec, load_board, printable
 
+    named = ((args.out, "--out"), (args.yaml, "--yaml"), (args.json, "--json"))
     if args.spec:
         board = load_board(args.spec)
     else:
@@ -37,17 +47,21 @@ def run(args: argparse.Namespace) -> int:
         }
         board = validate(BoardSpec, {k: v for k, v in fields.items() if v is not None}, "options")
         board = board.to_board()
-    path = write_printable(board, args.out, dpi=args.dpi)
+    check([File(p, b"", what) for p, what in named if p])
+    path = Path(args.out)
+    items = [File(path, printable(board, path, dpi=args.dpi), "--out")]
     if args.yaml:
         import yaml
 
-        write_text(args.yaml, yaml.safe_dump(board_to_spec(board), sort_keys=False))
+        items.append(
+            File(args.yaml, yaml.safe_dump(board_to_spec(board), sort_keys=False), "--yaml")
+        )
     if args.json:
-        from relcal.io import write_json
         from relcal.reporting.documents import board_document
 
         doc = board_document(board, path, args.dpi)
-        write_json(args.json, {**doc, "yaml": args.yaml})
+        items.append(File(args.json, json_text({**doc, "yaml": args.yaml}), "--json"))
+    write_set(*items)
     if not args.quiet:
         print(f"{board.describe()}\nwritten to {path}")
     return 0
@@ -60,16 +74,28 @@ def register(sub: argparse._SubParsersAction) -> None:
         epilog=EPILOG,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    p.add_argument("--spec", help="board YAML (relcal or robot_cal_tools target.yaml)")
+    p.add_argument(
+        "--spec", type=existing_file, help="board YAML (relcal or robot_cal_tools target.yaml)"
+    )
     p.add_argument("--type", choices=("chessboard", "charuco", "circles", "acircles"))
-    p.add_argument("--rows", type=int, help="squares (chessboard, charuco) or dots (grids)")
-    p.add_argument("--columns", type=int)
-    p.add_argument("--square", type=float, help="square size or dot spacing, m")
-    p.add_argument("--marker", type=float, help="ArUco marker size (charuco), m")
+    p.add_argument(
+        "--rows", type=positive_int, help="squares (chessboard, charuco) or dots (grids)"
+    )
+    p.add_argument("--columns", type=positive_int)
+    p.add_argument(
+        "--square", type=length_m(0, 0.5), help="square size or dot spacing, m (at most 0.5)"
+    )
+    p.add_argument(
+        "--marker", type=length_m(0, 0.5), help="ArUco marker size (charuco), m (at most 0.5)"
+    )
     p.add_argument("--dictionary", help="ArUco dictionary, e.g. DICT_6X6_250")
-    p.add_argument("--out", required=True, help="output .pdf or .png")
-    p.add_argument("--dpi", type=float, default=300.0, help="PNG resolution (default 300)")
-    p.add_argument("--yaml", help="also write the board description as YAML for dataset.yaml")
+    p.add_argument("--out", required=True, type=output_file, help="output .pdf or .png")
+    p.add_argument("--dpi", type=positive_float, default=300.0, help="PNG resolution (default 300)")
+    p.add_argument(
+        "--yaml",
+        type=output_file,
+        help="also write the board description as YAML for dataset.yaml",
+    )
     json_arg(p, "the board geometry (m), the file written and its page size (mm)")
     p.add_argument("--quiet", action="store_true", help="print nothing but errors")
     p.set_defaults(func=run)

@@ -5,7 +5,16 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from relcal.cli.common import json_arg, registry_arg
+from relcal.cli.common import (
+    holdout_fraction,
+    int_at_least,
+    json_arg,
+    output_file,
+    output_folder,
+    positive_float,
+    positive_int,
+    registry_arg,
+)
 
 EPILOG = """\
 examples:
@@ -16,72 +25,102 @@ examples:
 
 
 def run_measure(args: argparse.Namespace) -> int:
-    from relcal.data.dataset import joints_in_unit, load_dataset, write_samples
+    from relcal.data.dataset import load_dataset
     from relcal.data.imaging import measure
-    from relcal.io import write_json, write_text
-    from relcal.reporting.documents import measurements_document
+    from relcal.outputset import check
+    from relcal.reporting.outputs import write_measurements
 
     dataset = load_dataset(args.dataset)
-    m = measure(dataset, workers=args.workers, progress=not args.quiet)
     out = Path(args.out or Path(args.dataset) / "measured")
-    ok = m.ok
-    ids = [dataset.ids[i] for i in range(len(ok)) if ok[i]]
-    write_text(
-        out / "poses.csv",
-        write_samples(
-            out / "poses.csv",
-            ids,
-            joints_in_unit(dataset.model, dataset.q, "deg")[ok],
-            poses=m.poses[ok],
-            positions_only=dataset.measured == "position",
-        ),
-    )
-    doc = measurements_document(dataset, m)
-    write_json(out / "measurements.json", doc)
-    if args.json:
-        write_json(args.json, doc)
+    check(_destinations(out, args.json))  # refuse before the work, not after it
+    m = measure(dataset, workers=args.workers, progress=not args.quiet, max_rms=args.max_rms)
+    write_measurements(dataset, m, out, args.json)
     if not args.quiet:
+        ok = m.ok
         print(f"{int(ok.sum())} of {len(ok)} samples posed; written to {out}/poses.csv")
-        for r in doc["rejected"]:
-            print(f"  rejected {r['id']}: {r['reason']}")
+        for i in range(len(ok)):
+            if not ok[i]:
+                print(f"  rejected {dataset.ids[i]}: {m.reasons[i]}")
     return 0
 
 
+def _destinations(out: Path, json_path, report_path=None):
+    from relcal.outputset import File, Folder
+
+    items = [Folder(out, what="--out")]
+    if json_path:
+        items.append(File(json_path, b"", "--json"))
+    if report_path:
+        items.append(File(report_path, b"", "--report"))
+    return items
+
+
+def check_kfold(dataset, k: int | None, usable: int | None = None) -> None:
+    """More folds than pairs of samples cannot each hold out a validation pair."""
+    from relcal.errors import RelcalError
+
+    n = len(dataset.ids) if usable is None else usable
+    what = "samples" if usable is None else "usable samples"
+    if k is not None and k > n // 2:
+        raise RelcalError(
+            f"--kfold {k}: {dataset.spec_path.parent} has {n} {what}; each fold needs at least "
+            f"2 held-out samples, so K can be at most {n // 2}"
+        )
+
+
+def check_holdout(dataset, holdout: float, usable: int | None = None) -> None:
+    """Enough training samples left after holding out ``holdout`` of them."""
+    from relcal.errors import RelcalError
+
+    n = len(dataset.ids) if usable is None else usable
+    if holdout <= 0 or n < 4:  # fewer than 4 in all: the calibration says so itself
+        return
+    n_test = max(2, int(round(holdout * n)))
+    if n - n_test < 4:
+        raise RelcalError(
+            f"--holdout {holdout:g}: of {n} samples {n_test} would be held out, leaving "
+            f"{n - n_test} to calibrate (at least 4 are needed); lower --holdout"
+        )
+
+
 def run_calibrate(args: argparse.Namespace) -> int:
+    import sys
+
     from relcal.calibration.pipeline import calibrate
     from relcal.data.dataset import load_dataset
     from relcal.data.imaging import measure
     from relcal.fleet.records import record_calibration
-    from relcal.io import write_json, write_text, write_with
+    from relcal.outputset import check
     from relcal.reporting.documents import cross_validation_document, results_document
+    from relcal.reporting.outputs import write_calibration
     from relcal.reporting.text import calibration_summary
-    from relcal.robot.export import parameter_csv, robot_files
-    from relcal.robot.model import dump_model
 
     dataset = load_dataset(args.dataset)
-    m = measure(dataset, workers=args.workers, progress=not args.quiet)
+    out = Path(args.out or Path(args.dataset) / "calibration")
+    holdout_ids = _ids(args.holdout_ids) if args.holdout_ids else None
+    check(_destinations(out, args.json, args.report))  # refuse before the work, not after it
+    check_kfold(dataset, args.kfold)
+    if holdout_ids is None:
+        check_holdout(dataset, args.holdout)
+    m = measure(dataset, workers=args.workers, progress=not args.quiet, max_rms=args.max_rms)
+    check_kfold(dataset, args.kfold, int(m.ok.sum()))
+    if holdout_ids is None:
+        check_holdout(dataset, args.holdout, int(m.ok.sum()))
     options = {
         "pairing": args.pairs,
         "method": args.method,
         "loss": args.loss,
         "reject_outliers": not args.keep_outliers,
         "selection": args.select,
-        "nongeometric": args.nongeometric
-        if args.nongeometric in ("auto", "none")
-        else [s.strip() for s in args.nongeometric.split(",") if s.strip()],
+        "nongeometric": args.nongeometric,
         "weightings": ("plain",) if args.weighting == "plain" else ("plain", "noise model"),
     }
-    holdout_ids = _ids(args.holdout_ids) if args.holdout_ids else None
     cal = calibrate(
         dataset, m, holdout=args.holdout, seed=args.seed, holdout_ids=holdout_ids, **options
     )
-    out = Path(args.out or Path(args.dataset) / "calibration")
-    model = cal.model
     doc = results_document(cal)
     if cal.hurts:
         val = doc["validation"]
-        import sys
-
         print(calibration_summary(doc), file=sys.stderr)
         print(
             f"relcal: error: the chosen model ({doc['model_selection']['chosen']}) is worse than "
@@ -96,20 +135,19 @@ def run_calibrate(args: argparse.Namespace) -> int:
     if args.kfold:
         from relcal.calibration.pipeline import cross_validate
 
-        folds = cross_validate(dataset, m, k=args.kfold, seed=args.seed, **options)
+        folds = cross_validate(
+            dataset, m, k=args.kfold, seed=args.seed, progress=not args.quiet, **options
+        )
         doc["cross_validation"] = cross_validation_document(folds)
-    write_text(out / "model.yaml", dump_model(model))
-    files = robot_files(model)  # robot.urdf (+ origin corrections, UR/Franka files for URDFs)
-    for name, data in files.items():
-        write_with(out / name, lambda f, data=data: f.write(data), "wb")
-    write_text(out / "parameters.csv", parameter_csv(doc["parameters"]))
-    write_json(out / "results.json", doc)
-    if args.json:
-        write_json(args.json, doc)
-    if args.report:
-        from relcal.reporting.html import calibration_report
-
-        write_text(args.report, calibration_report(cal, doc))
+    if not cal.result.converged:
+        if not args.quiet:
+            print(calibration_summary(doc))
+        print(
+            f"relcal: the identification did not converge; nothing written ({out} left as it was)",
+            file=sys.stderr,
+        )
+        return 1
+    written = write_calibration(cal, out, doc, args.json, args.report)
     run_id = record_calibration(args.registry, cal, doc, out)
     if not args.quiet:
         print(calibration_summary(doc))
@@ -119,13 +157,11 @@ def run_calibrate(args: argparse.Namespace) -> int:
                 "baseline, within the sampling interval (no evidence of harm; cross-validation "
                 "on the training samples chose it); --kfold K measures it on every sample"
             )
-        print(f"written: {out}/model.yaml, {', '.join(files)}, parameters.csv, results.json")
+        print(f"written: {out}/" + ", ".join(p.name for p in written if p.parent == out))
         if args.report:
             print(f"report: {args.report}")
         if run_id is not None:
             print(f"recorded in the registry as run {run_id}")
-    if not cal.result.converged:
-        return 1
     return 0
 
 
@@ -133,7 +169,9 @@ def _ids(text: str) -> list[str]:
     """Sample ids from ``a,b,c`` or ``@file`` (one id per line)."""
     if text.startswith("@"):
         from relcal.errors import RelcalError
+        from relcal.io import note_input
 
+        note_input(text[1:])
         try:
             lines = Path(text[1:]).read_text().splitlines()
         except OSError as exc:
@@ -142,10 +180,38 @@ def _ids(text: str) -> list[str]:
     return [t.strip() for t in text.split(",") if t.strip()]
 
 
+def nongeometric_terms(text: str) -> str | list[str]:
+    """``--nongeometric``: ``auto``, ``none`` or terms like ``scale,harmonic``."""
+    from relcal.robot.model import NONGEOMETRIC
+
+    if text in ("auto", "none"):
+        return text
+    terms = [s.strip() for s in text.split(",") if s.strip()]
+    unknown = [s for s in terms if s not in NONGEOMETRIC]
+    if unknown or not terms:
+        raise argparse.ArgumentTypeError(
+            f"'{text}': expected auto, none or a comma-separated list of {', '.join(NONGEOMETRIC)}"
+        )
+    return terms
+
+
 def _common(p: argparse.ArgumentParser) -> None:
     p.add_argument("dataset", help="dataset folder (with dataset.yaml)")
-    p.add_argument("--out", help="output folder")
-    p.add_argument("--workers", type=int, default=2, help="processes for image measurement")
+    p.add_argument(
+        "--out",
+        type=output_folder,
+        help="output folder, written as one set; an earlier relcal set there is kept as OUT.prev/",
+    )
+    p.add_argument(
+        "--workers", type=positive_int, default=2, help="processes for image measurement"
+    )
+    p.add_argument(
+        "--max-rms",
+        type=positive_float,
+        metavar="PX",
+        default=1.0,
+        help="reject frames whose board reprojection RMS exceeds PX pixels (default 1)",
+    )
     p.add_argument("--quiet", action="store_true", help="no progress bars or summary")
 
 
@@ -168,13 +234,21 @@ def register(sub: argparse._SubParsersAction) -> None:
         formatter_class=fmt,
     )
     _common(cp)
-    cp.add_argument("--holdout", type=float, default=0.25, help="held-out share (default 0.25)")
+    cp.add_argument(
+        "--holdout",
+        type=holdout_fraction,
+        default=0.25,
+        help="held-out share, 0 <= H < 1 (default 0.25; 0: no validation)",
+    )
     cp.add_argument("--seed", type=int, default=0, help="seed of the held-out split")
     cp.add_argument(
         "--holdout-ids", help="validation samples by id: 'a,b,c' or '@file' (one id per line)"
     )
     cp.add_argument(
-        "--kfold", type=int, metavar="K", help="also run K-fold cross-validation (results.json)"
+        "--kfold",
+        type=int_at_least(2),
+        metavar="K",
+        help="also run K-fold cross-validation (results.json); 2 <= K <= samples / 2",
     )
     cp.add_argument("--pairs", choices=("consecutive", "star", "all"), default="all")
     cp.add_argument("--method", choices=("lm", "published"), default="lm")
@@ -192,13 +266,14 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--select",
         choices=("cv", "conservative", "all"),
         default="cv",
-        help="model selection: cv (default) the simplest candidate within a standard error of "
-        "the best cross-validated one; conservative: then only parameters above 3 std; all: "
+        help="model selection: cv (default) the simplest candidate within two standard errors "
+        "of the best cross-validated one; conservative: then only parameters above 3 std; all: "
         "every identifiable parameter",
     )
     cp.add_argument(
         "--nongeometric",
         default="auto",
+        type=nongeometric_terms,
         metavar="auto|none|TERMS",
         help="non-geometric candidates for model selection: auto (default: joint scale, first "
         "harmonic, and compliance where the model has masses), none, or a list such as "
@@ -211,7 +286,12 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="row weightings tried per candidate: plain (default; translation in m, rotation x "
         "0.1 m/rad) or both (also each pair whitened by the learned 6x6 noise)",
     )
-    cp.add_argument("--report", metavar="FILE", help="write the HTML calibration report to FILE")
+    cp.add_argument(
+        "--report",
+        metavar="FILE",
+        type=output_file,
+        help="write the HTML calibration report to FILE",
+    )
     registry_arg(cp)
     json_arg(cp, "a copy of results.json (parameters, hand-eye, validation, calibrated model)")
     cp.set_defaults(func=run_calibrate)

@@ -7,6 +7,11 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import os
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
 
 COMMANDS = [
     "simulate",
@@ -75,7 +80,147 @@ def load_robot(args: argparse.Namespace):
 
 def json_arg(parser: argparse.ArgumentParser, what: str) -> None:
     """``--json FILE``, shared by every command: ``what`` is the document written."""
-    parser.add_argument("--json", metavar="FILE", help=f"write {what} as JSON to FILE")
+    parser.add_argument(
+        "--json", metavar="FILE", type=output_file, help=f"write {what} as JSON to FILE"
+    )
+
+
+# ---------------------------------------------------------------- option types (argparse type=)
+# Each returns the parsed value or raises argparse.ArgumentTypeError, which argparse reports as
+# "relcal COMMAND: error: argument --x: ..." with exit status 2, before any work.
+
+
+def _number(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"'{text}' is not a number") from None
+    if not np.isfinite(value):
+        raise argparse.ArgumentTypeError(f"'{text}': expected a finite number")
+    return value
+
+
+def _integer(text: str) -> int:
+    try:
+        return int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"'{text}' is not a whole number") from None
+
+
+def finite_float(text: str) -> float:
+    """Any finite number."""
+    return _number(text)
+
+
+def positive_float(text: str) -> float:
+    """A finite number > 0."""
+    value = _number(text)
+    if value <= 0:
+        raise argparse.ArgumentTypeError(f"'{text}': expected a number greater than 0")
+    return value
+
+
+def nonnegative_float(text: str) -> float:
+    """A finite number >= 0."""
+    value = _number(text)
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"'{text}': expected a number of 0 or more")
+    return value
+
+
+def int_at_least(low: int) -> Callable[[str], int]:
+    """A whole number >= ``low``."""
+
+    def parse(text: str) -> int:
+        value = _integer(text)
+        if value < low:
+            raise argparse.ArgumentTypeError(f"'{text}': expected a whole number of {low} or more")
+        return value
+
+    parse.__name__ = f"integer >= {low}"
+    return parse
+
+
+positive_int = int_at_least(1)
+nonnegative_int = int_at_least(0)
+
+
+def fraction(text: str) -> float:
+    """A number strictly between 0 and 1."""
+    value = _number(text)
+    if not 0 < value < 1:
+        raise argparse.ArgumentTypeError(f"'{text}': expected a fraction between 0 and 1")
+    return value
+
+
+def holdout_fraction(text: str) -> float:
+    """A share in [0, 1): 0 holds nothing out."""
+    value = _number(text)
+    if not 0 <= value < 1:
+        raise argparse.ArgumentTypeError(
+            f"'{text}': expected a share from 0 (no validation) up to, not including, 1"
+        )
+    return value
+
+
+def length_m(low: float, high: float) -> Callable[[str], float]:
+    """A length in metres, ``low < value <= high`` (a bound that catches millimetres)."""
+
+    def parse(text: str) -> float:
+        value = _number(text)
+        if not low < value <= high:
+            raise argparse.ArgumentTypeError(
+                f"'{text}': expected a length in metres between {low:g} and {high:g} "
+                "(millimetres given as metres?)"
+            )
+        return value
+
+    parse.__name__ = "length"
+    return parse
+
+
+def existing_file(text: str) -> str:
+    """A path to an existing file (not a folder)."""
+    path = Path(text)
+    if not path.exists():
+        raise argparse.ArgumentTypeError(f"{text}: file not found")
+    if path.is_dir():
+        raise ArgumentTypeError(f"{text}: is a folder, expected a file")
+    return text
+
+
+def output_file(text: str) -> str:
+    """A file to write: not a folder, in a place that can be written (devices are fine)."""
+    from relcal.errors import RelcalError
+    from relcal.outputset import File, check_file
+
+    if not text.strip():
+        raise ArgumentTypeError("expected a file name")
+    try:
+        check_file(File(text, b"", "file"))
+    except RelcalError as exc:
+        raise ArgumentTypeError(str(exc).removeprefix(f"file {text}: ")) from None
+    return text
+
+
+def output_folder(text: str) -> str:
+    """A folder to write: not an existing file, in a place that can be written."""
+    from relcal.outputset import _nearest_existing, is_stream
+
+    path = Path(text)
+    if not text.strip():
+        raise ArgumentTypeError("expected a folder name")
+    if is_stream(path) or (path.exists() and not path.is_dir()):
+        raise ArgumentTypeError(f"{text}: exists and is not a folder")
+    base = _nearest_existing(path.parent)
+    if not base.is_dir():
+        raise ArgumentTypeError(f"{text}: {base} is a file, not a folder")
+    if not os.access(base, os.W_OK | os.X_OK):
+        raise ArgumentTypeError(f"{text}: cannot write in {base} (permission denied)")
+    return text
+
+
+ArgumentTypeError = argparse.ArgumentTypeError
 
 
 def registry_arg(parser: argparse.ArgumentParser) -> None:

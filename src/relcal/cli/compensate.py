@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from relcal.cli.common import json_arg
+from relcal.cli.common import existing_file, json_arg, output_file
 
 EPILOG = """\
 examples:
@@ -25,11 +25,45 @@ output:  id, q1..qn (corrected), converged, dq1..dqn (correction), predicted_pos
 """
 
 
+def check_limits(path: Path, model, ids, q: np.ndarray, joint_unit: str) -> None:
+    """A joint program ``q`` (rad, m) outside the model's joint limits is refused, naming the
+    target and the joint."""
+    from relcal.data.dataset import joints_in_unit
+    from relcal.errors import RelcalError
+
+    slack = 1e-9
+    bad = (q < model.lower - slack) | (q > model.upper + slack)
+    if not bad.any():
+        return
+    k, j = np.argwhere(bad)[0]
+    unit = "m" if model.prismatic[j] else joint_unit
+    shown = joints_in_unit(model, q, joint_unit)[k, j]
+    lo, hi = (
+        joints_in_unit(model, lim[None], joint_unit)[0, j] for lim in (model.lower, model.upper)
+    )
+    raise RelcalError(
+        f"{path}: target {ids[k]}: q{j + 1} = {shown:g} {unit} is outside the joint limits "
+        f"[{lo:g}, {hi:g}] {unit} of '{model.name}' ({int(bad.any(axis=1).sum())} target(s) "
+        "outside); wrong --joint-unit or wrong robot?"
+    )
+
+
+SINGULAR = 0.02  # inverse condition number (translation over 0.5 m) below which we warn
+
+
+def near_singular(model, q: np.ndarray) -> np.ndarray:
+    """Inverse condition number ``(N,)`` of the joint Jacobian at ``q`` (0 at a singularity)."""
+    from relcal.design.plan import inverse_condition
+
+    return inverse_condition(model, q, 0.5)
+
+
 def run(args: argparse.Namespace) -> int:
     from relcal.calibration.compensate import compensate
     from relcal.data.dataset import joints_in_unit, read_targets
     from relcal.errors import RelcalError
-    from relcal.io import write_json, write_text
+    from relcal.io import File, json_text, write_set
+    from relcal.outputset import check
     from relcal.reporting.documents import compensation_document
     from relcal.reporting.text import compensation_csv
     from relcal.robot.kinematics import fk
@@ -44,11 +78,13 @@ def run(args: argparse.Namespace) -> int:
         )
     ids, poses, q_program = read_targets(Path(args.targets), calibrated, args.joint_unit)
     if poses is None:
+        check_limits(Path(args.targets), calibrated, ids, q_program, args.joint_unit)
         if nominal is None:
             raise RelcalError(
                 f"{args.targets}: a joint program needs --nominal (the model it was computed with)"
             )
         poses = fk(nominal, q_program)
+    check([File(p, b"", what) for p, what in ((args.out, "--out"), (args.json, "--json")) if p])
     comp = compensate(calibrated, poses, nominal=nominal, q_nominal=q_program)
 
     q = joints_in_unit(calibrated, comp.q, args.joint_unit)
@@ -56,18 +92,45 @@ def run(args: argparse.Namespace) -> int:
     if comp.q_nominal is not None:
         dq = q - joints_in_unit(calibrated, comp.q_nominal, args.joint_unit)
     text = compensation_csv(ids, q, comp, dq)
-    if args.out:
-        write_text(args.out, text)
-    else:
-        print(text, end="")
+    failed = int((~comp.converged).sum())
+    items = [File(args.out, text, "--out")] if args.out else []
     if args.json:
         units = np.where(calibrated.prismatic, "m", args.joint_unit).tolist()
         inputs = {"model": args.model, "targets_file": args.targets, "nominal": args.nominal}
-        write_json(args.json, {**inputs, **compensation_document(ids, q, comp, dq, units)})
-    failed = int((~comp.converged).sum())
-    if failed and not args.quiet:
-        print(f"relcal: {failed} target(s) not reached within joint limits", file=sys.stderr)
-    return 0 if failed == 0 else 1
+        doc = {**inputs, **compensation_document(ids, q, comp, dq, units)}
+        items.append(File(args.json, json_text(doc), "--json"))
+    write_set(*items)
+    if not args.out:
+        print(text, end="")
+    if failed:  # the outputs mark them (converged False); the exit status tells
+        if not args.quiet:
+            print(
+                f"relcal: {failed} target(s) not reached within joint limits (of {len(ids)})",
+                file=sys.stderr,
+            )
+        return 1
+    cond = near_singular(calibrated, comp.q)
+    if not args.quiet:
+        for k in np.flatnonzero(cond < SINGULAR):
+            swing = (
+                ""
+                if dq is None
+                else f", corrections up to {np.max(np.abs(dq[k])):.3g} {args.joint_unit}"
+            )
+            print(
+                f"relcal: warning: target {ids[k]} is near a singularity (inverse condition "
+                f"{cond[k]:.2g}{swing}); the corrected joints may swing: check before running",
+                file=sys.stderr,
+            )
+        summary = f"{len(ids)} target(s) compensated"
+        if dq is not None:
+            summary += (
+                f", largest correction {np.max(np.abs(dq)):.3g} {args.joint_unit}, predicted "
+                f"nominal miss up to {np.max(comp.predicted_position_mm):.3g} mm"
+            )
+        where = f" -> {args.out}" if args.out else ""
+        print(f"relcal: {summary}{where}", file=sys.stderr)
+    return 0
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -77,17 +140,27 @@ def register(sub: argparse._SubParsersAction) -> None:
         epilog=EPILOG,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    p.add_argument("--model", required=True, help="calibrated model YAML (from relcal calibrate)")
-    p.add_argument("--targets", required=True, help="CSV of target poses or a joint program")
+    p.add_argument(
+        "--model",
+        required=True,
+        type=existing_file,
+        help="calibrated model YAML (from relcal calibrate)",
+    )
+    p.add_argument(
+        "--targets",
+        required=True,
+        type=existing_file,
+        help="CSV of target poses or a joint program",
+    )
     p.add_argument(
         "--nominal", help="nominal robot (name or YAML): seeds branches, predicts corrections"
     )
     p.add_argument("--joint-unit", choices=("deg", "rad"), default="deg")
-    p.add_argument("--out", help="output CSV (default: standard output)")
+    p.add_argument("--out", type=output_file, help="output CSV (default: standard output)")
     json_arg(p, "the corrected joints, corrections and a summary")
     p.add_argument(
         "--quiet",
         action="store_true",
-        help="no note about unreached targets on standard error (exit code 1 still tells)",
+        help="no summary, singularity warning or note about unreached targets on standard error",
     )
     p.set_defaults(func=run)

@@ -3,8 +3,9 @@
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
 
-from relcal.cli.common import json_arg
+from relcal.cli.common import json_arg, output_folder
 
 EPILOG = """\
 examples:
@@ -14,12 +15,29 @@ examples:
   relcal import rosbag run.mcap --joints /joint_states --image /camera/image_raw --robot ur5e \
       --out run/                                  # one sample per stop of the robot
   relcal import rosbag run_bag/ --joints /joint_states --pose /mocap/tool_pose --out run/
+  relcal import rct-images rct_charuco_eye_to_hand/ --out charuco/ --intrinsics calibrate
+  relcal measure charuco/ --max-rms 1.5           # camera poses, intrinsics, rejected frames
+
+rct-images: a robot_cal_tools image set (cal_data.yaml, target.yaml, camera_intr*.yaml); the
+images stay where they are; the recorded tool poses become the joints of a pose chain.
 """
 
 
 def run(args: argparse.Namespace) -> int:
-    from relcal.io import write_json
+    from relcal.errors import RelcalError
+    from relcal.io import File, Folder, write_json
+    from relcal.outputset import check, note_input
 
+    source = Path(args.file)
+    if not source.exists():
+        raise RelcalError(f"{source}: file not found")
+    folder = args.format == "rct-images"
+    if args.format != "rosbag" and source.is_dir() != folder:
+        want = "a folder (the image set)" if folder else "a file"
+        raise RelcalError(f"{source}: expected {want} for {args.format}")
+    note_input(source)
+    items = [Folder(args.out, what="--out", replace="refuse")]
+    check(items + ([File(args.json, b"", "--json")] if args.json else []))
     extra: dict = {}
     if args.format == "rosbag":
         done = _rosbag(args)
@@ -33,10 +51,14 @@ def run(args: argparse.Namespace) -> int:
             ],
             "skipped": list(done.skipped),
         }
+    elif folder:
+        from relcal.data.importers import import_rct_images
+
+        done = import_rct_images(source, args.out, mode=args.mode, intrinsics=args.intrinsics)
     else:
         from relcal.data.importers import import_rct_positioner
 
-        done = import_rct_positioner(args.file, args.out)
+        done = import_rct_positioner(source, args.out)
     if args.json:
         from relcal.reporting.documents import import_document
 
@@ -86,9 +108,33 @@ def register(sub: argparse._SubParsersAction) -> None:
         epilog=EPILOG,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    p.add_argument("format", choices=("rct-positioner", "rosbag"), help="input format")
-    p.add_argument("file", help="input file (rosbag: a .bag, a ROS 2 bag folder, .mcap or .db3)")
-    p.add_argument("--out", required=True, help="dataset folder to write")
+    p.add_argument(
+        "format", choices=("rct-positioner", "rct-images", "rosbag"), help="input format"
+    )
+    p.add_argument(
+        "file",
+        help="input file (rct-positioner), image set folder (rct-images), or bag (rosbag: a "
+        ".bag, a ROS 2 bag folder, .mcap or .db3)",
+    )
+    p.add_argument(
+        "--out",
+        required=True,
+        type=output_folder,
+        help="dataset folder to write (new or empty: an existing dataset is never replaced)",
+    )
+    rct = p.add_argument_group("rct-images")
+    rct.add_argument(
+        "--mode",
+        choices=("eye_in_hand", "eye_to_hand"),
+        help="camera on the wrist or fixed (default: from the folder name)",
+    )
+    rct.add_argument(
+        "--intrinsics",
+        choices=("calibrated", "guess", "calibrate"),
+        default="calibrated",
+        help="camera_intr_calibrated.yaml, camera_intr.yaml, or calibrate them from the images "
+        "(default calibrated)",
+    )
     ros = p.add_argument_group("rosbag")
     ros.add_argument("--joints", metavar="TOPIC", help="sensor_msgs/JointState topic")
     what = ros.add_mutually_exclusive_group()

@@ -7,7 +7,15 @@ from pathlib import Path
 
 import numpy as np
 
-from relcal.cli.common import json_arg, load_robot, robot_args
+from relcal.cli.common import (
+    existing_file,
+    fraction,
+    int_at_least,
+    json_arg,
+    load_robot,
+    nonnegative_int,
+    robot_args,
+)
 
 EPILOG = """\
 examples:
@@ -49,6 +57,10 @@ def run(args: argparse.Namespace) -> int:
 
     model = load_robot(args)
     q, source = joint_source(args, model)
+    if args.json:
+        from relcal.outputset import File, check
+
+        check([File(args.json, b"", "--json")])  # before the work
     problem = build_problem(model, q, args.formulation, args.measure, args.pairs)
     noise = None if args.noise.lower() == "none" else Noise.parse(args.noise)
     from relcal.sim.scenario import simulated_joints
@@ -96,9 +108,15 @@ def register(sub: argparse._SubParsersAction) -> None:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     robot_args(p)
-    p.add_argument("--poses", help="CSV of joint configurations (default: simulated poses)")
+    p.add_argument(
+        "--poses",
+        type=existing_file,
+        help="CSV of joint configurations (default: simulated poses)",
+    )
     p.add_argument("--joint-unit", choices=("deg", "rad"), default="deg")
-    p.add_argument("--n-poses", type=int, default=40, help="simulated poses (default 40)")
+    p.add_argument(
+        "--n-poses", type=int_at_least(3), default=40, help="simulated poses (default 40)"
+    )
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--formulation", choices=("invariant", "published"), default="invariant")
     p.add_argument("--measure", choices=("pose", "position"), default="pose")
@@ -118,11 +136,16 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument(
         "--validation",
-        type=int,
+        type=nonnegative_int,
         default=30,
         help="simulated validation poses for the predicted accuracy (0: skip; default 30)",
     )
-    p.add_argument("--rcond", type=float, default=1e-6, help="relative rank tolerance")
+    p.add_argument(
+        "--rcond",
+        type=fraction,
+        default=1e-6,
+        help="relative rank tolerance, 0 < RCOND < 1 (default 1e-6)",
+    )
     json_arg(p, "the report")
     p.add_argument("--quiet", action="store_true", help="print nothing but errors")
     p.set_defaults(func=run)

@@ -7,7 +7,18 @@ from dataclasses import replace
 
 import numpy as np
 
-from relcal.cli.common import json_arg, load_robot, robot_args
+from relcal.cli.common import (
+    fraction,
+    int_at_least,
+    json_arg,
+    load_robot,
+    nonnegative_float,
+    nonnegative_int,
+    output_file,
+    positive_float,
+    positive_int,
+    robot_args,
+)
 from relcal.cli.observability import add_noise_arg
 
 EPILOG = """\
@@ -55,11 +66,14 @@ def run(args: argparse.Namespace) -> int:
     from relcal.calibration.noise import Noise
     from relcal.data.dataset import joints_in_unit, write_samples
     from relcal.design.plan import Constraints, plan
-    from relcal.io import write_json, write_text
+    from relcal.io import File, json_text, write_set
+    from relcal.outputset import check
     from relcal.reporting.documents import plan_document
     from relcal.reporting.text import format_plan
 
+    named = ((args.out, "--out"), (args.random_out, "--random-out"), (args.json, "--json"))
     model = load_robot(args)
+    check([File(p, b"", what) for p, what in named if p])  # before the work
     cell = build_cell(args)
     lo, hi = _floats(args.distance, (2,), "--distance")
     constraints = Constraints(
@@ -87,10 +101,14 @@ def run(args: argparse.Namespace) -> int:
         ids = [f"p{k + 1:03d}" for k in range(len(q))]
         return write_samples(args.out, ids, joints_in_unit(model, q, args.joint_unit))
 
+    items = []
     if args.out:
-        write_text(args.out, joints_table(res.q))
+        items.append(File(args.out, joints_table(res.q), "--out"))
     if args.random_out and res.random_q is not None:
-        write_text(args.random_out, joints_table(res.random_q))
+        items.append(File(args.random_out, joints_table(res.random_q), "--random-out"))
+    if args.json:
+        items.append(File(args.json, json_text(plan_document(res, model)), "--json"))
+    write_set(*items)
     if not args.quiet:
         center = ",".join(f"{v:g}" for v in cell.center)
         print(f"{model.name}: {cell.board.describe()}, centre {center} m")
@@ -99,8 +117,6 @@ def run(args: argparse.Namespace) -> int:
             print(f"wrote {len(res.q)} joint configurations to {args.out}")
         if args.random_out:
             print(f"wrote the median random set to {args.random_out}")
-    if args.json:
-        write_json(args.json, plan_document(res, model))
     return 0
 
 
@@ -138,9 +154,12 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="flange-from-camera guess X,Y,Z[,ROLL,PITCH,YAW] (m, deg; default 0,0.04,0.06, the "
         "simulation's mount)",
     )
-    p.add_argument("--poses", type=int, default=30, help="poses to select (default 30)")
+    p.add_argument("--poses", type=int_at_least(3), default=30, help="poses to select (default 30)")
     p.add_argument(
-        "--candidates", type=int, default=2000, help="feasible candidates (default 2000)"
+        "--candidates",
+        type=positive_int,
+        default=2000,
+        help="feasible candidates (default 2000)",
     )
     p.add_argument(
         "--index",
@@ -151,26 +170,37 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--algorithm", choices=("exchange", "greedy"), default="exchange")
     p.add_argument("--distance", default="0.25,0.45", help="camera to board centre, m")
-    p.add_argument("--max-angle", type=float, default=40.0, help="viewing angle limit, deg")
-    p.add_argument("--margin", type=float, default=40.0, help="image margin, px")
+    p.add_argument(
+        "--max-angle", type=positive_float, default=40.0, help="viewing angle limit, deg"
+    )
+    p.add_argument("--margin", type=nonnegative_float, default=40.0, help="image margin, px")
     p.add_argument(
         "--min-inverse-condition",
-        type=float,
+        type=fraction,
         default=0.05,
         help="singularity limit on the joint Jacobian's inverse condition number",
     )
-    p.add_argument("--clearance", type=float, default=0.05, help="above the board plane, m")
+    p.add_argument(
+        "--clearance", type=nonnegative_float, default=0.05, help="above the board plane, m"
+    )
     p.add_argument(
         "--length-scale",
-        type=float,
+        type=positive_float,
         default=0.5,
         help="angles count as the displacement this far away (m) in the worst-parameter std",
     )
     add_noise_arg(p)
-    p.add_argument("--random-sets", type=int, default=20, help="random sets to compare with")
+    p.add_argument(
+        "--random-sets",
+        type=nonnegative_int,
+        default=20,
+        help="random sets to compare with",
+    )
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--out", help="write the planned joint configurations to this CSV")
-    p.add_argument("--random-out", help="write the median random set to this CSV")
+    p.add_argument(
+        "--out", type=output_file, help="write the planned joint configurations to this CSV"
+    )
+    p.add_argument("--random-out", type=output_file, help="write the median random set to this CSV")
     p.add_argument("--joint-unit", choices=("deg", "rad"), default="deg")
     json_arg(p, "the plan and the comparison")
     p.add_argument("--quiet", action="store_true", help="print nothing but errors")

@@ -4,7 +4,14 @@ from __future__ import annotations
 
 import argparse
 
-from relcal.cli.common import json_arg, load_robot, robot_args
+from relcal.cli.common import (
+    int_at_least,
+    json_arg,
+    load_robot,
+    output_file,
+    output_folder,
+    robot_args,
+)
 
 EPILOG_SIMULATE = """\
 examples:
@@ -34,7 +41,8 @@ def nongeometric_model(args: argparse.Namespace, model):
 
 def run(args: argparse.Namespace) -> int:
     from relcal.calibration.noise import Noise
-    from relcal.io import write_json
+    from relcal.io import File, json_text, write_set
+    from relcal.outputset import check
     from relcal.reporting.documents import simulation_document
     from relcal.reporting.text import format_simulation
     from relcal.robot.kinematics import make_layout
@@ -46,6 +54,9 @@ def run(args: argparse.Namespace) -> int:
         return run_images(args, model)
     noise = Noise.parse(args.noise) if args.noise else Noise()
     errors = load_errors(args.errors, make_layout(model)) if args.errors else None
+    check(
+        [File(p, b"", what) for p, what in ((args.json, "--json"), (args.report, "--report")) if p]
+    )
     measures = [args.measure] if args.measure else ["position", "pose"]
     runs = []
     for measure in measures:
@@ -68,14 +79,16 @@ def run(args: argparse.Namespace) -> int:
                 f"{len(sim.problem.q)} poses, {args.pairs} pairs, {sim.result.method} solver"
             )
             print(format_simulation(sim))
+    items = []
     if args.json:
         reports = [simulation_document(s) for s in runs]
-        write_json(args.json, reports[0] if len(reports) == 1 else {"runs": reports})
+        doc = reports[0] if len(reports) == 1 else {"runs": reports}
+        items.append(File(args.json, json_text(doc), "--json"))
     if args.report:
-        from relcal.io import write_text
         from relcal.reporting.html import simulation_report
 
-        write_text(args.report, simulation_report(runs))
+        items.append(File(args.report, simulation_report(runs), "--report"))
+    write_set(*items)
     return 0 if all(s.result.converged for s in runs) else 1
 
 
@@ -85,18 +98,21 @@ def run_images(args: argparse.Namespace, model) -> int:
     from relcal.calibration.pipeline import calibrate
     from relcal.data.dataset import load_dataset
     from relcal.data.imaging import measure
+    from relcal.io import Folder, write_set
     from relcal.reporting.documents import results_document
     from relcal.reporting.text import calibration_summary, format_truth
     from relcal.robot.model import auto_hayati
     from relcal.sim.synth import write_image_dataset
 
-    truth = write_image_dataset(
-        args.images,
-        auto_hayati(model),
-        n_images=args.poses,
-        seed=args.seed,
-        progress=not args.quiet,
-    )
+    found = {}
+
+    def render(folder):
+        found["truth"] = write_image_dataset(
+            folder, auto_hayati(model), n_images=args.poses, seed=args.seed, progress=not args.quiet
+        )
+
+    write_set(Folder(args.images, what="--images", replace="refuse", fill=render))
+    truth = found["truth"]
     dataset = load_dataset(args.images)
     cal = calibrate(dataset, measure(dataset, progress=not args.quiet), seed=args.seed)
     if not args.quiet:
@@ -120,7 +136,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     sim.add_argument("--formulation", choices=("published", "invariant"), default="published")
     sim.add_argument("--method", choices=("published", "lm"), default="published")
     sim.add_argument("--pairs", choices=("consecutive", "star", "all"), default="consecutive")
-    sim.add_argument("--poses", type=int, default=60, help="number of poses (default 60)")
+    sim.add_argument(
+        "--poses", type=int_at_least(3), default=60, help="number of poses (default 60)"
+    )
     sim.add_argument("--noise", help="POS_MM,ORI_DEG[,JOINT_DEG] standard deviations")
     sim.add_argument("--seed", type=int, default=0)
     sim.add_argument("--errors", help="YAML file of specified errors (default: random)")
@@ -132,10 +150,16 @@ def register(sub: argparse._SubParsersAction) -> None:
         "harmonic (first harmonic, revolute joints); terms an --errors file names are added",
     )
     json_arg(sim, "the results")
-    sim.add_argument("--report", metavar="FILE", help="write an HTML report of the run(s) to FILE")
+    sim.add_argument(
+        "--report",
+        metavar="FILE",
+        type=output_file,
+        help="write an HTML report of the run(s) to FILE",
+    )
     sim.add_argument(
         "--images",
         metavar="DIR",
+        type=output_folder,
         help="render a synthetic image dataset (2448x2048 px, 8 mm lens, chessboard; --poses "
         "images) into DIR and calibrate it with the real image pipeline",
     )

@@ -7,7 +7,14 @@ from pathlib import Path
 
 import numpy as np
 
-from relcal.cli.common import json_arg, load_robot, robot_args
+from relcal.cli.common import (
+    int_at_least,
+    json_arg,
+    load_robot,
+    positive_float,
+    positive_int,
+    robot_args,
+)
 from relcal.cli.observability import add_noise_arg
 
 EPILOG = """\
@@ -46,6 +53,10 @@ def run(args: argparse.Namespace) -> int:
             raise RelcalError(f"--poses '{args.poses}': not a file and not a number") from None
         q = simulated_joints(model, n, args.seed)
         source = f"{len(q)} simulated poses over the board"
+    if args.json:
+        from relcal.outputset import File, check
+
+        check([File(args.json, b"", "--json")])  # before the trials
     noise = Noise.parse(args.noise)
     if noise.position <= 0 or noise.orientation <= 0:
         raise RelcalError("--noise: the study needs positive position and orientation noise")
@@ -122,10 +133,15 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--poses", help="CSV of joint configurations, or a number of simulated poses (default 30)"
     )
     p.add_argument("--joint-unit", choices=("deg", "rad"), default="deg")
-    p.add_argument("--trials", type=int, default=200, help="number of trials (default 200)")
+    p.add_argument(
+        "--trials",
+        type=int_at_least(2),
+        default=200,
+        help="number of trials, at least 2 for a standard deviation (default 200)",
+    )
     add_noise_arg(p)
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--workers", type=int, default=2, help="worker processes (default 2)")
+    p.add_argument("--workers", type=positive_int, default=2, help="worker processes (default 2)")
     p.add_argument(
         "--scheduler",
         metavar="tcp://HOST:8786",
@@ -145,7 +161,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--errors", help="YAML file of true errors (default: random, seeded)")
     p.add_argument(
         "--length-scale",
-        type=float,
+        type=positive_float,
         default=0.5,
         help="angles count as the displacement this far away (m) in the worst-parameter line",
     )

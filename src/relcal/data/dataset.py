@@ -46,7 +46,7 @@ from scipy.spatial.transform import Rotation
 
 from relcal import geometry as tf
 from relcal.errors import RelcalError
-from relcal.io import load_yaml, read_table, validate
+from relcal.io import load_yaml, note_input, read_table, validate
 from relcal.robot.model import RobotModel, auto_hayati, get_robot, model_from_dict
 
 POSE_COLUMNS = ("x", "y", "z", "qx", "qy", "qz", "qw")
@@ -370,6 +370,7 @@ def read_sample_table(
                 )
             if not image.is_file():
                 raise RelcalError(f"{path} line {line_no}: image: file not found: {image}")
+            note_input(image)
     elif meas_cols == POSE_COLUMNS:
         pose_arr = _poses(path, np.array(values), lines)
     elif meas_cols == RPY_COLUMNS:

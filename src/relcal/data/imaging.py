@@ -27,8 +27,11 @@ class Measurements:
     intrinsics_report: dict = field(default_factory=dict)
 
 
-def measure(dataset: Dataset, workers: int = 2, progress: bool = True) -> Measurements:
-    """Camera poses of every sample: given directly, or from the images."""
+def measure(
+    dataset: Dataset, workers: int = 2, progress: bool = True, max_rms: float = 1.0
+) -> Measurements:
+    """Camera poses of every sample: given directly, or from the images (frames whose board
+    reprojection RMS is above ``max_rms`` px rejected)."""
     n = len(dataset.ids)
     if dataset.poses is not None:
         return Measurements(
@@ -37,11 +40,11 @@ def measure(dataset: Dataset, workers: int = 2, progress: bool = True) -> Measur
             reasons=("",) * n,
             rms_px=np.full(n, np.nan),
         )
-    return measure_dataset_images(dataset, workers=workers, progress=progress)
+    return measure_dataset_images(dataset, workers=workers, progress=progress, max_rms=max_rms)
 
 
 def measure_dataset_images(
-    dataset: Dataset, workers: int = 2, progress: bool = True
+    dataset: Dataset, workers: int = 2, progress: bool = True, max_rms: float = 1.0
 ) -> Measurements:
     """Camera poses of every image of ``dataset``.
 
@@ -53,7 +56,7 @@ def measure_dataset_images(
     calibrate = dataset.camera == "calibrate"
     camera = None if calibrate else dataset.camera
     results = measure_images(
-        dataset.images, dataset.board, camera, workers=workers, progress=progress
+        dataset.images, dataset.board, camera, workers=workers, progress=progress, max_rms=max_rms
     )
     reasons = [r.reason or "" for r in results]
     report: dict = {}
@@ -80,7 +83,7 @@ def measure_dataset_images(
     for k, res in enumerate(results):
         pose = res.pose
         if calibrate and not reasons[k] and res.detection is not None:
-            pose = estimate_pose(res.detection, camera)
+            pose = estimate_pose(res.detection, camera, max_rms=max_rms)
             if isinstance(pose, Rejected):
                 reasons[k], pose = f"{res.path}: {pose.reason}", None
         if pose is None or reasons[k]:

@@ -9,7 +9,7 @@ import pydantic
 import yaml
 
 from relcal.data.dataset import POSE_COLUMNS
-from relcal.io import load_validated, write_text
+from relcal.io import Folder, load_validated, write_set
 
 POSITIONER_MODEL = """\
 name: ROS-Industrial rct 2-axis positioner
@@ -56,7 +56,10 @@ class Imported:
 
 
 def import_rct_positioner(source: str | Path, out: str | Path) -> Imported:
-    """Write a dataset folder (eye-to-hand, poses given) from robot_cal_tools' positioner file."""
+    """Write a dataset folder (eye-to-hand, poses given) from robot_cal_tools' positioner file.
+
+    The folder is written as one set and must not exist yet (or be empty): an existing dataset
+    is never replaced."""
     data = load_validated(_RctMeasurements, source).root
     out = Path(out)
     lines = [",".join(["id", "q1", "q2", *POSE_COLUMNS])]
@@ -71,11 +74,165 @@ def import_rct_positioner(source: str | Path, out: str | Path) -> Imported:
         "joint_unit": "rad",
         "samples": "samples.csv",
     }
-    contents = {  # in writing order: dataset.yaml last, once what it names is there
+    contents = {
         "positioner.yaml": POSITIONER_MODEL,
         "samples.csv": "\n".join(lines) + "\n",
         "dataset.yaml": yaml.safe_dump(spec, sort_keys=False),
     }
-    for name, text in contents.items():
-        write_text(out / name, text)
+    write_set(Folder(out, contents, what="--out", replace="refuse"))
     return Imported(out, tuple(out / name for name in contents), len(data))
+
+
+POSE_CHAIN = {
+    "name": "recorded tool poses",
+    "source": (
+        "Pose chain of relcal import rct-images: prismatic z, x, y (m) then three revolute "
+        "axes (rad); its joint values reproduce each recorded tool pose exactly. It stands for "
+        "the robot, whose joint angles robot_cal_tools' image sets do not record."
+    ),
+    "convention": "dh",
+    "angle_unit": "deg",
+    "joints": [
+        {"name": "z", "type": "prismatic", "theta_off": 90, "alpha": 90, "limits": [-10, 10]},
+        {"name": "x", "type": "prismatic", "theta_off": 90, "alpha": 90, "limits": [-10, 10]},
+        {"name": "y", "type": "prismatic", "theta_off": 90, "alpha": 90, "limits": [-10, 10]},
+        {"name": "r1", "alpha": -90},
+        {"name": "r2", "alpha": 90},
+        {"name": "r3"},
+    ],
+}
+
+
+class _RctPose(pydantic.BaseModel):
+    x: pydantic.FiniteFloat
+    y: pydantic.FiniteFloat
+    z: pydantic.FiniteFloat
+    qx: pydantic.FiniteFloat
+    qy: pydantic.FiniteFloat
+    qz: pydantic.FiniteFloat
+    qw: pydantic.FiniteFloat
+
+
+class _RctEntry(pydantic.BaseModel):
+    image: str
+    pose: str
+
+
+class _RctCalData(pydantic.RootModel[list[_RctEntry]]):
+    pass
+
+
+def pose_chain_joints(poses, first):
+    """The pose chain (``POSE_CHAIN`` with its tool turned so that the first pose sits mid-range)
+    and its joint values ``(N, 6)`` reproducing ``poses`` ``(N, 4, 4)``."""
+    import numpy as np
+
+    from relcal import geometry as tf
+    from relcal.errors import RelcalError
+    from relcal.robot.ik import solve_numeric
+    from relcal.robot.kinematics import fk
+    from relcal.robot.model import model_from_dict
+
+    home = np.zeros(6)
+    home[4] = np.pi / 2  # the wrist far from its singularity
+    spec = {**POSE_CHAIN, "joints": [dict(j) for j in POSE_CHAIN["joints"]]}
+    f0 = fk(model_from_dict(spec), home[None])[0]
+    tool = np.eye(4)
+    tool[:3, :3] = f0[:3, :3].T @ first[:3, :3]
+    spec["tool"] = {"rpy": [float(np.degrees(v)) for v in tf.to_xyz_rpy(tool)[1]]}
+    model = model_from_dict(spec)
+    sol = solve_numeric(model, poses, np.tile(home, (len(poses), 1)))
+    miss = np.abs(fk(model, sol.q) - poses).max(axis=(1, 2))
+    if not np.all(sol.converged) or np.any(miss > 1e-8):
+        bad = int(np.argmax(miss))
+        raise RelcalError(
+            f"pose {bad + 1}: not reproduced by the pose chain (miss {miss[bad]:.2g})"
+        )
+    return spec, sol.q
+
+
+def import_rct_images(
+    source: str | Path,
+    out: str | Path,
+    mode: str | None = None,
+    intrinsics: str = "calibrated",
+) -> Imported:
+    """Write a dataset folder from a robot_cal_tools image set (``cal_data.yaml`` listing image
+    and pose files, ``target.yaml``, ``camera_intr[_calibrated].yaml``).
+
+    The images are referenced where they are (absolute paths), not copied. The recorded tool
+    poses become the joint values of a pose chain (:data:`POSE_CHAIN`), so that ``relcal
+    measure`` and ``relcal calibrate`` (hand-eye, board poses, and a correction of the recorded
+    poses) run on it. ``mode``: ``eye_in_hand`` or ``eye_to_hand`` (default: from the folder
+    name). ``intrinsics``: ``calibrated`` (``camera_intr_calibrated.yaml``), ``guess``
+    (``camera_intr.yaml``) or ``calibrate`` (from the images).
+    """
+    import cv2
+    import numpy as np
+    from scipy.spatial.transform import Rotation
+
+    from relcal import geometry as tf
+    from relcal.errors import RelcalError
+    from relcal.io import note_input
+    from relcal.vision.boards import board_to_spec, load_board
+    from relcal.vision.camera import load_camera
+
+    source = Path(source)
+    if not (source / "cal_data.yaml").is_file():
+        raise RelcalError(
+            f"{source}: not a robot_cal_tools image set (expected cal_data.yaml listing image and "
+            "pose files)"
+        )
+    if mode is None:
+        name = source.resolve().name
+        mode = next((m for m in ("eye_in_hand", "eye_to_hand") if m in name), None)
+        if mode is None:
+            raise RelcalError(f"{source}: give --mode eye_in_hand or eye_to_hand")
+    entries = load_validated(_RctCalData, source / "cal_data.yaml").root
+    if len(entries) < 4:
+        raise RelcalError(f"{source / 'cal_data.yaml'}: {len(entries)} entries, at least 4 needed")
+    images, poses = [], []
+    for k, e in enumerate(entries):
+        image = (source / e.image).resolve()
+        if not image.is_file():
+            raise RelcalError(f"{source / 'cal_data.yaml'} entry {k + 1}: image not found: {image}")
+        note_input(image)
+        p = load_validated(_RctPose, source / e.pose)
+        rot = Rotation.from_quat([p.qx, p.qy, p.qz, p.qw]).as_matrix()
+        poses.append(tf.homogeneous(rot, np.array([p.x, p.y, p.z])))
+        images.append(image)
+    poses = np.array(poses)
+    spec, q = pose_chain_joints(poses, poses[0])
+    first = cv2.imread(str(images[0]), cv2.IMREAD_UNCHANGED)
+    if first is None:
+        raise RelcalError(f"{images[0]}: not an image OpenCV can read")
+    height, width = first.shape[:2]
+    board = load_board(source / "target.yaml")
+    contents = {
+        "robot.yaml": yaml.safe_dump(spec, sort_keys=False),
+        "board.yaml": yaml.safe_dump(board_to_spec(board), sort_keys=False),
+    }
+    if intrinsics == "calibrate":
+        camera_entry = "calibrate"
+    else:
+        name = "camera_intr_calibrated.yaml" if intrinsics == "calibrated" else "camera_intr.yaml"
+        camera = load_camera(source / name, width, height)
+        contents["camera.yaml"] = yaml.safe_dump(camera.to_dict(), sort_keys=False)
+        camera_entry = "camera.yaml"
+    lines = ["id,q1,q2,q3,q4,q5,q6,image"]
+    for k, image in enumerate(images):
+        lines.append(",".join([f"{k:03d}", *(f"{v:.17g}" for v in q[k]), str(image)]))
+    contents["samples.csv"] = "\n".join(lines) + "\n"
+    dataset = {
+        "robot": "robot.yaml",
+        "hayati": "off",
+        "mode": mode,
+        "board": "board.yaml",
+        "camera": camera_entry,
+        "joint_unit": "rad",
+        "samples": "samples.csv",
+    }
+    contents["dataset.yaml"] = yaml.safe_dump(dataset, sort_keys=False)
+    out = Path(out)
+    write_set(Folder(out, contents, what="--out", replace="refuse"))
+    return Imported(out, tuple(out / name for name in contents), len(entries))

@@ -21,7 +21,7 @@ import yaml
 from relcal.data.dataset import POSE_COLUMNS
 from relcal.data.importers import Imported
 from relcal.errors import RelcalError
-from relcal.io import write_text
+from relcal.io import Folder, write_set
 
 JOINT_TYPES = ("sensor_msgs/msg/JointState",)
 IMAGE_TYPES = ("sensor_msgs/msg/Image", "sensor_msgs/msg/CompressedImage")
@@ -324,30 +324,29 @@ def _nearest(reader, conns, stops: list[Stop]) -> list[tuple | None]:
 
 
 def _write(out, images, lines, camera, robot, has_images, stops, skipped, track, info_topic):
+    """The dataset folder, written as one set (never over an existing dataset)."""
     import cv2
 
-    out.mkdir(parents=True, exist_ok=True)
-    written = []
+    contents: dict = {}
     for name, img in images.items():
-        path = out / name
-        path.parent.mkdir(parents=True, exist_ok=True)
-        if not cv2.imwrite(str(path), img):
-            raise RelcalError(f"{path}: cannot write the PNG image")
-        written.append(path)
+        ok, png = cv2.imencode(".png", img)
+        if not ok:
+            raise RelcalError(f"{out / name}: cannot encode the PNG image")
+        contents[name] = png.tobytes()
     spec: dict = {"robot": robot or "REPLACE_ME (a built-in name or a model file)"}
     spec.update(hayati="auto", mode="eye_in_hand", joint_unit="rad")
     if has_images:
         spec["board"] = "board.yaml"
         if camera is not None:
-            write_text(out / "camera.yaml", yaml.safe_dump(camera, sort_keys=False))
-            written.append(out / "camera.yaml")
+            contents["camera.yaml"] = yaml.safe_dump(camera, sort_keys=False)
             spec["camera"] = "camera.yaml"
         else:
             spec["camera"] = "calibrate"
     spec["samples"] = "samples.csv"
-    write_text(out / "samples.csv", "\n".join(lines) + "\n")
-    write_text(out / "dataset.yaml", yaml.safe_dump(spec, sort_keys=False))
-    written += [out / "samples.csv", out / "dataset.yaml"]
+    contents["samples.csv"] = "\n".join(lines) + "\n"
+    contents["dataset.yaml"] = yaml.safe_dump(spec, sort_keys=False)
+    write_set(Folder(out, contents, what="--out", replace="refuse"))
+    written = [out / name for name in contents]
     return RosbagImport(
         folder=out,
         files=tuple(written),

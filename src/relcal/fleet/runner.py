@@ -66,16 +66,10 @@ def outputs_folder(session: Session, out_root: str | Path | None) -> Path:
 
 
 def _write_outputs(cal, doc: dict, out: Path) -> None:
-    """The files of ``relcal calibrate``: model.yaml, robot.urdf, parameters.csv, results.json."""
-    from relcal.io import write_json, write_text
-    from relcal.robot.export import parameter_csv, urdf
-    from relcal.robot.model import dump_model
+    """The files of ``relcal calibrate``, written as one set by the same writer."""
+    from relcal.reporting.outputs import write_calibration
 
-    model = cal.model
-    write_text(out / "model.yaml", dump_model(model))
-    write_text(out / "robot.urdf", urdf(model))
-    write_text(out / "parameters.csv", parameter_csv(doc["parameters"]))
-    write_json(out / "results.json", doc)
+    write_calibration(cal, out, doc)
 
 
 def calibrate_session(
@@ -88,7 +82,9 @@ def calibrate_session(
     started = time.perf_counter()
     entry: dict[str, Any] = {"session": name, "path": str(Path(path).resolve())}
     try:
-        with threadpool_limits(limits=1):
+        from relcal.outputset import tracking
+
+        with threadpool_limits(limits=1), tracking():  # this session's inputs only
             entry.update(_calibrate(Path(path), name, Path(out), dict(options or {})))
     except RelcalError as exc:
         entry.update(status="failed", reason=str(exc))

@@ -20,6 +20,7 @@ ids ``0..M-1`` in row-major order; a detection reports which ids it saw.
 from __future__ import annotations
 
 import functools
+import io
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal
@@ -564,6 +565,14 @@ def sheet_size(board: Board) -> tuple[float, float]:
 
 
 def write_printable(board: Board, path: str | Path, dpi: float = 300.0) -> Path:
+    """Write :func:`printable` to ``path`` (as one unit) and return the path."""
+    from relcal.io import write_bytes
+
+    write_bytes(path, printable(board, path, dpi), "--out")
+    return Path(path)
+
+
+def printable(board: Board, path: str | Path, dpi: float = 300.0) -> bytes:
     """Write the board at true scale as PDF (vector) or PNG (``dpi`` pixels per inch).
 
     The sheet shows the pattern with its margin and, below it, the geometry (type, size,
@@ -571,8 +580,8 @@ def write_printable(board: Board, path: str | Path, dpi: float = 300.0) -> Path:
 
     Returns
     -------
-    Path
-        The file written (suffix ``.pdf`` or ``.png``).
+    bytes
+        The file's content, in the format of ``path``'s suffix (``.pdf`` or ``.png``).
     """
     import matplotlib
 
@@ -580,14 +589,13 @@ def write_printable(board: Board, path: str | Path, dpi: float = 300.0) -> Path:
     from matplotlib.figure import Figure
     from matplotlib.patches import Circle, Rectangle
 
-    from relcal.io import atomic_write
-
     path = Path(path)
     suffix = path.suffix.lower()
     if suffix not in (".pdf", ".png"):
         raise RelcalError(f"{path}: printable boards are written as .pdf or .png, not '{suffix}'")
     if not dpi > 0:
         raise RelcalError(f"{path}: dpi must be positive, got {dpi}")
+    check_sheet(board, path, dpi if suffix == ".png" else None)
     x0, y0, x1, y1 = board_extent(board)
     width, height = sheet_size(board)
     text_h = _CAPTION_HEIGHT
@@ -606,6 +614,28 @@ def write_printable(board: Board, path: str | Path, dpi: float = 300.0) -> Path:
     fontsize = max(4.0, min(8.0, width / inch * 72 / 110))
     ax.text(x0 + 0.005, y1 + 0.004, "relcal: " + board.describe(), fontsize=fontsize, va="top")
     ax.text(x0 + 0.058, y1 + 0.016, "<- this bar must measure 50.0 mm", fontsize=fontsize)
-    with atomic_write(path, "wb") as handle:
-        fig.savefig(handle, format=suffix[1:], dpi=dpi)
-    return path
+    buffer = io.BytesIO()
+    fig.savefig(buffer, format=suffix[1:], dpi=dpi)
+    return buffer.getvalue()
+
+
+MAX_SHEET = 2.0  # m, longest printable side (an A0 sheet is 1.19 m)
+MAX_PIXELS = 1.0e8  # of a PNG sheet (about 400 MB while drawn)
+
+
+def check_sheet(board: Board, path: str | Path, dpi: float | None = None) -> None:
+    """Refuse a sheet no printer takes (longer than ``MAX_SHEET``) or a PNG too large to draw
+    in bounded memory (more than ``MAX_PIXELS`` at ``dpi``)."""
+    width, height = sheet_size(board)
+    if max(width, height) > MAX_SHEET:
+        raise RelcalError(
+            f"{path}: the sheet would be {width:.3g} x {height:.3g} m (more than {MAX_SHEET} m); "
+            "is the square or spacing in metres (0.02 for 20 mm)?"
+        )
+    if dpi is not None:
+        px = (width / 0.0254 * dpi) * (height / 0.0254 * dpi)
+        if px > MAX_PIXELS:
+            raise RelcalError(
+                f"{path}: {px:.3g} pixels at {dpi:g} dpi (limit {MAX_PIXELS:.0e}); lower --dpi "
+                "or write a .pdf"
+            )

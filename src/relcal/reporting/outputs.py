@@ -1,0 +1,124 @@
+"""The files of a calibration and of a measurement, written as one set.
+
+The command line and the Python API write through these functions, so both give the same
+guarantee (:mod:`relcal.outputset`): the set appears whole or not at all, the previous set is kept
+as ``<folder>.prev/``, nothing the run read is written over.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import yaml
+
+from relcal.calibration.pipeline import Calibration
+from relcal.data.dataset import Dataset, joints_in_unit, write_samples
+from relcal.data.imaging import Measurements
+from relcal.io import json_text
+from relcal.outputset import File, Folder, new_run_id, write_set
+from relcal.reporting.documents import measurements_document, results_document
+from relcal.robot.export import parameter_csv, robot_files
+from relcal.robot.model import dump_model
+
+RUN_ID_PREFIX = "# relcal run "  # first line of model.yaml: the run that wrote it
+
+
+def calibration_files(cal: Calibration, doc: dict, run_id: str) -> dict[str, str | bytes]:
+    """The content of every file of a calibration set: ``model.yaml`` (first line names the
+    run), the robot's files (``robot.urdf``; for URDF robots also the origin corrections and the
+    UR or Franka files, :func:`relcal.robot.export.robot_files`), ``parameters.csv``,
+    ``results.json`` (with ``run_id``) and, when the intrinsics were calibrated from the images,
+    ``camera.yaml`` (usable as a dataset's camera)."""
+    model = cal.model  # the chosen model
+    files: dict[str, str | bytes] = {
+        "model.yaml": f"{RUN_ID_PREFIX}{run_id}\n{dump_model(model)}",
+        **robot_files(model),
+        "parameters.csv": parameter_csv(doc["parameters"]),
+        "results.json": json_text({**doc, "run_id": run_id}),
+    }
+    camera = cal.measurements.camera
+    if cal.dataset.camera == "calibrate" and camera is not None:
+        files["camera.yaml"] = yaml.safe_dump(camera.to_dict(), sort_keys=False)
+    return files
+
+
+def calibration_outputs(
+    cal: Calibration,
+    out_dir: str | Path,
+    doc: dict | None = None,
+    json_path: str | Path | None = None,
+    report_path: str | Path | None = None,
+    run_id: str | None = None,
+) -> list[Folder | File]:
+    """The items :func:`write_calibration` writes (also to check destinations before a run)."""
+    run_id = run_id or new_run_id()
+    doc = results_document(cal) if doc is None else doc
+    items: list[Folder | File] = [
+        Folder(out_dir, calibration_files(cal, doc, run_id), what="--out", run_id=run_id)
+    ]
+    if json_path:
+        items.append(File(json_path, json_text({**doc, "run_id": run_id}), "--json"))
+    if report_path:
+        from relcal.reporting.html import calibration_report
+
+        items.append(File(report_path, calibration_report(cal, doc), "--report"))
+    return items
+
+
+def write_calibration(
+    cal: Calibration,
+    out_dir: str | Path,
+    doc: dict | None = None,
+    json_path: str | Path | None = None,
+    report_path: str | Path | None = None,
+    run_id: str | None = None,
+) -> list[Path]:
+    """Write a calibration's set into ``out_dir`` (and a copy of ``results.json`` to
+    ``json_path``, the HTML report to ``report_path``) as one unit; return the files written.
+
+    ``doc`` is the results document (default :func:`results_document`, to which the command
+    adds cross-validation). Raises :class:`relcal.errors.RelcalError` with nothing written when
+    a destination is refused. The files read so far in this process count as inputs (never
+    written over); wrap a session's runs in :func:`relcal.outputset.tracking` to start afresh.
+    """
+    items = calibration_outputs(cal, out_dir, doc, json_path, report_path, run_id)
+    write_set(*items)
+    out = [Path(out_dir) / name for name in items[0].files]  # type: ignore[union-attr]
+    return out + [Path(i.path) for i in items[1:]]
+
+
+def measurement_outputs(
+    dataset: Dataset, m: Measurements, out_dir: str | Path, json_path: str | Path | None = None
+) -> list[Folder | File]:
+    """``poses.csv`` (the posed samples, as a samples table), ``measurements.json`` and, when
+    calibrated from the images, ``camera.yaml``; plus a copy of the JSON at ``json_path``."""
+    ok = m.ok
+    ids = [dataset.ids[i] for i in range(len(ok)) if ok[i]]
+    q = joints_in_unit(dataset.model, dataset.q, "deg")
+    doc = measurements_document(dataset, m)
+    out_dir = Path(out_dir)
+    files = {
+        "poses.csv": write_samples(
+            out_dir / "poses.csv",
+            ids,
+            q[ok],
+            poses=m.poses[ok],
+            positions_only=dataset.measured == "position",
+        ),
+        "measurements.json": json_text(doc),
+    }
+    if dataset.camera == "calibrate" and m.camera is not None:
+        files["camera.yaml"] = yaml.safe_dump(m.camera.to_dict(), sort_keys=False)
+    items: list[Folder | File] = [Folder(out_dir, files, what="--out")]
+    if json_path:
+        items.append(File(json_path, json_text(doc), "--json"))
+    return items
+
+
+def write_measurements(
+    dataset: Dataset, m: Measurements, out_dir: str | Path, json_path: str | Path | None = None
+) -> list[Path]:
+    """Write a measurement's set (see :func:`measurement_outputs`) as one unit."""
+    items = measurement_outputs(dataset, m, out_dir, json_path)
+    write_set(*items)
+    return [Path(out_dir) / n for n in items[0].files] + [Path(i.path) for i in items[1:]]  # type: ignore[union-attr]
