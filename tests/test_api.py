@@ -69,3 +69,18 @@ def test_result_covariance_matches_repeated_calibrations(a465, rng):
     rho = res.correlation[np.ix_(sub, sub)]
     assert np.allclose(rho, rho.T) and np.all(np.abs(rho) <= 1 + 1e-12)
     assert res.final_cost_per_observation < res.initial_cost_per_observation
+
+
+def test_importing_relcal_is_light():
+    """``import relcal`` (and so the command line's start) loads no SciPy, OpenCV or
+    Matplotlib; the public names load on first use."""
+    import subprocess
+    import sys
+
+    code = (
+        "import sys, relcal; heavy = [m for m in ('scipy', 'cv2', 'matplotlib') if m in "
+        "sys.modules]; print(heavy); relcal.calibrate; print('scipy' in sys.modules)"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.split("\n")[:2] == ["[]", "True"]
+    assert set(relcal.__all__) <= set(dir(relcal))

@@ -20,22 +20,46 @@ identification problem), :func:`identify` with :class:`SolverOptions` giving a :
 :func:`import_rosbag` (a recorded calibration run to a dataset folder).
 """
 
-from relcal.calibration.identifiability import Identifiability, analyse_problem
-from relcal.calibration.identify import Result, SolverOptions, identify
-from relcal.calibration.measurement import Problem, make_pairs
-from relcal.calibration.noise import Noise
-from relcal.calibration.pipeline import Calibration, calibrate
-from relcal.data.dataset import Dataset, load_dataset
-from relcal.data.imaging import Measurements, measure
-from relcal.data.rosbag import import_rosbag
-from relcal.errors import RelcalError
-from relcal.robot.export import calibrated_model, calibrated_urdf, robot_files
-from relcal.robot.kinematics import Layout, apply_errors, fk, make_layout
-from relcal.robot.model import RobotModel, get_robot, load_model
-from relcal.robot.urdf import load_urdf
-from relcal.sim.simulate import Simulation, simulate
+from __future__ import annotations
+
+import importlib
+from typing import TYPE_CHECKING
 
 __version__ = "0.1.0"
+
+# Where each public name lives. They load on first use (PEP 562), so that ``relcal`` on the
+# command line starts without importing SciPy, OpenCV and Matplotlib for a ``--help``.
+_API = {
+    "Calibration": "relcal.calibration.pipeline",
+    "Dataset": "relcal.data.dataset",
+    "Identifiability": "relcal.calibration.identifiability",
+    "Layout": "relcal.robot.kinematics",
+    "Measurements": "relcal.data.imaging",
+    "Noise": "relcal.calibration.noise",
+    "Problem": "relcal.calibration.measurement",
+    "RelcalError": "relcal.errors",
+    "Result": "relcal.calibration.identify",
+    "RobotModel": "relcal.robot.model",
+    "Simulation": "relcal.sim.simulate",
+    "SolverOptions": "relcal.calibration.identify",
+    "analyse_problem": "relcal.calibration.identifiability",
+    "apply_errors": "relcal.robot.kinematics",
+    "calibrate": "relcal.calibration.pipeline",
+    "calibrated_model": "relcal.robot.export",
+    "calibrated_urdf": "relcal.robot.export",
+    "fk": "relcal.robot.kinematics",
+    "get_robot": "relcal.robot.model",
+    "identify": "relcal.calibration.identify",
+    "import_rosbag": "relcal.data.rosbag",
+    "load_dataset": "relcal.data.dataset",
+    "load_model": "relcal.robot.model",
+    "load_urdf": "relcal.robot.urdf",
+    "make_layout": "relcal.robot.kinematics",
+    "make_pairs": "relcal.calibration.measurement",
+    "measure": "relcal.data.imaging",
+    "robot_files": "relcal.robot.export",
+    "simulate": "relcal.sim.simulate",
+}
 
 __all__ = [
     "Calibration",
@@ -68,3 +92,34 @@ __all__ = [
     "robot_files",
     "simulate",
 ]
+
+
+def __getattr__(name: str):
+    if name in _API:
+        value = getattr(importlib.import_module(_API[name]), name)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module 'relcal' has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    return sorted([*globals(), *_API])
+
+
+if TYPE_CHECKING:  # for type checkers and editors: the same names, imported eagerly
+    from relcal.calibration.identifiability import Identifiability, analyse_problem
+    from relcal.calibration.identify import Result, SolverOptions, identify
+    from relcal.calibration.measurement import Problem, make_pairs
+    from relcal.calibration.noise import Noise
+    from relcal.calibration.pipeline import Calibration, calibrate
+    from relcal.data.dataset import Dataset, load_dataset
+    from relcal.data.imaging import Measurements, measure
+    from relcal.data.rosbag import import_rosbag
+    from relcal.errors import RelcalError
+    from relcal.robot.export import calibrated_model, calibrated_urdf, robot_files
+    from relcal.robot.kinematics import Layout, apply_errors, fk, make_layout
+    from relcal.robot.model import RobotModel, get_robot, load_model
+    from relcal.robot.urdf import load_urdf
+    from relcal.sim.simulate import Simulation, simulate
+
+    __version__ = "0.1.0"
