@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import functools
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Literal
 
 import numpy as np
@@ -26,6 +26,7 @@ from relcal.calibration.measurement import Problem, pair_errors, residuals
 from relcal.calibration.noise import Noise, robust_sigma
 from relcal.calibration.uncertainty import noise_factor, parameter_covariance, whitener
 from relcal.errors import RelcalError
+from relcal.robot.kinematics import Layout, apply_errors
 
 Method = Literal["published", "lm"]
 Loss = Literal["linear", "huber", "soft_l1", "cauchy", "arctan"]
@@ -351,8 +352,80 @@ def levenberg_marquardt(
     return x, False, nfev
 
 
-@one_blas_thread
+def _reduced(
+    problem: Problem, subset: np.ndarray, fixed: np.ndarray | None
+) -> tuple[Problem, np.ndarray, np.ndarray] | None:
+    """The frame-invariant ``problem`` with only the estimated link parameters in its layout (the
+    held ones baked into the model), so that each evaluation computes ``k`` Jacobian columns, not
+    all of them; with the positions of its parameters in the full layout and its subset. None
+    where that does not apply."""
+    n_geo = problem.layout.size
+    free = np.asarray(subset, dtype=int)
+    geo_free = np.sort(free[free < n_geo])
+    if problem.formulation != "invariant" or "origin" in problem.layout.kinds:
+        return None
+    if len(geo_free) == n_geo:
+        return None
+    held = np.zeros(problem.full_layout.size) if fixed is None else np.asarray(fixed, float).copy()
+    held[free] = 0.0
+    if np.any(held[n_geo:]):
+        return None
+    layout = problem.layout
+    model = apply_errors(problem.model, layout, held[:n_geo]) if held.any() else problem.model
+    sub = Layout(
+        tuple(layout.names[i] for i in geo_free),
+        tuple(layout.kinds[i] for i in geo_free),
+        tuple(layout.index[i] for i in geo_free),
+        layout.prismatic,
+    )
+    columns = np.r_[geo_free, np.arange(n_geo, n_geo + 6)]
+    sub_subset = np.r_[np.arange(len(geo_free)), len(geo_free) + free[free >= n_geo] - n_geo]
+    return replace(problem, model=model, layout=sub), columns, sub_subset.astype(int)
+
+
 def identify_lm(
+    problem: Problem,
+    max_nfev: int = 200,
+    identifiability: Identifiability | None = None,
+    loss: str = "linear",
+    f_scale: float = 1.0,
+    whiten: np.ndarray | None = None,
+    initial: np.ndarray | None = None,
+    fixed: np.ndarray | None = None,
+) -> Result:
+    """Levenberg-Marquardt (trust region) on the identifiable subset with column scaling.
+
+    Parameters outside the QR-pivoted identifiable subset stay at their nominal values; the
+    others start from ``initial`` ``(P,)`` (default nominal, zeros). ``fixed`` ``(P,)``: other
+    values to hold the parameters outside the subset at. ``whiten`` ``(r, M)`` multiplies the
+    residual rows first (a full noise covariance's inverse root: :func:`identify_weighted`).
+    A subset of the link parameters is solved on a problem that carries only them.
+    """
+    reduced = None if identifiability is None else _reduced(problem, identifiability.subset, fixed)
+    if reduced is None:
+        return _identify_lm(
+            problem, max_nfev, identifiability, loss, f_scale, whiten, initial, fixed
+        )
+    sub_problem, columns, sub_subset = reduced
+    sub_ident = replace(identifiability, subset=sub_subset)
+    start = None if initial is None else np.asarray(initial, dtype=float)[columns]
+    res = _identify_lm(sub_problem, max_nfev, sub_ident, loss, f_scale, whiten, start)
+    params = (
+        np.zeros(problem.full_layout.size) if fixed is None else np.asarray(fixed, float).copy()
+    )
+    params[identifiability.subset] = 0.0
+    params[columns] = res.params
+    return replace(
+        res,
+        params=params,
+        names=problem.full_layout.names,
+        identifiability=identifiability,
+        problem=problem,
+    )
+
+
+@one_blas_thread
+def _identify_lm(
     problem: Problem,
     max_nfev: int = 200,
     identifiability: Identifiability | None = None,

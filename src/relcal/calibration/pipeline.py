@@ -71,6 +71,7 @@ from relcal.robot.kinematics import fk, make_layout
 from relcal.robot.model import RobotModel, nongeometric_options, with_nongeometric
 
 ROBUST_SCALE = 3.0  # residual (in noise standard deviations) where the robust loss bends
+DETECTION_LOSS = "linear"  # of the fit whose residuals find the outlier samples
 # Candidates without kinematic correction: the hand-eye transform alone, or (position-only data)
 # the instrument transform and the marker alone.
 BASELINE_CANDIDATES = ("hand-eye only", "instrument and marker only")
@@ -264,19 +265,20 @@ def calibrate(
 
     problem = problem_on(train)
     ident = check_pose_set(problem, str(dataset.spec_path))
-    # A robust fit finds the samples whose pairs fit badly; the fits after it use ``loss``.
+    # A fit finds the samples whose pairs fit badly (a robust per-sample median of their pair
+    # errors: a few bad samples do not hide among their pairs); the fits after it use ``loss``.
     # The geometry (with the hand-eye) finds the samples whose pairs fit badly, robustly, and
     # gives the residuals the noise is learned from and the point the candidates are linearised
     # at; non-geometric terms are small there and enter the candidates only.
     kinds = problem.full_layout.kinds
     geometric = np.array([c for c in ident.subset if family(kinds[c]) in ("hand-eye", "geometric")])
-    full = _fit(problem, ident, geometric, "plain", method, "huber")
+    full = _fit(problem, ident, geometric, "plain", method, DETECTION_LOSS)
     outliers = outlier_samples(_normalised(pair_errors(problem, full.params)), problem.pairs)
     outlier_ids = tuple(dataset.ids[train[i]] for i in outliers)
     if reject_outliers and outliers.size:
         train = np.delete(train, outliers)
         problem = problem_on(train)
-    if (reject_outliers and outliers.size) or loss != "huber":
+    if (reject_outliers and outliers.size) or loss != DETECTION_LOSS:
         full = _fit(problem, ident, geometric, "plain", method, loss, initial=full.params)
 
     left = pair_left_maps(problem)

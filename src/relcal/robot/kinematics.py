@@ -431,7 +431,9 @@ def _slots(layout: Layout, n_joints: int) -> tuple[np.ndarray, ...]:
     if np.any(~joint & ~np.isin(kinds, frames)):
         bad = kinds[~joint & ~np.isin(kinds, frames)][0]
         raise ValueError(f"parameter kind '{bad}' is not a kinematic parameter")
-    table = np.array([_JOINT_KINDS.index(k) if j else 0 for k, j in zip(kinds, joint, strict=True)])
+    table = np.array(
+        [_JOINT_KINDS.index(k) if j else 0 for k, j in zip(kinds, joint, strict=True)], dtype=int
+    )
     rotation = np.where(joint, np.isin(kinds, _ROTATIONS), index % 6 >= 3)
     return (
         np.flatnonzero(joint),
