@@ -383,6 +383,7 @@ def _reduced(
     return replace(problem, model=model, layout=sub), columns, sub_subset.astype(int)
 
 
+@one_blas_thread
 def identify_lm(
     problem: Problem,
     max_nfev: int = 200,
@@ -402,47 +403,23 @@ def identify_lm(
     A subset of the link parameters is solved on a problem that carries only them.
     """
     reduced = None if identifiability is None else _reduced(problem, identifiability.subset, fixed)
-    if reduced is None:
-        return _identify_lm(
-            problem, max_nfev, identifiability, loss, f_scale, whiten, initial, fixed
+    if reduced is not None:  # the sub-problem holds every link parameter it has: no recursion
+        sub_problem, columns, sub_subset = reduced
+        sub_ident = replace(identifiability, subset=sub_subset)
+        sub_initial = None if initial is None else np.asarray(initial, dtype=float)[columns]
+        res = identify_lm(sub_problem, max_nfev, sub_ident, loss, f_scale, whiten, sub_initial)
+        params = (
+            np.zeros(problem.full_layout.size) if fixed is None else np.asarray(fixed, float).copy()
         )
-    sub_problem, columns, sub_subset = reduced
-    sub_ident = replace(identifiability, subset=sub_subset)
-    start = None if initial is None else np.asarray(initial, dtype=float)[columns]
-    res = _identify_lm(sub_problem, max_nfev, sub_ident, loss, f_scale, whiten, start)
-    params = (
-        np.zeros(problem.full_layout.size) if fixed is None else np.asarray(fixed, float).copy()
-    )
-    params[identifiability.subset] = 0.0
-    params[columns] = res.params
-    return replace(
-        res,
-        params=params,
-        names=problem.full_layout.names,
-        identifiability=identifiability,
-        problem=problem,
-    )
-
-
-@one_blas_thread
-def _identify_lm(
-    problem: Problem,
-    max_nfev: int = 200,
-    identifiability: Identifiability | None = None,
-    loss: str = "linear",
-    f_scale: float = 1.0,
-    whiten: np.ndarray | None = None,
-    initial: np.ndarray | None = None,
-    fixed: np.ndarray | None = None,
-) -> Result:
-    """Levenberg-Marquardt (trust region) on the identifiable subset with column scaling.
-
-    Parameters outside the QR-pivoted identifiable subset stay at their nominal values; the
-    others start from ``initial`` ``(P,)`` (default nominal, zeros). ``fixed`` ``(P,)``: other
-    values to hold the parameters outside the subset at.
-    ``whiten`` ``(r, M)`` multiplies the residual rows first (a full noise covariance's inverse
-    root: :func:`relcal.calibration.uncertainty.identify_weighted`).
-    """
+        params[identifiability.subset] = 0.0
+        params[columns] = res.params
+        return replace(
+            res,
+            params=params,
+            names=problem.full_layout.names,
+            identifiability=identifiability,
+            problem=problem,
+        )
     _check(problem)
     start = time.perf_counter()
     full = np.zeros(problem.full_layout.size)
