@@ -41,7 +41,8 @@ from peers import fd_least_squares  # noqa: E402
 from relcal.calibration.identifiability import analyse_problem  # noqa: E402
 from relcal.calibration.noise import Noise  # noqa: E402
 from relcal.design.cell import Cell, joint_path  # noqa: E402
-from relcal.robot.model import auto_hayati, get_robot  # noqa: E402
+from relcal.robot.loading import get_robot  # noqa: E402
+from relcal.robot.model import auto_hayati  # noqa: E402
 from relcal.sim.scenario import (  # noqa: E402
     Scenario,
     clean_poses,

@@ -60,7 +60,8 @@ from relcal.calibration.measurement import Problem, residuals  # noqa: E402
 from relcal.calibration.noise import Noise  # noqa: E402
 from relcal.design.cell import Cell  # noqa: E402
 from relcal.robot.kinematics import fk  # noqa: E402
-from relcal.robot.model import RobotModel, get_robot, library_names  # noqa: E402
+from relcal.robot.loading import get_robot  # noqa: E402
+from relcal.robot.model import RobotModel, library_names  # noqa: E402
 from relcal.sim.scenario import (  # noqa: E402
     Scenario,
     clean_poses,
@@ -382,7 +383,7 @@ def startup_rows(repeat: int = 2) -> list[Row]:
     """Extra start-up of the compiled FK path over the NumPy one (fresh processes, least of
     ``repeat``), with an empty Numba cache (compiles) and a filled one; a whole simulate command."""
     first_call = (
-        "from relcal.robot.kinematics import fk; from relcal.robot.model import get_robot; "
+        "from relcal.robot.kinematics import fk; from relcal.robot.loading import get_robot; "
         "import numpy; "
         "fk(get_robot('a465'), numpy.zeros((1, 6)), backend='{}')"
     )

@@ -25,7 +25,8 @@ from relcal.calibration.pipeline import calibrate
 from relcal.data.dataset import load_dataset, write_samples
 from relcal.data.imaging import measure
 from relcal.robot.kinematics import apply_errors, fk, make_layout
-from relcal.robot.model import auto_hayati, get_robot
+from relcal.robot.loading import get_robot
+from relcal.robot.model import auto_hayati
 
 N_SAMPLES = 114
 GOAL = 5.0  # model selection within this many plain fits

@@ -21,7 +21,8 @@ from relcal.calibration.identify import identify  # noqa: E402
 from relcal.calibration.measurement import residuals  # noqa: E402
 from relcal.calibration.uncertainty import parameter_covariance  # noqa: E402
 from relcal.robot.kinematics import apply_errors, gravity_torques, make_layout  # noqa: E402
-from relcal.robot.model import auto_hayati, get_robot  # noqa: E402
+from relcal.robot.loading import get_robot  # noqa: E402
+from relcal.robot.model import auto_hayati  # noqa: E402
 
 SEED = 12345
 

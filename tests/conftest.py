@@ -5,7 +5,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from relcal.robot.model import get_robot
+from relcal.robot.loading import get_robot
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 

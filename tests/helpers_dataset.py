@@ -10,7 +10,8 @@ from helpers_sim import BOARD, HANDEYE, true_errors, with_plausible_loads
 from relcal import geometry as tf
 from relcal.data.dataset import write_samples
 from relcal.robot.kinematics import apply_errors, fk, make_layout
-from relcal.robot.model import auto_hayati, dump_model, get_robot, with_nongeometric
+from relcal.robot.loading import get_robot
+from relcal.robot.model import auto_hayati, dump_model, with_nongeometric
 
 
 @dataclass

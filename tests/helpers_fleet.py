@@ -13,7 +13,8 @@ from helpers_sim import BOARD, HANDEYE, true_errors
 from relcal import geometry as tf
 from relcal.data.dataset import write_samples
 from relcal.robot.kinematics import apply_errors, fk, make_layout
-from relcal.robot.model import auto_hayati, get_robot
+from relcal.robot.loading import get_robot
+from relcal.robot.model import auto_hayati
 
 NOISE = (5e-5, 1e-4)  # pose noise per axis: 0.05 mm, 0.0057 deg
 

@@ -24,7 +24,8 @@ from scipy.spatial.transform import Rotation
 from relcal import geometry as tf
 from relcal.cli import main
 from relcal.robot.kinematics import fk
-from relcal.robot.model import dump_model, get_robot
+from relcal.robot.loading import get_robot
+from relcal.robot.model import dump_model
 
 A465 = get_robot("a465")
 Setup = Callable[[Path], None]

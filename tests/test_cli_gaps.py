@@ -15,7 +15,8 @@ from helpers_dataset import synthetic_dataset
 from relcal.cli import main
 from relcal.data.dataset import load_dataset
 from relcal.robot.kinematics import apply_errors, fk, make_layout
-from relcal.robot.model import dump_model, get_robot
+from relcal.robot.loading import get_robot
+from relcal.robot.model import dump_model
 from relcal.vision.camera import load_camera
 
 CHARUCO = DATA / "rct_charuco_eye_to_hand"

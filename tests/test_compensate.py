@@ -16,7 +16,8 @@ from relcal.calibration.measurement import split_params
 from relcal.cli import main
 from relcal.robot.export import calibrated_model
 from relcal.robot.kinematics import fk
-from relcal.robot.model import auto_hayati, dump_model, get_robot, load_model
+from relcal.robot.loading import get_robot
+from relcal.robot.model import auto_hayati, dump_model, load_model
 
 
 def test_compensation_brings_positioning_errors_down(a465, rng, tmp_path):

@@ -11,7 +11,8 @@ from conftest import random_q
 from relcal import geometry as tf
 from relcal.robot.export import calibrated_model, parameter_csv, urdf
 from relcal.robot.kinematics import fk, make_layout
-from relcal.robot.model import auto_hayati, get_robot, library_names
+from relcal.robot.loading import get_robot
+from relcal.robot.model import auto_hayati, library_names
 
 
 def calibrated(name, rng):

@@ -16,7 +16,8 @@ pytest.importorskip("numba", reason="Numba is optional (pip install relcal[fast]
 from relcal import geometry as tf  # noqa: E402
 from relcal.robot import fastkin, kinematics  # noqa: E402
 from relcal.robot.kinematics import fk  # noqa: E402
-from relcal.robot.model import auto_hayati, get_robot, library_names  # noqa: E402
+from relcal.robot.loading import get_robot  # noqa: E402
+from relcal.robot.model import auto_hayati, library_names  # noqa: E402
 
 
 def everything(model, rng):
@@ -110,7 +111,7 @@ def test_small_batches_do_not_import_numba():
     # Short commands must start without Numba's import (and never trigger a compile).
     code = (
         "import sys, numpy as np; from relcal.robot.kinematics import fk; "
-        "from relcal.robot.model import "
+        "from relcal.robot.loading import "
         "get_robot; fk(get_robot('a465'), np.zeros((500, 6))); print('numba' in sys.modules)"
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)

@@ -142,7 +142,8 @@ def test_study_on_the_cluster_gives_the_same_trials(cluster, tmp_path, capsys):
 
     from relcal.calibration.noise import Noise
     from relcal.geometry import DEG, MM
-    from relcal.robot.model import auto_hayati, get_robot
+    from relcal.robot.loading import get_robot
+    from relcal.robot.model import auto_hayati
     from relcal.sim.scenario import make_scenario
     from relcal.sim.study import study
 

@@ -10,7 +10,8 @@ from relcal import geometry as tf
 from relcal.errors import RelcalError
 from relcal.robot import ik
 from relcal.robot.kinematics import apply_errors, fk, make_layout, pose_jacobian
-from relcal.robot.model import auto_hayati, get_robot
+from relcal.robot.loading import get_robot
+from relcal.robot.model import auto_hayati
 
 LIBRARY = ["a465", "puma560", "ur5e", "franka_fr3", "irb120"]
 CLOSED_FORM = ["a465", "puma560", "irb120"]

@@ -9,7 +9,8 @@ from relcal.calibration.pipeline import calibrate
 from relcal.data.dataset import load_dataset
 from relcal.data.imaging import measure
 from relcal.reporting.documents import validation_document
-from relcal.robot.model import auto_hayati, get_robot
+from relcal.robot.loading import get_robot
+from relcal.robot.model import auto_hayati
 from relcal.sim.synth import write_image_dataset
 from relcal.vision.camera import Camera
 

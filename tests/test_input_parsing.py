@@ -9,7 +9,8 @@ from test_bad_input import run_bad, write_dataset
 
 from relcal.data.dataset import load_dataset
 from relcal.io import read_table
-from relcal.robot.model import get_robot, load_model
+from relcal.robot.loading import get_robot
+from relcal.robot.model import load_model
 
 
 def test_hayati_off_as_yaml_reads_it(tmp_path):

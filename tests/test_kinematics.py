@@ -9,7 +9,8 @@ from conftest import random_q
 
 from relcal import geometry as tf
 from relcal.robot.kinematics import apply_errors, fk, forward_frames, make_layout, pose_jacobian
-from relcal.robot.model import auto_hayati, get_robot
+from relcal.robot.loading import get_robot
+from relcal.robot.model import auto_hayati
 
 
 def trans(x=0.0, y=0.0, z=0.0):

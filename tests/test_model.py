@@ -5,7 +5,8 @@ import pytest
 
 from relcal.errors import RelcalError
 from relcal.robot.kinematics import fk
-from relcal.robot.model import auto_hayati, dump_model, get_robot, library_names, load_model
+from relcal.robot.loading import get_robot
+from relcal.robot.model import auto_hayati, dump_model, library_names, load_model
 
 GOOD = """\
 name: test arm

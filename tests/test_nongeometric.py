@@ -31,10 +31,10 @@ from relcal.robot.kinematics import (
     pose_jacobian,
     spatial_jacobian,
 )
+from relcal.robot.loading import get_robot
 from relcal.robot.model import (
     auto_hayati,
     dump_model,
-    get_robot,
     model_from_dict,
     model_to_dict,
     nongeometric_options,

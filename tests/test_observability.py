@@ -138,7 +138,7 @@ def test_offsets_along_axes_parallel_to_the_first_are_base_motions(rng):
 
 
 def test_three_parallel_axes_give_two_named_pairs(rng):
-    from relcal.robot.model import get_robot
+    from relcal.robot.loading import get_robot
 
     ur5e = get_robot("ur5e")  # joints 2, 3 and 4 parallel
     assert [p.joints for p in parallel_pairs(ur5e)] == [(2, 3), (3, 4)]

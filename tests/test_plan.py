@@ -39,7 +39,7 @@ CELL = dict(center=np.array([0.4, 0.0, 0.0]))
 
 @pytest.fixture(scope="module")
 def hayati():
-    from relcal.robot.model import get_robot
+    from relcal.robot.loading import get_robot
 
     return auto_hayati(get_robot("a465"))
 

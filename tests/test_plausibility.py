@@ -15,7 +15,8 @@ from relcal import geometry as tf
 from relcal.calibration import plausibility as pl
 from relcal.cli import main
 from relcal.robot.kinematics import fk
-from relcal.robot.model import dump_model, get_robot
+from relcal.robot.loading import get_robot
+from relcal.robot.model import dump_model
 from relcal.vision.boards import Board
 
 POSITIONER = DATA / "rct_positioner" / "positioner_kinematic_measurements.yaml"

@@ -12,7 +12,8 @@ from relcal import geometry as tf
 from relcal.errors import RelcalError
 from relcal.robot.ik import solve
 from relcal.robot.kinematics import apply_errors, fk, make_layout, pose_jacobian
-from relcal.robot.model import get_robot, load_model
+from relcal.robot.loading import get_robot
+from relcal.robot.model import load_model
 
 FAST = settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 angles = st.floats(-np.pi, np.pi, allow_nan=False)

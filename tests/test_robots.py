@@ -5,7 +5,8 @@ import pytest
 
 from relcal.robot.ik import closed_form_problem, has_spherical_wrist
 from relcal.robot.kinematics import fk, forward_frames
-from relcal.robot.model import get_robot, library_names
+from relcal.robot.loading import get_robot
+from relcal.robot.model import library_names
 
 LIBRARY = ["a465", "puma560", "ur5e", "franka_fr3", "irb120"]
 DEG = np.pi / 180

@@ -15,7 +15,8 @@ from relcal.data.imaging import measure
 from relcal.errors import RelcalError
 from relcal.reporting.documents import validation_document
 from relcal.robot.kinematics import apply_errors, fk, make_layout
-from relcal.robot.model import KINDS, auto_hayati, get_robot, model_from_dict
+from relcal.robot.loading import get_robot
+from relcal.robot.model import KINDS, auto_hayati, model_from_dict
 
 INSTRUMENT = tf.from_vector(np.array([1.1, -0.3, 0.2, 0.05, -0.1, 2.0]))  # tracker from base
 MARKER = np.array([0.02, -0.01, 0.11])  # flange frame, m

@@ -12,7 +12,7 @@ from relcal.cli import main
 from relcal.errors import RelcalError
 from relcal.reporting.text import format_simulation
 from relcal.robot.kinematics import make_layout
-from relcal.robot.model import get_robot
+from relcal.robot.loading import get_robot
 from relcal.sim.scenario import load_errors
 from relcal.sim.simulate import simulate
 

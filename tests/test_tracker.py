@@ -14,7 +14,8 @@ from relcal.calibration.identifiability import analyse_problem
 from relcal.calibration.identify import identify
 from relcal.calibration.measurement import Problem, residuals
 from relcal.robot.kinematics import apply_errors, fk, make_layout
-from relcal.robot.model import auto_hayati, get_robot
+from relcal.robot.loading import get_robot
+from relcal.robot.model import auto_hayati
 
 INSTRUMENT = tf.from_vector(np.array([1.2, -0.4, 0.3, 0.1, -0.2, 2.5]))  # instrument-from-base
 MARKER = np.array([0.01, -0.02, 0.12])  # in the flange frame, m

@@ -12,7 +12,8 @@ from relcal import geometry as tf
 from relcal.errors import RelcalError
 from relcal.robot.export import calibrated_model
 from relcal.robot.kinematics import fk, make_layout, pose_jacobian
-from relcal.robot.model import auto_hayati, get_robot
+from relcal.robot.loading import get_robot
+from relcal.robot.model import auto_hayati
 from relcal.robot.urdf import chain_fk, load_urdf
 
 

@@ -24,7 +24,7 @@ from relcal.robot.export import (
     ur_calibration_yaml,
 )
 from relcal.robot.kinematics import fk, make_layout
-from relcal.robot.model import get_robot
+from relcal.robot.loading import get_robot
 from relcal.robot.urdf import load_urdf
 
 

@@ -30,7 +30,7 @@ __version__ = "0.1.0"
 # Where each public name lives. They load on first use (PEP 562), so that ``relcal`` on the
 # command line starts without importing SciPy, OpenCV and Matplotlib for a ``--help``.
 _API = {
-    "Calibration": "relcal.calibration.pipeline",
+    "Calibration": "relcal.calibration.outcome",
     "Dataset": "relcal.data.dataset",
     "Identifiability": "relcal.calibration.identifiability",
     "Layout": "relcal.robot.kinematics",
@@ -48,7 +48,7 @@ _API = {
     "calibrated_model": "relcal.robot.export",
     "calibrated_urdf": "relcal.robot.export",
     "fk": "relcal.robot.kinematics",
-    "get_robot": "relcal.robot.model",
+    "get_robot": "relcal.robot.loading",
     "identify": "relcal.calibration.identify",
     "import_rosbag": "relcal.data.rosbag",
     "load_dataset": "relcal.data.dataset",
@@ -111,14 +111,16 @@ if TYPE_CHECKING:  # for type checkers and editors: the same names, imported eag
     from relcal.calibration.identify import Result, SolverOptions, identify
     from relcal.calibration.measurement import Problem, make_pairs
     from relcal.calibration.noise import Noise
-    from relcal.calibration.pipeline import Calibration, calibrate
+    from relcal.calibration.outcome import Calibration
+    from relcal.calibration.pipeline import calibrate
     from relcal.data.dataset import Dataset, load_dataset
     from relcal.data.imaging import Measurements, measure
     from relcal.data.rosbag import import_rosbag
     from relcal.errors import RelcalError
     from relcal.robot.export import calibrated_model, calibrated_urdf, robot_files
     from relcal.robot.kinematics import Layout, apply_errors, fk, make_layout
-    from relcal.robot.model import RobotModel, get_robot, load_model
+    from relcal.robot.loading import get_robot
+    from relcal.robot.model import RobotModel, load_model
     from relcal.robot.urdf import load_urdf
     from relcal.sim.simulate import Simulation, simulate
 

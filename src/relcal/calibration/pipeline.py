@@ -11,7 +11,7 @@ held-out check is the absolute position error with both refitted on the training
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass, replace
+from dataclasses import replace
 
 import numpy as np
 
@@ -21,7 +21,6 @@ from relcal.calibration.identifiability import check_pose_set
 from relcal.calibration.identify import (
     Result,
     SolverOptions,
-    calibrated_handeye,
     identify,
     identify_lm,
 )
@@ -40,11 +39,15 @@ from relcal.calibration.noise import (
     pair_whiteners,
     robust_sigma,
 )
+from relcal.calibration.outcome import (
+    ROBUST_SCALE,
+    Calibration,
+    outlier_samples,
+)
 from relcal.calibration.plausibility import check_dataset, check_result
 from relcal.calibration.selection import (
     WEIGHTINGS,
     Linearised,
-    Score,
     candidates,
     choose,
     family,
@@ -54,27 +57,20 @@ from relcal.calibration.selection import (
     score_candidates,
     solve_normal,
 )
+from relcal.calibration.tracker import calibrate_points
 from relcal.calibration.uncertainty import parameter_covariance
 from relcal.calibration.validate import (
-    Validation,
     folds,
     held_out,
-    ratio_interval,
     split,
-    stats,
 )
 from relcal.data.dataset import Dataset
 from relcal.data.imaging import Measurements, measure
 from relcal.errors import RelcalError
-from relcal.robot.export import calibrated_model
 from relcal.robot.kinematics import fk, make_layout
 from relcal.robot.model import RobotModel, nongeometric_options, with_nongeometric
 
-ROBUST_SCALE = 3.0  # residual (in noise standard deviations) where the robust loss bends
 DETECTION_LOSS = "linear"  # of the fit whose residuals find the outlier samples
-# Candidates without kinematic correction: the hand-eye transform alone, or (position-only data)
-# the instrument transform and the marker alone.
-BASELINE_CANDIDATES = ("hand-eye only", "instrument and marker only")
 
 
 def _sample_indices(dataset: Dataset, ids: Sequence[str]) -> np.ndarray:
@@ -111,79 +107,6 @@ def cross_validate(
         )
         for f in tqdm(parts, disable=not progress, desc="cross-validation", unit="fold")
     ]
-
-
-@dataclass(frozen=True)
-class Calibration:
-    """Everything a calibration produced.
-
-    ``result`` is the chosen model's fit and ``baseline`` the fit of the hand-eye transform alone
-    (nominal kinematics): the best a user gets without kinematic calibration, and the primary
-    "before" of every comparison. When the data support no kinematic correction the chosen
-    model *is* the baseline (``exported == "baseline"``).
-    """
-
-    dataset: Dataset
-    measurements: Measurements
-    problem: Problem  # training samples, with the chosen weighting
-    result: Result
-    baseline: Result
-    validation: Validation | None
-    train: np.ndarray  # sample indices
-    test: np.ndarray
-    settings: dict
-    outliers: tuple[str, ...] = ()  # ids of training samples that fit badly
-    noise: PoseNoise | None = None
-    selection: tuple[Score, ...] = ()
-    chosen: int = 0  # index into selection
-    reason: str = ""
-    bootstrap_std: np.ndarray | None = None  # (P,) over training samples; NaN if not estimated
-
-    @property
-    def std(self) -> np.ndarray:
-        """Standard deviations ``(P,)`` of the estimate (m, rad); NaN if not estimated."""
-        return self.result.std
-
-    @property
-    def exported(self) -> str:
-        """``calibrated``, or ``baseline`` when the hand-eye transform alone was chosen."""
-        chosen = self.selection[self.chosen].candidate if self.selection else None
-        baseline = chosen is not None and chosen.name in BASELINE_CANDIDATES
-        return "baseline" if baseline else "calibrated"
-
-    @property
-    def worse(self) -> bool:
-        """The exported calibrated model's held-out position RMS exceeds the baseline's."""
-        if self.validation is None or self.exported == "baseline":
-            return False
-        val = self.validation
-        return stats(val.calibrated)["position_mm"]["rms"] > stats(val.before)["position_mm"]["rms"]
-
-    @property
-    def hurts(self) -> bool:
-        """:attr:`worse`, and beyond doubt: the whole 95 % interval of the held-out RMS ratio to
-        the baseline (bootstrap over held-out samples) lies above 1."""
-        if not self.worse:
-            return False
-        val = self.validation
-        ratio = ratio_interval(val.pairs, val.before, val.calibrated)
-        return ratio["position_mm"]["ci95"][0] > 1.0
-
-    @property
-    def model(self) -> RobotModel:
-        """The exported robot model (the identified errors applied; only the non-geometric
-        terms of the chosen model switched on)."""
-        layout = self.problem.layout
-        model = calibrated_model(self.problem.model, layout, self.result.params)
-        if not self.selection:
-            return model
-        columns = self.selection[self.chosen].candidate.columns
-        return exported_model(model, {layout.kinds[c] for c in columns if c < layout.size})
-
-    @property
-    def handeye(self) -> np.ndarray:
-        """The calibrated hand-eye transform ``X`` ``(4, 4)``."""
-        return calibrated_handeye(self.problem, self.result)
 
 
 def calibrate(
@@ -228,8 +151,6 @@ def calibrate(
         raise RelcalError(f"unknown selection '{selection}': use cv, conservative or all")
     train, test = _split(dataset, measurements, holdout, seed, holdout_ids)
     if dataset.measured == "position":
-        from relcal.calibration.tracker import calibrate_points
-
         return calibrate_points(
             dataset,
             measurements,
@@ -364,14 +285,6 @@ def candidate_model(model: RobotModel, nongeometric: str | Sequence[str]) -> Rob
     return with_nongeometric(model, terms) if terms else model
 
 
-def exported_model(model: RobotModel, kinds: set[str]) -> RobotModel:
-    """``model`` keeping only the non-geometric terms of the parameter ``kinds`` chosen (the
-    families model selection left out are switched off again, their values are zero)."""
-    keep = {k.split("_")[0] for k in kinds}
-    flags = tuple(tuple(t for t in f if t in keep) for f in model.nongeometric)
-    return replace(model, nongeometric=flags)
-
-
 def _split(
     dataset: Dataset,
     measurements: Measurements,
@@ -496,13 +409,3 @@ def bootstrap_std(
     out = np.full(lin.jac.shape[-1], np.nan)
     out[columns] = np.std(draws, axis=0, ddof=1)
     return out
-
-
-def outlier_samples(weighted: np.ndarray, pairs: np.ndarray, threshold: float = 5.0) -> np.ndarray:
-    """Indices of samples whose pairs fit badly: each sample's score is the median normalised
-    error of its pairs; a robust z-score above ``threshold`` flags it."""
-    norms = np.linalg.norm(weighted, axis=1)
-    n = int(pairs.max()) + 1
-    score = np.array([np.median(norms[(pairs == k).any(axis=1)]) for k in range(n)])
-    spread = 1.4826 * np.median(np.abs(score - np.median(score)))
-    return np.flatnonzero((score - np.median(score)) > threshold * max(spread, 1e-12))

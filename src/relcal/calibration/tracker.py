@@ -19,7 +19,7 @@ from relcal.calibration.identifiability import Identifiability, check_pose_set
 from relcal.calibration.identify import Result, SolverOptions, identify, identify_lm
 from relcal.calibration.measurement import Problem, pair_errors
 from relcal.calibration.noise import robust_sigma
-from relcal.calibration.pipeline import (
+from relcal.calibration.outcome import (
     BASELINE_CANDIDATES,
     ROBUST_SCALE,
     Calibration,

@@ -67,7 +67,8 @@ def robot_args(parser: argparse.ArgumentParser) -> None:
 def load_robot(args: argparse.Namespace):
     """The model named by ``--robot`` (``--root``/``--tip`` for a URDF), with Hayati joints if
     ``--hayati auto``."""
-    from relcal.robot.model import auto_hayati, get_robot
+    from relcal.robot.loading import get_robot
+    from relcal.robot.model import auto_hayati
 
     model = get_robot(
         args.robot,

@@ -67,7 +67,8 @@ def run(args: argparse.Namespace) -> int:
     from relcal.reporting.documents import compensation_document
     from relcal.reporting.text import compensation_csv
     from relcal.robot.kinematics import fk
-    from relcal.robot.model import get_robot, load_model
+    from relcal.robot.loading import get_robot
+    from relcal.robot.model import load_model
 
     calibrated = load_model(args.model)
     nominal = get_robot(args.nominal) if args.nominal else None

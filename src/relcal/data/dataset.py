@@ -47,7 +47,8 @@ from scipy.spatial.transform import Rotation
 from relcal import geometry as tf
 from relcal.errors import RelcalError
 from relcal.io import load_yaml, note_input, read_table, validate
-from relcal.robot.model import RobotModel, auto_hayati, get_robot, model_from_dict
+from relcal.robot.loading import get_robot
+from relcal.robot.model import RobotModel, auto_hayati, model_from_dict
 
 POSE_COLUMNS = ("x", "y", "z", "qx", "qy", "qz", "qw")
 RPY_COLUMNS = ("x", "y", "z", "roll", "pitch", "yaw")

@@ -16,7 +16,7 @@ import numpy as np
 import yaml
 
 import relcal
-from relcal.calibration.pipeline import Calibration
+from relcal.calibration.outcome import Calibration
 
 BASELINE = "baseline"  # held-out errors of the hand-eye-only fit (``validation.baseline``)
 

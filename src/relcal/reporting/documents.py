@@ -14,7 +14,7 @@ import numpy as np
 from relcal.calibration.compensate import Compensation
 from relcal.calibration.identifiability import INDEX_NAMES, NUISANCE_KINDS, Indices
 from relcal.calibration.measurement import tracker_frames
-from relcal.calibration.pipeline import Calibration
+from relcal.calibration.outcome import Calibration
 from relcal.calibration.uncertainty import Accuracy
 from relcal.calibration.validate import Validation, pooled, ratio_interval, stats
 from relcal.data.dataset import Dataset

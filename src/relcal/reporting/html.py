@@ -24,7 +24,7 @@ from matplotlib.ticker import FuncFormatter, MaxNLocator, NullFormatter
 from relcal import __version__
 from relcal.calibration.identifiability import Identifiability
 from relcal.calibration.measurement import pair_errors
-from relcal.calibration.pipeline import Calibration
+from relcal.calibration.outcome import Calibration
 from relcal.calibration.validate import stats
 from relcal.reporting.text import pose_noise_parts
 from relcal.sim.simulate import Simulation

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import yaml
 
-from relcal.calibration.pipeline import Calibration
+from relcal.calibration.outcome import Calibration
 from relcal.data.dataset import Dataset, joints_in_unit, write_samples
 from relcal.data.imaging import Measurements
 from relcal.io import json_text

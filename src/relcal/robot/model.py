@@ -26,7 +26,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field, replace
 from importlib import resources
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated, Literal
+from typing import Annotated, Literal
 
 import numpy as np
 import pydantic
@@ -34,9 +34,6 @@ import yaml
 
 from relcal import geometry as tf
 from relcal.errors import RelcalError
-
-if TYPE_CHECKING:
-    from relcal.robot.urdf import Inertials, UrdfChain
 
 KINDS = ("theta_off", "a", "d", "alpha", "beta")
 ANGLE_KINDS = ("theta_off", "alpha", "beta")
@@ -61,6 +58,53 @@ class Loads:
     @property
     def total_mass(self) -> float:
         return float(self.mass.sum() + self.payload_mass)
+
+
+@dataclass(frozen=True)
+class ChainJoint:
+    """One URDF joint on the chain from root to tip (fixed ones included)."""
+
+    name: str
+    type: str
+    parent: str
+    child: str
+    origin: np.ndarray  # (4, 4) parent link -> joint frame
+    axis: np.ndarray  # (3,) unit vector in the joint frame (zeros for fixed joints)
+    line: int  # line of the <joint> element in the file
+
+
+@dataclass(frozen=True)
+class UrdfChain:
+    """What a model loaded from a URDF keeps of its file, for exports back into it.
+
+    ``frames[i]`` ``(4, 4)`` is the URDF frame of movable joint i expressed in relcal's frame of
+    joint i at ``q = 0`` (``base A_1(0) ... A_i(0)``): a rotation taking the URDF axis to z and
+    a shift along z. It stays attached to relcal's frame when the model is calibrated.
+    """
+
+    path: str
+    data: bytes  # the file as read, for byte-exact exports
+    robot_name: str
+    root: str
+    tip: str
+    joints: tuple[ChainJoint, ...]
+    movable: tuple[int, ...]  # indices into ``joints`` of the n movable joints
+    frames: np.ndarray  # (n, 4, 4)
+    parametrisation: str = "minimal"  # the error parameters make_layout gives: minimal | origins
+
+
+@dataclass(frozen=True)
+class Inertials:
+    """Rigid-body data of the n moving bodies, each in relcal's frame of its joint.
+
+    Body i is every chain link that moves with joint i and no later joint (links hung off the
+    chain are not included). Mass in kg, centre of mass in m, inertia in kg m^2 about the centre
+    of mass, axes of the joint frame (``forward_frames(model, q)[:, i + 1]``).
+    """
+
+    mass: np.ndarray  # (n,)
+    com: np.ndarray  # (n, 3)
+    inertia: np.ndarray  # (n, 3, 3)
 
 
 @dataclass(frozen=True)
@@ -502,35 +546,6 @@ def library_names() -> list[str]:
     """Names of the built-in robots (file stems under ``relcal/robot/library``)."""
     files = resources.files("relcal.robot") / "library"
     return sorted(p.name[:-5] for p in files.iterdir() if p.name.endswith(".yaml"))
-
-
-def get_robot(
-    name_or_path: str | Path,
-    root: str | None = None,
-    tip: str | None = None,
-    parametrisation: str = "minimal",
-) -> RobotModel:
-    """A built-in robot by name (``a465``, ``puma560``, ...), a model YAML file by path, or the
-    serial chain ``root`` -> ``tip`` of a URDF file (``.urdf``; root and tip may be omitted when
-    the tree has one obvious serial chain; ``parametrisation``: ``minimal`` or ``origins``, see
-    :func:`relcal.robot.urdf.load_urdf`)."""
-    name = str(name_or_path)
-    if Path(name).suffix.lower() in (".urdf", ".xacro"):
-        from relcal.robot.urdf import load_urdf
-
-        return load_urdf(name, root, tip, parametrisation)
-    if root is not None or tip is not None:
-        raise RelcalError(f"robot '{name}': root and tip links apply to URDF files (.urdf) only")
-    if name.lower() in library_names():
-        ref = resources.files("relcal.robot") / "library" / f"{name.lower()}.yaml"
-        with resources.as_file(ref) as path:
-            return load_model(path)
-    if Path(name).suffix in (".yaml", ".yml") or Path(name).exists():
-        return load_model(name)
-    raise RelcalError(
-        f"unknown robot '{name}': expected one of {', '.join(library_names())}, a model YAML file "
-        "path or a URDF file (.urdf)"
-    )
 
 
 def parallel_axes(model: RobotModel, tol_deg: float = 1.0) -> tuple[np.ndarray, np.ndarray]:

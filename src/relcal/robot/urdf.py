@@ -25,65 +25,18 @@ from __future__ import annotations
 import difflib
 import io
 import math
-from dataclasses import dataclass, replace
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
 from relcal import geometry as tf
 from relcal.errors import RelcalError
-from relcal.robot.model import RobotModel
+from relcal.robot.model import ChainJoint, Inertials, RobotModel, UrdfChain
 
 MOVABLE = ("revolute", "continuous", "prismatic")
 PARAMETRISATIONS = ("minimal", "origins")
 PARALLEL_TOL_DEG = 1.0  # the tolerance of relcal.robot.model.auto_hayati
-
-
-@dataclass(frozen=True)
-class ChainJoint:
-    """One URDF joint on the chain from root to tip (fixed ones included)."""
-
-    name: str
-    type: str
-    parent: str
-    child: str
-    origin: np.ndarray  # (4, 4) parent link -> joint frame
-    axis: np.ndarray  # (3,) unit vector in the joint frame (zeros for fixed joints)
-    line: int  # line of the <joint> element in the file
-
-
-@dataclass(frozen=True)
-class UrdfChain:
-    """What a model loaded from a URDF keeps of its file, for exports back into it.
-
-    ``frames[i]`` ``(4, 4)`` is the URDF frame of movable joint i expressed in relcal's frame of
-    joint i at ``q = 0`` (``base A_1(0) ... A_i(0)``): a rotation taking the URDF axis to z and
-    a shift along z. It stays attached to relcal's frame when the model is calibrated.
-    """
-
-    path: str
-    data: bytes  # the file as read, for byte-exact exports
-    robot_name: str
-    root: str
-    tip: str
-    joints: tuple[ChainJoint, ...]
-    movable: tuple[int, ...]  # indices into ``joints`` of the n movable joints
-    frames: np.ndarray  # (n, 4, 4)
-    parametrisation: str = "minimal"  # the error parameters make_layout gives: minimal | origins
-
-
-@dataclass(frozen=True)
-class Inertials:
-    """Rigid-body data of the n moving bodies, each in relcal's frame of its joint.
-
-    Body i is every chain link that moves with joint i and no later joint (links hung off the
-    chain are not included). Mass in kg, centre of mass in m, inertia in kg m^2 about the centre
-    of mass, axes of the joint frame (``forward_frames(model, q)[:, i + 1]``).
-    """
-
-    mass: np.ndarray  # (n,)
-    com: np.ndarray  # (n, 3)
-    inertia: np.ndarray  # (n, 3, 3)
 
 
 # --- parsing -------------------------------------------------------------------------------------

@@ -1,0 +1,115 @@
+"""What a calibration produced (:class:`Calibration`), shared by the pose pipeline
+(:mod:`pipeline`) and the position-only one (:mod:`tracker`), with the rule that finds outlier
+samples."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from relcal.calibration.identify import Result, calibrated_handeye
+from relcal.calibration.measurement import Problem
+from relcal.calibration.noise import PoseNoise
+from relcal.calibration.selection import Score
+from relcal.calibration.validate import Validation, ratio_interval, stats
+from relcal.data.dataset import Dataset
+from relcal.data.imaging import Measurements
+from relcal.robot.export import calibrated_model
+from relcal.robot.model import RobotModel
+
+ROBUST_SCALE = 3.0  # residual (in noise standard deviations) where the robust loss bends
+# Candidates without kinematic correction: the hand-eye transform alone, or (position-only data)
+# the instrument transform and the marker alone.
+BASELINE_CANDIDATES = ("hand-eye only", "instrument and marker only")
+
+
+@dataclass(frozen=True)
+class Calibration:
+    """Everything a calibration produced.
+
+    ``result`` is the chosen model's fit and ``baseline`` the fit of the hand-eye transform alone
+    (nominal kinematics): the best a user gets without kinematic calibration, and the primary
+    "before" of every comparison. When the data support no kinematic correction the chosen
+    model *is* the baseline (``exported == "baseline"``).
+    """
+
+    dataset: Dataset
+    measurements: Measurements
+    problem: Problem  # training samples, with the chosen weighting
+    result: Result
+    baseline: Result
+    validation: Validation | None
+    train: np.ndarray  # sample indices
+    test: np.ndarray
+    settings: dict
+    outliers: tuple[str, ...] = ()  # ids of training samples that fit badly
+    noise: PoseNoise | None = None
+    selection: tuple[Score, ...] = ()
+    chosen: int = 0  # index into selection
+    reason: str = ""
+    bootstrap_std: np.ndarray | None = None  # (P,) over training samples; NaN if not estimated
+
+    @property
+    def std(self) -> np.ndarray:
+        """Standard deviations ``(P,)`` of the estimate (m, rad); NaN if not estimated."""
+        return self.result.std
+
+    @property
+    def exported(self) -> str:
+        """``calibrated``, or ``baseline`` when the hand-eye transform alone was chosen."""
+        chosen = self.selection[self.chosen].candidate if self.selection else None
+        baseline = chosen is not None and chosen.name in BASELINE_CANDIDATES
+        return "baseline" if baseline else "calibrated"
+
+    @property
+    def worse(self) -> bool:
+        """The exported calibrated model's held-out position RMS exceeds the baseline's."""
+        if self.validation is None or self.exported == "baseline":
+            return False
+        val = self.validation
+        return stats(val.calibrated)["position_mm"]["rms"] > stats(val.before)["position_mm"]["rms"]
+
+    @property
+    def hurts(self) -> bool:
+        """:attr:`worse`, and beyond doubt: the whole 95 % interval of the held-out RMS ratio to
+        the baseline (bootstrap over held-out samples) lies above 1."""
+        if not self.worse:
+            return False
+        val = self.validation
+        ratio = ratio_interval(val.pairs, val.before, val.calibrated)
+        return ratio["position_mm"]["ci95"][0] > 1.0
+
+    @property
+    def model(self) -> RobotModel:
+        """The exported robot model (the identified errors applied; only the non-geometric
+        terms of the chosen model switched on)."""
+        layout = self.problem.layout
+        model = calibrated_model(self.problem.model, layout, self.result.params)
+        if not self.selection:
+            return model
+        columns = self.selection[self.chosen].candidate.columns
+        return exported_model(model, {layout.kinds[c] for c in columns if c < layout.size})
+
+    @property
+    def handeye(self) -> np.ndarray:
+        """The calibrated hand-eye transform ``X`` ``(4, 4)``."""
+        return calibrated_handeye(self.problem, self.result)
+
+
+def exported_model(model: RobotModel, kinds: set[str]) -> RobotModel:
+    """``model`` keeping only the non-geometric terms of the parameter ``kinds`` chosen (the
+    families model selection left out are switched off again, their values are zero)."""
+    keep = {k.split("_")[0] for k in kinds}
+    flags = tuple(tuple(t for t in f if t in keep) for f in model.nongeometric)
+    return replace(model, nongeometric=flags)
+
+
+def outlier_samples(weighted: np.ndarray, pairs: np.ndarray, threshold: float = 5.0) -> np.ndarray:
+    """Indices of samples whose pairs fit badly: each sample's score is the median normalised
+    error of its pairs; a robust z-score above ``threshold`` flags it."""
+    norms = np.linalg.norm(weighted, axis=1)
+    n = int(pairs.max()) + 1
+    score = np.array([np.median(norms[(pairs == k).any(axis=1)]) for k in range(n)])
+    spread = 1.4826 * np.median(np.abs(score - np.median(score)))
+    return np.flatnonzero((score - np.median(score)) > threshold * max(spread, 1e-12))

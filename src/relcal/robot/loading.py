@@ -1,0 +1,37 @@
+"""A robot model from what a user names: a built-in robot, a model YAML file or a URDF chain."""
+
+from __future__ import annotations
+
+from importlib import resources
+from pathlib import Path
+
+from relcal.errors import RelcalError
+from relcal.robot.model import RobotModel, library_names, load_model
+from relcal.robot.urdf import load_urdf
+
+
+def get_robot(
+    name_or_path: str | Path,
+    root: str | None = None,
+    tip: str | None = None,
+    parametrisation: str = "minimal",
+) -> RobotModel:
+    """A built-in robot by name (``a465``, ``puma560``, ...), a model YAML file by path, or the
+    serial chain ``root`` -> ``tip`` of a URDF file (``.urdf``; root and tip may be omitted when
+    the tree has one obvious serial chain; ``parametrisation``: ``minimal`` or ``origins``, see
+    :func:`relcal.robot.urdf.load_urdf`)."""
+    name = str(name_or_path)
+    if Path(name).suffix.lower() in (".urdf", ".xacro"):
+        return load_urdf(name, root, tip, parametrisation)
+    if root is not None or tip is not None:
+        raise RelcalError(f"robot '{name}': root and tip links apply to URDF files (.urdf) only")
+    if name.lower() in library_names():
+        ref = resources.files("relcal.robot") / "library" / f"{name.lower()}.yaml"
+        with resources.as_file(ref) as path:
+            return load_model(path)
+    if Path(name).suffix in (".yaml", ".yml") or Path(name).exists():
+        return load_model(name)
+    raise RelcalError(
+        f"unknown robot '{name}': expected one of {', '.join(library_names())}, a model YAML file "
+        "path or a URDF file (.urdf)"
+    )
