@@ -511,10 +511,13 @@ def check_dataset(dataset, measurements) -> dict:
 def check_result(dataset, problem, result) -> None:
     """:func:`check_corrections` on an identification result (``problem.full_layout`` order).
     Hand-eye corrections count only when the start was estimated from the data: a guess given in
-    dataset.yaml may be rough (its plausibility is checked against the data beforehand)."""
+    dataset.yaml may be rough (its plausibility is checked against the data beforehand). The
+    tracker's instrument transform and marker are free by design and never checked."""
     layout = problem.full_layout
     keep = [
-        k for k, kind in enumerate(layout.kinds) if kind != "handeye" or dataset.handeye is None
+        k
+        for k, kind in enumerate(layout.kinds)
+        if kind not in ("instrument", "marker") and (kind != "handeye" or dataset.handeye is None)
     ]
     check_corrections(
         [layout.names[k] for k in keep],

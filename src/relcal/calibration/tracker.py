@@ -25,7 +25,7 @@ from relcal.calibration.outcome import (
     Calibration,
     outlier_samples,
 )
-from relcal.calibration.plausibility import Tolerances, check_corrections
+from relcal.calibration.plausibility import check_result
 from relcal.calibration.selection import Candidate, Score, choose, sample_folds
 from relcal.calibration.validate import held_out
 from relcal.data.dataset import Dataset
@@ -114,24 +114,13 @@ def significant_fit(
 def check_link_corrections(dataset: Dataset, problem: Problem, result: Result) -> None:
     """The plausibility check of the link corrections (points in the wrong unit, a wrong robot
     model); ``T`` and ``m`` are free by design and not checked."""
-    layout = problem.full_layout
-    keep = [k for k, kind in enumerate(layout.kinds) if kind not in ("instrument", "marker")]
+    names = problem.full_layout.names
     try:
-        check_corrections(
-            [layout.names[k] for k in keep],
-            [layout.kinds[k] for k in keep],
-            result.params[keep],
-            str(dataset.spec_path or dataset.root),
-            Tolerances.from_display(dataset.tolerances),
-        )
+        check_result(dataset, problem, result)
     except RelcalError as exc:
         with np.errstate(divide="ignore", invalid="ignore"):
             z = np.abs(result.params) / result.std
-        weak = [
-            layout.names[k]
-            for k in keep
-            if f"{layout.names[k]} corrected by" in str(exc) and z[k] < 3.0
-        ]
+        weak = [n for k, n in enumerate(names) if f"{n} corrected by" in str(exc) and z[k] < 3.0]
         if not weak:
             raise
         raise RelcalError(

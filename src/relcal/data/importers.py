@@ -103,16 +103,6 @@ POSE_CHAIN = {
 }
 
 
-class _RctPose(pydantic.BaseModel):
-    x: pydantic.FiniteFloat
-    y: pydantic.FiniteFloat
-    z: pydantic.FiniteFloat
-    qx: pydantic.FiniteFloat
-    qy: pydantic.FiniteFloat
-    qz: pydantic.FiniteFloat
-    qw: pydantic.FiniteFloat
-
-
 class _RctEntry(pydantic.BaseModel):
     image: str
     pose: str
@@ -197,7 +187,7 @@ def import_rct_images(
         if not image.is_file():
             raise RelcalError(f"{source / 'cal_data.yaml'} entry {k + 1}: image not found: {image}")
         note_input(image)
-        p = load_validated(_RctPose, source / e.pose)
+        p = load_validated(_Pose, source / e.pose)
         rot = Rotation.from_quat([p.qx, p.qy, p.qz, p.qw]).as_matrix()
         poses.append(tf.homogeneous(rot, np.array([p.x, p.y, p.z])))
         images.append(image)
