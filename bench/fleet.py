@@ -46,7 +46,8 @@ def fleet_seconds(sessions, workers: int, out: Path) -> tuple[float, float | Non
     the cluster) the mean round trip of no-op tasks."""
     from distributed import Client, wait
 
-    from relcal.fleet.runner import local_cluster, run_fleet
+    from relcal.cluster import local_cluster
+    from relcal.fleet.runner import run_fleet
 
     with local_cluster(workers) as cluster, Client(cluster) as client:
         run_fleet(sessions[:workers], out_root=out / "warm", client=client)  # imports, caches

@@ -129,7 +129,7 @@ def test_fleet_report_renders_in_chromium(fleet_run, tmp_path):
 @pytest.fixture(scope="module")
 def cluster():
     """A local cluster of 2 single-threaded worker processes (as `--workers 2` makes)."""
-    from relcal.fleet.runner import local_cluster
+    from relcal.cluster import local_cluster
 
     with local_cluster(2) as cluster:
         yield cluster

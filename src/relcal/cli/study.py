@@ -33,6 +33,7 @@ with joint noise) times the number of poses.
 
 def run(args: argparse.Namespace) -> int:
     from relcal.calibration.noise import Noise
+    from relcal.cluster import connect
     from relcal.data.dataset import read_joints
     from relcal.errors import RelcalError
     from relcal.io import write_json
@@ -71,7 +72,7 @@ def run(args: argparse.Namespace) -> int:
         pairing=args.pairs,
         errors=errors,
     )
-    client = _client(args.scheduler)
+    client = connect(args.scheduler)[0] if args.scheduler else None
     try:
         res = study(
             scenario,
@@ -97,24 +98,6 @@ def run(args: argparse.Namespace) -> int:
         doc.update(robot=model.name, poses=source, formulation=args.formulation)
         write_json(args.json, doc)
     return 0 if np.all(res.converged) else 1
-
-
-def _client(scheduler: str | None):
-    """A Dask client of the cluster at ``--scheduler`` (None without it)."""
-    if not scheduler:
-        return None
-    from relcal.errors import RelcalError
-
-    try:
-        from distributed import Client
-    except ImportError:
-        raise RelcalError(
-            "--scheduler needs Dask distributed: pip install 'relcal[fleet]'"
-        ) from None
-    try:
-        return Client(scheduler, timeout="20s")
-    except (OSError, TimeoutError) as exc:
-        raise RelcalError(f"--scheduler {scheduler}: cannot connect: {exc}") from None
 
 
 def register(sub: argparse._SubParsersAction) -> None:

@@ -10,7 +10,6 @@ its tasks elsewhere (``distributed.scheduler.allowed-failures`` times, 3 by defa
 
 from __future__ import annotations
 
-import logging
 import time
 import traceback
 from collections.abc import Callable, Iterator
@@ -79,6 +78,9 @@ def calibrate_session(
     ``record`` when it succeeded. Bad input gives ``status: failed`` and the reason."""
     from threadpoolctl import threadpool_limits
 
+    from relcal.cluster import prepare_worker
+
+    prepare_worker()
     started = time.perf_counter()
     entry: dict[str, Any] = {"session": name, "path": str(Path(path).resolve())}
     try:
@@ -137,44 +139,6 @@ def _calibrate(path: Path, name: str, out: Path, options: dict) -> dict[str, Any
     }
 
 
-def _client(workers: int, scheduler: str | None):
-    """A Dask client of the cluster at ``scheduler``, or of a new local cluster of ``workers``
-    single-threaded worker processes (closed with the client)."""
-    try:
-        from distributed import Client
-    except ImportError:
-        raise RelcalError(
-            "fleet work needs Dask distributed: pip install 'relcal[fleet]'"
-        ) from None
-    if scheduler:
-        try:
-            return Client(scheduler, timeout="20s"), None
-        except (OSError, TimeoutError) as exc:
-            raise RelcalError(f"--scheduler {scheduler}: cannot connect: {exc}") from None
-    if workers < 1:
-        raise RelcalError(f"--workers {workers}: expected at least 1 worker process")
-    cluster = local_cluster(workers)
-    return Client(cluster), cluster
-
-
-def local_cluster(workers: int):
-    """A local Dask cluster of ``workers`` single-threaded worker processes, without the
-    workers' statistical profiler: it samples the task thread's stack every few milliseconds
-    and so holds the GIL often enough to make calibrations about twice as slow (measured: 12
-    sessions in 3.2 s with it, 1.75 s without, 1.8 s in the main process)."""
-    import dask
-    from distributed import LocalCluster
-
-    with dask.config.set({"distributed.worker.profile.enabled": False}):
-        return LocalCluster(
-            n_workers=workers,
-            threads_per_worker=1,
-            processes=True,
-            dashboard_address=None,
-            silence_logs=logging.CRITICAL,
-        )
-
-
 def iterate_fleet(
     sessions: list[Session],
     out_root: str | Path | None = None,
@@ -186,12 +150,14 @@ def iterate_fleet(
     """Entries of :func:`calibrate_session` as the tasks finish (in any order). ``client``: an
     existing Dask client (else one is made from ``workers`` / ``scheduler`` and closed at the
     end). A task whose workers kept dying gives a failed entry naming that."""
-    from distributed import as_completed
+    from relcal.cluster import connect
 
     own = None
     if client is None:
-        client, cluster = _client(workers, scheduler)
-        own = (client, cluster)
+        own = connect(scheduler, workers)
+        client = own[0]
+    from distributed import as_completed
+
     try:
         futures, submitted = {}, []
         for s in sessions:

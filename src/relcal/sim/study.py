@@ -105,6 +105,9 @@ def _run_on_worker(context: dict, rows: list[tuple[int, np.ndarray]]) -> list:
     one worker), BLAS on one thread."""
     from threadpoolctl import threadpool_limits
 
+    from relcal.cluster import prepare_worker
+
+    prepare_worker()
     if _CONTEXT.get("token") != context["token"]:
         _init(context)
     with threadpool_limits(limits=1):
@@ -117,8 +120,9 @@ def _dask_results(client, context: dict, rows: list, trial_seconds: float):
     milliseconds per task stay a small share), yielded as they finish."""
     from distributed import as_completed as dask_completed
 
-    n_workers = max(1, len(client.scheduler_info().get("workers", {})))
-    chunk = int(np.clip(TASK_SECONDS / max(trial_seconds, 1e-6), 1, len(rows) / n_workers))
+    from relcal.cluster import n_workers
+
+    chunk = int(np.clip(TASK_SECONDS / max(trial_seconds, 1e-6), 1, len(rows) / n_workers(client)))
     token = f"study-{os.getpid()}-{time.time_ns()}"
     shared = client.scatter({**context, "token": token}, broadcast=True, hash=False)
     futures = [

@@ -1,0 +1,89 @@
+"""Dask clusters for work in parallel: a local cluster of worker processes or a running one, and
+the set-up every relcal task makes on its worker.
+
+Two defaults of Dask's workers cost relcal's many small NumPy arrays dearly, both measured on
+fleet sessions of 30 samples (one worker process against the same loop in one process):
+
+- the nanny starts workers with ``MALLOC_TRIM_THRESHOLD_=65536``. Setting that variable also
+  freezes glibc's threshold for serving allocations with ``mmap`` at 128 KiB, so every array
+  of a few hundred KiB (Jacobians of 100 poses) is mapped, zero-filled by page faults and unmapped
+  again: 1.4x to 1.6x slower. :func:`prepare_worker` raises both thresholds again, at run time,
+  also on workers started by hand;
+- the workers' statistical profiler samples the task thread's stack every few milliseconds and
+  holds the GIL often enough to make calibrations about twice as slow. A local cluster starts
+  without it; for ``dask worker`` set ``DASK_DISTRIBUTED__WORKER__PROFILE__ENABLED=False``.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import ctypes.util
+import logging
+import os
+from typing import Any
+
+from relcal.errors import RelcalError
+
+# glibc's mallopt parameters (malloc.h) and the largest mmap threshold it would reach by itself
+_M_TRIM_THRESHOLD, _M_MMAP_THRESHOLD = -1, -3
+_MMAP_THRESHOLD = 32 << 20
+_prepared = False
+
+
+def prepare_worker() -> None:
+    """Undo ``MALLOC_TRIM_THRESHOLD_`` in this process (once; a no-op where it is unset or the C
+    library is not glibc). Call at the start of a task."""
+    global _prepared
+    if _prepared:
+        return
+    _prepared = True
+    if "MALLOC_TRIM_THRESHOLD_" not in os.environ:
+        return
+    try:
+        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
+        mallopt = libc.mallopt
+    except (OSError, AttributeError):  # not glibc: the variable meant nothing there either
+        return
+    mallopt(_M_MMAP_THRESHOLD, _MMAP_THRESHOLD)
+    mallopt(_M_TRIM_THRESHOLD, 2 * _MMAP_THRESHOLD)
+
+
+def local_cluster(workers: int):
+    """A local Dask cluster of ``workers`` single-threaded worker processes, without the workers'
+    statistical profiler (see the module's docstring)."""
+    import dask
+    from distributed import LocalCluster
+
+    if workers < 1:
+        raise RelcalError(f"--workers {workers}: expected at least 1 worker process")
+    with dask.config.set({"distributed.worker.profile.enabled": False}):
+        return LocalCluster(
+            n_workers=workers,
+            threads_per_worker=1,
+            processes=True,
+            dashboard_address=None,
+            silence_logs=logging.CRITICAL,
+        )
+
+
+def connect(scheduler: str | None, workers: int = 2) -> tuple[Any, Any]:
+    """``(client, cluster)``: a client of the running cluster at ``scheduler`` (cluster None), or
+    of a new local cluster of ``workers`` processes. Close the client, then the cluster."""
+    try:
+        from distributed import Client
+    except ImportError:
+        raise RelcalError(
+            "work on a Dask cluster needs Dask distributed: pip install 'relcal[fleet]'"
+        ) from None
+    if scheduler:
+        try:
+            return Client(scheduler, timeout="20s"), None
+        except (OSError, TimeoutError) as exc:
+            raise RelcalError(f"--scheduler {scheduler}: cannot connect: {exc}") from None
+    cluster = local_cluster(workers)
+    return Client(cluster), cluster
+
+
+def n_workers(client) -> int:
+    """Workers of ``client``'s cluster now (at least 1)."""
+    return max(1, len(client.scheduler_info().get("workers", {})))
