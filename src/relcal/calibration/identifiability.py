@@ -9,7 +9,8 @@ transform, offsets along parallel axes, or no effect at all.
 from __future__ import annotations
 
 import functools
-from dataclasses import dataclass, replace
+from collections.abc import Callable
+from dataclasses import dataclass, field, replace
 from typing import Literal
 
 import numpy as np
@@ -31,15 +32,33 @@ NUISANCE_KINDS = ("handeye", "instrument", "marker")
 _INVOLVED = 1e-6  # a parameter with a larger share of a null vector is not identifiable alone
 
 
+GENERIC_REASON = "no effect on the measurements at these poses"
+
+
+def _generic_reason() -> str:
+    return GENERIC_REASON
+
+
 @dataclass(frozen=True)
 class Combination:
-    """An unidentifiable direction: ``sum(coefficients * parameters)`` has no effect on the data."""
+    """An unidentifiable direction: ``sum(coefficients * parameters)`` has no effect on the data.
+
+    ``why()`` names the reason; it is called when :attr:`reason` is first read (naming needs
+    Jacobians at other poses, which most fits never ask for)."""
 
     names: tuple[str, ...]
     coefficients: tuple[float, ...]  # in SI units (m, rad)
     is_angle: tuple[bool, ...]
-    reason: str
     units: tuple[str, ...] = ()  # SI units (Layout.units) when not all m or rad
+    why: Callable[[], str] = field(default=_generic_reason, repr=False, compare=False)
+
+    @functools.cached_property
+    def reason(self) -> str:
+        return self.why()
+
+    def __getstate__(self) -> dict:
+        """The reason named before pickling (the closure that names it does not pickle)."""
+        return {**self.__dict__, "reason": self.reason, "why": None}
 
     def describe(self) -> str:
         """E.g. ``theta_off[6] +1 deg with a[6] +0.698 mm together: acts like ...``, in mm and
@@ -105,10 +124,16 @@ def _rank_and_involved(s: np.ndarray, vt: np.ndarray, rcond: float) -> tuple[int
     return rank, np.linalg.norm(vt[rank:], axis=0) > _INVOLVED
 
 
+def _triangular(matrix: np.ndarray) -> np.ndarray:
+    """The triangular QR factor ``R`` of ``matrix`` (``R^T R = matrix^T matrix``): what the SVD
+    and the column pivoting below need of a tall matrix, at a fraction of its size."""
+    return np.linalg.qr(matrix, mode="r")
+
+
 def _singular(matrix: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Singular values and right singular vectors ``(s, vt)`` of ``matrix``, from the SVD of its
     triangular QR factor: the same values, about half the cost for tall matrices (no ``U``)."""
-    _, s, vt = np.linalg.svd(np.linalg.qr(matrix, mode="r"), full_matrices=False)
+    _, s, vt = np.linalg.svd(_triangular(matrix), full_matrices=False)
     return s, vt
 
 
@@ -156,14 +181,16 @@ def analyse(
     does not change the data; otherwise the generic reason is used.
     """
     unit, norms = scaled(jac)
-    s, vt = _singular(unit)
+    tri = _triangular(unit)
+    _, s, vt = np.linalg.svd(tri, full_matrices=False)
     rank, involved = _rank_and_involved(s, vt, rcond)
     null_scaled = vt[rank:].T  # (P, k) in scaled coordinates
     # The hand-eye transform is estimated whole where it can be: the link parameters it absorbs
     # (the leads of the combinations below) stay at nominal, so the exported model changes only
-    # what the data determine.
+    # what the data determine. Column pivoting sees only the columns' inner products, which the
+    # triangular factor keeps.
     hand_eye = np.array([kind in NUISANCE_KINDS for kind in layout.kinds])
-    _, _, piv = scipy.linalg.qr(unit * pivot_weights(layout), mode="economic", pivoting=True)
+    _, piv = scipy.linalg.qr(tri * pivot_weights(layout), mode="r", pivoting=True)
     subset = np.sort(piv[:rank])
 
     combos = []
@@ -177,14 +204,13 @@ def analyse(
         null /= np.linalg.norm(null, axis=0)
         for v_scaled, v in zip(sparse.T, null.T, strict=True):
             idx = np.flatnonzero(np.abs(v_scaled) > 1e-6)
-            reason = explain(v) if explain else "no effect on the measurements at these poses"
             combos.append(
                 Combination(
                     names=tuple(layout.names[i] for i in idx),
                     coefficients=tuple((v[idx] / np.abs(v[idx]).max()).tolist()),
                     is_angle=tuple(bool(angle[i]) for i in idx),
-                    reason=reason,
                     units=tuple(units[i] for i in idx),
+                    why=functools.partial(explain, v) if explain else _generic_reason,
                 )
             )
     return Identifiability(

@@ -307,6 +307,9 @@ def identify_published(
     )
 
 
+_DAMPING = 1e-6  # Marquardt's starting damping, relative to unit-norm columns
+
+
 def levenberg_marquardt(
     evaluate, x0: np.ndarray, max_nfev: int = 200, rtol: float = 1e-10
 ) -> tuple[np.ndarray, bool, int]:
@@ -322,7 +325,7 @@ def levenberg_marquardt(
     """
     x = np.asarray(x0, dtype=float).copy()
     r, a = evaluate(x)
-    cost, nfev, damping = float(r @ r), 1, 1e-6
+    cost, nfev, damping = float(r @ r), 1, _DAMPING
     scale = np.linalg.norm(a, axis=0)
     scale = np.where(scale > 0, scale, 1.0)
     while nfev < max_nfev:
@@ -333,6 +336,11 @@ def levenberg_marquardt(
         except np.linalg.LinAlgError:
             damping *= 10.0
             continue
+        # The decrease the linear model promises; nearly undamped, it bounds what any step
+        # can still gain, so a promise below the tolerance ends the iteration unevaluated.
+        promised = 2.0 * (gradient @ step) - step @ normal @ step
+        if damping <= _DAMPING and promised <= rtol * cost:
+            return x, True, nfev
         trial = x + step / scale
         r_new, a_new = evaluate(trial)
         nfev += 1
@@ -402,34 +410,55 @@ def identify_lm(
     residual rows first (a full noise covariance's inverse root: :func:`identify_weighted`).
     A subset of the link parameters is solved on a problem that carries only them.
     """
-    reduced = None if identifiability is None else _reduced(problem, identifiability.subset, fixed)
-    if reduced is not None:  # the sub-problem holds every link parameter it has: no recursion
-        sub_problem, columns, sub_subset = reduced
-        sub_ident = replace(identifiability, subset=sub_subset)
-        sub_initial = None if initial is None else np.asarray(initial, dtype=float)[columns]
-        res = identify_lm(sub_problem, max_nfev, sub_ident, loss, f_scale, whiten, sub_initial)
-        params = (
-            np.zeros(problem.full_layout.size) if fixed is None else np.asarray(fixed, float).copy()
-        )
-        params[identifiability.subset] = 0.0
-        params[columns] = res.params
-        return replace(
-            res,
-            params=params,
-            names=problem.full_layout.names,
-            identifiability=identifiability,
-            problem=problem,
-        )
     _check(problem)
-    start = time.perf_counter()
-    full = np.zeros(problem.full_layout.size)
-    r0, a0 = residuals(problem, full)
-    ident = identifiability or analyse_problem(problem, jac=a0)
+    nominal = None  # residual and Jacobian at the nominal model, when computed here
+    if identifiability is None:
+        nominal = residuals(problem, np.zeros(problem.full_layout.size))
+        identifiability = analyse_problem(problem, jac=nominal[1])
+    subset = identifiability.subset
+    held = None if fixed is None else np.asarray(fixed, dtype=float).copy()
+    if held is not None:
+        held[subset] = 0.0
+        if not held.any():
+            held = None
+    reduced = _reduced(problem, subset, held)
+    if reduced is None:
+        start = nominal if held is None else None
+        return _lm(problem, identifiability, max_nfev, loss, f_scale, whiten, initial, held, start)
+    # The sub-problem holds every link parameter it has (no further reduction).
+    sub_problem, columns, sub_subset = reduced
+    sub_ident = replace(identifiability, subset=sub_subset)
+    sub_initial = None if initial is None else np.asarray(initial, dtype=float)[columns]
+    start = None if nominal is None or held is not None else (nominal[0], nominal[1][:, columns])
+    res = _lm(sub_problem, sub_ident, max_nfev, loss, f_scale, whiten, sub_initial, None, start)
+    params = np.zeros(problem.full_layout.size) if held is None else held
+    params[columns] = res.params
+    return replace(
+        res,
+        params=params,
+        names=problem.full_layout.names,
+        identifiability=identifiability,
+        problem=problem,
+    )
+
+
+def _lm(
+    problem: Problem,
+    ident: Identifiability,
+    max_nfev: int,
+    loss: str,
+    f_scale: float,
+    whiten: np.ndarray | None,
+    initial: np.ndarray | None,
+    held: np.ndarray | None,
+    start: tuple[np.ndarray, np.ndarray] | None,
+) -> Result:
+    """:func:`identify_lm` on ``ident.subset`` of ``problem``, the others at ``held`` (zeros);
+    ``start``: the residual and Jacobian there, if the caller has them."""
+    began = time.perf_counter()
     subset = ident.subset
-    if fixed is not None:
-        full = np.asarray(fixed, dtype=float).copy()
-        full[subset] = 0.0
-        r0, a0 = residuals(problem, full)
+    full = np.zeros(problem.full_layout.size) if held is None else held
+    r0, a0 = start if start is not None else residuals(problem, full)
     # The latest evaluation, residual and full Jacobian together: the solver asks for the
     # Jacobian at the point it has just evaluated (the start, then each accepted step), and
     # both cost little more than the residual alone.
@@ -486,7 +515,7 @@ def identify_lm(
         residual_norm=float(np.linalg.norm(r)),
         n_residuals=len(r0),
         rank=len(subset),
-        seconds=time.perf_counter() - start,
+        seconds=time.perf_counter() - began,
         method=label,
         identifiability=ident,
         problem=problem,

@@ -21,6 +21,7 @@ Residuals follow ``r ~ A (p_true - p)``: measured minus modelled, so a Gauss-New
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, field, replace
 from typing import Literal
 
@@ -104,6 +105,12 @@ class Problem:
         if self.pairs is not None:
             return np.asarray(self.pairs, dtype=int)
         return make_pairs(len(self.q))
+
+    @functools.cached_property
+    def measured_motions(self) -> np.ndarray:
+        """The measured relative transforms ``C_i^-1 C_j`` ``(P, 4, 4)`` of the pairs (formed
+        once: every evaluation of the residuals needs them)."""
+        return relative_measurements(self.poses, self.pair_indices())
 
     def n_residuals(self) -> int:
         per_pose = self.formulation in ("absolute", "tracker")
@@ -194,19 +201,24 @@ def _invariant(
     """Residuals ``(P, 6)`` and Jacobian ``(P, 6, n_geo + 6)`` of the frame-invariant form, the
     latter if the spatial twists of the parameters (:func:`spatial_jacobian`) are given."""
     i, j = problem.pair_indices().T
-    rel = tf.invert(tip[i]) @ tip[j]  # F_i^-1 F_j
-    model_rel = tf.invert(handeye) @ rel @ handeye
-    model_rel_inv = tf.invert(model_rel)
-    measured = relative_measurements(problem.poses, problem.pair_indices())
-    r = tf.to_vector(model_rel_inv @ measured)
+    camera = tip @ handeye  # F X
+    inverse = tf.invert(camera)
+    model_rel_inv = inverse[j] @ camera[i]  # (X^-1 F_i^-1 F_j X)^-1
+    r = tf.to_vector(model_rel_inv @ problem.measured_motions)
     if spatial is None:
         return r, None
-
-    # F_k -> exp(S_k) F_k makes X^-1 F_i^-1 F_j X -> model_rel exp(Ad((F_j X)^-1) (S_j - S_i)).
-    geo = tf.adjoint(tf.invert(tip[j] @ handeye)) @ (spatial[j] - spatial[i])
+    n_geo = spatial.shape[-1]
+    out = np.empty((len(i), 6, n_geo + 6))
+    # F_k -> exp(S_k) F_k makes X^-1 F_i^-1 F_j X -> model_rel exp(Ad((F_j X)^-1) (S_j - S_i)),
+    # the adjoint applied block by block: (R v + p x R w, R w) for (F_j X)^-1 = (R, p).
+    diff = spatial[j] - spatial[i]
+    rot, shift = inverse[j, :3, :3], inverse[j, :3, 3]
+    turned = rot @ diff[:, 3:]
+    out[:, :3, :n_geo] = rot @ diff[:, :3] + tf.skew(shift) @ turned
+    out[:, 3:, :n_geo] = turned
     # Hand-eye X -> X exp(xi): model_rel -> model_rel exp(xi - Ad(model_rel^-1) xi).
-    he = np.eye(6) - tf.adjoint(model_rel_inv)
-    return r, np.concatenate([geo, he], axis=-1)
+    out[:, :, n_geo:] = np.eye(6) - tf.adjoint(model_rel_inv)
+    return r, out
 
 
 def pair_errors(problem: Problem, params: np.ndarray) -> np.ndarray:

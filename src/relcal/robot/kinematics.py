@@ -86,7 +86,7 @@ class Layout:
 
     def is_geometric(self) -> np.ndarray:
         """Mask of entries that are not non-geometric terms (``scale``, ``compliance``, ...)."""
-        return ~np.isin(np.array(self.kinds), NONGEOMETRIC_KINDS)
+        return np.array([k not in NONGEOMETRIC_KINDS for k in self.kinds], dtype=bool)
 
     def __iter__(self):
         return iter(zip(self.kinds, self.index, strict=True))
@@ -472,7 +472,7 @@ def _screws(
     points = np.empty((len(tip_pose), layout.size, 3))
     axes[:, joint_cols] = screw_axes[:, joint_slots]
     points[:, joint_cols] = screw_points[:, joint_slots]
-    if not layout.is_geometric().all():  # unit screw times d q_eff / d parameter
+    if not set(layout.kinds).isdisjoint(NONGEOMETRIC_KINDS):  # screw times d q_eff / d param
         axes *= _nongeometric_factors(model, q, layout)[..., None]
     # Base and tool 6-vectors are small motions in their own frames.
     axes[:, base_cols] = model.base[:3, base_axes].T
