@@ -113,10 +113,10 @@ def log_rotation(rotation: np.ndarray) -> np.ndarray:
     pi, from the symmetric part (:func:`_axis_near_pi`).
     """
     r = np.asarray(rotation, dtype=float)
-    skew_part = np.stack(
-        [r[..., 2, 1] - r[..., 1, 2], r[..., 0, 2] - r[..., 2, 0], r[..., 1, 0] - r[..., 0, 1]],
-        axis=-1,
-    )  # 2 sin(t) n
+    skew_part = np.empty(r.shape[:-1])  # 2 sin(t) n
+    np.subtract(r[..., 2, 1], r[..., 1, 2], out=skew_part[..., 0])
+    np.subtract(r[..., 0, 2], r[..., 2, 0], out=skew_part[..., 1])
+    np.subtract(r[..., 1, 0], r[..., 0, 1], out=skew_part[..., 2])
     sin_t = 0.5 * np.sqrt(np.einsum("...i,...i->...", skew_part, skew_part))
     cos_t = 0.5 * (r[..., 0, 0] + r[..., 1, 1] + r[..., 2, 2] - 1)
     angle = np.arctan2(sin_t, cos_t)

@@ -216,8 +216,14 @@ def _invariant(
     turned = rot @ diff[:, 3:]
     out[:, :3, :n_geo] = rot @ diff[:, :3] + tf.skew(shift) @ turned
     out[:, 3:, :n_geo] = turned
-    # Hand-eye X -> X exp(xi): model_rel -> model_rel exp(xi - Ad(model_rel^-1) xi).
-    out[:, :, n_geo:] = np.eye(6) - tf.adjoint(model_rel_inv)
+    # Hand-eye X -> X exp(xi): model_rel -> model_rel exp(xi - Ad(model_rel^-1) xi), with
+    # Ad((R, p)) = [[R, [p] R], [0, R]].
+    rot, shift = model_rel_inv[:, :3, :3], model_rel_inv[:, :3, 3]
+    eye = np.eye(3)
+    out[:, :3, n_geo : n_geo + 3] = eye - rot
+    out[:, :3, n_geo + 3 :] = -tf.skew(shift) @ rot
+    out[:, 3:, n_geo : n_geo + 3] = 0.0
+    out[:, 3:, n_geo + 3 :] = eye - rot
     return r, out
 
 

@@ -165,26 +165,32 @@ def origins_layout(model: RobotModel, base: bool = False, tool: bool = False) ->
     return Layout(tuple(names), tuple(kinds), tuple(index), prismatic)
 
 
+_FRAMES = ("base", "tool")
+
+
 def apply_errors(model: RobotModel, layout: Layout, errors: np.ndarray) -> RobotModel:
     """The model with additive errors (geometric and non-geometric values); base/tool errors
     move those frames locally; URDF origin errors move the joint origins (and the model is
     converted again, exactly)."""
     errors = np.asarray(errors, dtype=float)
-    origin = [(i, e) for (k, i), e in zip(layout, errors, strict=False) if k == "origin"]
-    if origin and any(e != 0 for _, e in origin):
-        from relcal.robot.urdf import move_origins
+    if "origin" in layout.kinds:
+        origin = [(i, e) for (k, i), e in zip(layout, errors, strict=False) if k == "origin"]
+        if any(e != 0 for _, e in origin):
+            from relcal.robot.urdf import move_origins
 
-        motions = np.zeros((model.n_joints, 6))
-        for i, e in origin:
-            motions[i // 6, i % 6] += e
-        model = move_origins(model, motions)
-    arrays = {k: model.geometric(k).copy() for k in KINDS + NONGEOMETRIC_KINDS}
-    frames = {"base": np.zeros(6), "tool": np.zeros(6)}
+            motions = np.zeros((model.n_joints, 6))
+            for i, e in origin:
+                motions[i // 6, i % 6] += e
+            model = move_origins(model, motions)
+    arrays: dict[str, np.ndarray] = {}
+    frames: dict[str, np.ndarray] = {}
     for (kind, i), e in zip(layout, errors, strict=False):
-        if kind in arrays:
+        if kind in _FRAMES:
+            frames.setdefault(kind, np.zeros(6))[i] += e
+        elif kind in KINDS or kind in NONGEOMETRIC_KINDS:
+            if kind not in arrays:
+                arrays[kind] = model.geometric(kind).copy()
             arrays[kind][i] += e
-        elif kind in frames:
-            frames[kind][i] += e
     moved = {
         frame: getattr(model, frame) @ tf.from_vector(vec)
         for frame, vec in frames.items()
@@ -504,11 +510,16 @@ def _urdf_joint_frames(model: RobotModel, frames: np.ndarray, q: np.ndarray) -> 
 def _columns(axes: np.ndarray, moments: np.ndarray, rotation: np.ndarray) -> np.ndarray:
     """Twist columns ``(N, 6, P)``: ``(moment, axis)`` for rotations, ``(axis, 0)`` for
     translations."""
-    out = np.zeros((axes.shape[0], axes.shape[1], 6))  # transposed while filled
-    out[:, rotation, :3] = moments
-    out[:, rotation, 3:] = axes[:, rotation]
-    out[:, ~rotation, :3] = axes[:, ~rotation]
-    return np.ascontiguousarray(np.swapaxes(out, -1, -2))
+    out = np.zeros((axes.shape[0], 6, axes.shape[1]))
+    turns = np.swapaxes(axes, -1, -2)  # (N, 3, P)
+    if rotation.all():
+        out[:, :3] = np.swapaxes(moments, -1, -2)
+        out[:, 3:] = turns
+        return out
+    out[:, :3, rotation] = np.swapaxes(moments, -1, -2)
+    out[:, 3:, rotation] = turns[..., rotation]
+    out[:, :3, ~rotation] = turns[..., ~rotation]
+    return out
 
 
 def pose_jacobian(
