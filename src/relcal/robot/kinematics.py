@@ -474,10 +474,13 @@ def _screws(
         rotation,
     ) = _slots(layout, model.n_joints)
     screw_axes, screw_points = _joint_screws(model, frames, c, s)  # (N, 5 n, 3) each
-    axes = np.empty((len(tip_pose), layout.size, 3))
-    points = np.empty((len(tip_pose), layout.size, 3))
-    axes[:, joint_cols] = screw_axes[:, joint_slots]
-    points[:, joint_cols] = screw_points[:, joint_slots]
+    if len(joint_cols) == layout.size:  # joint parameters only (the usual layout)
+        axes, points = screw_axes[:, joint_slots], screw_points[:, joint_slots]
+    else:
+        axes = np.empty((len(tip_pose), layout.size, 3))
+        points = np.empty((len(tip_pose), layout.size, 3))
+        axes[:, joint_cols] = screw_axes[:, joint_slots]
+        points[:, joint_cols] = screw_points[:, joint_slots]
     if not set(layout.kinds).isdisjoint(NONGEOMETRIC_KINDS):  # screw times d q_eff / d param
         axes *= _nongeometric_factors(model, q, layout)[..., None]
     # Base and tool 6-vectors are small motions in their own frames.
