@@ -88,7 +88,7 @@ def read_table(path: str | Path, what: str) -> tuple[list[str], list[TableRow]]:
     return [h.strip() for h in rows[0]], rows[1:]
 
 
-class _Loader(yaml.SafeLoader):
+class _Loader(getattr(yaml, "CSafeLoader", yaml.SafeLoader)):  # libyaml's parser when built
     """PyYAML's safe loader with YAML 1.2 floats: ``1e300`` and ``2E-3`` (no dot) are numbers,
     not strings as in YAML 1.1."""
 
@@ -98,6 +98,13 @@ _Loader.add_implicit_resolver(
     re.compile(r"^[-+]?(?:[0-9][0-9_]*)(?:\.[0-9_]*)?[eE][-+]?[0-9]+$"),
     list("-+0123456789"),
 )
+
+
+def yaml_text(data: Any) -> str:
+    """YAML text of ``data`` (plain types), keys in their order, with libyaml's emitter when
+    PyYAML was built with it (the same text, several times faster)."""
+    dumper = getattr(yaml, "CSafeDumper", yaml.SafeDumper)
+    return yaml.dump(data, Dumper=dumper, sort_keys=False)
 
 
 def load_yaml(path: str | Path) -> tuple[Any, yaml.Node | None]:
@@ -110,14 +117,17 @@ def load_yaml(path: str | Path) -> tuple[Any, yaml.Node | None]:
         raise RelcalError(f"{path}: file not found") from None
     except (OSError, UnicodeDecodeError) as exc:
         raise RelcalError(f"{path}: cannot read: {exc}") from None
-    try:
-        node = yaml.compose(text, Loader=_Loader)
-        data = yaml.load(text, Loader=_Loader)  # noqa: S506 (a SafeLoader)
+    loader = _Loader(text)
+    try:  # parsed once: the node tree, then the data constructed from it
+        node = loader.get_single_node()
+        data = None if node is None else loader.construct_document(node)
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         where = f" line {mark.line + 1}" if mark is not None else ""
         problem = getattr(exc, "problem", None) or str(exc)
         raise RelcalError(f"{path}{where}: malformed YAML: {problem}") from None
+    finally:
+        loader.dispose()
     return data, node
 
 

@@ -27,7 +27,7 @@ Print at 100 % (no "fit to page") and check the 50 mm bar with a ruler.
 
 def run(args: argparse.Namespace) -> int:
     from relcal.errors import RelcalError
-    from relcal.io import File, json_text, validate, write_set
+    from relcal.io import File, json_text, validate, write_set, yaml_text
     from relcal.outputset import check
     from relcal.vision.boards import BoardSpec, board_to_spec, load_board, printable
 
@@ -51,11 +51,7 @@ def run(args: argparse.Namespace) -> int:
     path = Path(args.out)
     items = [File(path, printable(board, path, dpi=args.dpi), "--out")]
     if args.yaml:
-        import yaml
-
-        items.append(
-            File(args.yaml, yaml.safe_dump(board_to_spec(board), sort_keys=False), "--yaml")
-        )
+        items.append(File(args.yaml, yaml_text(board_to_spec(board)), "--yaml"))
     if args.json:
         from relcal.reporting.documents import board_document
 

@@ -6,10 +6,9 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import pydantic
-import yaml
 
 from relcal.data.dataset import POSE_COLUMNS
-from relcal.io import Folder, load_validated, write_set
+from relcal.io import Folder, load_validated, write_set, yaml_text
 
 POSITIONER_MODEL = """\
 name: ROS-Industrial rct 2-axis positioner
@@ -77,7 +76,7 @@ def import_rct_positioner(source: str | Path, out: str | Path) -> Imported:
     contents = {
         "positioner.yaml": POSITIONER_MODEL,
         "samples.csv": "\n".join(lines) + "\n",
-        "dataset.yaml": yaml.safe_dump(spec, sort_keys=False),
+        "dataset.yaml": yaml_text(spec),
     }
     write_set(Folder(out, contents, what="--out", replace="refuse"))
     return Imported(out, tuple(out / name for name in contents), len(data))
@@ -199,15 +198,15 @@ def import_rct_images(
     height, width = first.shape[:2]
     board = load_board(source / "target.yaml")
     contents = {
-        "robot.yaml": yaml.safe_dump(spec, sort_keys=False),
-        "board.yaml": yaml.safe_dump(board_to_spec(board), sort_keys=False),
+        "robot.yaml": yaml_text(spec),
+        "board.yaml": yaml_text(board_to_spec(board)),
     }
     if intrinsics == "calibrate":
         camera_entry = "calibrate"
     else:
         name = "camera_intr_calibrated.yaml" if intrinsics == "calibrated" else "camera_intr.yaml"
         camera = load_camera(source / name, width, height)
-        contents["camera.yaml"] = yaml.safe_dump(camera.to_dict(), sort_keys=False)
+        contents["camera.yaml"] = yaml_text(camera.to_dict())
         camera_entry = "camera.yaml"
     lines = ["id,q1,q2,q3,q4,q5,q6,image"]
     for k, image in enumerate(images):
@@ -222,7 +221,7 @@ def import_rct_images(
         "joint_unit": "rad",
         "samples": "samples.csv",
     }
-    contents["dataset.yaml"] = yaml.safe_dump(dataset, sort_keys=False)
+    contents["dataset.yaml"] = yaml_text(dataset)
     out = Path(out)
     write_set(Folder(out, contents, what="--out", replace="refuse"))
     return Imported(out, tuple(out / name for name in contents), len(entries))

@@ -16,12 +16,11 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-import yaml
 
 from relcal.data.dataset import POSE_COLUMNS
 from relcal.data.importers import Imported
 from relcal.errors import RelcalError
-from relcal.io import Folder, write_set
+from relcal.io import Folder, write_set, yaml_text
 
 JOINT_TYPES = ("sensor_msgs/msg/JointState",)
 IMAGE_TYPES = ("sensor_msgs/msg/Image", "sensor_msgs/msg/CompressedImage")
@@ -338,13 +337,13 @@ def _write(out, images, lines, camera, robot, has_images, stops, skipped, track,
     if has_images:
         spec["board"] = "board.yaml"
         if camera is not None:
-            contents["camera.yaml"] = yaml.safe_dump(camera, sort_keys=False)
+            contents["camera.yaml"] = yaml_text(camera)
             spec["camera"] = "camera.yaml"
         else:
             spec["camera"] = "calibrate"
     spec["samples"] = "samples.csv"
     contents["samples.csv"] = "\n".join(lines) + "\n"
-    contents["dataset.yaml"] = yaml.safe_dump(spec, sort_keys=False)
+    contents["dataset.yaml"] = yaml_text(spec)
     write_set(Folder(out, contents, what="--out", replace="refuse"))
     written = [out / name for name in contents]
     return RosbagImport(

@@ -9,12 +9,10 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import yaml
-
 from relcal.calibration.outcome import Calibration
 from relcal.data.dataset import Dataset, joints_in_unit, write_samples
 from relcal.data.imaging import Measurements
-from relcal.io import json_text
+from relcal.io import json_text, yaml_text
 from relcal.outputset import File, Folder, new_run_id, write_set
 from relcal.reporting.documents import measurements_document, results_document
 from relcal.robot.export import parameter_csv, robot_files
@@ -38,7 +36,7 @@ def calibration_files(cal: Calibration, doc: dict, run_id: str) -> dict[str, str
     }
     camera = cal.measurements.camera
     if cal.dataset.camera == "calibrate" and camera is not None:
-        files["camera.yaml"] = yaml.safe_dump(camera.to_dict(), sort_keys=False)
+        files["camera.yaml"] = yaml_text(camera.to_dict())
     return files
 
 
@@ -108,7 +106,7 @@ def measurement_outputs(
         "measurements.json": json_text(doc),
     }
     if dataset.camera == "calibrate" and m.camera is not None:
-        files["camera.yaml"] = yaml.safe_dump(m.camera.to_dict(), sort_keys=False)
+        files["camera.yaml"] = yaml_text(m.camera.to_dict())
     items: list[Folder | File] = [Folder(out_dir, files, what="--out")]
     if json_path:
         items.append(File(json_path, json_text(doc), "--json"))

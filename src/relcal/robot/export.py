@@ -18,10 +18,10 @@ from dataclasses import replace
 from xml.sax.saxutils import quoteattr
 
 import numpy as np
-import yaml
 
 from relcal import geometry as tf
 from relcal.errors import RelcalError
+from relcal.io import yaml_text
 from relcal.robot.kinematics import Layout, _link_transforms, apply_errors, forward_frames
 from relcal.robot.model import NONGEOMETRIC_KINDS, RobotModel
 from relcal.robot.urdf import MOVABLE
@@ -266,7 +266,7 @@ def origin_corrections(model: RobotModel) -> dict:
 
 def origin_corrections_yaml(model: RobotModel) -> str:
     """:func:`origin_corrections` as YAML text."""
-    return yaml.safe_dump(origin_corrections(model), sort_keys=False)
+    return yaml_text(origin_corrections(model))
 
 
 def _entries(model: RobotModel, keys: dict[str, str], what: str) -> dict[str, dict]:
@@ -331,7 +331,7 @@ def ur_calibration_yaml(model: RobotModel) -> str:
         raise RelcalError(f"{model.urdf.path}: the UR calibration export: {problem}")
     digest = hashlib.sha256(json.dumps(kin, sort_keys=True).encode()).digest()
     kin["hash"] = f"calib_{int.from_bytes(digest[:8], 'big') >> 1}"
-    return yaml.safe_dump({"kinematics": kin}, sort_keys=False)
+    return yaml_text({"kinematics": kin})
 
 
 def franka_kinematics_yaml(model: RobotModel) -> str:
@@ -343,7 +343,7 @@ def franka_kinematics_yaml(model: RobotModel) -> str:
     if any(j.name == "joint8" or j.name.endswith("_joint8") for j in chain.joints):
         keys["joint8"] = "joint8"
     kin = _entries(model, keys, "the Franka kinematics export")
-    return yaml.safe_dump({k: {"kinematic": v} for k, v in kin.items()}, sort_keys=False)
+    return yaml_text({k: {"kinematic": v} for k, v in kin.items()})
 
 
 def _has_joints(model: RobotModel, suffixes) -> bool:

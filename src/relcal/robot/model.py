@@ -30,7 +30,6 @@ from typing import Annotated, Literal
 
 import numpy as np
 import pydantic
-import yaml
 
 from relcal import geometry as tf
 from relcal.errors import RelcalError
@@ -536,7 +535,9 @@ def model_to_dict(model: RobotModel) -> dict:
 
 def dump_model(model: RobotModel) -> str:
     """The model as YAML text."""
-    return yaml.safe_dump(model_to_dict(model), sort_keys=False)
+    from relcal.io import yaml_text
+
+    return yaml_text(model_to_dict(model))
 
 
 # --- built-in library ----------------------------------------------------------------------------

@@ -15,14 +15,13 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-import yaml
 from tqdm import tqdm
 
 from relcal import geometry as tf
 from relcal.calibration.noise import Noise
 from relcal.data.dataset import joints_in_unit, write_samples
 from relcal.design.cell import Cell, default_board
-from relcal.io import write_text
+from relcal.io import write_text, yaml_text
 from relcal.robot.kinematics import Layout, make_layout
 from relcal.robot.model import RobotModel
 from relcal.sim.scenario import clean_poses, make_scenario, measure_once
@@ -103,7 +102,7 @@ def write_image_dataset(
     ids = [f"{k:03d}" for k in range(len(q))]
     q_deg = joints_in_unit(model, q_read, "deg")
     write_text(root / "samples.csv", write_samples(root / "samples.csv", ids, q_deg, images=names))
-    write_text(root / "board.yaml", yaml.safe_dump(board_to_spec(board), sort_keys=False))
+    write_text(root / "board.yaml", yaml_text(board_to_spec(board)))
     save_camera(camera, root / "camera.yaml")
     write_text(root / "robot.yaml", dump_model(model))
     xyz, rpy = tf.to_xyz_rpy(scenario.handeye_guess)
@@ -117,7 +116,7 @@ def write_image_dataset(
         "joint_unit": "deg",
         "samples": "samples.csv",
     }
-    write_text(root / "dataset.yaml", yaml.safe_dump(spec, sort_keys=False))
+    write_text(root / "dataset.yaml", yaml_text(spec))
     return Truth(
         scenario.true_model, make_layout(model), scenario.errors, scenario.handeye, cell.board_pose
     )

@@ -27,10 +27,9 @@ from typing import Any, Literal
 import cv2
 import numpy as np
 import pydantic
-import yaml
 
 from relcal.errors import RelcalError
-from relcal.io import load_yaml, validate, write_text
+from relcal.io import load_yaml, validate, write_text, yaml_text
 
 DistortionModel = Literal["none", "radial", "radial_tangential", "plumb_bob"]
 _N_DIST = {"none": 0, "radial": 2, "radial_tangential": 4, "plumb_bob": 5}
@@ -246,7 +245,7 @@ def _checked(
 
 def save_camera(camera: Camera, path: str | Path) -> None:
     """Write a camera in relcal's YAML layout (atomically)."""
-    write_text(path, yaml.safe_dump(camera.to_dict(), sort_keys=False))
+    write_text(path, yaml_text(camera.to_dict()))
 
 
 # ----------------------------------------------------------------------------- calibration
