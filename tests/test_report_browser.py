@@ -27,7 +27,7 @@ from relcal.cli import main
 from relcal.data.dataset import load_dataset
 from relcal.data.imaging import measure
 from relcal.reporting.documents import results_document
-from relcal.reporting.html import _flatten, calibration_report
+from relcal.reporting.html import _compact_names, _flatten, calibration_report
 
 WIDTH = 1280
 CAL_SECTIONS = {
@@ -39,7 +39,13 @@ CAL_SECTIONS = {
     "rejected",
     "settings",
 }
-CAL_PLOTS = {"plot-singular-values", "plot-residuals", "plot-per-pair"}
+CAL_PLOTS = {"plot-parameters", "plot-singular-values", "plot-residuals", "plot-per-pair"}
+PLOT_SECTIONS = {  # the section each plot of the calibration report belongs in
+    "plot-parameters": "parameters",
+    "plot-singular-values": "singular-values",
+    "plot-residuals": "residuals",
+    "plot-per-pair": "per-pair",
+}
 REJECTED = {3: "board not found", 8: "reprojection RMS 3.2 px > 1.0 px <script>alert(1)</script>"}
 PROBE = """<script>
 addEventListener("load", () => {
@@ -223,6 +229,19 @@ def check_section_drawn(found: dict, shot: np.ndarray, ident: str) -> None:
     assert h > 80 and white_fraction(shot[y : y + h, x : x + w]) < 0.99, f"{ident} looks empty"
 
 
+def check_plot_in_section(found: dict, plot: str, section: str) -> None:
+    """The plot's image lies inside the box of its section, as the browser laid them out."""
+    img = next(i for i in found["images"] if i["id"] == plot)
+    box = next(s for s in found["sections"] if s["id"] == section)
+    inside = (
+        box["x"] <= img["x"]
+        and img["x"] + img["w"] <= box["x"] + box["w"]
+        and box["y"] <= img["y"]
+        and img["y"] + img["h"] <= box["y"] + box["h"]
+    )
+    assert inside, f"{plot} is drawn at {img}, outside its section {section} at {box}"
+
+
 # --- the tests -----------------------------------------------------------------------------------
 
 
@@ -286,9 +305,16 @@ def test_calibration_report_renders_in_chromium(calibration, tmp_path):
     for key, value in _flatten(doc["settings"]):
         assert cells[cells.index(key) + 1] == value
 
+    # the parameter plot: beside the table, with what was held at nominal listed under it
+    held = [r["name"] for r in doc["parameters"] if r["status"] == "unidentifiable"]
+    assert held and f"nominal kept: {_compact_names(held)}." in text
+    assert text.index('id="plot-parameters"') < text.index("<table", text.index('id="parameters"'))
+
     found, shot = check_rendering(path, tmp_path, CAL_PLOTS)
     for ident in CAL_SECTIONS:
         check_section_drawn(found, shot, ident)
+    for plot, section in PLOT_SECTIONS.items():
+        check_plot_in_section(found, plot, section)
     top = [s["y"] for s in found["sections"] if s["id"] == "summary"][0]
     assert top < 400, "the summary should open the page"
 

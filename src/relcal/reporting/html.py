@@ -18,15 +18,25 @@ from dataclasses import replace
 
 import matplotlib
 import numpy as np
+from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
-from matplotlib.ticker import FuncFormatter, MaxNLocator, NullFormatter
+from matplotlib.patches import Patch
+from matplotlib.ticker import (
+    Formatter,
+    Locator,
+    LogLocator,
+    MaxNLocator,
+    NullFormatter,
+    NullLocator,
+)
 
 from relcal import __version__
-from relcal.calibration.identifiability import Identifiability
+from relcal.calibration.identifiability import NUISANCE_KINDS, Identifiability
 from relcal.calibration.measurement import pair_errors
 from relcal.calibration.outcome import Calibration
 from relcal.calibration.validate import stats
 from relcal.reporting.text import pose_noise_parts
+from relcal.robot.model import NONGEOMETRIC_KINDS
 from relcal.sim.simulate import Simulation
 
 BEFORE, AFTER, SPECIFIED, BAD = "#b0b8c1", "#1f6feb", "#e8833a", "#cf222e"
@@ -224,7 +234,7 @@ def singular_value_figure(ident: Identifiability, title: str = "") -> Figure:
     s = np.asarray(ident.singular_values, dtype=float)
     tol = ident.rcond * s[0]
     floor = s[0] * 1e-17
-    fig = Figure(figsize=(FIG_WIDTH, 3.6), layout="constrained")
+    fig = Figure(figsize=(FIG_WIDTH, 3.6), dpi=DPI, layout="constrained")
     ax = fig.add_subplot()
     index = np.arange(1, len(s) + 1)
     ax.bar(index, np.maximum(s, floor), color=np.where(s > tol, AFTER, BAD), width=0.7)
@@ -246,63 +256,190 @@ def singular_value_figure(ident: Identifiability, title: str = "") -> Figure:
         f"(blue identifiable directions, red null space)"
     )
     _finish(ax)
+    _log_ticks(fig, [ax.yaxis])
     return fig
 
 
-def _plain_log_ticks(axis, values: np.ndarray) -> None:
-    """Plain numbers (0.01, 0.1, 1) on a log axis; minor labels only within two decades."""
-    plain = FuncFormatter(lambda v, _: f"{v:g}")
-    axis.set_major_formatter(plain)
-    finite = values[np.isfinite(values) & (values > 0)]
-    wide = finite.size and finite.max() / finite.min() > 100
-    axis.set_minor_formatter(NullFormatter() if wide else plain)
+def _tick_texts(values: np.ndarray) -> list[str]:
+    """Tick labels: plain numbers (0.002, 1, 5000) where every label of the axis stays short,
+    else powers of ten (mathtext) for all of them, so that one axis never mixes the two."""
+    plain = [f"{v:g}" for v in values]
+    if not any("e" in t for t in plain):
+        return plain
+    out = []
+    for v in values:
+        exponent = int(np.floor(np.log10(v) + 1e-9))
+        mantissa = float(f"{v / 10.0**exponent:.3g}")
+        power = f"10^{{{exponent}}}"
+        out.append(f"${power}$" if mantissa == 1 else rf"${mantissa:g}\times{power}$")
+    return out
+
+
+class FixedTexts(Formatter):
+    """The labels chosen for the tick values of an axis (others, if any, by ``%g``)."""
+
+    def __init__(self, texts: dict[float, str]) -> None:
+        self.texts = texts
+
+    def __call__(self, x, pos=None) -> str:
+        for value, text in self.texts.items():
+            if np.isclose(value, x, rtol=1e-9, atol=0):
+                return text
+        return f"{x:g}"
+
+
+def _log_tick_choices(decades: float) -> list[tuple[Locator, Locator]]:
+    """Major and minor locators for a log axis spanning ``decades``, in order of preference:
+    1-2-..-9, 1-2-5, every decade, every k-th decade; nice linear steps for a range under one
+    decade (first under half a decade, where they read best)."""
+    every = range(1, 10)
+    logs: list[tuple[Locator, Locator]] = [
+        (LogLocator(subs=subs, numticks=999), LogLocator(subs=every, numticks=999))
+        for subs in (every, (1, 2, 5), (1,))
+    ]
+    logs += [
+        (LogLocator(numticks=n), LogLocator(subs="auto", numticks=n)) for n in range(12, 1, -1)
+    ]
+    steps = [1, 2, 2.5, 5, 10]
+    linear = [(MaxNLocator(n, steps=steps), NullLocator()) for n in (8, 6, 4, 3)]
+    if decades >= 1:
+        return logs
+    return linear + logs if decades < 0.5 else logs + linear
+
+
+def _label_spacing_ok(axis, renderer, values: np.ndarray, lo: float, hi: float) -> bool:
+    """Whether labels at ``values`` leave a gap of 1.5 (x) or 1.2 (y) font sizes between
+    neighbours, as the renderer measures them, on the axis drawn in ``(lo, hi)``."""
+    ax = axis.axes
+    along_x = axis is ax.xaxis
+    length = ax.bbox.width if along_x else ax.bbox.height
+    scale = axis.get_transform()
+    t = scale.transform(np.concatenate([[lo, hi], values]))
+    at = (t[2:] - t[0]) / (t[1] - t[0]) * length
+    prop = axis.get_major_ticks()[0].label1.get_fontproperties()
+    size = prop.get_size_in_points() * ax.figure.dpi / 72
+    gap = 1.5 * size if along_x else 1.2 * size
+    if np.any(np.diff(at) < gap):  # too close whatever the labels say: no need to measure them
+        return False
+    extent = []
+    for text in _tick_texts(values):
+        w, h, _ = renderer.get_text_width_height_descent(text, prop, ismath=text.startswith("$"))
+        extent.append(w if along_x else h)
+    extent = np.array(extent)
+    return bool(np.all(np.diff(at) >= (extent[1:] + extent[:-1]) / 2 + gap))
+
+
+def _log_ticks(fig: Figure, axes: Sequence) -> None:
+    """Choose the ticks of each log axis in ``axes`` after the layout is known: the preferred
+    (densest) of :func:`_log_tick_choices` whose labels do not crowd at the drawn length, with at
+    least three labels if any choice fits three, else the one with the most (at least two)."""
+    canvas = fig.canvas if isinstance(fig.canvas, FigureCanvasAgg) else FigureCanvasAgg(fig)
+    for axis in axes:  # provisional few ticks: the default minor labels make layout slow
+        axis.set_major_locator(LogLocator(numticks=5))
+        axis.set_minor_locator(NullLocator())
+        axis.set_major_formatter(FixedTexts({}))
+    fig.draw_without_rendering()
+    renderer = canvas.get_renderer()
+    for axis in axes:
+        lo, hi = sorted(axis.get_view_interval())
+        best, most = None, 0
+        for major, minor in _log_tick_choices(np.log10(hi / lo)):
+            values = np.asarray(major.tick_values(lo, hi), dtype=float)
+            values = values[(values >= lo * (1 - 1e-9)) & (values <= hi * (1 + 1e-9))]
+            values = values[values > 0]
+            if len(values) < 2 or not _label_spacing_ok(axis, renderer, values, lo, hi):
+                continue
+            if len(values) >= 3:
+                best = (major, minor)
+                break
+            if len(values) > most:
+                best, most = (major, minor), len(values)
+        major, minor = best or (LogLocator(numticks=2), NullLocator())
+        axis.set_major_locator(major)
+        axis.set_minor_locator(minor)
+        values = np.asarray(major.tick_values(lo, hi), dtype=float)
+        texts = dict(zip(values, _tick_texts(np.maximum(values, 1e-300)), strict=True))
+        axis.set_major_formatter(FixedTexts(texts))
+        axis.set_minor_formatter(NullFormatter())
 
 
 def _log_bins(*arrays: np.ndarray, n: int = 30) -> np.ndarray:
+    """About ``n`` logarithmic bin edges over the positive values of ``arrays``, on a fixed grid
+    of ``10 ** (k / per)`` with ``per`` (bins per decade) from 1-2-5 steps: every histogram of the
+    report bins the same way, and a range of one value still gets a few bins around it."""
     values = np.concatenate([a[np.isfinite(a) & (a > 0)] for a in arrays])
     if values.size == 0:
-        return np.geomspace(1e-6, 1.0, n)
-    lo, hi = values.min(), values.max()
-    return np.geomspace(lo / 1.2, hi * 1.2 if hi > lo else lo * 10, n)
+        return np.geomspace(1e-3, 1.0, n + 1)
+    lo, hi = np.log10(values.min()), np.log10(values.max())
+    if hi - lo < 0.1:  # (nearly) one value: a tenth of a decade around it
+        lo, hi = (lo + hi) / 2 - 0.05, (lo + hi) / 2 + 0.05
+    steps = np.array([m * 10.0**e for e in range(-1, 4) for m in (1, 2, 5)])
+    per = steps[np.argmin(np.abs(np.log(steps * (hi - lo) / n)))]
+    k = np.arange(np.floor(lo * per - 0.5), np.ceil(hi * per + 0.5) + 1)  # half a bin spare
+    return 10.0 ** (k / per)
+
+
+def _series(where: str) -> tuple[str, str]:
+    """Legend labels of the two series: the calibrated model, and what it is compared with."""
+    if where.startswith("held-out points"):
+        return "after (calibrated)", "before: baseline (nominal, instrument and marker fitted)"
+    if where.startswith("measured pairs"):  # a simulation: the nominal model, nothing fitted
+        return "after (identified)", "before (nominal model)"
+    return "after (calibrated)", "before: baseline (nominal, hand-eye fitted)"
 
 
 def histogram_figure(before: np.ndarray, after: np.ndarray, where: str) -> Figure:
-    """Histograms of per-pair error norms before and after, one panel per measured quantity,
-    logarithmic bins so that both distributions show."""
+    """Histograms of per-pair error norms before and after, one panel per measured quantity
+    (position mm, orientation deg), logarithmic bins from :func:`_log_bins` shared by the two
+    series of a panel; the calibrated series is drawn over the baseline and listed first."""
     b, a = _norms(before), _norms(after)
-    fig = Figure(figsize=(FIG_WIDTH, 3.4), layout="constrained")
+    fig = Figure(figsize=(FIG_WIDTH, 3.4), dpi=DPI, layout="constrained")
     axes = fig.subplots(1, len(b), squeeze=False)[0]
+    after_label, before_label = _series(where)
+    absolute = where.startswith("held-out points")
     for ax, key in zip(axes, b, strict=True):
         label, unit, _ = QUANTITIES[key]
+        label = label.replace("relative ", "") if absolute else label
         bins = _log_bins(b[key], a[key])
-        ax.hist(b[key], bins=bins, color=BEFORE, label="before (nominal model)")
-        ax.hist(a[key], bins=bins, color=AFTER, alpha=0.85, label="after (calibrated)")
-        ax.set(xscale="log", xlabel=f"{label} ({unit})", ylabel="pairs")
-        ax.yaxis.set_major_locator(MaxNLocator(integer=True))
-        _plain_log_ticks(ax.xaxis, bins)
+        ax.hist(b[key], bins=bins, histtype="stepfilled", color=BEFORE, zorder=2)
+        ax.hist(b[key], bins=bins, histtype="step", color="#7d8793", lw=1, zorder=2)
+        ax.hist(a[key], bins=bins, histtype="stepfilled", color=AFTER, alpha=0.7, zorder=3)
+        ax.hist(a[key], bins=bins, histtype="step", color=AFTER, lw=1.2, zorder=3)
+        ax.set(xscale="log", xlim=(bins[0], bins[-1]), xlabel=f"{label} ({unit})")
+        ax.set_ylabel("points" if absolute else "pairs")
+        ax.yaxis.set_major_locator(MaxNLocator(integer=True, steps=[1, 2, 2.5, 5, 10]))
         ax.set_title(f"{label.capitalize()}, {where}")
         _finish(ax)
-    fig.legend(*axes[0].get_legend_handles_labels(), loc="outside upper center", ncols=2)
+    handles = [Patch(fc=AFTER, ec=AFTER, alpha=0.7), Patch(fc=BEFORE, ec="#7d8793")]
+    fig.legend(handles, [after_label, before_label], loc="outside upper center", ncols=2)
+    _log_ticks(fig, [ax.xaxis for ax in axes])
     return fig
 
 
 def per_pair_figure(before: np.ndarray, after: np.ndarray, where: str) -> Figure:
-    """Error norm of every pair before and after (log scale), one panel per quantity."""
+    """Error norm of every pair before and after (log scale), one panel per quantity; a thin
+    line joins the two values of a pair, the calibrated points lie on top and come first in the
+    legend."""
     b, a = _norms(before), _norms(after)
-    fig = Figure(figsize=(FIG_WIDTH, 2.5 + 2.1 * len(b)), layout="constrained")
+    fig = Figure(figsize=(FIG_WIDTH, 2.5 + 2.1 * len(b)), dpi=DPI, layout="constrained")
     axes = fig.subplots(len(b), 1, squeeze=False, sharex=True)[:, 0]
+    after_label, before_label = _series(where)
+    item = "point" if where.startswith("held-out points") else "pair"
     x = np.arange(1, len(before) + 1)
     for ax, key in zip(axes, b, strict=True):
         label, unit, _ = QUANTITIES[key]
-        ax.vlines(x, np.minimum(a[key], b[key]), b[key], color="#e3e7eb", lw=1)
-        ax.plot(x, b[key], "o", ms=3.5, color="#7d8793", label="before (nominal model)")
-        ax.plot(x, a[key], "o", ms=3.5, color=AFTER, label="after (calibrated)")
+        label = label.replace("relative ", "") if item == "point" else label
+        low, high = np.fmin(a[key], b[key]), np.fmax(a[key], b[key])
+        ax.vlines(x, low, high, color="#d5dae0", lw=1, zorder=1)
+        ax.plot(x, b[key], "o", ms=3.5, color="#7d8793", zorder=2, label=before_label)
+        ax.plot(x, a[key], "o", ms=3.5, color=AFTER, zorder=3, label=after_label)
         ax.set(yscale="log", ylabel=f"{key} ({unit})")
-        _plain_log_ticks(ax.yaxis, np.concatenate([a[key], b[key]]))
-        ax.set_title(f"{label.capitalize()} per pair, {where}")
+        ax.set_title(f"{label.capitalize()} per {item}, {where}")
         _finish(ax)
-    axes[-1].set_xlabel("pair")
-    fig.legend(*axes[0].get_legend_handles_labels(), loc="outside upper center", ncols=2)
+    axes[-1].set_xlabel(item)
+    handles, labels = axes[0].get_legend_handles_labels()
+    fig.legend(handles[::-1], labels[::-1], loc="outside upper center", ncols=2)
+    _log_ticks(fig, [ax.yaxis for ax in axes])
     return fig
 
 
@@ -330,6 +467,149 @@ def parameter_figure(sim: Simulation) -> Figure:
         _finish(ax)
     fig.legend(*axes[0].get_legend_handles_labels(), loc="outside upper center", ncols=2)
     return fig
+
+
+HELD = {  # status of a parameter held at nominal -> (marker, legend label)
+    "unidentifiable": ("x", "unidentifiable: nominal kept"),
+    "not supported": ("D", "not supported by model selection: nominal kept"),
+}
+MUTED = "#8c959f"
+
+
+def _parameter_panels(rows: Sequence[dict], kinds: Sequence[str]) -> list[tuple[str, list]]:
+    """``(title, rows)`` per panel: the geometry's lengths (mm) and angles (deg), then the
+    non-geometric terms of the chosen model, one panel per unit. Hand-eye, instrument and marker
+    corrections are left out (they are nuisance transforms, shown in their own table)."""
+    panels: dict[str, list] = {}
+    for row, kind in zip(rows, kinds, strict=True):
+        if kind in NUISANCE_KINDS:
+            continue
+        if kind in NONGEOMETRIC_KINDS:
+            if row["status"] in HELD:
+                continue  # listed under the plot: a row of markers at zero says nothing
+            title = f"Non-geometric terms ({row['unit']})"
+        else:
+            title = {"mm": "Lengths (mm)", "deg": "Angles (deg)"}.get(row["unit"], row["unit"])
+        panels.setdefault(title, []).append(row)
+    order = {"Lengths (mm)": 0, "Angles (deg)": 1}
+    return sorted(panels.items(), key=lambda item: order.get(item[0], 2))
+
+
+def calibration_parameter_figure(rows: Sequence[dict], kinds: Sequence[str]) -> Figure:
+    """The identified error of every parameter with error bars of one standard deviation
+    (predicted, and from the bootstrap beside it), one panel per kind (:func:`_parameter_panels`);
+    parameters held at nominal are marked at zero and their names greyed. ``rows`` are the
+    ``parameters`` of :func:`documents.results_document` (display units), ``kinds`` the layout's
+    kind of each."""
+    panels = _parameter_panels(rows, kinds)
+    fig = Figure(figsize=(FIG_WIDTH, 0.9 + 2.55 * len(panels)), dpi=DPI, layout="constrained")
+    axes = fig.subplots(len(panels), 1, squeeze=False)[:, 0]
+    legend: dict[str, object] = {}
+    for ax, (title, group) in zip(axes, panels, strict=True):
+        x = np.arange(len(group))
+        for k, row in enumerate(group):
+            if row["status"] in HELD:
+                marker, label = HELD[row["status"]]
+                (h,) = ax.plot(
+                    k,
+                    0,
+                    marker,
+                    ms=6 if marker == "x" else 4.5,
+                    color=MUTED,
+                    mfc="none",
+                    mew=1.5,
+                    zorder=3,
+                )
+                legend.setdefault(label, h)
+                continue
+            boot = row.get("bootstrap_std")
+            if boot is not None:
+                h = ax.errorbar(
+                    k + 0.22,
+                    row["error"],
+                    yerr=boot,
+                    fmt="none",
+                    ecolor=SPECIFIED,
+                    elinewidth=1.2,
+                    capsize=2.5,
+                    zorder=2,
+                )
+                legend.setdefault("± 1 std, bootstrap over the training samples", h)
+            combination = row["status"] == "combination"
+            h = ax.errorbar(
+                k,
+                row["error"],
+                yerr=row.get("std") or 0.0,
+                fmt="o",
+                ms=5,
+                color=AFTER,
+                mfc="white" if combination else AFTER,
+                mew=1.3,
+                elinewidth=1.6,
+                capsize=3.5,
+                zorder=4,
+            )
+            label = (
+                "carries a combination with parameters held at nominal, ± 1 std"
+                if combination
+                else "identified error ± 1 std (predicted)"
+            )
+            legend.setdefault(label, h)
+        ax.axhline(0, color="#444", lw=0.8, zorder=1)
+        ax.set_xticks(
+            x,
+            [row["name"] for row in group],
+            rotation=45,
+            ha="right",
+            rotation_mode="anchor",
+            fontsize=8.5,
+        )
+        for tick, row in zip(ax.get_xticklabels(), group, strict=True):
+            tick.set_color(MUTED if row["status"] in HELD else "#1f2328")
+        unit = group[0]["unit"]
+        ax.set(xlim=(-0.7, len(group) - 0.3), ylabel=f"error ({unit})")
+        ax.set_title(title)
+        ax.grid(False, axis="x")
+        _finish(ax)
+        ax.grid(False, axis="x")
+    first = ["identified error ± 1 std (predicted)"]
+    labels = first + [k for k in legend if k not in first]
+    labels = [k for k in labels if k in legend]
+    fig.legend(
+        [legend[k] for k in labels], labels, loc="outside upper center", ncols=2, fontsize=8.5
+    )
+    return fig
+
+
+def _compact_names(names: Sequence[str]) -> str:
+    """``scale[1]``, ``scale[2]``, ``scale[3]`` -> ``scale[1–3]``; other names as they are."""
+    out: list[str] = []
+    groups: dict[str, list[int]] = {}
+    for name in names:
+        kind, _, rest = name.partition("[")
+        if rest.endswith("]") and rest[:-1].isdigit():
+            if kind not in groups:
+                groups[kind] = []
+                out.append(kind)
+            groups[kind].append(int(rest[:-1]))
+        else:
+            out.append(name)
+    text = []
+    for item in out:
+        if item not in groups:
+            text.append(item)
+            continue
+        runs, idx = [], sorted(groups[item])
+        start = prev = idx[0]
+        for i in idx[1:] + [None]:
+            if i is not None and i == prev + 1:
+                prev = i
+                continue
+            runs.append(f"{start}" if start == prev else f"{start}–{prev}")
+            if i is not None:
+                start = prev = i
+        text.append(f"{item}[{', '.join(runs)}]")
+    return ", ".join(text)
 
 
 # --- the calibration report ----------------------------------------------------------------------
@@ -571,6 +851,36 @@ def _handeye_table(doc: dict) -> Html:
     )
 
 
+def _held_at_nominal(doc: dict) -> Html:
+    """The parameters the calibration did not estimate, by reason, in compact form."""
+    parts = []
+    for status, why in (
+        ("unidentifiable", "Unidentifiable (the data cannot determine them)"),
+        ("not supported", "Not supported by model selection (left out of the chosen model)"),
+    ):
+        names = [r["name"] for r in doc["parameters"] if r["status"] == status]
+        if names:
+            parts.append(f"{why}, nominal kept: {_compact_names(names)}.")
+    if not parts:
+        return Html("")
+    return Html(f'<p class="hint">{_text(" ".join(parts))}</p>')
+
+
+def _parameter_plot(cal: Calibration, doc: dict) -> Html:
+    kinds = cal.problem.full_layout.kinds
+    names = [r["name"] for r in doc["parameters"]]
+    if tuple(names) != tuple(cal.problem.full_layout.names):
+        return Html("")  # a document of another calibration: no plot rather than a wrong one
+    return _figure_html(
+        "plot-parameters",
+        "Identified error of each parameter with ± 1 standard deviation (blue: predicted, "
+        "orange: bootstrap over the training samples; often smaller than the dot), lengths and "
+        "angles of the geometry and the non-geometric terms of the chosen model on separate "
+        "axes; grey marks at zero: held at nominal",
+        calibration_parameter_figure(doc["parameters"], kinds),
+    )
+
+
 def _parameters(cal: Calibration, doc: dict) -> tuple[str, str, Html]:
     table, source = _parameter_table(cal, doc)
     return _section(
@@ -578,9 +888,11 @@ def _parameters(cal: Calibration, doc: dict) -> tuple[str, str, Html]:
         "Parameters",
         _p(
             "Identified errors are corrections to the nominal model (lengths in mm, angles in "
-            "degrees); handeye.* are corrections to the hand-eye guess. Unidentifiable "
-            "parameters keep their nominal value."
+            "degrees); handeye.* are corrections to the hand-eye guess (in the table, not the "
+            "plot). Unidentifiable parameters keep their nominal value."
         ),
+        _parameter_plot(cal, doc),
+        _held_at_nominal(doc),
         table,
         Html(f'<p class="hint">{_text(source)}</p>'),
         Html("<h3>Unidentifiable combinations, with the reason</h3>"),
