@@ -5,6 +5,7 @@ kinematics.yaml, written into the URDF the way xacro would, do too."""
 
 import json
 import re
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -25,6 +26,7 @@ from relcal.robot.export import (
 )
 from relcal.robot.kinematics import fk, make_layout
 from relcal.robot.loading import get_robot
+from relcal.robot.model import NONGEOMETRIC_KINDS, with_nongeometric
 from relcal.robot.urdf import load_urdf
 
 
@@ -86,6 +88,25 @@ def test_calibrated_tiago_urdf_changes_only_joint_origins(tmp_path, rng):
     path = tmp_path / "calibrated.urdf"
     path.write_bytes(out)
     check_fk(path, model, random_q(model, 10, rng))
+
+
+def test_calibrated_urdf_carries_the_geometry_of_a_model_with_nongeometric_terms(tmp_path, rng):
+    """Compliance (the URDF's inertials as loads) and harmonics deflect the joints even at
+    q = 0; the exported origins are those of the geometry alone, as in :func:`urdf`."""
+    _, model = planted("tiago_pro", rng)
+    model = with_nongeometric(model, ["compliance", "harmonic"])
+    n = model.n_joints
+    model = replace(
+        model,
+        compliance=rng.normal(0, 1e-3, n),
+        harmonic_c=rng.normal(0, 1e-3, n) * ~model.prismatic,
+    )
+    q = random_q(model, 10, rng)
+    geometry = replace(model, **{k: None for k in NONGEOMETRIC_KINDS})
+    assert np.abs(fk(model, q) - fk(geometry, q))[:, :3, 3].max() > 1e-3  # the terms matter
+    path = tmp_path / "calibrated.urdf"
+    path.write_bytes(calibrated_urdf(model))
+    check_fk(path, geometry, q)
 
 
 COMMENTED = (

@@ -11,7 +11,7 @@ import numpy as np
 from relcal.calibration.identify import Result, calibrated_handeye
 from relcal.calibration.measurement import Problem
 from relcal.calibration.noise import PoseNoise
-from relcal.calibration.selection import Score
+from relcal.calibration.selection import BASELINE_CANDIDATES, Score
 from relcal.calibration.validate import Validation, ratio_interval, stats
 from relcal.data.dataset import Dataset
 from relcal.data.imaging import Measurements
@@ -19,9 +19,6 @@ from relcal.robot.export import calibrated_model
 from relcal.robot.model import RobotModel
 
 ROBUST_SCALE = 3.0  # residual (in noise standard deviations) where the robust loss bends
-# Candidates without kinematic correction: the hand-eye transform alone, or (position-only data)
-# the instrument transform and the marker alone.
-BASELINE_CANDIDATES = ("hand-eye only", "instrument and marker only")
 
 
 @dataclass(frozen=True)

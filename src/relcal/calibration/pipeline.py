@@ -48,10 +48,12 @@ from relcal.calibration.plausibility import check_dataset, check_result
 from relcal.calibration.selection import (
     WEIGHTINGS,
     Linearised,
+    candidate_model,
     candidates,
     choose,
-    family,
+    choose_all,
     fit,
+    geometric_columns,
     linearise,
     plain_whiteners,
     score_candidates,
@@ -68,7 +70,6 @@ from relcal.data.dataset import Dataset
 from relcal.data.imaging import Measurements, measure
 from relcal.errors import RelcalError
 from relcal.robot.kinematics import fk, make_layout
-from relcal.robot.model import RobotModel, nongeometric_options, with_nongeometric
 
 DETECTION_LOSS = "linear"  # of the fit whose residuals find the outlier samples
 
@@ -156,13 +157,14 @@ def calibrate(
             measurements,
             train,
             test,
-            holdout,
-            seed,
-            method,
-            loss,
-            reject_outliers,
-            select_folds,
-            selection,
+            holdout=holdout,
+            seed=seed,
+            method=method,
+            loss=loss,
+            reject_outliers=reject_outliers,
+            select_folds=select_folds,
+            selection=selection,
+            nongeometric=nongeometric,
         )
     dataset = replace(dataset, model=candidate_model(dataset.model, nongeometric))
     plausibility = check_dataset(dataset, measurements)  # a wrong unit, order or board size
@@ -191,8 +193,7 @@ def calibrate(
     # The geometry (with the hand-eye) finds the samples whose pairs fit badly, robustly, and
     # gives the residuals the noise is learned from and the point the candidates are linearised
     # at; non-geometric terms are small there and enter the candidates only.
-    kinds = problem.full_layout.kinds
-    geometric = np.array([c for c in ident.subset if family(kinds[c]) in ("hand-eye", "geometric")])
+    geometric = geometric_columns(problem, ident.subset)
     full = _fit(problem, ident, geometric, "plain", method, DETECTION_LOSS)
     outliers = outlier_samples(_normalised(pair_errors(problem, full.params)), problem.pairs)
     outlier_ids = tuple(dataset.ids[train[i]] for i in outliers)
@@ -212,12 +213,7 @@ def calibrate(
     cands = candidates(problem, ident.subset, tuple(weightings))
     folds_k = max(2, min(select_folds, len(train) // 2))
     scores = score_candidates(lin, whiteners, cands, folds_k, seed)
-    if selection == "all":
-        chosen = int(np.argmin([-len(s.candidate.columns) for s in scores]))
-        chosen += int(np.argmin([np.mean(s.per_sample) for s in scores[chosen : chosen + 2]]))
-        reason = "all identifiable parameters (--select all)"
-    else:
-        chosen, reason = choose(scores)
+    chosen, reason = choose_all(scores) if selection == "all" else choose(scores)
     pick = scores[chosen].candidate
     columns = pick.columns
     if selection == "conservative" and pick.name != "hand-eye only":
@@ -259,30 +255,22 @@ def calibrate(
         "plausibility": plausibility,
     }
     return Calibration(
-        dataset,
-        measurements,
-        weighted_problem(problem, pick.weighting, whiteners),
-        result,
-        baseline,
-        validation,
-        train,
-        test,
-        settings,
-        outlier_ids,
-        noise,
-        tuple(scores),
-        chosen,
-        reason,
-        boot,
+        dataset=dataset,
+        measurements=measurements,
+        problem=weighted_problem(problem, pick.weighting, whiteners),
+        result=result,
+        baseline=baseline,
+        validation=validation,
+        train=train,
+        test=test,
+        settings=settings,
+        outliers=outlier_ids,
+        noise=noise,
+        selection=tuple(scores),
+        chosen=chosen,
+        reason=reason,
+        bootstrap_std=boot,
     )
-
-
-def candidate_model(model: RobotModel, nongeometric: str | Sequence[str]) -> RobotModel:
-    """``model`` with the non-geometric families that model selection may choose switched on."""
-    if nongeometric == "none":
-        return model
-    terms = nongeometric_options(model) if nongeometric == "auto" else tuple(nongeometric)
-    return with_nongeometric(model, terms) if terms else model
 
 
 def _split(

@@ -1,13 +1,14 @@
 """Model selection: which parameters (and which row weighting) the data support, chosen by
 cross-validated held-out error on the training samples.
 
-Candidates range from the hand-eye transform alone (the baseline a user gets without kinematic
-calibration) through the identifiable geometry to each family of non-geometric terms. Every
-candidate and weighting is scored by K-fold cross-validation over *samples* (a held-out fold's
-pairs are the pairs among its samples; pairs share samples, so splitting pairs would leak). The
-folds are refitted on the model linearised at the full fit, ``r(p) ~ b - J p``: the errors are
-millimetres and tenths of a degree, so the second-order terms are micrometres, and each fold costs
-one small normal-equation solve instead of a nonlinear fit.
+Candidates range from the measurement frames alone (the hand-eye transform, or a tracker's
+instrument transform and marker: the baseline a user gets without kinematic calibration) through
+the identifiable geometry to each family of non-geometric terms. Every candidate and weighting is
+scored by K-fold cross-validation over *samples* (a held-out fold's pairs are the pairs among its
+samples; pairs share samples, so splitting pairs would leak; a tracker's points are one per
+sample). The folds are refitted on the model linearised at a full fit, ``r(p) ~ b - J p``: the
+errors are millimetres and tenths of a degree, so the second-order terms are micrometres, and each
+fold costs one small normal-equation solve instead of a nonlinear fit.
 
 The choice is conservative: the simplest candidate whose cross-validated error is within one
 standard error of the best (paired over samples) wins, so a term is added only when it helps
@@ -16,24 +17,54 @@ clearly, and the hand-eye-only baseline is chosen when nothing helps.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
 
 from relcal.calibration.measurement import Problem, residuals
+from relcal.robot.model import RobotModel, nongeometric_options, with_nongeometric
 
 GEOMETRIC_KINDS = ("theta_off", "a", "d", "alpha", "beta", "base", "tool")
+FRAME_KINDS = ("handeye", "instrument", "marker")  # estimated with the robot, never exported
 PLAIN_ROTATION_WEIGHT = 0.1  # m/rad: rotation rows count like a 0.1 m lever arm
+# Candidates without kinematic correction: the hand-eye transform alone, or (position-only data)
+# the instrument transform and the marker alone.
+BASELINE_CANDIDATES = ("hand-eye only", "instrument and marker only")
 
 
 def family(kind: str) -> str:
-    """The family of a parameter kind: ``hand-eye``, ``geometric`` or a non-geometric family
-    (``harmonic_c`` and ``harmonic_s`` are one family ``harmonic``)."""
-    if kind == "handeye":
-        return "hand-eye"
+    """The family of a parameter kind: ``frames`` (the hand-eye, or a tracker's instrument
+    transform and marker), ``geometric`` or a non-geometric family (``harmonic_c`` and
+    ``harmonic_s`` are one family ``harmonic``)."""
+    if kind in FRAME_KINDS:
+        return "frames"
     if kind in GEOMETRIC_KINDS:
         return "geometric"
     return kind.split("_")[0]
+
+
+def baseline_name(problem: Problem) -> str:
+    """The name of the candidate without kinematic correction (one of
+    :data:`BASELINE_CANDIDATES`)."""
+    return BASELINE_CANDIDATES[1 if problem.formulation == "tracker" else 0]
+
+
+def geometric_columns(problem: Problem, subset: np.ndarray) -> np.ndarray:
+    """The entries of ``subset`` that are frames or geometry (no non-geometric term)."""
+    kinds = problem.full_layout.kinds
+    keep = [c for c in subset if family(kinds[c]) in ("frames", "geometric")]
+    return np.array(keep, dtype=int)
+
+
+def candidate_model(model: RobotModel, nongeometric: str | Sequence[str]) -> RobotModel:
+    """``model`` with the non-geometric families that model selection may choose switched on:
+    ``"auto"`` every family the model can have (:func:`robot.model.nongeometric_options`),
+    ``"none"`` only those the model file enables, or a list of families."""
+    if nongeometric == "none":
+        return model
+    terms = nongeometric_options(model) if nongeometric == "auto" else tuple(nongeometric)
+    return with_nongeometric(model, terms) if terms else model
 
 
 @dataclass(frozen=True)
@@ -52,14 +83,16 @@ def candidates(
     problem: Problem, subset: np.ndarray, weightings: tuple[str, ...] = ("plain",)
 ) -> list[Candidate]:
     """Nested candidates within the identifiable ``subset``, simplest first, each under every
-    weighting: hand-eye only, + geometry, + each non-geometric family, + all of them."""
+    weighting: the frames only (:func:`baseline_name`), + geometry, + each non-geometric family,
+    + all of them."""
     kinds = problem.full_layout.kinds
+    subset = np.asarray(subset, dtype=int)
     fam = np.array([family(kinds[i]) for i in subset])
-    sets: list[tuple[str, np.ndarray]] = [("hand-eye only", subset[fam == "hand-eye"])]
-    base = subset[np.isin(fam, ("hand-eye", "geometric"))]
+    sets: list[tuple[str, np.ndarray]] = [(baseline_name(problem), subset[fam == "frames"])]
+    base = subset[np.isin(fam, ("frames", "geometric"))]
     if len(base) > len(sets[0][1]):
         sets.append(("geometric", base))
-    extra = [f for f in dict.fromkeys(fam) if f not in ("hand-eye", "geometric")]
+    extra = [f for f in dict.fromkeys(fam) if f not in ("frames", "geometric")]
     for f in extra:
         sets.append((f"geometric + {f}", np.union1d(base, subset[fam == f])))
     if len(extra) > 1:
@@ -71,21 +104,30 @@ def candidates(
 
 @dataclass(frozen=True)
 class Linearised:
-    """Unweighted pair residuals as a linear function of the parameters: ``r(p) ~ b - J p``."""
+    """Unweighted residuals as a linear function of the parameters: ``r(p) ~ b - J p``, one
+    6-row block per measurement (a pair of samples, or a tracker's point ``(k, k)`` with zero
+    rotation rows)."""
 
     b: np.ndarray  # (P, 6) translation m, rotation rad
     jac: np.ndarray  # (P, 6, Q)
-    pairs: np.ndarray  # (P, 2) sample positions
+    pairs: np.ndarray  # (P, 2) sample positions ((k, k) for a point of sample k)
     n_samples: int
 
 
 def linearise(problem: Problem, params: np.ndarray) -> Linearised:
-    """The frame-invariant pose problem linearised at ``params`` (its weights ignored)."""
+    """The frame-invariant pose problem, or the tracker's point problem, linearised at
+    ``params`` (its weights ignored)."""
+    n = len(problem.q)
+    if problem.formulation == "tracker":  # 3 rows per sample, no orientation measured
+        r, a = residuals(replace(problem, weights=None, pair_weights=None), params)
+        b, jac = np.zeros((n, 6)), np.zeros((n, 6, a.shape[-1]))
+        b[:, :3], jac[:, :3] = r.reshape(n, 3), a.reshape(n, 3, -1)
+        return Linearised(b + jac @ params, jac, np.repeat(np.arange(n)[:, None], 2, axis=1), n)
     plain = replace(problem, weights=None, pair_weights=None, measure="pose")
     pairs = plain.pair_indices()
     r, a = residuals(plain, params)
     r, a = r.reshape(len(pairs), 6), a.reshape(len(pairs), 6, -1)
-    return Linearised(r + a @ params, a, pairs, len(problem.q))
+    return Linearised(r + a @ params, a, pairs, n)
 
 
 def plain_whiteners(n_pairs: int) -> np.ndarray:
@@ -200,3 +242,12 @@ def choose(scores: list[Score], n_se: float = STANDARD_ERRORS) -> tuple[int, str
                 f"{best_c.weighting}) and simpler"
             )
     return best, "lowest cross-validated held-out position error"
+
+
+def choose_all(scores: list[Score]) -> tuple[int, str]:
+    """Index of the candidate with the most parameters (under its best-scoring weighting) and
+    why: ``--select all``."""
+    size = max(len(s.candidate.columns) for s in scores)
+    largest = [k for k, s in enumerate(scores) if len(s.candidate.columns) == size]
+    chosen = min(largest, key=lambda k: np.mean(scores[k].per_sample))
+    return chosen, "all identifiable parameters (--select all)"

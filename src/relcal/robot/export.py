@@ -128,10 +128,13 @@ def urdf_origins(model: RobotModel) -> dict[str, np.ndarray]:
     Each movable joint's URDF frame keeps its place in relcal's joint frame
     (:attr:`relcal.robot.urdf.UrdfChain.frames`), so a calibrated model moves the movable joints'
     origins; fixed joints keep theirs, except the last fixed joint before the tip when the tool
-    transform itself changed. Returns the origin of every chain joint, by name.
+    transform itself changed. The geometry only: non-geometric terms (a compliance deflection
+    under gravity, a harmonic at q = 0) have no place in a fixed origin. Returns the origin of
+    every chain joint, by name.
     """
     chain = _require_urdf(model, "urdf_origins")
-    frames = forward_frames(model, np.zeros((1, model.n_joints)))[0, 1:]
+    geometry = replace(model, **{k: None for k in NONGEOMETRIC_KINDS})
+    frames = forward_frames(geometry, np.zeros((1, model.n_joints)))[0, 1:]
     world = frames @ chain.frames  # URDF joint frames in the root frame at q = 0
     out, t, i = {}, np.eye(4), 0
     for j in chain.joints:
