@@ -83,12 +83,12 @@ def _main_thread() -> bool:
 
 
 def _run(argv: Sequence[str] | None) -> int:
-    from relcal.outputset import tracking
-
     try:
-        args = build_parser().parse_args(argv)
+        args = build_parser().parse_args(argv)  # light: see relcal.cli.common
         func: Callable[[argparse.Namespace], int] = args.func
         import numpy as np
+
+        from relcal.outputset import tracking
 
         with tracking(), np.errstate(all="ignore"):
             return func(args)

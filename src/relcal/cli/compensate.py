@@ -5,10 +5,12 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
-
-import numpy as np
+from typing import TYPE_CHECKING
 
 from relcal.cli.common import existing_file, json_arg, output_file
+
+if TYPE_CHECKING:
+    import numpy as np
 
 EPILOG = """\
 examples:
@@ -28,6 +30,8 @@ output:  id, q1..qn (corrected), converged, dq1..dqn (correction), predicted_pos
 def check_limits(path: Path, model, ids, q: np.ndarray, joint_unit: str) -> None:
     """A joint program ``q`` (rad, m) outside the model's joint limits is refused, naming the
     target and the joint."""
+    import numpy as np
+
     from relcal.data.dataset import joints_in_unit
     from relcal.errors import RelcalError
 
@@ -59,6 +63,8 @@ def near_singular(model, q: np.ndarray) -> np.ndarray:
 
 
 def run(args: argparse.Namespace) -> int:
+    import numpy as np
+
     from relcal.calibration.compensate import compensate
     from relcal.data.dataset import joints_in_unit, read_targets
     from relcal.errors import RelcalError

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from datetime import UTC, datetime
 
-from relcal.cli.common import json_arg, registry_arg
+from relcal.cli.common import DRIFT_ALPHA, json_arg, registry_arg
 
 EPILOG = """\
 examples:
@@ -113,8 +113,6 @@ def fleet_document(args, sessions, entries, elapsed: float, registry) -> dict:
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    from relcal.fleet.drift import ALPHA
-
     fmt = argparse.RawDescriptionHelpFormatter
     fp = sub.add_parser(
         "fleet",
@@ -154,7 +152,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     cp.add_argument("--keep-outliers", action="store_true", help="keep detected outliers")
     cp.add_argument(
-        "--alpha", type=float, default=ALPHA, help=f"drift test level (default {ALPHA})"
+        "--alpha",
+        type=float,
+        default=DRIFT_ALPHA,
+        help=f"drift test level (default {DRIFT_ALPHA})",
     )
     cp.add_argument("--report", metavar="FILE", help="write the fleet report (HTML) to FILE")
     cp.add_argument("--quiet", action="store_true", help="no progress bar or summary")

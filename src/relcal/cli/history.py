@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from relcal.cli.common import json_arg, registry_arg
+from relcal.cli.common import DRIFT_ALPHA, json_arg, registry_arg
 
 EPILOG = """\
 examples:
@@ -74,10 +74,10 @@ def run_compare(args: argparse.Namespace) -> int:
 
 
 def _common(p: argparse.ArgumentParser) -> None:
-    from relcal.fleet.drift import ALPHA
-
     registry_arg(p)
-    p.add_argument("--alpha", type=float, default=ALPHA, help=f"drift test level (default {ALPHA})")
+    p.add_argument(
+        "--alpha", type=float, default=DRIFT_ALPHA, help=f"drift test level (default {DRIFT_ALPHA})"
+    )
     p.add_argument("--quiet", action="store_true", help="no text (use with --json)")
 
 

@@ -4,8 +4,7 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
-
-import numpy as np
+from typing import TYPE_CHECKING
 
 from relcal.cli.common import (
     existing_file,
@@ -16,6 +15,9 @@ from relcal.cli.common import (
     nonnegative_int,
     robot_args,
 )
+
+if TYPE_CHECKING:
+    import numpy as np
 
 EPILOG = """\
 examples:

@@ -4,8 +4,7 @@ from __future__ import annotations
 
 import argparse
 from dataclasses import replace
-
-import numpy as np
+from typing import TYPE_CHECKING
 
 from relcal.cli.common import (
     fraction,
@@ -21,6 +20,9 @@ from relcal.cli.common import (
 )
 from relcal.cli.observability import add_noise_arg
 
+if TYPE_CHECKING:
+    import numpy as np
+
 EPILOG = """\
 examples:
   relcal plan --robot a465 --hayati auto --out plan.csv
@@ -34,6 +36,8 @@ make it a dataset's samples.csv. Collisions with anything but the board plane ar
 
 
 def _floats(text: str, count: tuple[int, ...], what: str) -> list[float]:
+    import numpy as np
+
     from relcal.errors import RelcalError
 
     try:
@@ -47,6 +51,8 @@ def _floats(text: str, count: tuple[int, ...], what: str) -> list[float]:
 
 def build_cell(args: argparse.Namespace):
     """The cell from the command line (board, its centre, camera, hand-eye guess)."""
+    import numpy as np
+
     from relcal import geometry as tf
     from relcal.design.cell import Cell
     from relcal.design.plan import parse_board, parse_camera

@@ -5,8 +5,6 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-import numpy as np
-
 from relcal.cli.common import (
     int_at_least,
     json_arg,
@@ -32,6 +30,8 @@ with joint noise) times the number of poses.
 
 
 def run(args: argparse.Namespace) -> int:
+    import numpy as np
+
     from relcal.calibration.noise import Noise
     from relcal.cluster import connect
     from relcal.data.dataset import read_joints
