@@ -14,8 +14,9 @@ Rows (``python bench/run.py``, or ``make bench``, which installs the ``bench`` e
   ``identify_published`` and ``identify_lm`` (identifiability analysis included) against
   ``scipy.optimize.least_squares`` with a 2-point finite-difference Jacobian on the same problem
   (given the identifiable subset for free);
-- start-up costs: the FK kernel's first call with an empty and with a filled Numba cache, and a
-  whole ``relcal simulate`` command;
+- start-up costs: the FK kernel's first call with an empty and with a filled Numba cache, a
+  whole ``relcal simulate`` command, and ``relcal --help`` (goal <= 0.3 s: building the parser
+  imports no NumPy, SciPy, OpenCV, SQLAlchemy or Dask);
 - rows of optional modules ``bench/<name>.py`` listed in ``OPTIONAL_MODULES``, each with
   ``run() -> list[dict]`` (keys ``task``, ``value``, ``unit``, ``peer``, ``ratio``; optional
   ``peer_name``, ``goal``, ``goal_ratio``); a missing module is reported, not fatal.
@@ -38,6 +39,7 @@ for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
 import argparse  # noqa: E402
 import importlib  # noqa: E402
 import json  # noqa: E402
+import resource  # noqa: E402
 import subprocess  # noqa: E402
 import sys  # noqa: E402
 import tempfile  # noqa: E402
@@ -76,6 +78,7 @@ OPTIONAL_MODULES = ("images", "montecarlo", "selection", "fleet")
 FK_GOAL = 5e6  # configurations per second on one core
 ID_GOAL_MS = 10.0  # one identification of 100 poses
 PEER_RATIO_GOAL = 3.0  # at least this many times ahead of each peer
+HELP_GOAL_S = 0.3  # `relcal --help`, wall time of a fresh process
 
 
 @dataclass
@@ -381,7 +384,8 @@ def _python(code: str, env: dict | None = None) -> tuple[float, str]:
 
 def startup_rows(repeat: int = 2) -> list[Row]:
     """Extra start-up of the compiled FK path over the NumPy one (fresh processes, least of
-    ``repeat``), with an empty Numba cache (compiles) and a filled one; a whole simulate command."""
+    ``repeat``), with an empty Numba cache (compiles) and a filled one; a whole simulate command;
+    ``relcal --help``."""
     first_call = (
         "from relcal.robot.kinematics import fk; from relcal.robot.loading import get_robot; "
         "import numpy; "
@@ -404,7 +408,31 @@ def startup_rows(repeat: int = 2) -> list[Row]:
         Row("FK kernel start-up, filled Numba cache", min(warm) - baseline, "s",
             note="Numba import + cache load, over a NumPy first call"),
         Row("relcal simulate --robot a465, whole command", seconds, "s", note=note),
+        help_row(),
     ]  # fmt: skip
+
+
+def help_row(repeat: int = 10) -> Row:
+    """Wall time of ``relcal --help`` in a fresh process (least of ``repeat``; its CPU time in
+    the note), and whether building the parser imported any heavy module."""
+    code = (
+        "import sys; from relcal.cli import main; main(['--help']); "
+        "print([m for m in ('numpy', 'scipy', 'cv2', 'matplotlib', 'sqlalchemy', 'dask') "
+        "if m in sys.modules])"
+    )
+    wall, cpu, heavy = [], [], "[]"
+    for _ in range(repeat):
+        before = resource.getrusage(resource.RUSAGE_CHILDREN)
+        seconds, printed = _python(code)
+        after = resource.getrusage(resource.RUSAGE_CHILDREN)
+        wall.append(seconds)
+        cpu.append(after.ru_utime + after.ru_stime - before.ru_utime - before.ru_stime)
+        heavy = printed.rsplit("\n", 1)[-1]
+    note = f"least of {repeat} fresh processes (CPU {min(cpu):.3f} s); " + (
+        "no heavy module imported" if heavy == "[]" else f"imported {heavy}!"
+    )
+    return Row("relcal --help, whole command", min(wall), "s", goal=f"<= {HELP_GOAL_S:g} s",
+               met=min(wall) <= HELP_GOAL_S, note=note)  # fmt: skip
 
 
 # --- optional modules --------------------------------------------------------------------------
