@@ -17,13 +17,11 @@ import sys
 import tempfile
 from pathlib import Path
 
-from PIL import Image
-
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tests"))
 
+from helpers_browser import save_page_png  # noqa: E402
 from helpers_fleet import make_robot, write_session  # noqa: E402
-from test_report_browser import layout, screenshot  # noqa: E402
 
 from relcal.cli import main as relcal  # noqa: E402
 
@@ -48,20 +46,12 @@ def main() -> None:
     parser.add_argument("--out", type=Path, default=ROOT / "docs" / "fleet-report.png")
     args = parser.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
-        tmp = Path(tmp)
-        sample_fleet(tmp / "plant")
-        html = tmp / "fleet.html"
+        report = Path(tmp) / "fleet.html"
+        sample_fleet(Path(tmp) / "plant")
         with contextlib.redirect_stdout(io.StringIO()):
-            relcal(["fleet", "calibrate", str(tmp / "plant"), "--quiet", "--report", str(html)])
-        html.write_text(html.read_text().replace(str(tmp) + "/", ""))
-        if args.html:
-            args.html.write_text(html.read_text())
-        shot = screenshot(html, tmp, layout(html, tmp)["height"])
-    image = Image.fromarray(shot[:, :, ::-1])
-    size = (round(image.width * SCALE), round(image.height * SCALE))
-    image = image.resize(size, Image.Resampling.LANCZOS).quantize(256, dither=Image.Dither.NONE)
-    image.save(args.out, optimize=True)
-    print(f"{args.out}: {size[0]} x {size[1]} px, {args.out.stat().st_size // 1024} KB")
+            relcal(["fleet", "calibrate", f"{tmp}/plant", "--quiet", "--report", str(report)])
+        html = report.read_text().replace(tmp + "/", "")
+    print(save_page_png(html, args.out, args.html, SCALE))
 
 
 if __name__ == "__main__":

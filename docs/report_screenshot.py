@@ -16,14 +16,13 @@ from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
-from PIL import Image
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tests"))
 
+from helpers_browser import save_page_png  # noqa: E402
 from helpers_dataset import synthetic_dataset  # noqa: E402
 from helpers_sim import HANDEYE  # noqa: E402
-from test_report_browser import layout, screenshot  # noqa: E402
 
 from relcal import geometry as tf  # noqa: E402
 from relcal.calibration.pipeline import calibrate  # noqa: E402
@@ -59,17 +58,8 @@ def main() -> None:
     parser.add_argument("--out", type=Path, default=ROOT / "docs" / "report.png")
     args = parser.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
-        tmp = Path(tmp)
-        html = tmp / "report.html"
-        html.write_text(sample_report(tmp).replace(str(tmp) + "/", ""))
-        if args.html:
-            args.html.write_text(html.read_text())
-        shot = screenshot(html, tmp, layout(html, tmp)["height"])
-    image = Image.fromarray(shot[:, :, ::-1])
-    size = (round(image.width * SCALE), round(image.height * SCALE))
-    image = image.resize(size, Image.Resampling.LANCZOS).quantize(256, dither=Image.Dither.NONE)
-    image.save(args.out, optimize=True)
-    print(f"{args.out}: {size[0]} x {size[1]} px, {args.out.stat().st_size // 1024} KB")
+        html = sample_report(Path(tmp)).replace(tmp + "/", "")
+    print(save_page_png(html, args.out, args.html, SCALE))
 
 
 if __name__ == "__main__":

@@ -2,15 +2,13 @@
 plot landed and whether it decoded, and the screenshot must show each plot at that place.
 
 Chromium is Debian's ``chromium`` package, installed by ``make test`` (target ``chromium``); a
-missing browser fails these tests, it never skips them.
+missing browser fails these tests, it never skips them. The browser itself (launch, layout probe,
+screenshots) is in helpers_browser.py, shared with the docs' screenshot scripts.
 """
 
 from __future__ import annotations
 
 import base64
-import json
-import shutil
-import subprocess
 from dataclasses import replace
 from html.parser import HTMLParser
 from pathlib import Path
@@ -18,6 +16,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+from helpers_browser import WIDTH, layout, screenshot
 from helpers_dataset import synthetic_dataset
 from helpers_sim import HANDEYE
 
@@ -29,7 +28,6 @@ from relcal.data.imaging import measure
 from relcal.reporting.documents import results_document
 from relcal.reporting.html import _compact_names, _flatten, calibration_report
 
-WIDTH = 1280
 CAL_SECTIONS = {
     "summary",
     "parameters",
@@ -47,74 +45,6 @@ PLOT_SECTIONS = {  # the section each plot of the calibration report belongs in
     "plot-per-pair": "per-pair",
 }
 REJECTED = {3: "board not found", 8: "reprojection RMS 3.2 px > 1.0 px <script>alert(1)</script>"}
-PROBE = """<script>
-addEventListener("load", () => {
-  const box = (e) => { const r = e.getBoundingClientRect();  // content box, page coordinates
-    return {x: r.left + e.clientLeft + scrollX, y: r.top + e.clientTop + scrollY,
-            w: e.clientWidth, h: e.clientHeight}; };
-  const out = {
-    height: document.documentElement.scrollHeight,
-    width: document.documentElement.scrollWidth,
-    images: [...document.images].map((i) => ({id: i.id, complete: i.complete,
-      naturalWidth: i.naturalWidth, naturalHeight: i.naturalHeight, ...box(i)})),
-    sections: [...document.querySelectorAll("section")].map((s) => ({id: s.id, ...box(s)})),
-  };
-  const pre = document.createElement("pre");
-  pre.id = "probe"; pre.style.display = "none"; pre.textContent = JSON.stringify(out);
-  document.body.appendChild(pre);
-});
-</script>"""
-
-
-# --- the browser ---------------------------------------------------------------------------------
-
-
-def chromium(tmp: Path, *args: str) -> str:
-    """Run headless Chromium offline with a throw-away profile; its standard output."""
-    exe = shutil.which("chromium")
-    if exe is None:
-        pytest.fail(
-            "chromium is not installed: the report tests need Debian's chromium package "
-            "(`make chromium`, or `apt-get install chromium`)"
-        )
-    cmd = [
-        exe,
-        "--headless",
-        "--no-sandbox",
-        "--disable-gpu",
-        "--disable-quic",
-        "--no-first-run",
-        "--disable-background-networking",
-        "--disable-component-update",
-        "--disable-sync",
-        "--hide-scrollbars",
-        "--force-device-scale-factor=1",
-        f"--user-data-dir={tmp / 'chromium-profile'}",
-        *args,
-    ]
-    done = subprocess.run(cmd, capture_output=True, text=True, timeout=180)
-    assert done.returncode == 0, f"chromium failed ({done.returncode}): {done.stderr[-2000:]}"
-    return done.stdout
-
-
-def layout(html_path: Path, tmp: Path) -> dict:
-    """Where the page puts its sections and images, and whether the images decoded, as measured
-    by a probe script in a copy of the page (the report itself has no script)."""
-    probe = tmp / f"{html_path.stem}-probe.html"
-    probe.write_text(html_path.read_text().replace("</body>", PROBE + "</body>"))
-    dom = chromium(tmp, f"--window-size={WIDTH},1000", "--dump-dom", probe.as_uri())
-    start = dom.index('<pre id="probe"')
-    text = dom[dom.index(">", start) + 1 : dom.index("</pre>", start)]
-    return json.loads(text.replace("&quot;", '"').replace("&amp;", "&"))
-
-
-def screenshot(html_path: Path, tmp: Path, height: int) -> np.ndarray:
-    """The whole page as rendered by Chromium, ``(height, WIDTH, 3)`` BGR."""
-    png = tmp / f"{html_path.stem}.png"
-    chromium(tmp, f"--window-size={WIDTH},{height}", f"--screenshot={png}", html_path.as_uri())
-    image = cv2.imread(str(png))
-    assert image is not None, f"chromium wrote no readable screenshot at {png}"
-    return image
 
 
 # --- the HTML ------------------------------------------------------------------------------------
