@@ -186,7 +186,7 @@ def test_recorded_standard_deviations_are_those_of_the_estimation_error(repeated
     """Each session's identified errors against the robot's true ones, in units of the recorded
     standard deviations (identifiable link parameters): a standard deviation within 10 % of 1.
     (With the calibration's own covariance, from the learned 6x6 noise, it is 1.07 on these
-    sessions: its position noise level comes out about 18 % low.)"""
+    sessions: its position noise level comes out about 15 % low.)"""
     pairs, _, robots = repeated
     z = []
     for (first, second), robot in zip(pairs, robots, strict=True):

@@ -77,13 +77,14 @@ def covariance(cal: Calibration) -> tuple[list[str], np.ndarray]:
     handed to it: the pose noise at the robust (MAD) isotropic level of the pair residuals.
 
     Not ``cal.result.covariance`` (the same propagation, with the learned 6x6 pose noise), whose
-    standard deviations are those ``results.json`` prints: measured on 200 noise-only pairs of
-    30-pose synthetic sessions, the learned noise puts the position level about 18 % low
-    (4.1e-5 m against a true 5e-5 m: the fit absorbs the translation rows more than the rotation
-    rows, and its shrinkage correction is one factor for all), so its standard deviations came
-    out 9 % smaller (median) and the session differences had z with a standard deviation of 1.08
-    against the truth (0.97 with this one); the F test flagged 3 of the 200 pairs with it (0 with
-    this one), and 19 of 200 where the noise level is taken as known (3 with this one)."""
+    standard deviations are those ``results.json`` prints. Measured on 200 noise-only pairs of
+    30-pose synthetic sessions (``bench/drift_covariance.py``), the learned noise puts the
+    position level about 15 % low (4.2e-5 m against a true 5e-5 m: the fit absorbs the
+    translation rows more than the rotation rows, and its shrinkage correction is one factor for
+    all), so its standard deviations came out 8 % smaller (median) and the identified minus true
+    errors had z with a standard deviation of 1.08 (0.97 with this one); the F test flagged 3 of
+    the 200 pairs with it (0 with this one), and 19 of 200 where the noise level is taken as
+    known (3 with this one)."""
     from relcal.calibration.identify import result_covariance
 
     columns = np.flatnonzero(np.isfinite(cal.std))
