@@ -3,6 +3,8 @@ that read it (history, compare) or write it (calibrate --registry)."""
 
 from __future__ import annotations
 
+import csv
+import io
 import json
 import multiprocessing
 import os
@@ -20,6 +22,7 @@ from relcal.data.imaging import measure
 from relcal.fleet import registry as reg
 from relcal.fleet.records import calibration_record
 from relcal.reporting.documents import results_document
+from relcal.reporting.outputs import calibration_files
 
 
 @pytest.fixture(scope="module")
@@ -42,13 +45,13 @@ def test_a_record_holds_what_the_calibration_found(calibrated, tmp_path):
         assert registry.robots() == ["arm1"]
     assert run.robot_id == "arm1" and run.session == "cell1"
     assert run.model_name == cal.dataset.model.name
-    assert run.settings == json.loads(json.dumps(cal.settings))
+    chosen = cal.selection[cal.chosen].candidate
+    assert run.settings == json.loads(json.dumps({**cal.settings, "chosen_model": chosen.name}))
     assert set(run.input_hashes) == {"dataset.yaml", "samples.csv"}
     assert run.outputs_path == str((tmp_path / "out").resolve())
     # parameters, standard deviations and covariance in SI units, over the estimated subset
     names = [n for k, n in enumerate(cal.problem.full_layout.names) if np.isfinite(cal.std[k])]
-    chosen = cal.selection[cal.chosen].candidate.columns
-    assert run.covariance["names"] == names and len(names) == len(chosen)
+    assert run.covariance["names"] == names and len(names) == len(chosen.columns)
     cov = run.covariance_of(names)
     np.testing.assert_allclose(cov, cov.T)
     assert np.linalg.eigvalsh(cov).min() > 0
@@ -68,6 +71,30 @@ def test_a_record_holds_what_the_calibration_found(calibrated, tmp_path):
     )
     with pytest.raises(reg.RelcalError, match="no run with id"):
         reg.Registry(reg.registry_url(tmp_path / "h.sqlite")).get(99)
+
+
+def test_the_recorded_calibration_std_is_the_printed_one(calibrated, tmp_path):
+    """``calibration_std`` of every parameter is the std that ``results.json`` and
+    ``parameters.csv`` of the same run print (there in mm or deg), written and read back."""
+    cal, doc = calibrated
+    files = calibration_files(cal, doc, "r1")
+    printed = {r["name"]: r for r in csv.DictReader(io.StringIO(files["parameters.csv"]))}
+    in_json = {r["name"]: r for r in json.loads(files["results.json"])["parameters"]}
+    with reg.open_registry(tmp_path / "h.sqlite") as registry:
+        run = registry.get(registry.add(calibration_record(cal, doc)))
+    shown = 0
+    for p in run.parameters:
+        row = printed[p["name"]]
+        if row["unit"] not in ("mm", "deg"):
+            continue
+        if p["calibration_std"] is None:
+            assert row["std"] == "" and in_json[p["name"]]["std"] is None
+            continue
+        value = p["calibration_std"] * (1e3 if row["unit"] == "mm" else np.degrees(1.0))
+        assert float(row["std"]) == pytest.approx(value, rel=1e-12)
+        assert in_json[p["name"]]["std"] == pytest.approx(value, rel=1e-12)
+        shown += 1
+    assert shown == int(np.isfinite(cal.std).sum())
 
 
 def test_schema_is_migrated_on_open_and_keeps_old_rows(calibrated, tmp_path):

@@ -2,12 +2,13 @@
 
 Two calibrations ``A`` and ``B`` of one robot estimate the same geometric errors from independent
 data, so their difference ``d = p_B - p_A`` over the parameters both determine has covariance
-``C = C_A + C_B`` (each calibration's own covariance of its estimated subset). Each covariance
-rests on a noise level estimated from that session's residuals (the MAD of the translation and
-of the rotation rows), which is itself uncertain: with ``r`` residual degrees of freedom (6 per
-training sample but one, less the estimated parameters) each level carries about
-``0.37 r / 2`` degrees of freedom (the MAD's efficiency), and the two sessions together ``nu``
-(Welch-Satterthwaite). Two tests, each at level ``alpha`` (default 0.01):
+``C = C_A + C_B`` (each record's covariance of its estimated subset,
+:func:`relcal.fleet.records.covariance`). Each covariance rests on a noise level estimated from
+that session's residuals (the MAD of the translation and of the rotation rows), which is itself
+uncertain: with ``r`` residual degrees of freedom (6 per training sample but one, less the
+estimated parameters) each level carries about ``0.37 r / 2`` degrees of freedom (the MAD's
+efficiency), and the two sessions together ``nu`` (Welch-Satterthwaite). Two tests, each at
+level ``alpha`` (default 0.01):
 
 - over the common identifiable subset, ``T^2 = d^T C^+ d`` with ``k`` the rank of ``C``:
   ``T^2 / k`` against ``F(k, nu)`` (the chi-square test when the noise level is known): are the
@@ -22,7 +23,10 @@ repeatability of each parameter: the smallest change one pair of sessions resolv
 The hand-eye parameters are left out by default (a remounted camera is not a change of the robot;
 ``include_handeye`` puts them in). Only parameters estimated and individually identifiable in both
 runs are compared: values of unidentifiable combinations depend on which member was held at
-nominal, and are no evidence of change.
+nominal, and are no evidence of change. Where model selection chose different terms for the two
+runs (a joint scale or a harmonic term in one of them), the parameters only one run estimated are
+named in a note and left out; the others are compared, each run's covariance of them being that
+of its own model.
 """
 
 from __future__ import annotations
@@ -72,6 +76,7 @@ class Comparison:
     left_out: tuple[str, ...]  # estimated in at most one run, or not identifiable in both
     notes: tuple[str, ...] = field(default=())
     noise_dof: float = float("inf")  # degrees of freedom of the noise levels (inf: known)
+    one_sided: tuple[str, ...] = ()  # of left_out: estimated in one run, not in the other
 
     @property
     def drift(self) -> bool:
@@ -88,17 +93,57 @@ class Comparison:
 
 def common_parameters(a: Run, b: Run, include_handeye: bool = False) -> tuple[list[str], list[str]]:
     """Names compared (estimated and identifiable in both, hand-eye only if asked) and the names
-    left out, in the order of run ``a``."""
-    usable_b = {p["name"] for p in b.parameters if p["estimated"] and p["identifiable"]}
+    left out, in the order of run ``a`` (then those only ``b`` has)."""
+    usable_a, usable_b = _usable(a), _usable(b)
     common, left_out = [], []
-    for p in a.parameters:
-        if p["name"].startswith("handeye.") and not include_handeye:
-            left_out.append(p["name"])
-        elif p["estimated"] and p["identifiable"] and p["name"] in usable_b:
-            common.append(p["name"])
+    in_a = set(a.names)
+    for name in [*a.names, *(n for n in b.names if n not in in_a)]:
+        if name.startswith("handeye.") and not include_handeye:
+            left_out.append(name)
+        elif name in usable_a and name in usable_b:
+            common.append(name)
         else:
-            left_out.append(p["name"])
+            left_out.append(name)
     return common, left_out
+
+
+def one_sided(a: Run, b: Run, include_handeye: bool = False) -> tuple[list[str], list[str]]:
+    """Parameters estimated (and identifiable) in ``a`` but not estimated in ``b``, and the other
+    way round: where model selection chose different terms for the two runs (e.g. a joint scale
+    in one of them)."""
+    usable_a, usable_b = _usable(a), _usable(b)
+    estimated_a, estimated_b = _estimated(a), _estimated(b)
+
+    def keep(name: str) -> bool:
+        return include_handeye or not name.startswith("handeye.")
+
+    only_a = [n for n in a.names if n in usable_a and n not in estimated_b and keep(n)]
+    only_b = [n for n in b.names if n in usable_b and n not in estimated_a and keep(n)]
+    return only_a, only_b
+
+
+def _estimated(run: Run) -> set[str]:
+    return {p["name"] for p in run.parameters if p["estimated"]}
+
+
+def _usable(run: Run) -> set[str]:
+    return {p["name"] for p in run.parameters if p["estimated"] and p["identifiable"]}
+
+
+def _one_sided_note(a: Run, b: Run, only_a: list[str], only_b: list[str], k: int) -> str:
+    """Which parameters one run estimated and the other did not, and what was compared."""
+
+    def model(run: Run) -> str:
+        name = (run.settings or {}).get("chosen_model")
+        return f" ({name})" if name else ""
+
+    runs = ((a, only_a), (b, only_b))
+    parts = [f"run {r.id}{model(r)} only: {', '.join(o)}" for r, o in runs if o]
+    return (
+        "the runs estimated different parameters (model selection chose different terms): "
+        + "; ".join(parts)
+        + f"; only the {k} parameters both estimated are compared"
+    )
 
 
 def compare(a: Run, b: Run, alpha: float = ALPHA, include_handeye: bool = False) -> Comparison:
@@ -119,6 +164,9 @@ def compare(a: Run, b: Run, alpha: float = ALPHA, include_handeye: bool = False)
     names, left_out = common_parameters(a, b, include_handeye)
     if not names:
         raise RelcalError(f"runs {a.id} and {b.id} have no identifiable parameter in common")
+    only_a, only_b = one_sided(a, b, include_handeye)
+    if only_a or only_b:
+        notes.append(_one_sided_note(a, b, only_a, only_b, len(names)))
     sub_a = sorted(n for n in a.covariance["names"] if n in names)
     sub_b = sorted(n for n in b.covariance["names"] if n in names)
     if sub_a != sub_b:  # pragma: no cover - guarded by common_parameters
@@ -163,7 +211,18 @@ def compare(a: Run, b: Run, alpha: float = ALPHA, include_handeye: bool = False)
     if a.settings.get("hayati_joints") != b.settings.get("hayati_joints"):
         notes.append("the runs use different Hayati joints: parameters may not correspond")
     return Comparison(
-        a, b, alpha, chi2, dof, p_value, z_threshold, changes, tuple(left_out), tuple(notes), nu_all
+        a,
+        b,
+        alpha,
+        chi2,
+        dof,
+        p_value,
+        z_threshold,
+        changes,
+        tuple(left_out),
+        tuple(notes),
+        nu_all,
+        (*only_a, *only_b),
     )
 
 

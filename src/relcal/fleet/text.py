@@ -133,10 +133,9 @@ def comparison_text(c: Comparison) -> str:
         if angles:
             parts.append(f"{min(angles):.5f} to {max(angles):.5f} deg")
         lines += ["", "repeatability (std of the difference of two sessions): " + ", ".join(parts)]
-    if c.left_out:
-        lines.append(
-            "not compared (not identifiable in both, or hand-eye): " + ", ".join(c.left_out)
-        )
+    rest = [n for n in c.left_out if n not in set(c.one_sided)]
+    if rest:
+        lines.append("not compared (not identifiable in both, or hand-eye): " + ", ".join(rest))
     lines += [f"note: {n}" for n in c.notes]
     return "\n".join(lines)
 
@@ -191,6 +190,7 @@ def comparison_document(c: Comparison) -> dict[str, Any]:
         ],
         "parameter_unit": "a, b, difference and std in SI: m for lengths, rad for angles",
         "left_out": list(c.left_out),
+        "one_sided": list(c.one_sided),  # of left_out: estimated in one run only
         "notes": list(c.notes),
     }
 
