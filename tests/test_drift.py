@@ -185,8 +185,8 @@ def test_a_planted_link_change_is_flagged_on_that_link(repeated):
 def test_recorded_standard_deviations_are_those_of_the_estimation_error(repeated):
     """Each session's identified errors against the robot's true ones, in units of the recorded
     standard deviations (identifiable link parameters): a standard deviation within 10 % of 1.
-    (With the calibration's own covariance, from the learned 6x6 noise, it is 1.07 on these
-    sessions: its position noise level comes out about 15 % low.)"""
+    (Before the noise learning counted what the fit absorbs of each component it was 1.07 on
+    these sessions: the position noise level came out about 15 % low.)"""
     pairs, _, robots = repeated
     z = []
     for (first, second), robot in zip(pairs, robots, strict=True):

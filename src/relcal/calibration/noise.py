@@ -116,11 +116,44 @@ class PoseNoise:
         return float(np.abs(self.correlation[:3, 3:]).max())
 
 
+def _fit_correction(
+    left: np.ndarray, pairs: np.ndarray, jac: np.ndarray, row_weights: np.ndarray, keep
+) -> np.ndarray:
+    """``C`` ``(K * 36, 21)`` with ``E vec(r_p r_p^T) = (D - C) theta`` for the residuals ``r``
+    left by a least-squares fit of ``jac`` ``(P, 6, k)`` with row weights ``row_weights``
+    ``(6,)``, at the ``K`` pairs ``keep``: what the fit takes out of each pair's covariance.
+
+    With ``y = G e`` the pairs' noise (``G``: pose ``j`` enters as itself, pose ``i`` through
+    ``L_p``), the fit removes ``J A y`` with ``A = (J^T W J)^+ J^T W``; so
+    ``E r_p r_p^T = S_pp - T_p - T_p^T + J_p Q J_p^T``, where ``M = A G`` ``(N, k, 6)`` per pose,
+    ``T_p = (Sigma M_j^T + L_p Sigma M_i^T) J_p^T`` and ``Q = sum_n M_n Sigma M_n^T``.
+    """
+    w2 = np.asarray(row_weights, dtype=float) ** 2
+    weighted = jac * w2[:, None]  # W J, pair by pair
+    scale = np.sqrt(np.clip(np.einsum("pik,pik->k", jac, weighted), 1e-300, None))
+    normal = np.einsum("pik,pil->kl", jac, weighted) / np.outer(scale, scale)
+    inv = np.linalg.pinv(normal, hermitian=True) / np.outer(scale, scale)
+    a = np.einsum("kl,pil->pki", inv, weighted)  # A's block of each pair (P, k, 6)
+    i, j = np.asarray(pairs, dtype=int).T
+    m = np.zeros((int(max(i.max(), j.max())) + 1, jac.shape[-1], 6))
+    np.add.at(m, j, a)
+    np.add.at(m, i, a @ left)
+    jk, lk, ik, jj = jac[keep], left[keep], i[keep], j[keep]
+    out = np.empty((len(_SYM), len(jk), 6, 6))
+    for s, (row, col) in enumerate(_SYM):
+        basis = np.zeros((6, 6))
+        basis[row, col] = basis[col, row] = 1.0
+        em = basis @ np.swapaxes(m, -1, -2)  # Sigma M_n^T (N, 6, k)
+        cross = (em[jj] + lk @ em[ik]) @ np.swapaxes(jk, -1, -2)
+        q = np.einsum("nka,nal->kl", m, em)  # sum_n M_n Sigma M_n^T
+        out[s] = cross + np.swapaxes(cross, -1, -2) - jk @ q @ np.swapaxes(jk, -1, -2)
+    return out.reshape(len(_SYM), -1).T
+
+
 def estimate_pose_noise(
     errors: np.ndarray,
     left: np.ndarray,
-    n_params: int = 0,
-    n_poses: int | None = None,
+    fit: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
     iterations: int = 5,
     clip: float = 16.8,
     max_pairs: int = 3000,
@@ -132,15 +165,20 @@ def estimate_pose_noise(
     Method of moments: ``r_p r_p^T ~ Sigma + L_p Sigma L_p^T``, linear in the 21 entries of
     ``Sigma``, solved by least squares over all pairs; pairs whose Mahalanobis distance exceeds
     ``clip`` (the 99 % point of chi-square with 6 degrees of freedom) are weighted down (Huber),
-    iterated. ``n_params`` fitted parameters over ``n_poses`` poses shrink the residuals; the
-    estimate is scaled by ``6 (N - 1) / (6 (N - 1) - n_params)`` for it.
+    iterated. ``fit``: ``(pairs (P, 2), jac (P, 6, k), row_weights (6,))`` of the least-squares
+    fit that left these residuals; the moments then include what it took out of each component
+    (:func:`_fit_correction`: a fit absorbs more of the translation rows than of the rotation
+    rows, which one degrees-of-freedom factor for all would leave biased).
     """
     errors = np.asarray(errors, dtype=float)
     n_pairs = len(errors)
+    keep = np.arange(n_pairs)
     if n_pairs > max_pairs:  # a random share carries the same information about 21 numbers
-        keep = np.random.default_rng(0).choice(n_pairs, max_pairs, replace=False)
-        errors, left = errors[keep], left[keep]
-    design = _moment_design(left)
+        keep = np.sort(np.random.default_rng(0).choice(n_pairs, max_pairs, replace=False))
+    design = _moment_design(left[keep])
+    if fit is not None:
+        design = design - _fit_correction(left, *fit, keep)
+    errors, left = errors[keep], left[keep]
     outer = (errors[:, :, None] * errors[:, None, :]).reshape(-1)
     weight = np.ones(len(errors))
     sigma = np.eye(6)
@@ -156,9 +194,6 @@ def estimate_pose_noise(
         cov = pair_covariances(sigma, left)
         d2 = np.einsum("pi,pi->p", errors, np.linalg.solve(cov, errors[..., None])[..., 0])
         weight = np.minimum(1.0, clip / np.maximum(d2, 1e-300))
-    n = n_poses if n_poses is not None else len(errors) + 1
-    dof = 6 * max(n - 1, 1)
-    sigma = sigma * dof / max(dof - n_params, 1)
     return PoseNoise(sigma, n_pairs, int(np.sum(weight < 1.0)))
 
 

@@ -204,8 +204,9 @@ def calibrate(
         full = _fit(problem, ident, geometric, "plain", method, loss, initial=full.params)
 
     left = pair_left_maps(problem)
-    noise = estimate_pose_noise(pair_errors(problem, full.params), left, len(geometric), len(train))
     lin = linearise(problem, full.params)
+    fitted = (lin.pairs, lin.jac[:, :, geometric], np.diag(plain_whiteners(1)[0]))
+    noise = estimate_pose_noise(pair_errors(problem, full.params), left, fitted)
     whiteners = {
         "plain": plain_whiteners(len(left)),
         "noise model": pair_whiteners(noise.covariance, left),
