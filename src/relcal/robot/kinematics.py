@@ -9,9 +9,11 @@ kind), then optionally the base and tool transforms as 6-vectors of small motion
 frames (``base.tx`` ... ``base.rz``).
 
 Robots loaded from a URDF with the ``origins`` parametrisation get instead, per joint, its zero
-offset (``theta_off``, or ``d`` for a prismatic joint) and a small motion of its URDF origin in
-the joint's own frame (kind ``origin``, index ``6 * joint + component``), as robot_calibration
-and FIGAROH parametrise: redundant, and the identifiability analysis names the redundancy.
+offset (``theta_off``, or ``d`` for a prismatic joint) and a motion of its URDF origin in the
+joint's own frame (kind ``origin``, index ``6 * joint + component``), as robot_calibration and
+FIGAROH parametrise: redundant, and the identifiability analysis names the redundancy. Both are
+counted from the file's origins (the zero offset along the joint axis), so they add up and the
+Jacobian is exact at any error (:func:`apply_errors`, :func:`_origin_screws`).
 
 Non-geometric terms change the effective joint value (:func:`effective_joints`), so each one
 moves the tool along its joint's screw, scaled by ``d q_eff / d parameter``: ``q``, the gravity
