@@ -6,7 +6,7 @@ inertials against Pinocchio, and a clear error for each kind of bad URDF."""
 import numpy as np
 import pytest
 from conftest import random_q
-from urdf_helpers import REAL, TIAGO, TIAGO_CHAIN, TIAGO_JOINTS, pin_fk, real
+from urdf_helpers import REAL, TIAGO, TIAGO_CHAIN, TIAGO_JOINTS, pin_fk, real, substitute
 
 from relcal import geometry as tf
 from relcal.errors import RelcalError
@@ -251,50 +251,129 @@ def origins_model(name_or_text, tmp_path=None):
     return load_urdf(path, tip="tip", parametrisation="origins")
 
 
+def planted_origins(layout, rng, length: float, angle: float) -> np.ndarray:
+    """Random errors of an origins layout: ``length`` (m) and ``angle`` (rad) standard deviations
+    on the lengths and angles."""
+    return rng.normal(0, 1, layout.size) * np.where(layout.is_angle(), angle, length)
+
+
+def moved_origins(model, errors) -> dict:
+    """The URDF origins that ``errors`` of ``make_layout(model)`` describe, straight from the
+    file: ``origin from_vector(motion + zero * direction)``, the zero offset along the joint
+    axis (a rotation, or a shift for a prismatic joint)."""
+    per_joint = np.asarray(errors).reshape(model.n_joints, 7)
+    out = {}
+    for i, k in enumerate(model.urdf.movable):
+        joint = model.urdf.joints[k]
+        motion = per_joint[i, 1:].copy()
+        start = 0 if joint.type == "prismatic" else 3
+        motion[start : start + 3] += per_joint[i, 0] * joint.axis
+        out[joint.name] = joint.origin @ tf.from_vector(motion)
+    return out
+
+
 @pytest.mark.parametrize("which", ["tiago_pro", "awkward"])
 def test_origin_errors_move_the_urdf_origins_exactly(which, tmp_path, rng):
     """Planted origin errors and zero offsets give the FK of the URDF chain with those origins
-    (``origin exp(motion)``) and those joint offsets, computed straight from the joints."""
+    (``origin from_vector(motion)``, the zero offset added along the joint axis), computed
+    straight from the joints; errors add up: moving by x, then by y, is moving by x + y."""
     model = origins_model(which if which in REAL else AWKWARD, tmp_path)
     layout = make_layout(model)
     assert layout.size == 7 * model.n_joints
-    errors = rng.normal(0, 1e-2, layout.size)
+    errors = planted_origins(layout, rng, 1e-2, np.radians(5))
     moved = calibrated_model(model, layout, errors)
-    per_joint = errors.reshape(model.n_joints, 7)
-    origins = {
-        model.urdf.joints[k].name: model.urdf.joints[k].origin @ tf.from_vector(per_joint[i, 1:])
-        for i, k in enumerate(model.urdf.movable)
-    }
     q = random_q(model, 20, rng)
-    expected = chain_fk(model.urdf, q + per_joint[:, 0], origins)
+    expected = chain_fk(model.urdf, q, moved_origins(model, errors))
     np.testing.assert_allclose(fk(moved, q), expected, atol=1e-12)
-
-
-@pytest.mark.parametrize("which", ["tiago_pro", "awkward"])
-def test_origins_jacobian_matches_finite_differences(which, tmp_path, rng):
-    from relcal.robot.kinematics import spatial_jacobian
-
-    model = origins_model(which if which in REAL else AWKWARD, tmp_path)
-    layout = make_layout(model)
-    model = calibrated_model(model, layout, rng.normal(0, 1e-3, layout.size))
-    q = random_q(model, 4, rng)
-    tip, jac = pose_jacobian(model, q, layout)
-    _, spatial = spatial_jacobian(model, q, layout)
-    np.testing.assert_allclose(spatial[:, 3:], jac[:, 3:], atol=1e-15)
-    # the same motions, velocity taken at the base origin instead of the tool point
+    more = planted_origins(layout, rng, 1e-2, np.radians(5))
+    twice = calibrated_model(moved, layout, more)
     np.testing.assert_allclose(
-        spatial[:, :3], jac[:, :3] + tf.skew(tip[:, :3, 3]) @ jac[:, 3:], atol=1e-12
+        fk(twice, q), fk(calibrated_model(model, layout, errors + more), q), atol=1e-12
     )
-    h = 1e-7
+    # at zero origin errors the zero offset is the joint offset itself
+    zero = np.zeros(layout.size)
+    zero[::7] = errors[::7]
+    np.testing.assert_allclose(
+        fk(calibrated_model(model, layout, zero), q),
+        chain_fk(model.urdf, q + errors[::7]),
+        atol=1e-12,
+    )
+
+
+@pytest.mark.parametrize("which", ["tiago_pro", "panda"])
+def test_moved_origins_match_pinocchio(which, tmp_path, rng):
+    """The moved model's FK is Pinocchio's on the URDF file with those origins written in."""
+    nominal = origins_model(which)
+    layout = make_layout(nominal)
+    errors = planted_origins(layout, rng, 1e-2, np.radians(5))
+    path = tmp_path / "moved.urdf"
+    path.write_bytes(substitute(nominal.urdf.data, moved_origins(nominal, errors)))
+    q = random_q(nominal, 20, rng, scale=1.0)
+    ours = fk(calibrated_model(nominal, layout, errors), q)
+    theirs = pin_fk(path, nominal.urdf.root, nominal.urdf.tip, nominal.joint_names, q)
+    assert np.abs(ours[:, :3, 3] - theirs[:, :3, 3]).max() < 1e-12
+    assert rotation_error(ours, theirs) < 1e-12
+
+
+def numeric_pose_jacobian(nominal, layout, errors, q, h=1e-6):
+    """Central differences ``(N, 6, P)`` of the tool pose at ``apply_errors(nominal, errors)``: the
+    position change and the small rotation, base frame, as :func:`pose_jacobian` gives them."""
+    out = np.zeros((len(q), 6, layout.size))
     for k in range(layout.size):
         step = np.zeros(layout.size)
         step[k] = h
-        plus = fk(calibrated_model(model, layout, step), q)
-        minus = fk(calibrated_model(model, layout, -step), q)
-        dpos = (plus[:, :3, 3] - minus[:, :3, 3]) / (2 * h)
-        drot = tf.log_rotation(plus[:, :3, :3] @ np.swapaxes(minus[:, :3, :3], -1, -2)) / (2 * h)
-        np.testing.assert_allclose(jac[:, :3, k], dpos, atol=1e-6)
-        np.testing.assert_allclose(jac[:, 3:, k], drot, atol=1e-6)
+        plus = fk(calibrated_model(nominal, layout, errors + step), q)
+        minus = fk(calibrated_model(nominal, layout, errors - step), q)
+        out[:, :3, k] = (plus[:, :3, 3] - minus[:, :3, 3]) / (2 * h)
+        rel = plus[:, :3, :3] @ np.swapaxes(minus[:, :3, :3], -1, -2)
+        out[:, 3:, k] = tf.log_rotation(rel) / (2 * h)
+    return out
+
+
+@pytest.mark.parametrize("which", ["tiago_pro", "awkward", "ur5", "panda", "kinova", "z1"])
+def test_origins_jacobian_matches_finite_differences(which, tmp_path, rng):
+    """The analytic Jacobian is the derivative of the tool pose with respect to the total errors
+    from the URDF's own origins (what the solver moves), exactly at any error: central
+    differences agree to 1e-7 relative at 0, 1 mm / 1 deg, 10 mm / 5 deg and 50 mm / 20 deg."""
+    from relcal.robot.kinematics import spatial_jacobian
+
+    nominal = origins_model(which if which in REAL else AWKWARD, tmp_path)
+    layout = make_layout(nominal)
+    q = random_q(nominal, 4, rng)
+    for length, angle in [(0, 0), (1e-3, 1), (1e-2, 5), (5e-2, 20)]:
+        errors = planted_origins(layout, rng, length, np.radians(angle))
+        model = calibrated_model(nominal, layout, errors)
+        tip, jac = pose_jacobian(model, q, layout)
+        numeric = numeric_pose_jacobian(nominal, layout, errors, q)
+        assert np.linalg.norm(jac - numeric) < 1e-7 * np.linalg.norm(numeric), (length, angle)
+        # per column too: no column is right only on average
+        scale = np.linalg.norm(numeric, axis=1).max()
+        np.testing.assert_allclose(jac, numeric, rtol=0, atol=1e-7 * scale)
+        # the same motions, velocity taken at the base origin instead of the tool point
+        _, spatial = spatial_jacobian(model, q, layout)
+        np.testing.assert_allclose(spatial[:, 3:], jac[:, 3:], atol=1e-15)
+        np.testing.assert_allclose(
+            spatial[:, :3], jac[:, :3] + tf.skew(tip[:, :3, 3]) @ jac[:, 3:], atol=1e-12
+        )
+
+
+def test_origins_jacobian_with_nongeometric_terms(rng):
+    """Joint scale and harmonic values change the joint motion: the origin frames the Jacobian
+    uses take the effective joint values out, so it stays exact with those terms present."""
+    from dataclasses import replace
+
+    nominal = load_urdf(*real("tiago_pro"), parametrisation="origins")
+    terms = [("scale",) if p else ("scale", "harmonic") for p in nominal.prismatic]
+    nominal = replace(nominal, nongeometric=tuple(terms))
+    layout = make_layout(nominal)
+    assert "scale" in layout.kinds and "harmonic_c" in layout.kinds
+    errors = planted_origins(layout, rng, 1e-2, np.radians(5))
+    other = ~np.isin(layout.kinds, ("origin", "theta_off", "d"))
+    errors[other] = rng.normal(0, 2e-2, other.sum())
+    q = random_q(nominal, 4, rng)
+    _, jac = pose_jacobian(calibrated_model(nominal, layout, errors), q, layout)
+    numeric = numeric_pose_jacobian(nominal, layout, errors, q)
+    assert np.linalg.norm(jac - numeric) < 1e-7 * np.linalg.norm(numeric)
 
 
 @pytest.mark.parametrize("name", ["tiago_pro", "ur5", "panda"])

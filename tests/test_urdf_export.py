@@ -12,8 +12,7 @@ import pytest
 import yaml
 import yourdfpy
 from conftest import random_q
-from lxml import etree
-from urdf_helpers import TIAGO, UR5E_KINEMATICS, pin_fk, real, ur_description_urdf
+from urdf_helpers import TIAGO, UR5E_KINEMATICS, pin_fk, real, substitute, ur_description_urdf
 
 from relcal import geometry as tf
 from relcal.errors import RelcalError
@@ -47,20 +46,6 @@ def check_fk(path, model, q, tol=1e-9):
     for k in range(len(q)):
         robot.update_cfg(dict(zip(model.joint_names, q[k], strict=True)))
         np.testing.assert_allclose(robot.get_transform(tip, root), ours[k], atol=tol)
-
-
-def substitute(data: bytes, origins: dict[str, np.ndarray]) -> bytes:
-    """The URDF with these joints' origins replaced, as xacro would write them (via lxml)."""
-    root = etree.fromstring(data)
-    for name, origin in origins.items():
-        (joint,) = root.xpath(f"/robot/joint[@name='{name}']")
-        tag = joint.find("origin")
-        if tag is None:
-            tag = etree.SubElement(joint, "origin")
-        xyz, rpy = tf.to_xyz_rpy(origin)
-        tag.set("xyz", " ".join(repr(float(v)) for v in xyz))
-        tag.set("rpy", " ".join(repr(float(v)) for v in rpy))
-    return etree.tostring(root)
 
 
 def origins_masked(data: bytes, names) -> bytes:

@@ -8,6 +8,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 from conftest import DATA
+from lxml import etree
+
+from relcal import geometry as tf
 
 try:  # a dev dependency (about 400 MB of robots with meshes)
     ROBOTS = Path(str(distribution("example-robot-data").locate_file("cmeel.prefix"))) / (
@@ -114,3 +117,17 @@ def real(name: str) -> tuple:
     if not Path(path).is_file():
         pytest.skip(f"{path} is not available (pip install example-robot-data)")
     return REAL[name]
+
+
+def substitute(data: bytes, origins: dict[str, np.ndarray]) -> bytes:
+    """The URDF with these joints' origins replaced, as xacro would write them (via lxml)."""
+    root = etree.fromstring(data)
+    for name, origin in origins.items():
+        (joint,) = root.xpath(f"/robot/joint[@name='{name}']")
+        tag = joint.find("origin")
+        if tag is None:
+            tag = etree.SubElement(joint, "origin")
+        xyz, rpy = tf.to_xyz_rpy(origin)
+        tag.set("xyz", " ".join(repr(float(v)) for v in xyz))
+        tag.set("rpy", " ".join(repr(float(v)) for v in rpy))
+    return etree.tostring(root)

@@ -9,9 +9,11 @@ kind), then optionally the base and tool transforms as 6-vectors of small motion
 frames (``base.tx`` ... ``base.rz``).
 
 Robots loaded from a URDF with the ``origins`` parametrisation get instead, per joint, its zero
-offset (``theta_off``, or ``d`` for a prismatic joint) and a small motion of its URDF origin in
-the joint's own frame (kind ``origin``, index ``6 * joint + component``), as robot_calibration
-and FIGAROH parametrise: redundant, and the identifiability analysis names the redundancy.
+offset (``theta_off``, or ``d`` for a prismatic joint) and a motion of its URDF origin in the
+joint's own frame (kind ``origin``, index ``6 * joint + component``), as robot_calibration and
+FIGAROH parametrise: redundant, and the identifiability analysis names the redundancy. Both are
+counted from the file's origins (the zero offset along the joint axis), so they add up and the
+Jacobian is exact at any error (:func:`apply_errors`, :func:`_origin_screws`).
 
 Non-geometric terms change the effective joint value (:func:`effective_joints`), so each one
 moves the tool along its joint's screw, scaled by ``d q_eff / d parameter``: ``q``, the gravity
@@ -171,20 +173,35 @@ _FRAMES = ("base", "tool")
 def apply_errors(model: RobotModel, layout: Layout, errors: np.ndarray) -> RobotModel:
     """The model with additive errors (geometric and non-geometric values); base/tool errors
     move those frames locally; URDF origin errors move the joint origins (and the model is
-    converted again, exactly)."""
-    errors = np.asarray(errors, dtype=float)
-    if "origin" in layout.kinds:
-        origin = [(i, e) for (k, i), e in zip(layout, errors, strict=False) if k == "origin"]
-        if any(e != 0 for _, e in origin):
-            from relcal.robot.urdf import move_origins
+    converted again, exactly).
 
+    In a layout with origin entries the zero offsets (``theta_off``, ``d``) go into the origins
+    too, along the joint axis (:func:`relcal.robot.urdf.zero_directions`): every origin error is
+    then additive, ``apply_errors(apply_errors(m, l, x), l, y) == apply_errors(m, l, x + y)``,
+    which :func:`pose_jacobian` differentiates exactly."""
+    errors = np.asarray(errors, dtype=float)
+    folded: tuple[str, ...] = ()
+    if "origin" in layout.kinds:
+        folded = _ORIGIN_KINDS
+        moves = [(k, i, e) for (k, i), e in zip(layout, errors, strict=False) if k in folded]
+        if any(e != 0 for _, _, e in moves):
+            from relcal.robot.urdf import move_origins, zero_directions
+
+            if model.urdf is None:
+                raise RelcalError(f"'{model.name}': origin errors need a robot loaded from a URDF")
             motions = np.zeros((model.n_joints, 6))
-            for i, e in origin:
-                motions[i // 6, i % 6] += e
+            zero = zero_directions(model.urdf)
+            for kind, i, e in moves:
+                if kind == "origin":
+                    motions[i // 6, i % 6] += e
+                else:  # a zero offset, along the joint axis
+                    motions[i] += e * zero[i]
             model = move_origins(model, motions)
     arrays: dict[str, np.ndarray] = {}
     frames: dict[str, np.ndarray] = {}
     for (kind, i), e in zip(layout, errors, strict=False):
+        if kind in folded:
+            continue
         if kind in _FRAMES:
             frames.setdefault(kind, np.zeros(6))[i] += e
         elif kind in KINDS or kind in NONGEOMETRIC_KINDS:
@@ -197,6 +214,19 @@ def apply_errors(model: RobotModel, layout: Layout, errors: np.ndarray) -> Robot
         if vec.any()
     }
     return replace(model, **arrays, **moved)
+
+
+_ORIGIN_KINDS = ("origin", "theta_off", "d")  # what moves URDF origins in an origins layout
+
+
+@functools.lru_cache(maxsize=64)
+def _origin_entries(layout: Layout) -> np.ndarray:
+    """Mask ``(P,)`` of the entries that move URDF origins: the origin 6-vectors and, in a layout
+    that has them, the zero offsets (``theta_off``, ``d``)."""
+    kinds = np.array(layout.kinds)
+    if "origin" not in layout.kinds:
+        return np.zeros(len(kinds), dtype=bool)
+    return np.isin(kinds, _ORIGIN_KINDS)
 
 
 def gravity_torques(model: RobotModel, q: np.ndarray) -> np.ndarray:
@@ -488,13 +518,74 @@ def _screws(
     points[:, base_cols] = model.base[:3, 3]
     axes[:, tool_cols] = np.swapaxes(tip_pose[:, :3, tool_axes], -1, -2)
     points[:, tool_cols] = tip_pose[:, None, :3, 3]
-    if origin_cols.size:  # small motions of URDF joint origins, in the joint frame
-        origin_frames = _urdf_joint_frames(model, frames, q)
-        picked = origin_frames[:, origin_idx // 6]  # (N, P_origin, 4, 4)
-        columns = np.swapaxes(picked[..., :3, :3], -1, -2)  # [..., c] is column c
-        axes[:, origin_cols] = columns[:, np.arange(len(origin_idx)), origin_idx % 3]
-        points[:, origin_cols] = picked[..., :3, 3]
+    if origin_cols.size:
+        _origin_screws(model, frames, q, layout, axes, points)
     return tip_pose, axes, points, rotation
+
+
+def _origin_screws(
+    model: RobotModel,
+    frames: np.ndarray,
+    q: np.ndarray,
+    layout: Layout,
+    axes: np.ndarray,
+    points: np.ndarray,
+) -> None:
+    """Fill in the screws of the entries that move URDF origins (:func:`_origin_entries`), in
+    place: a change ``ds`` of joint i's origin 6-vector ``s = (t, w)`` moves its origin frame by
+    ``R(w)^T dt`` and rotates it by ``J_r(w) dw`` about its own origin, in its own axes
+    (:func:`relcal.robot.urdf.origin_tangents`), exactly at any ``s``; a zero offset is the
+    change along its joint's direction (:func:`relcal.robot.urdf.zero_directions`)."""
+    from relcal.robot.urdf import origin_tangents
+
+    if model.urdf is None:
+        raise ValueError("origin parameters need a robot loaded from a URDF")
+    cols, joint, directions = _origin_directions(layout, model.urdf)  # (n, 6, P_o)
+    tangents = origin_tangents(model)  # (n, 6, 6), block diagonal
+    # an entry's 6-vector direction lies in one block (a component, or a joint's zero direction),
+    # so its translation or its rotation, in the joint's origin frame, is the sum of both
+    local = np.einsum("jab,jbp->jap", tangents[:, :3, :3], directions[:, :3])
+    local += np.einsum("jab,jbp->jap", tangents[:, 3:, 3:], directions[:, 3:])  # (n, 3, P_o)
+    picked = _urdf_joint_frames(model, frames, q)  # (N, n, 4, 4)
+    n_conf, n = picked.shape[:2]
+    rot = np.swapaxes(picked[..., :3, :3], 1, 2).reshape(n_conf, 3, 3 * n)  # [N, a, 3 j + b]
+    axes[:, cols] = np.swapaxes(rot @ local.reshape(3 * n, -1), -1, -2)
+    points[:, cols] = picked[:, :, :3, 3][:, joint]
+
+
+@functools.lru_cache(maxsize=64)
+def _origin_slots(layout: Layout) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Columns of the origin-moving entries of ``layout`` ``(P_o,)``, their joints, and the
+    origin component each one is (0..5; -1 for a zero offset)."""
+    cols = np.flatnonzero(_origin_entries(layout))
+    kinds = np.array(layout.kinds)[cols]
+    index = np.array(layout.index, dtype=int)[cols]
+    is_origin = kinds == "origin"
+    return cols, np.where(is_origin, index // 6, index), np.where(is_origin, index % 6, -1)
+
+
+def _origin_directions(layout: Layout, chain) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Columns and joints of the origin-moving entries of ``layout`` ``(P_o,)``, and their
+    6-vector directions per joint ``(n, 6, P_o)`` (zero for another joint's entries): a unit
+    component of the joint's origin, or its zero direction
+    (:func:`relcal.robot.urdf.zero_directions`)."""
+    from relcal.robot.urdf import zero_directions
+
+    zero = zero_directions(chain)
+    return _directions(layout, zero.tobytes(), len(zero))
+
+
+@functools.lru_cache(maxsize=64)
+def _directions(layout: Layout, zero: bytes, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    cols, joint, comp = _origin_slots(layout)
+    zero_dirs = np.frombuffer(zero).reshape(n, 6)
+    out = np.zeros((n, 6, len(cols)))
+    entry = np.arange(len(cols))
+    unit, shift = comp >= 0, comp < 0
+    out[joint[unit], comp[unit], entry[unit]] = 1.0
+    out[joint[shift], :, entry[shift]] = zero_dirs[joint[shift]]
+    out.setflags(write=False)
+    return cols, joint, out
 
 
 def _urdf_joint_frames(model: RobotModel, frames: np.ndarray, q: np.ndarray) -> np.ndarray:
@@ -502,7 +593,7 @@ def _urdf_joint_frames(model: RobotModel, frames: np.ndarray, q: np.ndarray) -> 
     frame after joint i with the motion taken out, times the URDF frame in it."""
     if model.urdf is None:
         raise ValueError("origin parameters need a robot loaded from a URDF")
-    q = np.atleast_2d(np.asarray(q, dtype=float))
+    q = effective_joints(model, q)  # the motion that the chain frames hold
     undo = np.broadcast_to(np.eye(4), (*q.shape, 4, 4)).copy()
     rot = ~model.prismatic
     undo[..., :3, :3] = np.where(rot[:, None, None], tf.rot_z(-q), np.eye(3))

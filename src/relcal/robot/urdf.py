@@ -536,23 +536,104 @@ def mdh_frames(model: RobotModel) -> np.ndarray:
     return np.array(out)
 
 
-def move_origins(model: RobotModel, motions: np.ndarray) -> RobotModel:
-    """The model with each movable joint's URDF origin moved by a small motion in its own frame,
-    ``origin' = origin exp(motions[i])`` (``(n, 6)``: m, then rotation vector rad), the
-    distal chain and tool following; converted to modified DH again, exactly, keeping the
-    Hayati joints."""
+_CONSTANTS: dict[int, tuple] = {}  # id(chain.joints) -> (joints, steps, zero directions)
+
+
+def _chain_constants(chain: UrdfChain) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`nominal_steps` and :func:`zero_directions` of a chain, computed once per joint tuple
+    (every model moved from one URDF shares it)."""
+    hit = _CONSTANTS.get(id(chain.joints))
+    if hit is not None and hit[0] is chain.joints:
+        return hit[1], hit[2]
+    world, _ = joint_frames(chain.joints)
+    world = np.array(world)
+    steps = np.concatenate([world[:1], tf.invert(world[:-1]) @ world[1:]])
+    zero = np.zeros((len(chain.movable), 6))
+    for i, k in enumerate(chain.movable):
+        joint = chain.joints[k]
+        start = 0 if joint.type == "prismatic" else 3
+        zero[i, start : start + 3] = joint.axis
+    for array in (steps, zero):
+        array.setflags(write=False)
+    if len(_CONSTANTS) > 256:
+        _CONSTANTS.clear()
+    _CONSTANTS[id(chain.joints)] = (chain.joints, steps, zero)
+    return steps, zero
+
+
+def nominal_steps(chain: UrdfChain) -> np.ndarray:
+    """Per movable joint ``(n, 4, 4)``: the transform from the previous movable joint's URDF frame
+    (the root link for the first) to its own at ``q = 0``, fixed joints included, as the file
+    gives it (read-only)."""
+    return _chain_constants(chain)[0]
+
+
+def zero_directions(chain: UrdfChain) -> np.ndarray:
+    """Per movable joint ``(n, 6)``: the 6-vector direction its zero offset adds to its origin's
+    motion, the joint axis as a rotation (revolute) or a translation (prismatic) (read-only)."""
+    return _chain_constants(chain)[1]
+
+
+def origin_motions(model: RobotModel) -> np.ndarray:
+    """The 6-vectors ``s`` ``(n, 6)`` (m, rotation vector rad) of the model's URDF origins against
+    the file's, ``origin = nominal from_vector(s)`` (fixed joints before a movable one are part
+    of its origin): zeros for a model as loaded. A zero offset in ``theta_off`` or ``d`` beyond the
+    converted value is read as part of the origin."""
+    return _origin_state(model)[2]
+
+
+def _origin_state(model: RobotModel) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """relcal's joint frames and the URDF joint frames at ``q = 0`` ``(n, 4, 4)``, and
+    :func:`origin_motions`."""
     chain = model.urdf
     if chain is None:
         raise RelcalError(f"'{model.name}': origin errors need a robot loaded from a URDF")
     frames = mdh_frames(model)
-    world = frames @ chain.frames  # URDF joint frames at q = 0
+    world = frames @ chain.frames
+    current = np.concatenate([world[:1], tf.invert(world[:-1]) @ world[1:]])
+    return frames, world, tf.to_vector(tf.invert(nominal_steps(chain)) @ current)
+
+
+def right_jacobian(rotvec: np.ndarray) -> np.ndarray:
+    """Right Jacobian ``(..., 3, 3)`` of SO(3) at rotation vectors ``(..., 3)`` (rad):
+    ``exp(w + dw) ~ exp(w) exp([J_r(w) dw])``."""
+    w = np.asarray(rotvec, dtype=float)
+    angle2 = np.einsum("...i,...i->...", w, w)[..., None, None]
+    angle = np.sqrt(angle2)
+    small = angle < 1e-4  # Taylor series there: exact to round-off, no 0/0
+    safe = np.where(small, 1.0, angle)
+    c1 = np.where(small, 0.5 - angle2 / 24, (1 - np.cos(safe)) / safe**2)
+    c2 = np.where(small, 1 / 6 - angle2 / 120, (safe - np.sin(safe)) / safe**3)
+    k = tf.skew(w)
+    return np.eye(3) - c1 * k + c2 * (k @ k)
+
+
+def origin_tangents(model: RobotModel) -> np.ndarray:
+    """Per movable joint ``(n, 6, 6)``: the small motion of its moved origin frame, in that frame
+    (translation m, rotation rad), per unit change of its 6-vector ``s`` (:func:`origin_motions`):
+    ``nominal from_vector(s + ds) = nominal from_vector(s) exp([T ds])`` to first order, with
+    ``T = diag(R(w)^T, J_r(w))`` exactly at any ``s = (t, w)``."""
+    s = origin_motions(model)
+    out = np.zeros((len(s), 6, 6))
+    out[:, :3, :3] = np.swapaxes(tf.exp_rotation(s[:, 3:]), -1, -2)
+    out[:, 3:, 3:] = right_jacobian(s[:, 3:])
+    return out
+
+
+def move_origins(model: RobotModel, motions: np.ndarray) -> RobotModel:
+    """The model with each movable joint's URDF origin moved: ``motions`` ``(n, 6)`` (m, then
+    rotation vector rad) add to the origins' 6-vectors against the file's (:func:`origin_motions`),
+    ``origin' = nominal from_vector(s + motions[i])``, so that moving twice is moving once by the
+    sum; the distal chain and tool follow, and the chain is converted to modified DH again,
+    exactly, keeping the Hayati joints."""
+    frames, world, current = _origin_state(model)
+    chain, steps = model.urdf, nominal_steps(model.urdf)
     tip = frames[-1] @ model.tool
-    moved, prev_old, prev_new = [], np.eye(4), np.eye(4)
+    total = current + np.asarray(motions, dtype=float)
+    moved, prev = [], np.eye(4)
     for i in range(model.n_joints):
-        step = tf.invert(prev_old) @ world[i]  # fixed joints and the origin before joint i
-        prev_old = world[i]
-        prev_new = prev_new @ step @ tf.from_vector(motions[i])
-        moved.append(prev_new)
+        prev = prev @ steps[i] @ tf.from_vector(total[i])
+        moved.append(prev)
     tip = moved[-1] @ tf.invert(world[-1]) @ tip
     axes = [(w, chain.joints[k].axis) for w, k in zip(moved, chain.movable, strict=True)]
     mdh = _to_mdh(axes, tip, PARALLEL_TOL_DEG, hayati=model.hayati)
