@@ -1,20 +1,18 @@
 """Which covariance should the registry's drift test use? Not a speed row: the statistics behind
 the README's registry and drift numbers (``python bench/drift_covariance.py [PAIRS] [PLANTED]``,
-default 200 and 20; about two minutes).
+default 200 and 20; a few minutes).
 
 Synthetic sessions as in ``tests/test_drift.py`` (30 poses, 0.05 mm / 0.0057 deg pose noise per
 axis, A465 and UR5e alternating, new poses and noise per session): two sessions of each of
 ``PAIRS`` robots (noise only) and, for the first ``PLANTED`` robots, a third session with ``a[2]``
-0.3 mm longer. Each session is calibrated once; three covariances of its estimated subset:
+0.3 mm longer. Each session is calibrated once; two covariances of its estimated subset:
 
-- ``registry``: :func:`relcal.fleet.records.covariance` (isotropic MAD noise of the pair
-  residuals), what the registry stores;
-- ``calibration``: ``Result.covariance`` (the learned 6x6 pose noise), the std of
-  ``results.json``;
-- ``leverage``: the calibration's propagation with the 6x6 pose noise learned by a moment method
-  that accounts for what the fit absorbs of each residual component (``E r r^T = B Sigma B^T``
-  with ``B = (I - H) G``: ``G`` maps pose errors to pair residuals, ``H`` is the weighted fit's
-  hat matrix), a prototype of a fix to the calibration's noise learning, measured here only.
+- ``registry``: what the registry stores (:func:`relcal.fleet.records.covariance`, the
+  calibration's own: the learned 6x6 pose noise propagated through the pairs), the std that
+  ``results.json`` prints;
+- ``isotropic``: the same propagation with the pose noise at the robust (MAD) isotropic level of
+  the pair residuals, what the registry stored before the noise learning counted what the fit
+  absorbs of each component.
 
 Printed per covariance: the std ratio to ``registry``, the z of identified minus true errors
 (identifiable link parameters), false drift flags on the noise-only pairs (``drift.compare``, F
@@ -42,9 +40,7 @@ import scipy.stats  # noqa: E402
 from helpers_fleet import make_robot, write_session  # noqa: E402
 
 from relcal.calibration.identify import result_covariance  # noqa: E402
-from relcal.calibration.measurement import residuals  # noqa: E402
-from relcal.calibration.noise import _SYM, Noise  # noqa: E402
-from relcal.calibration.pipeline import calibrate, pair_left_maps  # noqa: E402
+from relcal.calibration.pipeline import calibrate  # noqa: E402
 from relcal.data.dataset import load_dataset  # noqa: E402
 from relcal.data.imaging import measure  # noqa: E402
 from relcal.fleet.drift import compare  # noqa: E402
@@ -55,58 +51,25 @@ from relcal.robot.kinematics import make_layout  # noqa: E402
 from relcal.robot.loading import get_robot  # noqa: E402
 from relcal.robot.model import auto_hayati  # noqa: E402
 
-KINDS = ("registry", "calibration", "leverage")
-
-
-def leverage_noise(problem, params: np.ndarray, columns: np.ndarray) -> np.ndarray:
-    """The ``(6, 6)`` pose-noise covariance whose pair residuals, after the fit of ``columns``
-    under the problem's row weights, have the second moments of the observed ones."""
-    plain = replace(problem, weights=None, pair_weights=None)
-    r, a = residuals(plain, params)
-    jac = a[:, columns]
-    jac = jac / np.linalg.norm(jac, axis=0)
-    w2 = np.tile(problem.weights if problem.weights is not None else np.ones(6), len(r) // 6) ** 2
-    hat = jac @ np.linalg.pinv(jac.T @ (w2[:, None] * jac)) @ (jac.T * w2)
-    pairs, n = problem.pair_indices(), len(problem.q)
-    left = pair_left_maps(problem)
-    g = np.zeros((len(r), 6 * n))
-    for p, (i, j) in enumerate(pairs):
-        g[6 * p : 6 * p + 6, 6 * j : 6 * j + 6] = np.eye(6)
-        g[6 * p : 6 * p + 6, 6 * i : 6 * i + 6] = left[p]
-    b = (g - hat @ g).reshape(len(pairs), 6, n, 6).transpose(0, 2, 1, 3)
-    kron = np.einsum("pkac,pkbd->pabcd", b, b).reshape(len(pairs), 36, 36)
-    first, second = _SYM[:, 0] * 6 + _SYM[:, 1], _SYM[:, 1] * 6 + _SYM[:, 0]
-    design = kron[:, :, first] + np.where(first != second, 1.0, 0.0) * kron[:, :, second]
-    e = r.reshape(-1, 6)
-    theta = np.linalg.lstsq(design.reshape(-1, 21), (e[:, :, None] * e[:, None]).ravel())[0]
-    sigma = np.zeros((6, 6))
-    sigma[_SYM[:, 0], _SYM[:, 1]] = sigma[_SYM[:, 1], _SYM[:, 0]] = theta
-    vals, vecs = np.linalg.eigh(sigma)
-    return (vecs * np.clip(vals, 1e-12 * vals.max(), None)) @ vecs.T
+KINDS = ("registry", "isotropic")
 
 
 def session(root: Path, robot, seed: int, change=None) -> dict:
-    """One calibration: its registry record under each covariance, and the noise levels."""
+    """One calibration: its registry record under each covariance, and the learned noise."""
     dataset = load_dataset(write_session(root, robot, seed, change=change))
     cal = calibrate(dataset, measure(dataset, progress=False))
     record = calibration_record(cal, results_document(cal))
     columns = np.flatnonzero(np.isfinite(cal.std))
     res = cal.result
-    sigma = leverage_noise(cal.problem, res.params, columns)
-    lever = result_covariance(
-        cal.problem, res.params, res.identifiability, None, Noise(1, 1, 0, sigma)
-    )
-    out = {"registry": record}
-    for kind, full in (("calibration", res.covariance), ("leverage", lever)):
-        other = deepcopy(record)
-        cov = full[np.ix_(columns, columns)]
-        other["covariance"]["matrix"] = cov.tolist()
-        std = dict(zip(other["covariance"]["names"], np.sqrt(np.diag(cov)), strict=True))
-        for p in other["parameters"]:
-            p["std"] = float(std[p["name"]]) if p["name"] in std else None
-        out[kind] = other
-    out["noise"] = {"calibration": cal.noise.std, "leverage": np.sqrt(np.diag(sigma))}
-    return out
+    ident = replace(res.identifiability, subset=columns)
+    isotropic = result_covariance(cal.problem, res.params, ident)  # no noise model handed in
+    other = deepcopy(record)
+    cov = isotropic[np.ix_(columns, columns)]
+    other["covariance"]["matrix"] = cov.tolist()
+    std = dict(zip(other["covariance"]["names"], np.sqrt(np.diag(cov)), strict=True))
+    for p in other["parameters"]:
+        p["std"] = float(std[p["name"]]) if p["name"] in std else None
+    return {"registry": record, "isotropic": other, "noise": cal.noise.std}
 
 
 def known_noise(record: dict):
@@ -128,11 +91,10 @@ def main(n_pairs: int = 200, n_planted: int = 20) -> None:
         pairs.append((first, session(tmp / f"{s}-2", robot, 20_000 + s)))
         if s < n_planted:
             planted.append((first, session(tmp / f"{s}-3", robot, 30_000 + s, {"a[2]": 3e-4})))
-    noise = {k: np.mean([x["noise"][k] for p in pairs for x in p], axis=0) for k in KINDS[1:]}
+    noise = np.mean([x["noise"] for p in pairs for x in p], axis=0)
     print(f"{2 * n_pairs} noise-only sessions, {n_planted} with a[2] + 0.3 mm")
     print("mean learned pose noise std (m, rad; truth 5e-05, 1e-04):")
-    for k, v in noise.items():
-        print(f"  {k:12s} " + " ".join(f"{x:.2e}" for x in v))
+    print("  " + " ".join(f"{x:.2e}" for x in noise))
     for kind in KINDS:
         ratio, z_truth = [], []
         for (a, b), truth in zip(pairs, truths, strict=True):

@@ -59,7 +59,9 @@ def fr3():
 
 def test_jacobian_matches_finite_differences(a465, rng):
     problem, truth = tracker_problem(a465, rng, n=8)
-    params = np.concatenate([truth, np.zeros(6), rng.normal(0, 1e-3, 3)])  # T at its guess
+    # T far from its guess (5 mm, 3 deg): the columns are per unit change of its 6-vector
+    instrument = np.array([0.005, -0.003, 0.004, 0.05, -0.03, 0.04])
+    params = np.concatenate([truth, instrument, rng.normal(0, 1e-3, 3)])
     r, jac = residuals(problem, params)
     assert jac.shape == (3 * 8, problem.full_layout.size) == (problem.n_residuals(), len(params))
     h = 1e-7

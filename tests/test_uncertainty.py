@@ -21,7 +21,6 @@ from relcal.calibration.uncertainty import (
     parameter_covariance,
     pose_rows,
     predicted_accuracy,
-    right_jacobian_so3,
 )
 from relcal.geometry import DEG, MM
 from relcal.reporting.documents import accuracy_document
@@ -79,7 +78,7 @@ def test_right_jacobian_and_body_covariance(rng):
     r0 = tf.from_vector(np.r_[0, 0, 0, phi])
     r1 = tf.from_vector(np.r_[0, 0, 0, phi + dphi])
     body = tf.to_vector(tf.invert(r0) @ r1)[3:]
-    np.testing.assert_allclose(body, right_jacobian_so3(phi) @ dphi, rtol=1e-6, atol=1e-14)
+    np.testing.assert_allclose(body, tf.right_jacobian(phi) @ dphi, rtol=1e-6, atol=1e-14)
     # A covariance given on to_vector(C) maps to the body frame used by the propagation.
     vec = np.array([0.4, 0.1, 0.3, 0.3, -1.1, 0.7])
     pose = tf.from_vector(vec)
@@ -209,7 +208,7 @@ def test_covariances_from_the_image_pipeline_replace_the_isotropic_noise(hayati,
     vec = tf.to_vector(problem.poses)
     g = np.zeros((10, 6, 6))
     g[:, :3, :3] = np.swapaxes(problem.poses[:, :3, :3], -1, -2)
-    g[:, 3:, 3:] = right_jacobian_so3(vec[:, 3:])
+    g[:, 3:, 3:] = tf.right_jacobian(vec[:, 3:])
     g_inv = np.linalg.inv(g)
     given = g_inv @ body @ np.swapaxes(g_inv, -1, -2)
     a = parameter_covariance(problem, iso)

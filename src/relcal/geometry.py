@@ -105,6 +105,31 @@ def _exp_rotation_one(x: float, y: float, z: float) -> np.ndarray:
     )
 
 
+def right_jacobian(rotvec: np.ndarray) -> np.ndarray:
+    """Right Jacobian ``(..., 3, 3)`` of SO(3) at rotation vectors ``(..., 3)`` (rad):
+    ``exp(w + dw) ~ exp(w) exp([J_r(w) dw])``."""
+    w = np.asarray(rotvec, dtype=float)
+    angle2 = np.einsum("...i,...i->...", w, w)[..., None, None]
+    angle = np.sqrt(angle2)
+    small = angle < 1e-4  # Taylor series there: exact to round-off, no 0/0
+    safe = np.where(small, 1.0, angle)
+    c1 = np.where(small, 0.5 - angle2 / 24, (1 - np.cos(safe)) / safe**2)
+    c2 = np.where(small, 1 / 6 - angle2 / 120, (safe - np.sin(safe)) / safe**3)
+    k = skew(w)
+    return np.eye(3) - c1 * k + c2 * (k @ k)
+
+
+def vector_tangent(vec: np.ndarray) -> np.ndarray:
+    """``(..., 6, 6)`` ``diag(R(w)^T, J_r(w))`` of 6-vectors ``(t, w)`` ``(..., 6)``: the body
+    motion of :func:`from_vector` per unit change of its vector,
+    ``from_vector(v + dv) ~ from_vector(v) exp([T dv])``, exactly at any ``v``."""
+    vec = np.asarray(vec, dtype=float)
+    out = np.zeros((*vec.shape[:-1], 6, 6))
+    out[..., :3, :3] = np.swapaxes(exp_rotation(vec[..., 3:]), -1, -2)
+    out[..., 3:, 3:] = right_jacobian(vec[..., 3:])
+    return out
+
+
 def log_rotation(rotation: np.ndarray) -> np.ndarray:
     """Rotation vectors ``(..., 3)`` (angle in [0, pi]) of rotation matrices ``(..., 3, 3)``.
 

@@ -178,7 +178,8 @@ def residuals(problem: Problem, params: np.ndarray, jacobian: bool = True):
         tip, jac = fk(model, problem.q), None
     rows = problem.rows_per_measurement
     if problem.formulation == "invariant":
-        r, a = _invariant(problem, tip, jac, handeye)
+        n_geo = problem.layout.size
+        r, a = _invariant(problem, tip, jac, handeye, params[n_geo : n_geo + 6])
     else:
         r, a = tf.pose_error(problem.poses, tip), jac
         if problem.formulation == "published":
@@ -196,10 +197,15 @@ def residuals(problem: Problem, params: np.ndarray, jacobian: bool = True):
 
 
 def _invariant(
-    problem: Problem, tip: np.ndarray, spatial: np.ndarray | None, handeye: np.ndarray
+    problem: Problem,
+    tip: np.ndarray,
+    spatial: np.ndarray | None,
+    handeye: np.ndarray,
+    handeye_params: np.ndarray,
 ) -> tuple[np.ndarray, np.ndarray | None]:
     """Residuals ``(P, 6)`` and Jacobian ``(P, 6, n_geo + 6)`` of the frame-invariant form, the
-    latter if the spatial twists of the parameters (:func:`spatial_jacobian`) are given."""
+    latter if the spatial twists of the parameters (:func:`spatial_jacobian`) are given;
+    ``handeye = problem.handeye @ from_vector(handeye_params)``."""
     i, j = problem.pair_indices().T
     camera = tip @ handeye  # F X
     inverse = tf.invert(camera)
@@ -224,6 +230,8 @@ def _invariant(
     out[:, :3, n_geo + 3 :] = -tf.skew(shift) @ rot
     out[:, 3:, n_geo : n_geo + 3] = 0.0
     out[:, 3:, n_geo + 3 :] = eye - rot
+    if np.any(handeye_params):  # per unit change of the 6-vector, not of a motion on top
+        out[:, :, n_geo:] = out[:, :, n_geo:] @ tf.vector_tangent(handeye_params)
     return r, out
 
 
@@ -276,6 +284,8 @@ def _tracker(problem: Problem, params: np.ndarray, jacobian: bool):
     skew = tf.skew(point)  # (N, 3, 3): [y]x, so w x y = -[y]x w
     geo = spatial[:, :3] - skew @ spatial[:, 3:]
     inst = np.concatenate([np.broadcast_to(np.eye(3), skew.shape), -skew], axis=-1)
+    if np.any(params[n_geo : n_geo + 6]):  # per unit change of T's 6-vector
+        inst = inst @ tf.vector_tangent(params[n_geo : n_geo + 6])
     mark = tip[:, :3, :3]
     a = rot @ np.concatenate([geo, inst, mark], axis=-1)  # (N, 3, P)
     if weights is not None:

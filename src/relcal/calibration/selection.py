@@ -25,7 +25,7 @@ import numpy as np
 from relcal.calibration.measurement import Problem, residuals
 from relcal.robot.model import RobotModel, nongeometric_options, with_nongeometric
 
-GEOMETRIC_KINDS = ("theta_off", "a", "d", "alpha", "beta", "base", "tool")
+GEOMETRIC_KINDS = ("theta_off", "a", "d", "alpha", "beta", "base", "tool", "origin")
 FRAME_KINDS = ("handeye", "instrument", "marker")  # estimated with the robot, never exported
 PLAIN_ROTATION_WEIGHT = 0.1  # m/rad: rotation rows count like a 0.1 m lever arm
 # Candidates without kinematic correction: the hand-eye transform alone, or (position-only data)

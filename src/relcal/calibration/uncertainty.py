@@ -51,19 +51,6 @@ _RANK_TOL = 1e-10  # relative tolerance on the singular values of the noise fact
 # --- the noise -----------------------------------------------------------------------------------
 
 
-def right_jacobian_so3(rotvec: np.ndarray) -> np.ndarray:
-    """Right Jacobian ``(..., 3, 3)`` of SO(3) at rotation vectors ``(..., 3)`` (rad):
-    ``R(phi + dphi) ~ R(phi) exp(J_r(phi) dphi)``."""
-    phi = np.asarray(rotvec, dtype=float)
-    angle = np.linalg.norm(phi, axis=-1)[..., None, None]
-    k = tf.skew(phi)
-    small = angle < 1e-8
-    safe = np.where(small, 1.0, angle)
-    c1 = np.where(small, 0.5, (1 - np.cos(safe)) / safe**2)
-    c2 = np.where(small, 1.0 / 6.0, (safe - np.sin(safe)) / safe**3)
-    return np.eye(3) - c1 * k + c2 * (k @ k)
-
-
 def body_covariance(poses: np.ndarray, vector_covariance: np.ndarray) -> np.ndarray:
     """Covariances ``(N, 6, 6)`` of body-frame pose errors (``C exp(eps)``) from covariances of
     ``transforms.to_vector(C)`` (translation m, rotation vector rad), as the image pipeline gives
@@ -71,7 +58,7 @@ def body_covariance(poses: np.ndarray, vector_covariance: np.ndarray) -> np.ndar
     vec = tf.to_vector(poses)
     g = np.zeros((len(poses), 6, 6))
     g[:, :3, :3] = np.swapaxes(poses[:, :3, :3], -1, -2)  # eps_t = R^T dt
-    g[:, 3:, 3:] = right_jacobian_so3(vec[:, 3:])  # eps_w = J_r(phi) dphi
+    g[:, 3:, 3:] = tf.right_jacobian(vec[:, 3:])  # eps_w = J_r(phi) dphi
     return g @ vector_covariance @ np.swapaxes(g, -1, -2)
 
 

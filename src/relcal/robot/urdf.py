@@ -594,30 +594,12 @@ def _origin_state(model: RobotModel) -> tuple[np.ndarray, np.ndarray, np.ndarray
     return frames, world, tf.to_vector(tf.invert(nominal_steps(chain)) @ current)
 
 
-def right_jacobian(rotvec: np.ndarray) -> np.ndarray:
-    """Right Jacobian ``(..., 3, 3)`` of SO(3) at rotation vectors ``(..., 3)`` (rad):
-    ``exp(w + dw) ~ exp(w) exp([J_r(w) dw])``."""
-    w = np.asarray(rotvec, dtype=float)
-    angle2 = np.einsum("...i,...i->...", w, w)[..., None, None]
-    angle = np.sqrt(angle2)
-    small = angle < 1e-4  # Taylor series there: exact to round-off, no 0/0
-    safe = np.where(small, 1.0, angle)
-    c1 = np.where(small, 0.5 - angle2 / 24, (1 - np.cos(safe)) / safe**2)
-    c2 = np.where(small, 1 / 6 - angle2 / 120, (safe - np.sin(safe)) / safe**3)
-    k = tf.skew(w)
-    return np.eye(3) - c1 * k + c2 * (k @ k)
-
-
 def origin_tangents(model: RobotModel) -> np.ndarray:
     """Per movable joint ``(n, 6, 6)``: the small motion of its moved origin frame, in that frame
     (translation m, rotation rad), per unit change of its 6-vector ``s`` (:func:`origin_motions`):
     ``nominal from_vector(s + ds) = nominal from_vector(s) exp([T ds])`` to first order, with
     ``T = diag(R(w)^T, J_r(w))`` exactly at any ``s = (t, w)``."""
-    s = origin_motions(model)
-    out = np.zeros((len(s), 6, 6))
-    out[:, :3, :3] = np.swapaxes(tf.exp_rotation(s[:, 3:]), -1, -2)
-    out[:, 3:, 3:] = right_jacobian(s[:, 3:])
-    return out
+    return tf.vector_tangent(origin_motions(model))
 
 
 def move_origins(model: RobotModel, motions: np.ndarray) -> RobotModel:
