@@ -308,6 +308,7 @@ def identify_published(
 
 
 _DAMPING = 1e-6  # Marquardt's starting damping, relative to unit-norm columns
+STEP_TOL = 0.01  # a step below this share of the standard deviations is not taken
 
 
 def levenberg_marquardt(
@@ -337,9 +338,12 @@ def levenberg_marquardt(
             damping *= 10.0
             continue
         # The decrease the linear model promises; nearly undamped, it bounds what any step
-        # can still gain, so a promise below the tolerance ends the iteration unevaluated.
+        # can still gain. Below the tolerance, or below moving the estimate by STEP_TOL of its
+        # standard deviations (|A dx|^2 / s^2 with s^2 = cost / (m - k) the noise level the
+        # residuals imply), the iteration ends unevaluated.
         promised = 2.0 * (gradient @ step) - step @ normal @ step
-        if damping <= _DAMPING and promised <= rtol * cost:
+        negligible = STEP_TOL**2 * cost / max(len(r) - len(x), 1)
+        if damping <= _DAMPING and promised <= max(rtol * cost, negligible):
             return x, True, nfev
         trial = x + step / scale
         r_new, a_new = evaluate(trial)
