@@ -227,11 +227,6 @@ def output_folder(text: str) -> str:
 ArgumentTypeError = argparse.ArgumentTypeError
 
 
-#: The drift tests' default level, :data:`relcal.fleet.drift.ALPHA` (which imports SciPy),
-#: repeated for the ``--alpha`` options; a test checks that the two agree.
-DRIFT_ALPHA = 0.01
-
-
 def registry_arg(parser: argparse.ArgumentParser) -> None:
     """``--registry PATH|URL``: the calibration registry (default ``$RELCAL_REGISTRY``)."""
     parser.add_argument(

@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import argparse
 
-from relcal.cli.common import DRIFT_ALPHA, json_arg, registry_arg
+from relcal.cli.common import json_arg, registry_arg
+from relcal.fleet import ALPHA as DRIFT_ALPHA
 
 EPILOG = """\
 examples:

@@ -5,3 +5,5 @@ nothing below imports it. ``registry`` stores one record per calibration (SQLAlc
 migrated by Alembic), ``drift`` compares two records of one robot, ``runner`` calibrates many
 dataset folders as Dask tasks, and ``report`` draws the fleet page.
 """
+
+ALPHA = 0.01  # the drift tests' default level (here, so that the command line reads it lightly)

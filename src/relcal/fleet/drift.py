@@ -37,9 +37,9 @@ import numpy as np
 import scipy.stats
 
 from relcal.errors import RelcalError
+from relcal.fleet import ALPHA
 from relcal.fleet.registry import Run
 
-ALPHA = 0.01
 MAD_EFFICIENCY = 0.37  # of the median absolute deviation against the standard deviation (normal)
 
 
