@@ -163,6 +163,11 @@ def test_calibrate_records_and_history_compare_read(tmp_path, capsys, monkeypatc
     text = capsys.readouterr().out
     assert "2 calibration(s)" in text and "monday" in text and "friday" in text
     assert "DRIFT" in text and "d[4]" in text
+    # terms left out by model selection are not called unidentifiable
+    unidentifiable = next(line for line in text.splitlines() if line.startswith("not identif"))
+    left_out = next(line for line in text.splitlines() if line.startswith("not in any run"))
+    assert "theta_off[1]" in unidentifiable and "scale[2]" not in unidentifiable
+    assert "scale[2]" in left_out and "theta_off[1]" not in left_out
     history = json.loads((tmp_path / "h.json").read_text())
     assert [r["session"] for r in history["runs"]] == ["monday", "friday"]
     assert history["runs"][1]["drift"]["verdict"] == "drift"

@@ -61,7 +61,7 @@ def history_text(robot_id: str, runs: list[Run], comparisons: list, where: str) 
     lines += ["", "parameters (identified error, mm or deg, +- one standard deviation):"]
     header = ["name", "unit"] + [f"run {r.id}" for r in runs]
     table = [header]
-    never = []
+    never: dict[str, list[str]] = {"n/i": [], "-": []}
     for name in runs[-1].names:
         cells, unit = [], ""
         for run in runs:
@@ -70,19 +70,25 @@ def history_text(robot_id: str, runs: list[Run], comparisons: list, where: str) 
             except KeyError:
                 cells.append("")
                 continue
-            if p["value"] is None or not p["identifiable"]:
+            if not p["identifiable"]:
                 cells.append("n/i")
+                continue
+            if p["value"] is None:  # identifiable, left out by model selection
+                cells.append("-")
                 continue
             value, unit = display(p["value"], p["unit"])
             std = display(p["std"], p["unit"])[0] if p["std"] is not None else float("nan")
             cells.append(f"{value:+.4f} +- {std:.4f}")
-        if all(c in ("n/i", "") for c in cells):
-            never.append(name)
+        shown = {c for c in cells if c}
+        if shown <= {"n/i", "-"}:
+            never["n/i" if shown == {"n/i"} else "-"].append(name)
         else:
             table.append([name, unit, *cells])
     lines += _table(table, set(range(2, len(header))))
-    if never:
-        lines.append("not identifiable (n/i) in any run: " + ", ".join(never))
+    if never["n/i"]:
+        lines.append("not identifiable (n/i) in any run: " + ", ".join(never["n/i"]))
+    if never["-"]:
+        lines.append("not in any run's chosen model (-): " + ", ".join(never["-"]))
     return "\n".join(lines)
 
 
@@ -135,7 +141,10 @@ def comparison_text(c: Comparison) -> str:
         lines += ["", "repeatability (std of the difference of two sessions): " + ", ".join(parts)]
     rest = [n for n in c.left_out if n not in set(c.one_sided)]
     if rest:
-        lines.append("not compared (not identifiable in both, or hand-eye): " + ", ".join(rest))
+        lines.append(
+            "not compared (not estimated or not identifiable in both, or hand-eye): "
+            + ", ".join(rest)
+        )
     lines += [f"note: {n}" for n in c.notes]
     return "\n".join(lines)
 
