@@ -13,6 +13,7 @@ from relcal.design.plan import (
     CRITERIA,
     DEFAULT_NOISE,
     Constraints,
+    Scorer,
     _values,
     candidates,
     check,
@@ -46,7 +47,7 @@ def hayati():
 
 @pytest.fixture(scope="module")
 def pool(hayati):
-    q, rejected = candidates(hayati, Cell(), Constraints(), 250, np.random.default_rng(0))
+    q, rejected = candidates(hayati, Cell(), Constraints(), 250, seed=0)
     return q, rejected
 
 
@@ -207,3 +208,78 @@ def test_command_line_plan(tmp_path, hayati, capsys):
     assert q.shape == (12, 6) and read_joints(rnd, hayati, "deg").shape == (12, 6)
     assert check(hayati, Cell(), q, Constraints())["board in view"].all()
     assert main(["plan", "--board", "7 by 10"]) == 2
+
+
+def test_candidate_batches_do_not_depend_on_how_many_are_drawn(hayati):
+    """Each IK batch has its own random stream: asking for fewer candidates gives a prefix of
+    the larger pool, batch by batch (so the pool cannot depend on how batches are shared out)."""
+    cell, c = Cell(), Constraints()
+    small, rej_small = candidates(hayati, cell, c, 70, seed=5, batch=60)
+    large, rej_large = candidates(hayati, cell, c, 200, seed=5, batch=60)
+    np.testing.assert_array_equal(small, large[:70])
+    assert sum(rej_small.values()) < sum(rej_large.values())
+    other, _ = candidates(hayati, cell, c, 70, seed=6, batch=60)
+    assert not np.allclose(other, small)
+
+
+@pytest.fixture(scope="module")
+def cluster():
+    """A local Dask cluster of 2 single-threaded worker processes (as `--workers 2` makes)."""
+    pytest.importorskip("distributed")
+    from relcal.cluster import local_cluster
+
+    with local_cluster(2) as cluster:
+        yield cluster
+
+
+def test_plan_on_the_cluster_chooses_the_same_poses(hayati, cluster, monkeypatch):
+    """`plan(client=...)`: candidate batches and every scoring step run as tasks on both
+    workers, and the pool, the plan and the random sets are those of one process."""
+    from distributed import Client, get_task_stream
+
+    import relcal.design.plan as design
+
+    monkeypatch.setattr(design, "MIN_DISTRIBUTED", 0)
+    monkeypatch.setattr(design, "BLOCK", 64)  # several blocks, one shard per worker
+    cell = Cell(**CELL)
+    options = dict(k=10, n_candidates=400, random_sets=3, seed=3)
+    here = plan(hayati, cell, **options)
+    with Client(cluster) as client, get_task_stream(client) as stream:
+        there = plan(hayati, cell, **options, client=client)
+    np.testing.assert_array_equal(there.q, here.q)
+    assert there.rejected == here.rejected and there.swaps == here.swaps
+    assert there.plan.worst == here.plan.worst
+    np.testing.assert_array_equal(there.random_q, here.random_q)
+    workers = {}
+    for task in stream.data:
+        workers.setdefault(task["key"].split("-")[0], set()).add(task["worker"])
+    assert len(workers["_batch_task"]) == 2 and len(workers["_shard_best"]) == 2, workers
+
+
+def test_cluster_scoring_breaks_ties_as_one_process(hayati, pool, cluster):
+    """A pool of three identical copies scored in blocks on the cluster: equal scores go to the
+    lowest index, so greedy and exchange choose exactly as in one process, for a criterion of
+    the Woodbury path and one of the eigenvalue path."""
+    from distributed import Client
+
+    q = np.concatenate([pool[0][:60]] * 3)
+    info = information(selection_problem(hayati, Cell(), q), DEFAULT_NOISE, 0.5)
+    with Client(cluster) as client:
+        for name in ("worst", "O3"):
+            with Scorer(info) as local, Scorer(info, client, block=37) as remote:
+                g = greedy(info, 8, name, local)
+                assert g[0] < 60 and len(set(g)) == 8
+                np.testing.assert_array_equal(greedy(info, 8, name, remote), g)
+                e, swaps = exchange(info, g, name, scorer=local)
+                np.testing.assert_array_equal(exchange(info, g, name, scorer=remote)[0], e)
+
+
+def test_command_line_plan_on_a_scheduler(cluster, tmp_path, capsys):
+    """`relcal plan --scheduler`: the same CSV as without."""
+    argv = ["plan", "--robot", "a465", "--hayati", "auto", "--poses", "8", "--candidates", "150"]
+    argv += ["--random-sets", "2", "--quiet", "--out"]
+    assert main([*argv, str(tmp_path / "here.csv")]) == 0
+    there = tmp_path / "there.csv"
+    assert main([*argv, str(there), "--scheduler", cluster.scheduler_address]) == 0
+    assert there.read_text() == (tmp_path / "here.csv").read_text()
+    assert capsys.readouterr().out == ""

@@ -28,10 +28,14 @@ examples:
   relcal plan --robot a465 --hayati auto --out plan.csv
   relcal plan --robot a465 --hayati auto --board 7x10@20mm --camera camera.yaml --poses 40
   relcal plan --robot a465 --hayati auto --index O1 --algorithm greedy --random-out random.csv
+  relcal plan --robot a465 --hayati auto --candidates 20000 --workers 2
+  relcal plan --robot a465 --hayati auto --candidates 100000 --scheduler tcp://head:8786
 
 output: a CSV  id,q1..qn  (angles in --joint-unit, prismatic joints in m) in an order that keeps
 joint moves short; run it on the robot, record an image at each pose, and add an image column to
 make it a dataset's samples.csv. Collisions with anything but the board plane are not checked.
+With --workers or --scheduler the plan is the same as in one process (each batch of candidates
+has its own random stream from --seed).
 """
 
 
@@ -90,18 +94,31 @@ def run(args: argparse.Namespace) -> int:
         clearance=args.clearance,
         length_scale=args.length_scale,
     )
-    res = plan(
-        model,
-        cell,
-        k=args.poses,
-        constraints=constraints,
-        criterion=args.index,
-        algorithm=args.algorithm,
-        n_candidates=args.candidates,
-        noise=Noise.parse(args.noise),
-        random_sets=args.random_sets,
-        seed=args.seed,
-    )
+    noise = Noise.parse(args.noise)
+    client, cluster = None, None
+    if args.scheduler or args.workers:
+        from relcal.cluster import connect
+
+        client, cluster = connect(args.scheduler, args.workers or 2)
+    try:
+        res = plan(
+            model,
+            cell,
+            k=args.poses,
+            constraints=constraints,
+            criterion=args.index,
+            algorithm=args.algorithm,
+            n_candidates=args.candidates,
+            noise=noise,
+            random_sets=args.random_sets,
+            seed=args.seed,
+            client=client,
+        )
+    finally:
+        if client is not None:
+            client.close()
+        if cluster is not None:
+            cluster.close()
 
     def joints_table(q: np.ndarray) -> str:
         ids = [f"p{k + 1:03d}" for k in range(len(q))]
@@ -203,6 +220,18 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="random sets to compare with",
     )
     p.add_argument("--seed", type=int, default=0)
+    where = p.add_mutually_exclusive_group()
+    where.add_argument(
+        "--workers",
+        type=positive_int,
+        help="generate and score the candidates on a local Dask cluster of this many worker "
+        "processes (default: in this process)",
+    )
+    where.add_argument(
+        "--scheduler",
+        metavar="tcp://HOST:8786",
+        help="generate and score the candidates on this running Dask cluster",
+    )
     p.add_argument(
         "--out", type=output_file, help="write the planned joint configurations to this CSV"
     )

@@ -32,7 +32,7 @@ a chosen pose for a candidate while the criterion improves), maximises the chose
 from __future__ import annotations
 
 import re
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Literal
 
@@ -224,42 +224,129 @@ def random_joints(model: RobotModel, count: int, rng: np.random.Generator) -> np
     return rng.uniform(lo, hi, (count, model.n_joints))
 
 
+def batch_seed(seed: int | np.random.SeedSequence, b: int) -> np.random.SeedSequence:
+    """The random stream of candidate batch ``b``: child ``b`` of ``seed``'s sequence (what
+    ``SeedSequence(seed).spawn(b + 1)[b]`` gives), so that a batch is the same wherever and in
+    whatever order it is drawn."""
+    root = seed if isinstance(seed, np.random.SeedSequence) else np.random.SeedSequence(seed)
+    return np.random.SeedSequence(
+        root.entropy, spawn_key=(*root.spawn_key, b), pool_size=root.pool_size
+    )
+
+
+def candidate_batch(
+    model: RobotModel,
+    cell: Cell,
+    constraints: Constraints,
+    batch: int,
+    seed: np.random.SeedSequence,
+) -> tuple[np.ndarray, dict[str, int]]:
+    """The feasible configurations ``(K, n)`` among ``batch`` sampled camera poses solved by IK
+    from random starts drawn from ``seed``, and the rejections per constraint."""
+    rng = np.random.default_rng(seed)
+    cams = sample_camera_poses(cell, constraints, batch, rng)
+    flange = cams @ tf.invert(cell.handeye)
+    sol = solve(model, flange, q_near=random_joints(model, batch, rng))
+    ok = np.asarray(sol.converged, dtype=bool)
+    rejected = {"ik": int((~ok).sum())}
+    q = np.asarray(sol.q)[ok]
+    masks = check(model, cell, q, constraints)
+    for name, mask in masks.items():
+        rejected[name] = int((~mask).sum())
+    return q[np.logical_and.reduce(list(masks.values()))], rejected
+
+
+MIN_YIELD = 0.02  # feasible configurations per sampled camera pose below which the search stops
+
+
+def max_batches(count: int, batch: int, max_rounds: int) -> int:
+    """Batches drawn at most for ``count`` candidates: enough at :data:`MIN_YIELD`, at least
+    ``max_rounds``."""
+    return max(max_rounds, int(np.ceil(count / (MIN_YIELD * batch))))
+
+
 def candidates(
     model: RobotModel,
     cell: Cell,
     constraints: Constraints,
     count: int,
-    rng: np.random.Generator,
+    seed: int | np.random.SeedSequence = 0,
     batch: int = 400,
     max_rounds: int = 20,
+    client=None,
 ) -> tuple[np.ndarray, dict[str, int]]:
     """Up to ``count`` feasible configurations ``(K, n)`` and, per constraint, how many IK
-    solutions it rejected (``ik`` counts camera poses out of reach)."""
+    solutions it rejected (``ik`` counts camera poses out of reach).
+
+    Batches of ``batch`` camera poses, batch ``b`` drawn from its own stream
+    (:func:`batch_seed`), are kept in order until ``count`` are found; the search gives up after
+    ``max_rounds`` batches without any, or after :func:`max_batches`. With ``client`` (a
+    ``distributed.Client``) the batches run as tasks on its cluster; the pool and the counts
+    (of the batches used) are the same as in this process.
+    """
+    limit = max_batches(count, batch, max_rounds)
+    if client is None:
+        results = (
+            candidate_batch(model, cell, constraints, batch, batch_seed(seed, b))
+            for b in range(limit)
+        )
+    else:
+        results = _dask_batches(client, (model, cell, constraints), batch, seed, limit)
     kept: list[np.ndarray] = []
-    rejected: dict[str, int] = {"ik": 0}
+    rejected: dict[str, int] = {}
     total = 0
-    for _ in range(max_rounds):
-        cams = sample_camera_poses(cell, constraints, batch, rng)
-        flange = cams @ tf.invert(cell.handeye)
-        sol = solve(model, flange, q_near=random_joints(model, batch, rng))
-        ok = np.asarray(sol.converged, dtype=bool)
-        rejected["ik"] += int((~ok).sum())
-        q = np.asarray(sol.q)[ok]
-        masks = check(model, cell, q, constraints)
-        for name, mask in masks.items():
-            rejected[name] = rejected.get(name, 0) + int((~mask).sum())
-        good = q[np.logical_and.reduce(list(masks.values()))]
-        kept.append(good)
-        total += len(good)
-        if total >= count:
-            break
-    out = np.concatenate(kept)[:count] if kept else np.zeros((0, model.n_joints))
+    try:
+        for b, (good, counts) in enumerate(results):
+            for name, n in counts.items():
+                rejected[name] = rejected.get(name, 0) + n
+            kept.append(good)
+            total += len(good)
+            if total >= count or (total == 0 and b + 1 >= max_rounds):
+                break
+    finally:
+        close = getattr(results, "close", None)
+        if close is not None:
+            close()  # cancels the batches still running on the cluster
+    out = np.concatenate(kept)[:count] if total else np.zeros((0, model.n_joints))
     if len(out) == 0:
         raise RelcalError(
             "no feasible configuration found: the board may be out of reach or the constraints "
             f"too tight (rejections: {rejected})"
         )
     return out, rejected
+
+
+def _batch_task(context, batch: int, seed: np.random.SeedSequence):
+    """A Dask task: one candidate batch with the scattered ``(model, cell, constraints)``."""
+    from threadpoolctl import threadpool_limits
+
+    from relcal.cluster import prepare_worker
+
+    prepare_worker()
+    with threadpool_limits(limits=1):
+        return candidate_batch(*context, batch, seed)
+
+
+def _dask_batches(client, context: tuple, batch: int, seed, limit: int):
+    """Results of batches ``0, 1, ...`` in order, computed on ``client``'s cluster: the context
+    scattered once, ``2 x workers`` batches in flight (the ones left when the caller stops are
+    cancelled)."""
+    from relcal.cluster import n_workers
+
+    shared = client.scatter(context, broadcast=True, hash=False)
+    ahead = 2 * n_workers(client)
+    futures: dict[int, object] = {}
+    submitted = 0
+    try:
+        for b in range(limit):
+            while submitted < min(limit, b + ahead):
+                futures[submitted] = client.submit(
+                    _batch_task, shared, batch, batch_seed(seed, submitted), pure=False
+                )
+                submitted += 1
+            yield futures.pop(b).result()
+    finally:
+        client.cancel(list(futures.values()))
 
 
 # --- information and criteria ---------------------------------------------------------------------
@@ -352,24 +439,33 @@ def criterion(info: Information, totals: np.ndarray, name: str, n_meas: int) -> 
     return index_values(s, name, n_meas)
 
 
-def _values(info: Information, base: np.ndarray, add: np.ndarray, name: str, n_meas: int):
-    """Criterion of ``base + rows[c]^T rows[c]`` for every candidate ``c`` in ``add``.
+_FAST = ("worst", "A", "O1")
+
+
+def _prepare(info: Information, base: np.ndarray, name: str) -> tuple[np.ndarray, ...]:
+    """What every candidate's score against the summed information ``base`` shares: ``(base,)``
+    for the eigenvalue criteria, else the regularised matrix, its inverse and log-determinant."""
+    if name not in _FAST:
+        return (base,)
+    reg = base + np.diag(info.ridge)
+    return reg, np.linalg.inv(reg), np.linalg.slogdet(reg)[1]
+
+
+def _scores(info: Information, prepared: tuple, rows: np.ndarray, name: str, n_meas: int):
+    """Criterion ``(N,)`` of the prepared base plus each candidate's rows ``(N, r, Q)``.
 
     ``worst``, ``A`` and ``O1`` use rank-r updates of one inverse (Woodbury, determinant lemma):
     the top-left ``k x k`` block of the inverse of the full information is the covariance of the
     parameters with the nuisance eliminated. The others need eigenvalues of every candidate set.
     """
-    rows = info.rows[add]  # (N, r, Q)
-    if name not in ("worst", "A", "O1"):
-        totals = base[None] + np.swapaxes(rows, -1, -2) @ rows
+    if name not in _FAST:
+        totals = prepared[0][None] + np.swapaxes(rows, -1, -2) @ rows
         return criterion(info, totals, name, n_meas)
-    reg = base + np.diag(info.ridge)
-    inv = np.linalg.inv(reg)
+    reg, inv, logdet_full = prepared
     v = rows @ inv  # (N, r, Q)
     small = np.eye(rows.shape[1]) + v @ np.swapaxes(rows, -1, -2)  # (N, r, r)
     k = info.k
     if name == "O1":
-        _, logdet_full = np.linalg.slogdet(reg)
         _, logdet_small = np.linalg.slogdet(small)
         logdet = logdet_full + logdet_small
         if info.h:
@@ -383,25 +479,138 @@ def _values(info: Information, base: np.ndarray, add: np.ndarray, name: str, n_m
     return _from_variances(info, var, name)
 
 
-def greedy(info: Information, k: int, name: str) -> np.ndarray:
+def _values(info: Information, base: np.ndarray, add: np.ndarray, name: str, n_meas: int):
+    """Criterion of ``base + rows[c]^T rows[c]`` for every candidate ``c`` in ``add``."""
+    return _scores(info, _prepare(info, base, name), info.rows[add], name, n_meas)
+
+
+BLOCK = 1024  # candidates scored at once: bounds the temporaries (a few MB)
+MIN_DISTRIBUTED = 0  # pools smaller than this are scored in this process even with a client
+
+
+def _block_best(
+    info: Information,
+    prepared: tuple,
+    rows: np.ndarray,
+    offset: int,
+    excluded: np.ndarray,
+    name: str,
+    n_meas: int,
+    block: int = BLOCK,
+) -> tuple[float, int]:
+    """``(value, index)`` of the best candidate among ``rows`` (pool indices from ``offset``)
+    that is not ``excluded``, scored in blocks of ``block`` pool indices; ``(-inf, -1)`` if
+    there is none. NaN scores count as -inf; ties go to the lowest index."""
+    best, where = -np.inf, -1
+    start = offset
+    while start < offset + len(rows):
+        stop = min((start // block + 1) * block, offset + len(rows))  # blocks align on the pool
+        part = rows[start - offset : stop - offset]
+        vals = np.asarray(_scores(info, prepared, part, name, n_meas))
+        allowed = np.ones(stop - start, dtype=bool)
+        allowed[excluded[(excluded >= start) & (excluded < stop)] - start] = False
+        vals = np.where(allowed & ~np.isnan(vals), vals, -np.inf)
+        i = int(np.argmax(vals))
+        if allowed.any() and not allowed[i]:  # every allowed score is -inf
+            i = int(np.argmax(allowed))
+        if allowed.any() and (where < 0 or vals[i] > best):
+            best, where = float(vals[i]), start + i
+        start = stop
+    return best, where
+
+
+class Scorer:
+    """Best candidate of a pool for a base information, in this process or on a Dask cluster.
+
+    With ``client``, the pool's rows are scattered once, in one contiguous shard per worker
+    (whole blocks of ``block`` candidates), and each step is one task per shard returning its
+    best ``(value, index)``; the scores are computed block by block exactly as in this process,
+    so the choice is the same. Use as a context manager (it releases the shards)."""
+
+    def __init__(self, info: Information, client=None, block: int | None = None) -> None:
+        self.info, self.client = info, client
+        self.block = block = block or BLOCK
+        self.n = len(info.rows)
+        self._shards: list = []
+        if client is None:
+            return
+        from relcal.cluster import n_workers
+
+        blocks = -(-self.n // block)
+        parts = np.array_split(np.arange(blocks), min(n_workers(client), blocks))
+        bounds = [(int(p[0]) * block, min(self.n, (int(p[-1]) + 1) * block)) for p in parts]
+        light = replace(info, rows=info.rows[:0])
+        self._shards = client.scatter(
+            [(light, info.rows[lo:hi], lo, block) for lo, hi in bounds], hash=False
+        )
+
+    def best(self, base: np.ndarray, excluded: np.ndarray, name: str, n_meas: int):
+        """``(value, index)`` of the candidate not in ``excluded`` that maximises the criterion
+        of ``base`` plus its information."""
+        prepared = _prepare(self.info, base, name)
+        excluded = np.unique(np.asarray(excluded, dtype=int))
+        if self.client is None:
+            rows = self.info.rows
+            return _block_best(self.info, prepared, rows, 0, excluded, name, n_meas, self.block)
+        futures = [
+            self.client.submit(_shard_best, shard, prepared, excluded, name, n_meas, pure=False)
+            for shard in self._shards
+        ]
+        found = [vi for vi in self.client.gather(futures) if vi[1] >= 0]
+        return max(found, key=lambda vi: (vi[0], -vi[1]), default=(-np.inf, -1))
+
+    def close(self) -> None:
+        if self._shards:
+            self.client.cancel(self._shards)
+            self._shards = []
+
+    def __enter__(self) -> Scorer:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+def _shard_best(shard, prepared, excluded, name: str, n_meas: int) -> tuple[float, int]:
+    """A Dask task: the best candidate of one scattered shard ``(info, rows, offset, block)``."""
+    from threadpoolctl import threadpool_limits
+
+    from relcal.cluster import prepare_worker
+
+    global _LIMITED
+    prepare_worker()
+    if _LIMITED is None:  # once per process: threadpoolctl takes milliseconds a call
+        _LIMITED = threadpool_limits(limits=1)
+    info, rows, offset, block = shard
+    return _block_best(info, prepared, rows, offset, excluded, name, n_meas, block)
+
+
+_LIMITED = None  # the BLAS thread limit of a worker process, set by its first scoring task
+
+
+def greedy(info: Information, k: int, name: str, scorer: Scorer | None = None) -> np.ndarray:
     """Forward selection: add, one at a time, the candidate that maximises the criterion."""
+    scorer = scorer or Scorer(info)
     chosen: list[int] = []
     total = np.zeros(info.rows.shape[-1:] * 2)
-    free = np.arange(len(info.rows))
-    while len(chosen) < k:
-        vals = _values(info, total, free, name, len(chosen) + 1)
-        best = int(np.argmax(vals))
-        chosen.append(int(free[best]))
-        total = total + info.total([free[best]])
-        free = np.delete(free, best)
+    while len(chosen) < k and len(chosen) < len(info.rows):
+        _, best = scorer.best(total, np.array(chosen, dtype=int), name, len(chosen) + 1)
+        chosen.append(best)
+        total = total + info.total([best])
     return np.array(chosen)
 
 
 def exchange(
-    info: Information, chosen: np.ndarray, name: str, max_passes: int = 20, tol: float = 1e-9
+    info: Information,
+    chosen: np.ndarray,
+    name: str,
+    max_passes: int = 20,
+    tol: float = 1e-9,
+    scorer: Scorer | None = None,
 ) -> tuple[np.ndarray, int]:
     """Fedorov-style exchange: for each chosen pose, the swap with an unchosen candidate that
     improves the criterion most; passes until none improves. Returns the set and the swaps made."""
+    scorer = scorer or Scorer(info)
     chosen = np.array(chosen)
     k = len(chosen)
     total = info.total(chosen)
@@ -410,16 +619,14 @@ def exchange(
     for _ in range(max_passes):
         improved = False
         for pos in range(k):
-            free = np.setdiff1d(np.arange(len(info.rows)), chosen)
-            if free.size == 0:
-                return chosen, swaps
             base = total - info.total([chosen[pos]])
-            vals = _values(info, base, free, name, k)
-            best = int(np.argmax(vals))
-            if vals[best] > current + tol * abs(current):
-                total = base + info.total([free[best]])
-                chosen[pos] = free[best]
-                current = float(vals[best])
+            value, best = scorer.best(base, chosen, name, k)
+            if best < 0:
+                return chosen, swaps
+            if value > current + tol * abs(current):
+                total = base + info.total([best])
+                chosen[pos] = best
+                current = value
                 improved, swaps = True, swaps + 1
         if not improved:
             break
@@ -543,15 +750,24 @@ def plan(
     random_sets: int = 20,
     n_validation: int = 50,
     seed: int = 0,
+    client=None,
 ) -> PlanResult:
     """Plan ``k`` poses: candidates, selection, and the comparison with ``random_sets`` random
     feasible sets of ``k`` candidates (predicted standard deviations and accuracy on
-    ``n_validation`` other feasible poses)."""
+    ``n_validation`` other feasible poses).
+
+    With ``client`` (a ``distributed.Client``) the candidate batches and the scoring of the
+    candidates at every greedy and exchange step run as tasks on its cluster; the plan is the
+    same as in this process (each candidate batch has its own random stream from ``seed``).
+    """
     import time
 
     start = time.perf_counter()
-    rng = np.random.default_rng(seed)
-    pool, rejected = candidates(model, cell, constraints, n_candidates + n_validation, rng)
+    pool_seed, sets_seed = np.random.SeedSequence(seed).spawn(2)
+    rng = np.random.default_rng(sets_seed)
+    pool, rejected = candidates(
+        model, cell, constraints, n_candidates + n_validation, pool_seed, client=client
+    )
     if len(pool) < k + n_validation:
         raise RelcalError(
             f"only {len(pool)} feasible candidates for {k} poses and {n_validation} validation "
@@ -560,12 +776,13 @@ def plan(
     q_val, pool = pool[:n_validation], pool[n_validation:]
     problem = selection_problem(model, cell, pool, formulation, measure)
     info = information(problem, noise, constraints.length_scale)
-    chosen = greedy(info, k, criterion)
-    swaps = 0
-    if algorithm == "exchange":
-        chosen, swaps = exchange(info, chosen, criterion)
-    elif algorithm != "greedy":
+    if algorithm not in ("greedy", "exchange"):
         raise ValueError(f"unknown algorithm '{algorithm}': use greedy or exchange")
+    with Scorer(info, client if len(pool) >= MIN_DISTRIBUTED else None) as scorer:
+        chosen = greedy(info, k, criterion, scorer)
+        swaps = 0
+        if algorithm == "exchange":
+            chosen, swaps = exchange(info, chosen, criterion, scorer=scorer)
     chosen = chosen[travel_order(pool[chosen])]
     plan_quality = quality(info, chosen, problem, q_val)
     sets = [rng.choice(len(pool), k, replace=False) for _ in range(random_sets)]
