@@ -239,8 +239,8 @@ def test_plan_on_the_cluster_chooses_the_same_poses(hayati, cluster, monkeypatch
 
     import relcal.design.plan as design
 
-    monkeypatch.setattr(design, "MIN_DISTRIBUTED", 0)
-    monkeypatch.setattr(design, "BLOCK", 64)  # several blocks, one shard per worker
+    monkeypatch.setattr(design, "MIN_SHARD", 100)  # a shard per worker for a small pool
+    monkeypatch.setattr(design, "BLOCK", 64)  # several blocks per shard
     cell = Cell(**CELL)
     options = dict(k=10, n_candidates=400, random_sets=3, seed=3)
     here = plan(hayati, cell, **options)
@@ -253,15 +253,18 @@ def test_plan_on_the_cluster_chooses_the_same_poses(hayati, cluster, monkeypatch
     workers = {}
     for task in stream.data:
         workers.setdefault(task["key"].split("-")[0], set()).add(task["worker"])
-    assert len(workers["_batch_task"]) == 2 and len(workers["_shard_best"]) == 2, workers
+    assert len(workers["_batch_task"]) == 2 and len(workers["_Shard"]) == 2, workers
 
 
-def test_cluster_scoring_breaks_ties_as_one_process(hayati, pool, cluster):
+def test_cluster_scoring_breaks_ties_as_one_process(hayati, pool, cluster, monkeypatch):
     """A pool of three identical copies scored in blocks on the cluster: equal scores go to the
     lowest index, so greedy and exchange choose exactly as in one process, for a criterion of
     the Woodbury path and one of the eigenvalue path."""
     from distributed import Client
 
+    import relcal.design.plan as design
+
+    monkeypatch.setattr(design, "MIN_SHARD", 50)
     q = np.concatenate([pool[0][:60]] * 3)
     info = information(selection_problem(hayati, Cell(), q), DEFAULT_NOISE, 0.5)
     with Client(cluster) as client:
@@ -272,6 +275,8 @@ def test_cluster_scoring_breaks_ties_as_one_process(hayati, pool, cluster):
                 np.testing.assert_array_equal(greedy(info, 8, name, remote), g)
                 e, swaps = exchange(info, g, name, scorer=local)
                 np.testing.assert_array_equal(exchange(info, g, name, scorer=remote)[0], e)
+                calls = remote.remote_calls
+                assert len(calls) == 2 and min(calls) > 8, calls  # both workers scored
 
 
 def test_command_line_plan_on_a_scheduler(cluster, tmp_path, capsys):

@@ -27,6 +27,12 @@ a chosen pose for a candidate while the criterion improves), maximises the chose
 - ``A``: smallest trace of the scaled covariance;
 - ``worst``: smallest worst-parameter standard deviation, angles counted as the displacement they
   cause ``length_scale`` away.
+
+On a Dask cluster (``plan(client=...)``): the candidate batches are tasks (each batch draws from its
+own stream of the seed, so the pool does not depend on where or in which order batches run), and
+each greedy or exchange step scores the pool as one task per worker on rows scattered once. Scores
+are computed in fixed blocks of pool indices in both cases, so the plan is the same as in one
+process.
 """
 
 from __future__ import annotations
@@ -316,37 +322,42 @@ def candidates(
     return out, rejected
 
 
-def _batch_task(context, batch: int, seed: np.random.SeedSequence):
-    """A Dask task: one candidate batch with the scattered ``(model, cell, constraints)``."""
-    from threadpoolctl import threadpool_limits
+def _batch_task(context, batch: int, seeds: list[np.random.SeedSequence]):
+    """A Dask task: candidate batches, one per seed, with the scattered ``(model, cell,
+    constraints)``."""
+    _prepare_worker()
+    return [candidate_batch(*context, batch, seed) for seed in seeds]
 
-    from relcal.cluster import prepare_worker
 
-    prepare_worker()
-    with threadpool_limits(limits=1):
-        return candidate_batch(*context, batch, seed)
+TASK_SECONDS = 0.25  # s: the work of one Dask task of candidate batches (its overhead: a few ms)
 
 
 def _dask_batches(client, context: tuple, batch: int, seed, limit: int):
-    """Results of batches ``0, 1, ...`` in order, computed on ``client``'s cluster: the context
-    scattered once, ``2 x workers`` batches in flight (the ones left when the caller stops are
-    cancelled)."""
+    """Results of batches ``0, 1, ...`` in order: the first here (it times a batch), the rest
+    as Dask tasks of about :data:`TASK_SECONDS` of batches each on ``client``'s cluster, the
+    context scattered once, two tasks per worker in flight (those left when the caller stops
+    are cancelled)."""
+    import time
+
     from relcal.cluster import n_workers
 
+    started = time.perf_counter()
+    yield candidate_batch(*context, batch, batch_seed(seed, 0))
+    per_task = int(np.clip(TASK_SECONDS / max(time.perf_counter() - started, 1e-3), 1, 16))
     shared = client.scatter(context, broadcast=True, hash=False)
     ahead = 2 * n_workers(client)
-    futures: dict[int, object] = {}
-    submitted = 0
+    starts = range(1, limit, per_task)
+    futures: list = []
     try:
-        for b in range(limit):
-            while submitted < min(limit, b + ahead):
-                futures[submitted] = client.submit(
-                    _batch_task, shared, batch, batch_seed(seed, submitted), pure=False
-                )
-                submitted += 1
-            yield futures.pop(b).result()
+        for i in range(len(starts)):
+            while len(futures) < min(len(starts), i + ahead):
+                lo = starts[len(futures)]
+                seeds = [batch_seed(seed, b) for b in range(lo, min(limit, lo + per_task))]
+                futures.append(client.submit(_batch_task, shared, batch, seeds, pure=False))
+            yield from futures[i].result()
+            futures[i] = None
     finally:
-        client.cancel(list(futures.values()))
+        client.cancel([f for f in futures if f is not None])
 
 
 # --- information and criteria ---------------------------------------------------------------------
@@ -485,7 +496,7 @@ def _values(info: Information, base: np.ndarray, add: np.ndarray, name: str, n_m
 
 
 BLOCK = 1024  # candidates scored at once: bounds the temporaries (a few MB)
-MIN_DISTRIBUTED = 0  # pools smaller than this are scored in this process even with a client
+MIN_SHARD = 2048  # fewest candidates worth a worker's scoring step (see the README's numbers)
 
 
 def _block_best(
@@ -522,47 +533,68 @@ def _block_best(
 class Scorer:
     """Best candidate of a pool for a base information, in this process or on a Dask cluster.
 
-    With ``client``, the pool's rows are scattered once, in one contiguous shard per worker
-    (whole blocks of ``block`` candidates), and each step is one task per shard returning its
-    best ``(value, index)``; the scores are computed block by block exactly as in this process,
-    so the choice is the same. Use as a context manager (it releases the shards)."""
+    With ``client``, the pool's rows go once to the workers, one contiguous shard (whole blocks
+    of ``block`` candidates, at least :data:`MIN_SHARD`) per worker held by a Dask actor, and
+    each step asks every actor for its best ``(value, index)``. Actor calls go from this process
+    to the workers directly: a task would pass the scheduler twice per step, tens of ms on a
+    busy machine. The scores are computed block by block exactly as in this process, so the
+    choice is the same; a pool too small for two shards is scored here. Should the cluster fail
+    (a worker lost), the remaining steps run here, with the same result. Use as a context manager
+    (it releases the actors)."""
 
     def __init__(self, info: Information, client=None, block: int | None = None) -> None:
         self.info, self.client = info, client
         self.block = block = block or BLOCK
         self.n = len(info.rows)
-        self._shards: list = []
+        self._actors: list = []
+        self._futures: list = []
         if client is None:
             return
-        from relcal.cluster import n_workers
-
+        workers = list(client.scheduler_info().get("workers", {}))
         blocks = -(-self.n // block)
-        parts = np.array_split(np.arange(blocks), min(n_workers(client), blocks))
-        bounds = [(int(p[0]) * block, min(self.n, (int(p[-1]) + 1) * block)) for p in parts]
+        shards = min(len(workers), blocks, self.n // MIN_SHARD)
+        if shards < 2:
+            self.client = None
+            return
+        parts = np.array_split(np.arange(blocks), shards)
         light = replace(info, rows=info.rows[:0])
-        self._shards = client.scatter(
-            [(light, info.rows[lo:hi], lo, block) for lo, hi in bounds], hash=False
-        )
+        for part, worker in zip(parts, workers, strict=False):
+            lo, hi = int(part[0]) * block, min(self.n, (int(part[-1]) + 1) * block)
+            rows = client.scatter(info.rows[lo:hi], workers=[worker], hash=False)
+            future = client.submit(
+                _Shard, light, rows, lo, block, workers=[worker], actor=True, pure=False
+            )
+            self._futures.append(future)
+            self._actors.append(future.result())
+            rows.release()
 
     def best(self, base: np.ndarray, excluded: np.ndarray, name: str, n_meas: int):
         """``(value, index)`` of the candidate not in ``excluded`` that maximises the criterion
         of ``base`` plus its information."""
         prepared = _prepare(self.info, base, name)
         excluded = np.unique(np.asarray(excluded, dtype=int))
-        if self.client is None:
-            rows = self.info.rows
-            return _block_best(self.info, prepared, rows, 0, excluded, name, n_meas, self.block)
-        futures = [
-            self.client.submit(_shard_best, shard, prepared, excluded, name, n_meas, pure=False)
-            for shard in self._shards
-        ]
-        found = [vi for vi in self.client.gather(futures) if vi[1] >= 0]
-        return max(found, key=lambda vi: (vi[0], -vi[1]), default=(-np.inf, -1))
+        if self._actors:
+            try:
+                calls = [a.best(prepared, excluded, name, n_meas) for a in self._actors]
+                found = [vi for vi in (c.result() for c in calls) if vi[1] >= 0]
+                return max(found, key=lambda vi: (vi[0], -vi[1]), default=(-np.inf, -1))
+            except Exception as exc:  # a lost worker, a closed cluster: carry on here
+                import warnings
+
+                warnings.warn(f"scoring on the cluster failed ({exc}); scoring here", stacklevel=2)
+                self.close()
+        rows = self.info.rows
+        return _block_best(self.info, prepared, rows, 0, excluded, name, n_meas, self.block)
+
+    @property
+    def remote_calls(self) -> list[int]:
+        """Steps each actor has scored (empty in this process)."""
+        return [a.calls for a in self._actors]
 
     def close(self) -> None:
-        if self._shards:
-            self.client.cancel(self._shards)
-            self._shards = []
+        for future in self._futures:
+            future.release()
+        self._actors, self._futures = [], []
 
     def __enter__(self) -> Scorer:
         return self
@@ -571,21 +603,36 @@ class Scorer:
         self.close()
 
 
-def _shard_best(shard, prepared, excluded, name: str, n_meas: int) -> tuple[float, int]:
-    """A Dask task: the best candidate of one scattered shard ``(info, rows, offset, block)``."""
-    from threadpoolctl import threadpool_limits
+class _Shard:
+    """A Dask actor: the rows ``(M, r, Q)`` of pool indices ``offset..offset + M`` and the pool's
+    information without rows; :meth:`best` is one step's best candidate among them."""
 
+    calls: int = 0  # steps scored (on the class: a Dask actor's proxy reads attributes it knows)
+
+    def __init__(self, info: Information, rows: np.ndarray, offset: int, block: int) -> None:
+        self.info, self.rows, self.offset, self.block = info, rows, offset, block
+
+    def best(self, prepared, excluded, name: str, n_meas: int) -> tuple[float, int]:
+        _prepare_worker()
+        self.calls += 1
+        info, rows = self.info, self.rows
+        return _block_best(info, prepared, rows, self.offset, excluded, name, n_meas, self.block)
+
+
+_LIMITED = None  # the BLAS thread limit of a worker process, set by its first relcal plan call
+
+
+def _prepare_worker() -> None:
+    """On a worker: undo the nanny's malloc setting and keep BLAS on one thread (once per
+    process: threadpoolctl takes milliseconds a call)."""
+    global _LIMITED
     from relcal.cluster import prepare_worker
 
-    global _LIMITED
     prepare_worker()
-    if _LIMITED is None:  # once per process: threadpoolctl takes milliseconds a call
+    if _LIMITED is None:
+        from threadpoolctl import threadpool_limits
+
         _LIMITED = threadpool_limits(limits=1)
-    info, rows, offset, block = shard
-    return _block_best(info, prepared, rows, offset, excluded, name, n_meas, block)
-
-
-_LIMITED = None  # the BLAS thread limit of a worker process, set by its first scoring task
 
 
 def greedy(info: Information, k: int, name: str, scorer: Scorer | None = None) -> np.ndarray:
@@ -778,7 +825,7 @@ def plan(
     info = information(problem, noise, constraints.length_scale)
     if algorithm not in ("greedy", "exchange"):
         raise ValueError(f"unknown algorithm '{algorithm}': use greedy or exchange")
-    with Scorer(info, client if len(pool) >= MIN_DISTRIBUTED else None) as scorer:
+    with Scorer(info, client) as scorer:
         chosen = greedy(info, k, criterion, scorer)
         swaps = 0
         if algorithm == "exchange":

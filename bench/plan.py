@@ -1,0 +1,138 @@
+"""Pose-planning rows of ``make bench``: ``plan()`` of a large candidate set on a local Dask
+cluster of 2 worker processes against one process.
+
+- the whole plan (A465 with Hayati's beta, 30 poses, ``worst`` criterion, greedy + exchange,
+  ``N_CANDIDATES`` feasible candidates, 20 random sets): wall time on 2 workers against the same
+  call without a client (goal 1.5x on 2 cores); the plans must be identical (checked);
+- the selection alone (greedy + exchange on the same pool's information), as milliseconds per
+  scoring step: the candidate rows scattered once in one shard per worker, one task per shard and
+  step, against the same blocks scored in this process.
+
+Wall times, the least of ``REPEAT`` runs; the cluster is started and warmed up before timing.
+Run ``python bench/plan.py`` for the rows; ``run()`` returns them.
+"""
+
+from __future__ import annotations
+
+import os
+
+for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")  # as bench/run.py: one BLAS thread
+
+import sys  # noqa: E402
+import time  # noqa: E402
+
+import numpy as np  # noqa: E402
+
+N_CANDIDATES = 20_000
+K = 30
+REPEAT = 2
+WORKERS = 2
+
+
+def _setup():
+    from relcal.design.cell import Cell
+    from relcal.robot.loading import get_robot
+    from relcal.robot.model import auto_hayati
+
+    return auto_hayati(get_robot("a465")), Cell()
+
+
+def _selection(info, scorer) -> tuple[np.ndarray, int]:
+    """Greedy + exchange with ``scorer``; the chosen set and the number of scoring steps."""
+    from relcal.design.plan import exchange, greedy
+
+    steps = [0]
+    best = scorer.best
+
+    def counted(*args):
+        steps[0] += 1
+        return best(*args)
+
+    scorer.best = counted
+    chosen, _ = exchange(info, greedy(info, K, "worst", scorer), "worst", scorer=scorer)
+    return chosen, steps[0]
+
+
+def measure(n_candidates: int = N_CANDIDATES, repeat: int = REPEAT) -> dict:
+    """Wall seconds of the plan and of the selection, in one process and on the cluster."""
+    from distributed import Client
+
+    from relcal.cluster import local_cluster
+    from relcal.design.plan import (
+        DEFAULT_NOISE,
+        Constraints,
+        Scorer,
+        candidates,
+        information,
+        plan,
+        selection_problem,
+    )
+
+    model, cell = _setup()
+    times = {"plan_one": np.inf, "plan_dask": np.inf, "sel_one": np.inf, "sel_dask": np.inf}
+    with local_cluster(WORKERS) as cluster, Client(cluster) as client:
+        plan(model, cell, k=5, n_candidates=300, random_sets=1, client=client)  # warm up
+        for _ in range(repeat):  # interleaved, the least of each: bursts of load pass
+            started = time.perf_counter()
+            one = plan(model, cell, k=K, n_candidates=n_candidates)
+            times["plan_one"] = min(times["plan_one"], time.perf_counter() - started)
+            started = time.perf_counter()
+            there = plan(model, cell, k=K, n_candidates=n_candidates, client=client)
+            times["plan_dask"] = min(times["plan_dask"], time.perf_counter() - started)
+            assert np.array_equal(one.q, there.q), "the cluster's plan differs"
+        pool, _ = candidates(model, cell, Constraints(), n_candidates, seed=0, client=client)
+        info = information(selection_problem(model, cell, pool), DEFAULT_NOISE, 0.5)
+        for _ in range(repeat):
+            with Scorer(info) as scorer:
+                started = time.perf_counter()
+                chosen, steps = _selection(info, scorer)
+                times["sel_one"] = min(times["sel_one"], time.perf_counter() - started)
+            with Scorer(info, client) as scorer:
+                started = time.perf_counter()
+                remote, steps_remote = _selection(info, scorer)
+                times["sel_dask"] = min(times["sel_dask"], time.perf_counter() - started)
+            assert np.array_equal(chosen, remote) and steps == steps_remote
+    times["steps"] = steps
+    times["n"] = len(pool)
+    return times
+
+
+def run() -> list[dict]:
+    t = measure()
+    steps = t["steps"]
+    return [
+        {
+            "task": f"plan of {t['n']} candidates (30 poses, exchange), {WORKERS} Dask workers",
+            "value": t["plan_dask"],
+            "unit": "s",
+            "peer": t["plan_one"],
+            "peer_name": "one process (same plan)",
+            "goal": ">= 1.5x one process",
+            "goal_ratio": 1.5,
+            "note": "wall time; candidate IK batches and scoring steps as tasks",
+        },
+        {
+            "task": f"one scoring step of {t['n']} candidates, {WORKERS} Dask workers",
+            "value": 1e3 * t["sel_dask"] / steps,
+            "unit": "ms",
+            "peer": 1e3 * t["sel_one"] / steps,
+            "peer_name": "one process",
+            "goal": ">= 1.5x one process",
+            "goal_ratio": 1.5,
+            "note": f"greedy + exchange, {steps} steps; one task per worker and step",
+        },
+    ]
+
+
+if __name__ == "__main__":
+    started = time.perf_counter()
+    if len(sys.argv) > 1:
+        print(measure(int(sys.argv[1]), 1))
+    else:
+        for row in run():
+            print(
+                f"{row['task']}: {row['value']:.4g} {row['unit']} vs {row['peer_name']} "
+                f"{row['peer']:.4g} (ratio {row['peer'] / row['value']:.2f}); {row['note']}"
+            )
+    print(f"{time.perf_counter() - started:.1f} s")
