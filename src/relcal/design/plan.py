@@ -591,6 +591,11 @@ class Scorer:
         """Steps each actor has scored (empty in this process)."""
         return [a.calls for a in self._actors]
 
+    @property
+    def remote_seconds(self) -> list[tuple[float, float]]:
+        """Wall and CPU time each actor has spent scoring, s (empty in this process)."""
+        return [(a.seconds, a.cpu_seconds) for a in self._actors]
+
     def close(self) -> None:
         for future in self._futures:
             future.release()
@@ -608,15 +613,26 @@ class _Shard:
     information without rows; :meth:`best` is one step's best candidate among them."""
 
     calls: int = 0  # steps scored (on the class: a Dask actor's proxy reads attributes it knows)
+    seconds: float = 0.0  # wall time spent scoring them
+    cpu_seconds: float = 0.0  # CPU time of the scoring thread
 
     def __init__(self, info: Information, rows: np.ndarray, offset: int, block: int) -> None:
-        self.info, self.rows, self.offset, self.block = info, rows, offset, block
+        # a copy of its own: the received array lives in a network buffer, often unaligned
+        # (NumPy's matmul then bypasses BLAS, slower and rounding differently) and read-only
+        self.info, self.rows, self.offset, self.block = info, np.array(rows), offset, block
 
     def best(self, prepared, excluded, name: str, n_meas: int) -> tuple[float, int]:
+        import time
+
+        started, cpu = time.perf_counter(), time.thread_time()
         _prepare_worker()
-        self.calls += 1
         info, rows = self.info, self.rows
-        return _block_best(info, prepared, rows, self.offset, excluded, name, n_meas, self.block)
+        prepared = tuple(np.array(x) for x in prepared)  # aligned copies, as the rows
+        found = _block_best(info, prepared, rows, self.offset, excluded, name, n_meas, self.block)
+        self.calls += 1
+        self.seconds += time.perf_counter() - started
+        self.cpu_seconds += time.thread_time() - cpu
+        return found
 
 
 _LIMITED = None  # the BLAS thread limit of a worker process, set by its first relcal plan call
