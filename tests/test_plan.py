@@ -233,14 +233,15 @@ def cluster():
 
 
 def test_plan_on_the_cluster_chooses_the_same_poses(hayati, cluster, monkeypatch):
-    """`plan(client=...)`: candidate batches and every scoring step run as tasks on both
-    workers, and the pool, the plan and the random sets are those of one process."""
+    """`plan(client=...)`: candidate batches run as tasks and every scoring step on actors of
+    both workers, and the pool, the plan and the random sets are those of one process."""
     from distributed import Client, get_task_stream
 
     import relcal.design.plan as design
 
     monkeypatch.setattr(design, "MIN_SHARD", 100)  # a shard per worker for a small pool
     monkeypatch.setattr(design, "BLOCK", 64)  # several blocks per shard
+    monkeypatch.setattr(design, "TASK_SECONDS", 1e-6)  # one IK batch per task
     cell = Cell(**CELL)
     options = dict(k=10, n_candidates=400, random_sets=3, seed=3)
     here = plan(hayati, cell, **options)
@@ -250,10 +251,11 @@ def test_plan_on_the_cluster_chooses_the_same_poses(hayati, cluster, monkeypatch
     assert there.rejected == here.rejected and there.swaps == here.swaps
     assert there.plan.worst == here.plan.worst
     np.testing.assert_array_equal(there.random_q, here.random_q)
-    workers = {}
+    workers: dict[str, list] = {}
     for task in stream.data:
-        workers.setdefault(task["key"].split("-")[0], set()).add(task["worker"])
-    assert len(workers["_batch_task"]) == 2 and len(workers["_Shard"]) == 2, workers
+        workers.setdefault(task["key"].split("-")[0], []).append(task["worker"])
+    assert len(workers["_batch_task"]) >= 2, workers  # the first batch runs here, to time it
+    assert len(set(workers["_Shard"])) == 2, workers  # a scoring actor on each worker
 
 
 def test_cluster_scoring_breaks_ties_as_one_process(hayati, pool, cluster, monkeypatch):

@@ -30,9 +30,9 @@ a chosen pose for a candidate while the criterion improves), maximises the chose
 
 On a Dask cluster (``plan(client=...)``): the candidate batches are tasks (each batch draws from its
 own stream of the seed, so the pool does not depend on where or in which order batches run), and
-each greedy or exchange step scores the pool as one task per worker on rows scattered once. Scores
-are computed in fixed blocks of pool indices in both cases, so the plan is the same as in one
-process.
+each greedy or exchange step scores the pool with one call per worker to an actor holding a shard
+of the rows, sent once (:class:`Scorer`). Scores are computed in fixed blocks of pool indices in
+both cases, so the plan is the same as in one process.
 """
 
 from __future__ import annotations
@@ -325,7 +325,10 @@ def candidates(
 def _batch_task(context, batch: int, seeds: list[np.random.SeedSequence]):
     """A Dask task: candidate batches, one per seed, with the scattered ``(model, cell,
     constraints)``."""
+    import copy
+
     _prepare_worker()
+    context = copy.deepcopy(context)  # aligned arrays of its own (see _Shard)
     return [candidate_batch(*context, batch, seed) for seed in seeds]
 
 
