@@ -5,11 +5,9 @@ cluster of 2 worker processes against one process.
   ``N_CANDIDATES`` feasible candidates, 20 random sets): wall time on 2 workers against the same
   call without a client (goal 1.5x on 2 cores); the plans must be identical (checked);
 - the selection alone (greedy + exchange on the same pool's information), as milliseconds per
-  scoring step, distributed although the pool is below twice ``plan.MIN_SHARD`` (one of the
-  measurements the threshold rests on): the rows sent once, one shard per worker held by a Dask
-  actor, one
-  actor call per shard and step, against the same blocks scored in this process; the note has
-  the CPU time per step of the one process, of each worker and of the client.
+  scoring step: the rows sent once, one shard per worker held by a Dask actor, one actor call
+  per shard and step, against the same blocks scored in this process; the note has the CPU time
+  per step of the one process, of each worker and of the client.
 
 Wall times, the least of ``REPEAT`` interleaved runs; the cluster is started and warmed up before
 timing. The kernel's autogroup scheduling shares the CPU between sessions, not processes: while
@@ -96,7 +94,7 @@ def measure(n_candidates: int = N_CANDIDATES, repeat: int = REPEAT) -> dict:
                 if time.perf_counter() - started < times["sel_one"]:
                     times["sel_one"] = time.perf_counter() - started
                     times["cpu_one"] = time.process_time() - cpu
-            with Scorer(info, client, min_shard=2048) as scorer:  # below MIN_SHARD: measured
+            with Scorer(info, client) as scorer:
                 started, cpu = time.perf_counter(), time.process_time()
                 remote, steps_remote = _selection(info, scorer)
                 if time.perf_counter() - started < times["sel_dask"]:
@@ -122,8 +120,7 @@ def run() -> list[dict]:
             "peer_name": "one process (same plan)",
             "goal": ">= 1.5x one process",
             "goal_ratio": 1.5,
-            "note": f"wall time; IK batches as tasks, scoring here (< 2 x MIN_SHARD); "
-            f"load {t['load']:.1f}",
+            "note": f"wall time; IK batches as tasks, scoring by actors; load {t['load']:.1f}",
         },
         {
             "task": f"one scoring step of {t['n']} candidates, {WORKERS} Dask workers",

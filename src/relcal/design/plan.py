@@ -499,9 +499,9 @@ def _values(info: Information, base: np.ndarray, add: np.ndarray, name: str, n_m
 
 
 BLOCK = 1024  # candidates scored at once: bounds the temporaries (a few MB)
-# Fewest candidates worth a worker's scoring step: on 2 workers a step of 20000 candidates
-# measured 0.89x one process, of 100000 1.44x (the README's numbers).
-MIN_SHARD = 16384
+# Fewest candidates worth a worker's scoring step (about 10 ms of work against an actor call's
+# 2 ms and the client's 5 ms; the README has the measured numbers).
+MIN_SHARD = 4096
 
 
 def _block_best(
