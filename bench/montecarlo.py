@@ -57,10 +57,10 @@ NOISE = "0.05,0.01,0.001"  # POS_MM,ORI_DEG,JOINT_DEG: the default of ``relcal s
 SEED = 0
 ESTIMATOR = "least_squares"  # identify_lm: the estimator the finite-difference peer reproduces
 TRIALS = 200  # row 1: relcal against the peer (the peer takes ~20 ms a trial)
-PARALLEL_TRIALS = 2000  # row 2: long enough for the workers' start-up to be paid back
+PARALLEL_TRIALS = 8000  # row 2: long enough for the workers' start-up to be paid back
 WORKERS = 2
 REPEATS = 2  # row 1 (the peer's loop takes ~5 s)
-PARALLEL_REPEATS = 2  # row 2 (~12 s a pair)
+PARALLEL_REPEATS = 2  # row 2 (~25 s a pair)
 PARALLEL_GOAL = 1.5
 
 

@@ -14,6 +14,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+import scipy.sparse
 
 from relcal.errors import RelcalError
 from relcal.geometry import DEG, MM
@@ -128,25 +129,36 @@ def _fit_correction(
     ``E r_p r_p^T = S_pp - T_p - T_p^T + J_p Q J_p^T``, where ``M = A G`` ``(N, k, 6)`` per pose,
     ``T_p = (Sigma M_j^T + L_p Sigma M_i^T) J_p^T`` and ``Q = sum_n M_n Sigma M_n^T``.
     """
+    n_pairs, _, k = jac.shape
     w2 = np.asarray(row_weights, dtype=float) ** 2
-    weighted = jac * w2[:, None]  # W J, pair by pair
-    scale = np.sqrt(np.clip(np.einsum("pik,pik->k", jac, weighted), 1e-300, None))
-    normal = np.einsum("pik,pil->kl", jac, weighted) / np.outer(scale, scale)
+    rows = jac.reshape(-1, k)
+    weighted = (jac * w2[:, None]).reshape(-1, k)  # W J
+    scale = np.sqrt(np.clip(np.einsum("rk,rk->k", rows, weighted), 1e-300, None))
+    normal = (rows.T @ weighted) / np.outer(scale, scale)
     inv = np.linalg.pinv(normal, hermitian=True) / np.outer(scale, scale)
-    a = np.einsum("kl,pil->pki", inv, weighted)  # A's block of each pair (P, k, 6)
+    a = np.swapaxes((weighted @ inv).reshape(n_pairs, 6, k), 1, 2)  # A per pair (P, k, 6)
     i, j = np.asarray(pairs, dtype=int).T
-    m = np.zeros((int(max(i.max(), j.max())) + 1, jac.shape[-1], 6))
-    np.add.at(m, j, a)
-    np.add.at(m, i, a @ left)
-    jk, lk, ik, jj = jac[keep], left[keep], i[keep], j[keep]
-    out = np.empty((len(_SYM), len(jk), 6, 6))
-    for s, (row, col) in enumerate(_SYM):
-        basis = np.zeros((6, 6))
-        basis[row, col] = basis[col, row] = 1.0
-        em = basis @ np.swapaxes(m, -1, -2)  # Sigma M_n^T (N, 6, k)
-        cross = (em[jj] + lk @ em[ik]) @ np.swapaxes(jk, -1, -2)
-        q = np.einsum("nka,nal->kl", m, em)  # sum_n M_n Sigma M_n^T
-        out[s] = cross + np.swapaxes(cross, -1, -2) - jk @ q @ np.swapaxes(jk, -1, -2)
+    n_poses = int(max(i.max(), j.max())) + 1
+    # M = A G per pose: pair p adds A_p to pose j_p and A_p L_p to pose i_p
+    incidence = scipy.sparse.csr_matrix(
+        (np.ones(2 * n_pairs), (np.r_[j, i], np.arange(2 * n_pairs))), (n_poses, 2 * n_pairs)
+    )
+    m = (incidence @ np.concatenate([a, a @ left]).reshape(2 * n_pairs, -1)).reshape(-1, k, 6)
+    jk, lk = jac[keep], left[keep]
+    after = np.swapaxes(jk @ m[j[keep]], 1, 2)  # M_j^T J_p^T (K, 6, 6)
+    before = np.swapaxes(jk @ m[i[keep]], 1, 2)  # M_i^T J_p^T
+    basis = np.zeros((len(_SYM), 6, 6))
+    basis[np.arange(len(_SYM)), _SYM[:, 0], _SYM[:, 1]] = 1.0
+    basis[np.arange(len(_SYM)), _SYM[:, 1], _SYM[:, 0]] = 1.0
+    cross = basis[:, None] @ after + lk @ (basis[:, None] @ before)  # (21, K, 6, 6)
+    # sum_n M_n E M_n^T for each basis element E (from one product: G[k, a, l, b] =
+    # sum_n M_n[k, a] M_n[l, b]), then J_p (.) J_p^T
+    flat = m.reshape(len(m), -1)
+    gram = (flat.T @ flat).reshape(k, 6, k, 6)
+    q = gram[:, _SYM[:, 0], :, _SYM[:, 1]] + gram[:, _SYM[:, 1], :, _SYM[:, 0]]  # (21, k, k)
+    q[_SYM[:, 0] == _SYM[:, 1]] /= 2.0
+    jq = (jk.reshape(-1, k) @ q).reshape(len(_SYM), len(jk), 6, k)  # one product per E
+    out = cross + np.swapaxes(cross, -1, -2) - jq @ np.swapaxes(jk, -1, -2)
     return out.reshape(len(_SYM), -1).T
 
 
@@ -156,7 +168,7 @@ def estimate_pose_noise(
     fit: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
     iterations: int = 5,
     clip: float = 16.8,
-    max_pairs: int = 3000,
+    max_pairs: int = 1000,
 ) -> PoseNoise:
     """The pose-error covariance ``Sigma`` that explains pair residuals ``errors`` ``(P, 6)``
     (translation m, rotation rad; as measured minus modelled) with ``left`` ``(P, 6, 6)`` of

@@ -239,7 +239,7 @@ def study(
     this process), or as tasks on the Dask cluster of ``client`` (a ``distributed.Client``),
     with a progress bar, and compare them with the predicted covariance.
 
-    A study whose trials would take less than :data:`WORKER_STARTUP_S` in all (judged by the
+    A study whose workers would save less than :data:`WORKER_STARTUP_S` (judged by the
     noise-free reference estimate) runs in this process: starting a worker costs about that much.
     The estimates do not depend on where they run.
     """
@@ -254,8 +254,9 @@ def study(
     reference, _ = _estimate(base, context)
     # Noisy trials take about twice the noise-free reference (more iterations).
     trial_seconds = 2 * (time.perf_counter() - tick)
-    if trials * trial_seconds < WORKER_STARTUP_S and client is None:
-        workers = 1
+    if workers > 1 and client is None:  # workers pay when they save more than they cost
+        saved = trials * trial_seconds * (1 - 1 / workers)
+        workers = workers if saved > WORKER_STARTUP_S else 1
     predicted = parameter_covariance(
         base, scenario.noise, ident, params=reference, estimator=estimator
     )
