@@ -168,7 +168,7 @@ def estimate_pose_noise(
     fit: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
     iterations: int = 5,
     clip: float = 16.8,
-    max_pairs: int = 1000,
+    max_pairs: int = 3000,
 ) -> PoseNoise:
     """The pose-error covariance ``Sigma`` that explains pair residuals ``errors`` ``(P, 6)``
     (translation m, rotation rad; as measured minus modelled) with ``left`` ``(P, 6, 6)`` of
@@ -191,12 +191,15 @@ def estimate_pose_noise(
     if fit is not None:
         design = design - _fit_correction(left, *fit, keep)
     errors, left = errors[keep], left[keep]
-    outer = (errors[:, :, None] * errors[:, None, :]).reshape(-1)
+    outer = (errors[:, :, None] * errors[:, None, :]).reshape(len(errors), 36)
+    # per pair, the normal equations' share (weights are per pair): formed once
+    blocks = design.reshape(len(errors), 36, len(_SYM))
+    normal = np.swapaxes(blocks, 1, 2) @ blocks  # (K, 21, 21)
+    rhs = np.einsum("pri,pr->pi", blocks, outer)
     weight = np.ones(len(errors))
     sigma = np.eye(6)
     for _ in range(iterations):
-        dw = design * np.repeat(weight, 36)[:, None]
-        theta = np.linalg.lstsq(dw.T @ design, dw.T @ outer, rcond=None)[0]
+        theta = np.linalg.lstsq(np.tensordot(weight, normal, 1), weight @ rhs, rcond=None)[0]
         sigma = np.zeros((6, 6))
         sigma[_SYM[:, 0], _SYM[:, 1]] = theta
         sigma[_SYM[:, 1], _SYM[:, 0]] = theta
