@@ -65,6 +65,9 @@ def robust_sigma(errors: np.ndarray) -> np.ndarray:
 # --- learning the pose noise from pair residuals -------------------------------------------------
 
 _SYM = np.array([(a, b) for a in range(6) for b in range(a, 6)])  # the 21 free entries of Sigma
+_BASIS = np.zeros((len(_SYM), 6, 6))  # Sigma = sum_s theta_s _BASIS[s]: ones at (a, b), (b, a)
+_BASIS[np.arange(len(_SYM)), _SYM[:, 0], _SYM[:, 1]] = 1.0
+_BASIS[np.arange(len(_SYM)), _SYM[:, 1], _SYM[:, 0]] = 1.0
 
 
 def pair_covariances(sigma: np.ndarray, left: np.ndarray) -> np.ndarray:
@@ -74,15 +77,9 @@ def pair_covariances(sigma: np.ndarray, left: np.ndarray) -> np.ndarray:
 
 
 def _moment_design(left: np.ndarray) -> np.ndarray:
-    """``D`` ``(P * 36, 21)``: ``vec(pair covariance) = D theta`` for Sigma's free entries."""
-    # vec(L S L^T) = (L kron L) vec(S); the symmetric basis sums two columns of the Kronecker.
-    kron = np.einsum("pac,pbd->pabcd", left, left).reshape(len(left), 36, 36)
-    first, second = _SYM[:, 0] * 6 + _SYM[:, 1], _SYM[:, 1] * 6 + _SYM[:, 0]
-    design = kron[:, :, first] + np.where(first != second, 1.0, 0.0) * kron[:, :, second]
-    identity = np.zeros((36, len(_SYM)))
-    identity[first, np.arange(len(_SYM))] = 1.0
-    identity[second, np.arange(len(_SYM))] = 1.0
-    return (design + identity).reshape(-1, len(_SYM))
+    """``D`` ``(P * 36, 21)``: ``vec(pair covariance) = D theta`` for Sigma's free entries (the
+    pair covariance of each basis element of :data:`_BASIS`)."""
+    return pair_covariances(_BASIS[:, None], left).reshape(len(_SYM), -1).T
 
 
 @dataclass(frozen=True)
@@ -147,10 +144,8 @@ def _fit_correction(
     jk, lk = jac[keep], left[keep]
     after = np.swapaxes(jk @ m[j[keep]], 1, 2)  # M_j^T J_p^T (K, 6, 6)
     before = np.swapaxes(jk @ m[i[keep]], 1, 2)  # M_i^T J_p^T
-    basis = np.zeros((len(_SYM), 6, 6))
-    basis[np.arange(len(_SYM)), _SYM[:, 0], _SYM[:, 1]] = 1.0
-    basis[np.arange(len(_SYM)), _SYM[:, 1], _SYM[:, 0]] = 1.0
-    cross = basis[:, None] @ after + lk @ (basis[:, None] @ before)  # (21, K, 6, 6)
+    basis = _BASIS[:, None]
+    cross = basis @ after + lk @ (basis @ before)  # (21, K, 6, 6)
     # sum_n M_n E M_n^T for each basis element E (from one product: G[k, a, l, b] =
     # sum_n M_n[k, a] M_n[l, b]), then J_p (.) J_p^T
     flat = m.reshape(len(m), -1)
@@ -200,9 +195,7 @@ def estimate_pose_noise(
     sigma = np.eye(6)
     for _ in range(iterations):
         theta = np.linalg.lstsq(np.tensordot(weight, normal, 1), weight @ rhs, rcond=None)[0]
-        sigma = np.zeros((6, 6))
-        sigma[_SYM[:, 0], _SYM[:, 1]] = theta
-        sigma[_SYM[:, 1], _SYM[:, 0]] = theta
+        sigma = np.tensordot(theta, _BASIS, 1)
         vals, vecs = np.linalg.eigh(sigma)
         floor = 1e-12 * max(vals.max(), 1e-30)
         sigma = (vecs * np.clip(vals, floor, None)) @ vecs.T

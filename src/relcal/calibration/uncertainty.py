@@ -55,10 +55,7 @@ def body_covariance(poses: np.ndarray, vector_covariance: np.ndarray) -> np.ndar
     """Covariances ``(N, 6, 6)`` of body-frame pose errors (``C exp(eps)``) from covariances of
     ``transforms.to_vector(C)`` (translation m, rotation vector rad), as the image pipeline gives
     them (:class:`relcal.vision.detect.PoseResult`)."""
-    vec = tf.to_vector(poses)
-    g = np.zeros((len(poses), 6, 6))
-    g[:, :3, :3] = np.swapaxes(poses[:, :3, :3], -1, -2)  # eps_t = R^T dt
-    g[:, 3:, 3:] = tf.right_jacobian(vec[:, 3:])  # eps_w = J_r(phi) dphi
+    g = tf.vector_tangent(tf.to_vector(poses))  # eps = (R^T dt, J_r(phi) dphi)
     return g @ vector_covariance @ np.swapaxes(g, -1, -2)
 
 

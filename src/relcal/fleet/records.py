@@ -100,25 +100,20 @@ def calibration_record(
     names, cov = covariance(cal)
     layout = cal.problem.full_layout
     angle = layout.is_angle()
-    estimated = set(names)
-    own = cal.std if cal.std is not None else np.full(layout.size, np.nan)
-    std = np.full(layout.size, np.nan)
-    where = {n: i for i, n in enumerate(names)}
-    for k, name in enumerate(layout.names):
-        if name in where:
-            std[k] = np.sqrt(cov[where[name], where[name]])
+    std = cal.std  # of the covariance recorded: `std` and `calibration_std` (older records) agree
     parameters = []
     for k, name in enumerate(layout.names):
-        ok = bool(cal.result.identifiable[k])
+        estimated = bool(np.isfinite(std[k]))
+        value = float(std[k]) if estimated else None
         parameters.append(
             {
                 "name": name,
                 "unit": "rad" if angle[k] else "m",
-                "value": float(cal.result.params[k]) if name in estimated else None,
-                "std": float(std[k]) if name in estimated and np.isfinite(std[k]) else None,
-                "calibration_std": float(own[k]) if np.isfinite(own[k]) else None,
-                "identifiable": ok,
-                "estimated": name in estimated,
+                "value": float(cal.result.params[k]) if estimated else None,
+                "std": value,
+                "calibration_std": value,
+                "identifiable": bool(cal.result.identifiable[k]),
+                "estimated": estimated,
             }
         )
     root = Path(cal.dataset.root).resolve()
