@@ -20,6 +20,7 @@ import ctypes
 import ctypes.util
 import logging
 import os
+import sys
 from typing import Any
 
 from relcal.errors import RelcalError
@@ -28,15 +29,21 @@ from relcal.errors import RelcalError
 _M_TRIM_THRESHOLD, _M_MMAP_THRESHOLD = -1, -3
 _MMAP_THRESHOLD = 32 << 20
 _prepared = False
+_blas_limit = None  # a Dask worker's BLAS limit, held for the life of the process
 
 
 def prepare_worker() -> None:
-    """Undo ``MALLOC_TRIM_THRESHOLD_`` in this process (once; a no-op where it is unset or the C
-    library is not glibc). Call at the start of a task."""
-    global _prepared
+    """Call at the start of a task (once per process has effect): undo ``MALLOC_TRIM_THRESHOLD_``
+    (a no-op where it is unset or the C library is not glibc), and on a Dask worker keep BLAS on
+    one thread for good (threadpoolctl takes milliseconds a call; relcal's matrices are small)."""
+    global _prepared, _blas_limit
     if _prepared:
         return
     _prepared = True
+    if _on_dask_worker():
+        from threadpoolctl import threadpool_limits
+
+        _blas_limit = threadpool_limits(limits=1)
     if "MALLOC_TRIM_THRESHOLD_" not in os.environ:
         return
     try:
@@ -46,6 +53,18 @@ def prepare_worker() -> None:
         return
     mallopt(_M_MMAP_THRESHOLD, _MMAP_THRESHOLD)
     mallopt(_M_TRIM_THRESHOLD, 2 * _MMAP_THRESHOLD)
+
+
+def _on_dask_worker() -> bool:
+    """Whether this runs in a Dask worker's task (never imports Dask to find out)."""
+    distributed = sys.modules.get("distributed")
+    if distributed is None:
+        return False
+    try:
+        distributed.get_worker()
+    except ValueError:
+        return False
+    return True
 
 
 def local_cluster(workers: int):

@@ -61,6 +61,7 @@ from relcal.calibration.uncertainty import (
     pose_rows,
     predicted_accuracy,
 )
+from relcal.cluster import prepare_worker
 from relcal.design.cell import Cell
 from relcal.errors import RelcalError
 from relcal.geometry import DEG, MM, look_at
@@ -327,7 +328,7 @@ def _batch_task(context, batch: int, seeds: list[np.random.SeedSequence]):
     constraints)``."""
     import copy
 
-    _prepare_worker()
+    prepare_worker()
     context = copy.deepcopy(context)  # aligned arrays of its own (see _Shard)
     return [candidate_batch(*context, batch, seed) for seed in seeds]
 
@@ -637,7 +638,7 @@ class _Shard:
         import time
 
         started, cpu = time.perf_counter(), time.thread_time()
-        _prepare_worker()
+        prepare_worker()
         info, rows = self.info, self.rows
         prepared = tuple(np.array(x) for x in prepared)  # aligned copies, as the rows
         found = _block_best(info, prepared, rows, self.offset, excluded, name, n_meas, self.block)
@@ -645,22 +646,6 @@ class _Shard:
         self.seconds += time.perf_counter() - started
         self.cpu_seconds += time.thread_time() - cpu
         return found
-
-
-_LIMITED = None  # the BLAS thread limit of a worker process, set by its first relcal plan call
-
-
-def _prepare_worker() -> None:
-    """On a worker: undo the nanny's malloc setting and keep BLAS on one thread (once per
-    process: threadpoolctl takes milliseconds a call)."""
-    global _LIMITED
-    from relcal.cluster import prepare_worker
-
-    prepare_worker()
-    if _LIMITED is None:
-        from threadpoolctl import threadpool_limits
-
-        _LIMITED = threadpool_limits(limits=1)
 
 
 def greedy(info: Information, k: int, name: str, scorer: Scorer | None = None) -> np.ndarray:

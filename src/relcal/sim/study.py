@@ -102,16 +102,13 @@ def _estimate(problem: Problem, context: dict) -> tuple[np.ndarray, bool]:
 
 def _run_on_worker(context: dict, rows: list[tuple[int, np.ndarray]]) -> list:
     """A Dask task: ``rows`` with ``context`` (scattered once, the same object for every task of
-    one worker), BLAS on one thread."""
-    from threadpoolctl import threadpool_limits
-
+    one worker), BLAS on one thread (:func:`relcal.cluster.prepare_worker`)."""
     from relcal.cluster import prepare_worker
 
     prepare_worker()
     if _CONTEXT.get("token") != context["token"]:
         _init(context)
-    with threadpool_limits(limits=1):
-        return _run_trials(rows)
+    return _run_trials(rows)
 
 
 def _dask_results(client, context: dict, rows: list, trial_seconds: float):
