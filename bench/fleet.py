@@ -25,13 +25,6 @@ N_SESSIONS = 40
 REPEAT = 2
 
 
-def parallel_capacity(workers: int) -> float:
-    """Cores the machine gives ``workers`` busy processes now (:mod:`montecarlo`'s check)."""
-    from montecarlo import parallel_capacity as capacity
-
-    return capacity(workers)
-
-
 def build(root: Path) -> list:
     from helpers_fleet import make_robot, write_session
 
@@ -72,6 +65,8 @@ def fleet_seconds(sessions, workers: int, out: Path) -> tuple[float, float | Non
 
 
 def run() -> list[dict]:
+    from montecarlo import parallel_capacity  # the cores busy processes get, checked the same way
+
     from relcal.fleet.runner import calibrate_session
 
     with tempfile.TemporaryDirectory() as tmp:
