@@ -64,13 +64,6 @@ def outputs_folder(session: Session, out_root: str | Path | None) -> Path:
     return Path(out_root) / session.name
 
 
-def _write_outputs(cal, doc: dict, out: Path) -> None:
-    """The files of ``relcal calibrate``, written as one set by the same writer."""
-    from relcal.reporting.outputs import write_calibration
-
-    write_calibration(cal, out, doc)
-
-
 def calibrate_session(
     path: str, name: str, out: str, options: dict[str, Any] | None = None
 ) -> dict[str, Any]:
@@ -108,6 +101,7 @@ def _calibrate(path: Path, name: str, out: Path, options: dict) -> dict[str, Any
     from relcal.data.imaging import measure
     from relcal.fleet.records import calibration_record, held_out_errors
     from relcal.reporting.documents import results_document
+    from relcal.reporting.outputs import write_calibration
 
     dataset = load_dataset(path)
     with np.errstate(all="ignore"):
@@ -126,7 +120,7 @@ def _calibrate(path: Path, name: str, out: Path, options: dict) -> dict[str, Any
             f"{val['baseline']['position_mm']['rms']:.3f} mm); nothing written",
             **held_out_errors(doc),
         }
-    _write_outputs(cal, doc, out)
+    write_calibration(cal, out, doc)  # the files of `relcal calibrate`, as one set
     record = calibration_record(cal, doc, outputs=out, session=name)
     return {
         "robot_id": record["robot_id"],
