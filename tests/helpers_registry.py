@@ -1,4 +1,6 @@
-"""A registry writer process for the concurrency test (imports only the registry)."""
+"""Registry writer processes for the concurrency tests (a writer imports only the registry)."""
+
+import multiprocessing
 
 from relcal.fleet.registry import Registry
 
@@ -13,3 +15,20 @@ def writer(url: str, record: dict, worker: int, count: int, barrier, queue) -> N
         queue.put(("ok", ids))
     except Exception as exc:  # reported to the test
         queue.put(("error", repr(exc)))
+
+
+def write_concurrently(url: str, record: dict, n_proc: int, count: int) -> list[tuple]:
+    """``n_proc`` spawned :func:`writer` processes at once, ``count`` records each: their
+    reports, ``("ok", ids)`` or ``("error", repr)``, one per process."""
+    ctx = multiprocessing.get_context("spawn")
+    queue, barrier = ctx.Queue(), ctx.Barrier(n_proc)
+    procs = [
+        ctx.Process(target=writer, args=(url, record, w, count, barrier, queue))
+        for w in range(n_proc)
+    ]
+    for p in procs:
+        p.start()
+    results = [queue.get(timeout=120) for _ in procs]
+    for p in procs:
+        p.join(timeout=60)
+    return results

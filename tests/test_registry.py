@@ -6,14 +6,13 @@ from __future__ import annotations
 import csv
 import io
 import json
-import multiprocessing
 import os
 
 import numpy as np
 import pytest
 import sqlalchemy as sa
 from helpers_fleet import make_robot, write_session
-from helpers_registry import writer
+from helpers_registry import write_concurrently
 
 from relcal.calibration.pipeline import calibrate
 from relcal.cli import main
@@ -127,19 +126,8 @@ def test_concurrent_writers_lose_nothing(calibrated, tmp_path):
     cal, doc = calibrated
     record = calibration_record(cal, doc)
     url = reg.registry_url(tmp_path / "shared.sqlite")
-    ctx = multiprocessing.get_context("spawn")
-    queue = ctx.Queue()
     n_proc, count = 4, 25
-    barrier = ctx.Barrier(n_proc)
-    procs = [
-        ctx.Process(target=writer, args=(url, record, w, count, barrier, queue))
-        for w in range(n_proc)
-    ]
-    for p in procs:
-        p.start()
-    results = [queue.get(timeout=120) for _ in procs]
-    for p in procs:
-        p.join(timeout=60)
+    results = write_concurrently(url, record, n_proc, count)
     assert all(status == "ok" for status, _ in results), results
     ids = [i for _, got in results for i in got]
     assert len(set(ids)) == n_proc * count

@@ -5,7 +5,6 @@ test`` does so first). Where the package is missing the tests are skipped, with 
 from __future__ import annotations
 
 import glob
-import multiprocessing
 import os
 import shutil
 import socket
@@ -15,7 +14,7 @@ from pathlib import Path
 
 import pytest
 from helpers_fleet import make_robot, write_session
-from helpers_registry import writer
+from helpers_registry import write_concurrently
 
 from relcal.calibration.pipeline import calibrate
 from relcal.data.dataset import load_dataset
@@ -96,18 +95,8 @@ def record(tmp_path_factory):
 
 
 def test_postgresql_registry_round_trip_and_concurrent_writers(postgres_url, record):
-    ctx = multiprocessing.get_context("spawn")
-    queue, n_proc, count = ctx.Queue(), 3, 10
-    barrier = ctx.Barrier(n_proc)
-    procs = [
-        ctx.Process(target=writer, args=(postgres_url, record, w, count, barrier, queue))
-        for w in range(n_proc)
-    ]  # racing for the first migration too
-    for p in procs:
-        p.start()
-    results = [queue.get(timeout=120) for _ in procs]
-    for p in procs:
-        p.join(timeout=60)
+    n_proc, count = 3, 10
+    results = write_concurrently(postgres_url, record, n_proc, count)  # racing to migrate too
     assert all(status == "ok" for status, _ in results), results
     with reg.Registry(postgres_url) as registry:
         assert reg.current_revision(registry.engine) == reg.head_revision()
