@@ -102,3 +102,14 @@ def with_plausible_loads(model, name: str):
 
     mass, com = LOADS[name]
     return with_loads(model, np.array(mass), np.array(com), 1.0, np.array([0.0, 0.0, 0.05]))
+
+
+def numeric_jacobian(problem, params: np.ndarray, h: float = 1e-7) -> np.ndarray:
+    """Central differences ``(M, P)`` of the residuals at ``params``, in the sign of
+    :func:`relcal.calibration.measurement.residuals`' Jacobian (``r(p + dp) ~ r(p) - A dp``)."""
+    cols = []
+    for step in h * np.eye(len(params)):
+        plus = residuals(problem, params + step, jacobian=False)
+        minus = residuals(problem, params - step, jacobian=False)
+        cols.append(-(plus - minus) / (2 * h))
+    return np.stack(cols, axis=1)
