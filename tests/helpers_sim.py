@@ -104,11 +104,12 @@ def with_plausible_loads(model, name: str):
     return with_loads(model, np.array(mass), np.array(com), 1.0, np.array([0.0, 0.0, 0.05]))
 
 
-def numeric_jacobian(problem, params: np.ndarray, h: float = 1e-7) -> np.ndarray:
-    """Central differences ``(M, P)`` of the residuals at ``params``, in the sign of
-    :func:`relcal.calibration.measurement.residuals`' Jacobian (``r(p + dp) ~ r(p) - A dp``)."""
+def numeric_jacobian(problem, params: np.ndarray, h: float = 1e-7, columns=None) -> np.ndarray:
+    """Central differences ``(M, len(columns))`` of the residuals at ``params`` (all columns by
+    default), in the sign of :func:`relcal.calibration.measurement.residuals`' Jacobian
+    (``r(p + dp) ~ r(p) - A dp``)."""
     cols = []
-    for step in h * np.eye(len(params)):
+    for step in h * np.eye(len(params))[np.arange(len(params)) if columns is None else columns]:
         plus = residuals(problem, params + step, jacobian=False)
         minus = residuals(problem, params - step, jacobian=False)
         cols.append(-(plus - minus) / (2 * h))

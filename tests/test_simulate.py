@@ -5,8 +5,8 @@ import json
 
 import numpy as np
 import pytest
+from helpers_sim import numeric_jacobian
 
-from relcal.calibration.measurement import residuals
 from relcal.calibration.noise import Noise
 from relcal.cli import main
 from relcal.errors import RelcalError
@@ -50,15 +50,7 @@ def test_cli_writes_the_documented_json(tmp_path, capsys):
 
 def finite_difference_rank(problem, h=1e-6, rcond=1e-6) -> int:
     """Rank of the residuals' Jacobian by central differences (no analytic derivative)."""
-    size = problem.full_layout.size
-    cols = []
-    for k in range(size):
-        step = np.zeros(size)
-        step[k] = h
-        plus = residuals(problem, step, jacobian=False)
-        minus = residuals(problem, -step, jacobian=False)
-        cols.append((plus - minus) / (2 * h))
-    jac = np.array(cols).T
+    jac = numeric_jacobian(problem, np.zeros(problem.full_layout.size), h)
     norms = np.linalg.norm(jac, axis=0)
     jac = jac[:, norms > rcond * norms.max()]  # a parameter without effect adds no rank
     s = np.linalg.svd(jac / np.linalg.norm(jac, axis=0), compute_uv=False)

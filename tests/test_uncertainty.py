@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import scipy.optimize
 from conftest import random_q
-from helpers_sim import make_problem
+from helpers_sim import make_problem, numeric_jacobian
 
 from relcal import geometry as tf
 from relcal.calibration.identifiability import analyse_problem
@@ -121,19 +121,6 @@ def _noisy(problem, rng, noise=NOISE):
     return replace(problem, poses=problem.poses @ tf.from_vector(eps), q=problem.q + eta)
 
 
-def _finite_difference_jacobian(problem, params, subset, h=1e-7):
-    """Central differences of the residuals at ``params``, columns ``subset``."""
-    cols = []
-    for k in subset:
-        step = params.copy()
-        step[k] += h
-        plus = residuals(problem, step, jacobian=False)
-        step[k] -= 2 * h
-        minus = residuals(problem, step, jacobian=False)
-        cols.append((plus - minus) / (2 * h))
-    return np.array(cols).T
-
-
 @pytest.mark.parametrize(("formulation", "measure"), CASES)
 def test_covariances_match_monte_carlo_of_the_sensor_noise(hayati, rng, formulation, measure):
     """Both covariances against Monte Carlo, with nothing of the module but the residuals: the
@@ -179,7 +166,7 @@ def test_covariances_match_monte_carlo_of_the_sensor_noise(hayati, rng, formulat
     clean = residuals(chain, truth, jacobian=False)
     noise = np.array([residuals(_noisy(chain, rng), truth, jacobian=False) for _ in range(4000)])
     sampled = np.cov((noise - clean).T)
-    a = _finite_difference_jacobian(chain, truth, subset)
+    a = numeric_jacobian(chain, truth, columns=subset)
     bound = np.linalg.inv(a.T @ np.linalg.solve(sampled, a))
     d = np.sqrt(np.diag(crb))
     np.testing.assert_allclose(np.sqrt(np.diag(bound)), d, rtol=0.1)
