@@ -63,7 +63,7 @@ def test_a_run_that_does_not_converge_writes_nothing(dataset, tmp_path, monkeypa
     real = pipeline._fit
 
     def not_converged(*args, **kwargs):
-        return dataclasses.replace(real(*args, **kwargs), converged=False)
+        return dataclasses.replace(real(*args, **kwargs), stopped=False)
 
     monkeypatch.setattr(pipeline, "_fit", not_converged)
     assert calibrate(dataset, out, "--seed", 5, "--json", doc) == 1

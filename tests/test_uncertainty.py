@@ -128,7 +128,8 @@ def test_covariances_match_monte_carlo_of_the_sensor_noise(hayati, rng, formulat
     the Cramer-Rao bound against ``(A^T S^-1 A)^-1`` with ``A`` by finite differences and ``S``
     the sampled covariance of the residual noise."""
     chain, truth = make_problem(hayati, formulation, measure, rng, n_poses=12)
-    weights = np.array([2.0, 1.0, 3.0, 500.0, 400.0, 300.0])[: chain.rows_per_measurement]
+    # row factors of the order of 1 / noise (m, rad), unequal per axis
+    weights = np.array([2000.0, 1000.0, 3000.0, 500.0, 400.0, 300.0])[: chain.rows_per_measurement]
     chain = replace(chain, weights=np.resize(weights, 6))  # consecutive pairs
     problem = chain if formulation == "absolute" else replace(chain, pairs=make_pairs(12, "all"))
     ident = analyse_problem(problem)

@@ -119,6 +119,24 @@ def right_jacobian(rotvec: np.ndarray) -> np.ndarray:
     return np.eye(3) - c1 * k + c2 * (k @ k)
 
 
+def right_jacobian_inverse(rotvec: np.ndarray) -> np.ndarray:
+    """Inverse of the right Jacobian ``(..., 3, 3)`` of SO(3) at rotation vectors ``(..., 3)``
+    (rad): ``log(exp(w) exp(dw)) ~ w + J_r^-1(w) dw``. The left one is ``J_r^-1(-w)``:
+    ``log(exp(dw) exp(w)) ~ w + J_r^-1(-w) dw``. Valid below pi."""
+    w = np.asarray(rotvec, dtype=float)
+    angle2 = np.einsum("...i,...i->...", w, w)[..., None, None]
+    angle = np.sqrt(angle2)
+    small = angle < 1e-4  # Taylor series there: exact to round-off, no 0/0
+    safe = np.where(small, 1.0, angle)
+    c2 = np.where(
+        small,
+        1 / 12 + angle2 / 720,
+        1 / safe**2 - (1 + np.cos(safe)) / (2 * safe * np.sin(safe)),
+    )
+    k = skew(w)
+    return np.eye(3) + 0.5 * k + c2 * (k @ k)
+
+
 def vector_tangent(vec: np.ndarray) -> np.ndarray:
     """``(..., 6, 6)`` ``diag(R(w)^T, J_r(w))`` of 6-vectors ``(t, w)`` ``(..., 6)``: the body
     motion of :func:`from_vector` per unit change of its vector,

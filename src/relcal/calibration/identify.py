@@ -18,6 +18,7 @@ import scipy.optimize
 from relcal import geometry as tf
 from relcal.calibration.blas import one_blas_thread
 from relcal.calibration.identifiability import (
+    DEFAULT_RCOND,
     Identifiability,
     analyse_problem,
     scaled,
@@ -74,7 +75,7 @@ class Result:
 
     params: np.ndarray
     names: tuple[str, ...]
-    converged: bool
+    stopped: bool  # the solver's own stopping rule was met (see :attr:`converged`)
     iterations: int
     initial_residual_norm: float
     residual_norm: float
@@ -86,6 +87,24 @@ class Result:
     problem: Problem = field(repr=False, compare=False)
     whiten: np.ndarray | None = field(default=None, repr=False, compare=False)
     noise: Noise | None = field(default=None, compare=False)  # pose noise; default: from r
+    loss: str = "linear"
+    f_scale: float = 1.0
+
+    @functools.cached_property
+    def gradient_check(self) -> GradientCheck:
+        """The stationarity of the stated cost at :attr:`params`, from central differences of
+        the real residual (not the solver's Jacobian): :func:`gradient_check`."""
+        every = np.arange(len(self.params))
+        columns = every if self.method == "published" else self.identifiability.subset
+        return gradient_check(
+            self.problem, self.params, columns, self.loss, self.f_scale, self.whiten
+        )
+
+    @property
+    def converged(self) -> bool:
+        """At the optimum of the stated cost: the solver stopped by its rule *and* the
+        finite-difference gradient of the cost vanishes there (:attr:`gradient_check`)."""
+        return bool(self.stopped and self.gradient_check.passed)
 
     @functools.cached_property
     def identifiable(self) -> np.ndarray:
@@ -142,6 +161,96 @@ class Result:
         i, j = i[keep], j[keep]
         order = np.argsort(-np.abs(rho[i, j]))[:count]
         return [(self.names[i[k]], self.names[j[k]], float(rho[i[k], j[k]])) for k in order]
+
+
+GRADIENT_TOL = 1e-6  # share of the cost a Gauss-Newton step could still remove
+FD_STEP = 1e-7  # central-difference step, SI units (m, rad, ...)
+NULL_COLUMN = 1e-6  # a finite-difference column below this share of the largest: a symmetry
+ROUND_OFF = 1e-10  # RMS error (m, rad; unweighted) below which a fit is exact to round-off
+
+
+@dataclass(frozen=True)
+class GradientCheck:
+    """Stationarity of the stated cost, measured by finite differences.
+
+    ``decrement``: the share of the cost ``|r|^2`` (robust losses: their reweighted residual) that
+    one Gauss-Newton step on the finite-difference Jacobian could still remove,
+    ``|P r|^2 / |r|^2`` with ``P`` the projection on the Jacobian's columns; it vanishes exactly
+    where the gradient does. ``max_cosine``: the largest ``|cos|`` between the residual and one
+    column (MINPACK's gradient test). ``passed``: ``decrement <= tolerance``, or a residual at
+    round-off level (an exact fit). ``evaluations``: residual evaluations the check took.
+    """
+
+    passed: bool
+    decrement: float
+    max_cosine: float
+    tolerance: float
+    evaluations: int
+
+
+def gradient_check(
+    problem: Problem,
+    params: np.ndarray,
+    columns: np.ndarray,
+    loss: str = "linear",
+    f_scale: float = 1.0,
+    whiten: np.ndarray | None = None,
+    tolerance: float = GRADIENT_TOL,
+) -> GradientCheck:
+    """Whether ``params`` ``(P,)`` is a stationary point of the stated cost over ``columns``.
+
+    The cost is ``0.5 sum rho((w r)^2)`` of the problem's weighted residual ``r`` (whitened by
+    ``whiten`` ``(R, M)`` if given; ``rho`` the ``loss`` bending at ``f_scale``, SciPy's
+    definitions). Each column of the Jacobian is a central difference of the residual itself
+    (step :data:`FD_STEP` in SI units), never the solver's analytic Jacobian, so a wrong
+    Jacobian cannot certify its own fixed point.
+    """
+    params = np.asarray(params, dtype=float)
+    columns = np.asarray(columns, dtype=int)
+
+    def real(x: np.ndarray) -> np.ndarray:
+        r = residuals(problem, x, jacobian=False)
+        return r if whiten is None else whiten @ r
+
+    r = real(params)
+    jac = np.empty((len(r), len(columns)))
+    for k, c in enumerate(columns):
+        step = np.zeros_like(params)
+        step[c] = FD_STEP
+        jac[:, k] = (real(params + step) - real(params - step)) / (2 * FD_STEP)
+    if loss != "linear":  # the reweighted residual whose Gauss-Newton gradient is the cost's
+        z = (r / f_scale) ** 2
+        weight = np.sqrt(_loss_derivative(loss, z))
+        r, jac = weight * r, weight[:, None] * jac
+    norm2 = float(r @ r)
+    errors = pair_errors(problem, params)  # unweighted, m and rad: weights scale round-off too
+    exact = bool(np.sqrt(np.nanmean(errors**2)) <= ROUND_OFF)
+    decrement, cosine = 0.0, 0.0
+    col = np.linalg.norm(jac, axis=0)
+    # Columns at round-off level are exact symmetries (the cost does not depend on them); scaled
+    # to unit norm their noise would look like a gradient.
+    live = col > NULL_COLUMN * max(float(col.max(initial=0.0)), 1e-300)
+    if norm2 > 0 and live.any():
+        unit = jac[:, live] / col[live]
+        u, sv, _ = np.linalg.svd(unit, full_matrices=False)
+        u = u[:, sv > DEFAULT_RCOND * sv[0]]  # the rank tolerance of the identifiability test
+        decrement = float(np.sum((u.T @ r) ** 2) / norm2)
+        cosine = float(np.max(np.abs(unit.T @ r)) / np.sqrt(norm2))
+    passed = bool(np.isfinite(norm2) and (exact or decrement <= tolerance))
+    return GradientCheck(passed, decrement, cosine, tolerance, 1 + 2 * len(columns))
+
+
+def _loss_derivative(loss: str, z: np.ndarray) -> np.ndarray:
+    """``rho'(z)`` of SciPy's robust losses at ``z = (r / f_scale)^2``."""
+    if loss == "huber":
+        return np.where(z <= 1, 1.0, 1 / np.sqrt(np.maximum(z, 1e-300)))
+    if loss == "soft_l1":
+        return 1 / np.sqrt(1 + z)
+    if loss == "cauchy":
+        return 1 / (1 + z)
+    if loss == "arctan":
+        return 1 / (1 + z**2)
+    return np.ones_like(z)
 
 
 DEPENDENCE_TOL = 1e-4  # mm or deg of change per mm or deg of a parameter held at nominal
@@ -276,25 +385,32 @@ def identify_published(
         step, keep = _truncated_svd_solve(unit, r, rcond)
         step = step / norms
         previous = (params, r, a)
-        params = params + step
-        r, a = residuals(problem, params)
-        if np.linalg.norm(r) > np.linalg.norm(previous[1]):
-            # The linearisation no longer holds (with noise, typically a weakly determined
-            # direction such as nearly parallel axes): keep the better estimate and stop there.
+        # Where the linearisation does not hold over the whole step (with noise, typically a
+        # weakly determined direction such as nearly parallel axes), a shorter step along the
+        # same (descent) direction does: halved until the residual decreases.
+        for halvings in range(40):  # noqa: B007 (read after the loop)
+            params = previous[0] + step
+            r = residuals(problem, params, jacobian=False)
+            if np.linalg.norm(r) <= np.linalg.norm(previous[1]):
+                break
+            step = step / 2
+        else:  # no step along it lowers the cost: at the minimum to round-off
             params, r, a = previous
             converged = True
             break
+        r, a = residuals(problem, params)
         size = np.linalg.norm(step * norms)
         # Negligible correction, or a residual that no longer decreases (at round-off level a
         # curved exact symmetry can keep a tiny singular value above rcond and move forever).
         stalled = np.linalg.norm(r) >= np.linalg.norm(previous[1]) * (1 - 1e-6) and it > 1
+        stalled = stalled and halvings == 0  # a shortened step says nothing about the minimum
         if size <= tol * max(np.linalg.norm(params * norms), 1e-3) or stalled:
             converged = True
             break
     return Result(
         params=params,
         names=problem.full_layout.names,
-        converged=converged,
+        stopped=converged,
         iterations=it,
         initial_residual_norm=initial_norm,
         residual_norm=float(np.linalg.norm(r)),
@@ -309,6 +425,7 @@ def identify_published(
 
 _DAMPING = 1e-6  # Marquardt's starting damping, relative to unit-norm columns
 STEP_TOL = 0.01  # a step below this share of the standard deviations is not taken
+COST_TOL = 1e-7  # ... nor one that promises more than this share of the cost
 
 
 def levenberg_marquardt(
@@ -342,7 +459,7 @@ def levenberg_marquardt(
         # standard deviations (|A dx|^2 / s^2 with s^2 = cost / (m - k) the noise level the
         # residuals imply), the iteration ends unevaluated.
         promised = 2.0 * (gradient @ step) - step @ normal @ step
-        negligible = STEP_TOL**2 * cost / max(len(r) - len(x), 1)
+        negligible = min(STEP_TOL**2 * cost / max(len(r) - len(x), 1), COST_TOL * cost)
         if damping <= _DAMPING and promised <= max(rtol * cost, negligible):
             return x, True, nfev
         trial = x + step / scale
@@ -356,12 +473,24 @@ def levenberg_marquardt(
             scale = np.maximum(scale, np.linalg.norm(a, axis=0))
             damping = max(damping / 10.0, 1e-15)
             if small_step or small_gain or cost == 0.0:
-                return x, True, nfev
+                return x, _stationary(r, a, scale), nfev
         elif cost_new - cost <= 1e4 * rtol * cost or damping > 1e10:
-            return x, True, nfev  # no step lowers the cost: at the minimum to round-off
+            return x, _stationary(r, a, scale), nfev  # no step lowers the cost
         else:
             damping *= 10.0
     return x, False, nfev
+
+
+def _stationary(r: np.ndarray, a: np.ndarray, scale: np.ndarray) -> bool:
+    """Whether an undamped Gauss-Newton step at ``(r, A)`` would remove at most
+    :data:`COST_TOL` of the cost: a small step or gain after heavy damping says nothing about
+    the gradient, this does."""
+    cost = float(r @ r)
+    if cost == 0.0:
+        return True
+    unit = a / scale
+    step = np.linalg.lstsq(unit, r, rcond=None)[0]
+    return float(np.sum((unit @ step) ** 2)) <= COST_TOL * cost
 
 
 def _reduced(
@@ -488,9 +617,12 @@ def _lm(
         a = evaluate(x)[1][:, subset]
         return a if whiten is None else whiten @ a
 
+    nfev = 0
     if loss == "linear":
-        x, converged, nfev = levenberg_marquardt(lambda x: (-fun(x), jac(x)), x0, max_nfev)
-    else:  # robust losses: SciPy's trust-region reflective solver
+        x0, converged, nfev = levenberg_marquardt(lambda x: (-fun(x), jac(x)), x0, max_nfev)
+    if loss != "linear" or not converged:
+        # Robust losses, and the rare linear fit whose own iteration stalled off the optimum:
+        # SciPy's trust-region reflective solver takes over.
         sol = scipy.optimize.least_squares(
             fun,
             x0,
@@ -504,7 +636,9 @@ def _lm(
             ftol=1e-12,
             gtol=1e-12,
         )
-        x, converged, nfev = sol.x, bool(sol.status > 0), int(sol.nfev)
+        x, converged, nfev = sol.x, bool(sol.status > 0), nfev + int(sol.nfev)
+    else:
+        x = x0
     r, a = evaluate(x)
     if whiten is not None:
         label = "lm (noise-weighted)"
@@ -513,7 +647,7 @@ def _lm(
     return Result(
         params=expand(x),
         names=problem.full_layout.names,
-        converged=converged,
+        stopped=converged,
         iterations=nfev,
         initial_residual_norm=float(np.linalg.norm(r0)),
         residual_norm=float(np.linalg.norm(r)),
@@ -524,6 +658,8 @@ def _lm(
         identifiability=ident,
         problem=problem,
         whiten=whiten,
+        loss=loss,
+        f_scale=f_scale,
     )
 
 

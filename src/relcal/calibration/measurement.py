@@ -162,10 +162,16 @@ def split_params(problem: Problem, params: np.ndarray) -> tuple[RobotModel, np.n
     return model, handeye
 
 
-def residuals(problem: Problem, params: np.ndarray, jacobian: bool = True):
+def residuals(
+    problem: Problem, params: np.ndarray, jacobian: bool = True, model_jacobian: bool = False
+):
     """Residual vector ``(M,)`` and, if asked, its Jacobian ``A`` ``(M, P)`` at ``params``.
 
-    Measurements are stacked measurement by measurement (3 or 6 rows each).
+    Measurements are stacked measurement by measurement (3 or 6 rows each). ``A`` is the exact
+    derivative of the residual (``r(p + dp) ~ r(p) - A dp``); with ``model_jacobian`` it is that
+    of the modelled measurement instead, i.e. the residual's where the residual vanishes: what
+    the Fisher information and the propagation of measurement noise use (the noise lives in the
+    tangent space at the true measurement). Both give the same gradient ``A^T r``.
     """
     if problem.formulation == "tracker":
         return _tracker(problem, params, jacobian)
@@ -180,8 +186,13 @@ def residuals(problem: Problem, params: np.ndarray, jacobian: bool = True):
     if problem.formulation == "invariant":
         n_geo = problem.layout.size
         r, a = _invariant(problem, tip, jac, handeye, params[n_geo : n_geo + 6])
+        if jacobian and not model_jacobian:
+            a = residual_tangent(r) @ a
     else:
         r, a = tf.pose_error(problem.poses, tip), jac
+        if jacobian and not model_jacobian:  # log(R_e exp(-w)) ~ log(R_e) - J_r^-1(log R_e) w
+            a = a.copy()
+            a[:, 3:] = tf.right_jacobian_inverse(r[:, 3:]) @ a[:, 3:]
         if problem.formulation == "published":
             i, j = problem.pair_indices().T
             r, a = r[j] - r[i], (a[j] - a[i] if jacobian else None)
@@ -233,6 +244,19 @@ def _invariant(
     if np.any(handeye_params):  # per unit change of the 6-vector, not of a motion on top
         out[:, :, n_geo:] = out[:, :, n_geo:] @ tf.vector_tangent(handeye_params)
     return r, out
+
+
+def residual_tangent(r: np.ndarray) -> np.ndarray:
+    """``(P, 6, 6)``: how the residual 6-vector ``r = (t, phi)`` of ``E = model^-1 measured``
+    moves when the model moves by a body motion ``delta = (v, w)`` (``E -> exp(-delta) E``):
+    ``dr = -[[I, -[t]x], [0, J_l^-1(phi)]] delta``. The identity where the residual vanishes;
+    on real data (millimetres and degrees left) the identity would put the stationary point of
+    the solver's gradient off the cost's minimum."""
+    out = np.zeros((len(r), 6, 6))
+    out[:, :3, :3] = np.eye(3)
+    out[:, :3, 3:] = -tf.skew(r[:, :3])
+    out[:, 3:, 3:] = tf.right_jacobian_inverse(-r[:, 3:])
+    return out
 
 
 def pair_errors(problem: Problem, params: np.ndarray) -> np.ndarray:

@@ -419,10 +419,10 @@ def parameter_covariance(
     subset = np.sort(np.asarray(ident.subset if subset is None else subset, dtype=int))
     if estimator not in ("least_squares", "weighted"):
         raise ValueError(f"unknown estimator '{estimator}': use least_squares or weighted")
-    _, a = residuals(problem, params)
+    _, a = residuals(problem, params, model_jacobian=True)
     a = a[:, subset]
     chain = spanning_chain(problem)
-    a_chain = a if chain is problem else residuals(chain, params)[1][:, subset]
+    a_chain = a if chain is problem else residuals(chain, params, model_jacobian=True)[1][:, subset]
     wa = whitener(noise_factor(chain, noise, covariances, params)) @ a_chain
     crb = _inverse_scaled(wa.T @ wa)
     kz = _inverse_scaled(a.T @ a) @ projected_noise_factor(problem, a, noise, covariances, params)
@@ -479,7 +479,7 @@ def predicted_accuracy(
         weights=None,
     )
     params = np.zeros(problem.full_layout.size) if params is None else params
-    _, a = residuals(shell, params)
+    _, a = residuals(shell, params, model_jacobian=True)
     a = a[:, uncertainty.subset].reshape(-1, 6, len(uncertainty.subset))
     cov = a @ uncertainty.covariance @ np.swapaxes(a, -1, -2)  # (P, 6, 6)
     diag = np.clip(np.diagonal(cov, axis1=-2, axis2=-1), 0.0, None)
