@@ -195,7 +195,7 @@ def result_covariance(
     r, a = residuals(problem, params)
     if whiten is not None:
         return least_squares_covariance(whiten @ a, whiten @ r, ident.subset)
-    if problem.formulation in ("absolute", "tracker"):  # independent poses or points
+    if problem.formulation in ("absolute", "tracker", "coincidence"):  # independent samples
         return least_squares_covariance(a, r, ident.subset)
     if noise is None:
         sigma = robust_sigma(pair_errors(problem, params)) / np.sqrt(2)  # two poses per pair
