@@ -399,18 +399,16 @@ def explainer(problem: Problem):
         miss = np.abs(lhs @ coef - motion.reshape(-1)).max() / scale if scale > 0 else 0.0
         return coef, float(miss)
 
-    def still_placements(v0: np.ndarray, w: np.ndarray) -> list[str]:
-        """The placements with two groups whose points a rigid motion ``(v0, w)`` leaves still
-        (a rotation about the line through them)."""
-        out = []
-        moved = np.linalg.norm(v0 + np.cross(w, c.points), axis=1)
-        scale = np.linalg.norm(w) * max(np.linalg.norm(c.points, axis=1).max(), 1e-3)
-        scale = max(scale, np.linalg.norm(v0))
-        for place in c.placement_names():
-            groups = [g for g, p in enumerate(c.placements) if p == place]
-            if len(groups) == 2 and np.all(moved[groups] < 1e-6 * scale):
-                out.append(" and ".join(c.names[g] for g in groups))
-        return out
+    def two_point_line() -> str:
+        """With one placement of two groups: the line through their points (a rotation of the
+        base about it moves neither)."""
+        places = c.placement_names()
+        if len(places) == 1 and c.n_groups == 2:
+            return (
+                f"; with one placement of two groups even a rotation about the line through "
+                f"{c.names[0]} and {c.names[1]} moves neither point"
+            )
+        return ""
 
     def on_axis() -> bool:
         return offset < AXIS_TOL
@@ -441,13 +439,15 @@ def explainer(problem: Problem):
         n = len(y)
         rigid = np.concatenate([np.broadcast_to(np.eye(3), (n, 3, 3)), -tf.skew(y)], axis=-1)
         in_tip = tip[:, :3, :3]  # a constant change in the tip frame
-        coef, miss = fitted(motion, in_tip)
+        _, miss = fitted(motion, in_tip)
         if miss < 1e-6:
             return (
                 "moves the tool point by a constant amount in the tip frame: the tool point "
                 "absorbs it"
             )
-        if np.abs(points_moved).max() < 1e-6 * max(scale, 1e-300) and on_axis():
+        if np.abs(points_moved).max() < 1e-6 * max(scale, 1e-300):  # the terms cancel
+            if not on_axis():
+                return "linearly dependent at these poses: vary the poses or fix one of them"
             n = problem.model.n_joints
             return (
                 f"the tool point lies on joint {n}'s axis (its guess {offset * 1e3:.2g} mm from "
@@ -455,17 +455,11 @@ def explainer(problem: Problem):
                 f"{n - 1} whose place these parameters describe together (only orientation "
                 "data, or a tool point off that axis, would separate them)"
             )
-        coef, miss = fitted(points_moved, rigid)
+        _, miss = fitted(points_moved, rigid)
         if miss < 1e-6:
-            two = still_placements(coef[:3], coef[3:])
-            if two and np.linalg.norm(coef[3:]) > 0:
-                return (
-                    "a rotation of the robot base about the line through "
-                    f"{'; '.join(two)}: moves neither point, and nothing else fixes it"
-                )
             return (
                 "acts as a rigid motion of the robot base: every group point moves with it "
-                "(coincidences hold no fixed reference)"
+                f"(coincidences hold no fixed reference{two_point_line()})"
             )
         similar = np.concatenate([rigid, y[:, :, None]], axis=-1)
         coef, miss = fitted(points_moved, similar)
@@ -607,3 +601,101 @@ def dataset_problem(dataset, samples: np.ndarray | None = None, weights=None) ->
     groups = [dataset.groups[k] for k in samples]
     c = make_coincidence(dataset.model, q, groups, dataset.distances, dataset.tool_point)
     return coincidence_problem(dataset.model, q, c, weights=weights)
+
+
+# --- the kind's fit and its validation by held-out placements ------------------------------------
+
+
+@dataclass(frozen=True)
+class Fit:
+    """A coincidence fit: the baseline (nominal geometry, the tool point and the group points
+    fitted) and the calibrated one (the identifiable geometry too), both on the rows weighted by
+    ``sigma``, the robust standard deviation of one sample's point (m) learned from the residuals
+    of a first, unweighted fit of the geometry."""
+
+    problem: Problem  # weighted
+    baseline: object  # relcal.calibration.identify.Result
+    calibrated: object
+    sigma: float
+
+    def frozen(self, which: str = "calibrated") -> tuple[RobotModel, np.ndarray]:
+        """The model and the tool point of the baseline or the calibrated fit."""
+        result = self.calibrated if which == "calibrated" else self.baseline
+        model, tool, _ = split_params(self.problem, result.params)
+        return model, tool
+
+
+def nuisance_columns(problem: Problem) -> np.ndarray:
+    """The tool point and group point columns of ``problem.full_layout``."""
+    return np.arange(problem.layout.size, problem.full_layout.size)
+
+
+def fit(problem: Problem, max_nfev: int = 200) -> Fit:
+    """The baseline and calibrated fits of ``problem`` (Levenberg-Marquardt on the identifiable
+    subset, :func:`relcal.calibration.identify.identify_lm`), the rows weighted by the robust
+    point noise of a first fit of the geometry and distance rows by their own ``std``."""
+    from relcal.calibration.identifiability import analyse_problem
+    from relcal.calibration.identify import identify_lm
+    from relcal.calibration.noise import robust_sigma
+
+    ident = analyse_problem(problem)
+    first = identify_lm(problem, max_nfev, ident)
+    errors = sample_errors(problem, first.params)
+    sigma = float(robust_sigma(np.concatenate([errors, errors], axis=1))[0])
+    weighted = replace(problem, weights=np.full(6, 1.0 / sigma))
+    calibrated = identify_lm(weighted, max_nfev, ident, initial=first.params)
+    nuisance = replace(ident, subset=nuisance_columns(problem))
+    baseline = identify_lm(weighted, max_nfev, nuisance)
+    return Fit(weighted, baseline, calibrated, sigma)
+
+
+@dataclass(frozen=True)
+class PlacementValidation:
+    """Held-out placements, each left out in turn: the fit on the others, evaluated on it with
+    its group points refitted (:func:`held_out`), for the baseline and the calibrated model."""
+
+    placements: tuple[str, ...]
+    baseline: HeldOut
+    calibrated: HeldOut
+    fits: tuple[Fit, ...] = field(repr=False, default=())
+
+    def summary(self) -> dict:
+        """``{"baseline": {...}, "calibrated": {...}}`` of :meth:`HeldOut.summary`."""
+        return {"baseline": self.baseline.summary(), "calibrated": self.calibrated.summary()}
+
+
+def leave_one_placement_out(
+    model: RobotModel,
+    q: np.ndarray,
+    groups,
+    distances=(),
+    tool_point: np.ndarray | None = None,
+    max_nfev: int = 200,
+) -> PlacementValidation:
+    """Each placement held out in turn: the baseline and the calibrated fits on the others
+    (:func:`fit`, guesses at the nominal model from the training samples alone, the tool point
+    from ``tool_point`` or solved), the kinematics and the tool point frozen on the held-out
+    placement, its group points refitted (:func:`held_out`).
+
+    ``q`` ``(N, n)`` joints, ``groups`` a ``PLACEMENT/NAME`` per sample, ``distances``
+    ``(group_a, group_b, distance_m, std_m)``."""
+    q = np.asarray(q, dtype=float)
+    groups = list(groups)
+    places = tuple(dict.fromkeys(placement_of(g) for g in groups))
+    if len(places) < 2:
+        raise RelcalError(
+            f"{len(places)} placement: holding out a placement needs at least two (name groups "
+            "PLACEMENT/NAME)"
+        )
+    where = np.array([placement_of(g) for g in groups])
+    base, cal, fits = [], [], []
+    for place in places:
+        test, train = np.flatnonzero(where == place), np.flatnonzero(where != place)
+        c = make_coincidence(model, q[train], [groups[k] for k in train], distances, tool_point)
+        f = fit(coincidence_problem(model, q[train], c), max_nfev)
+        fits.append(f)
+        held = make_coincidence(model, q[test], [groups[k] for k in test], distances, np.zeros(3))
+        for which, out in (("baseline", base), ("calibrated", cal)):
+            frozen_model, frozen_tool = f.frozen(which)
+            out.append(held_out(frozen_model, q[test], held, frozen_tool))
+    return PlacementValidation(places, pooled(base), pooled(cal), tuple(fits))
