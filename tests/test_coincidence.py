@@ -298,6 +298,21 @@ def test_mukca_import_refuses_a_full_folder_and_a_wrong_robot(tmp_path):
         import_mukca(tmp_path / "robot", tmp_path / "out", URDF["panda"])
 
 
+def test_import_mukca_command_and_what_calibrate_says_of_it(tmp_path, capsys):
+    out = tmp_path / "kuka"
+    argv = ["import", "mukca", str(MUKCA / "data" / "kuka_14"), "--urdf", str(URDF["iiwa14"])]
+    assert main([*argv, "--distance", "0.05", "--out", str(out)]) == 0
+    assert "dataset written to" in capsys.readouterr().out
+    ds = load_dataset(out)
+    assert len(ds.q) == sum(socket_rows("kuka_14").values()) == 180
+    assert main(["import", "mukca", str(MUKCA / "data" / "kuka_14"), "--out", str(tmp_path / "x")])
+    assert "--urdf FILE is required" in capsys.readouterr().err
+    assert main(["calibrate", str(out), "--out", str(tmp_path / "cal")]) != 0
+    assert "does not take coincidence samples yet" in capsys.readouterr().err
+    assert main(["measure", str(out)]) != 0
+    assert "nothing to measure" in capsys.readouterr().err
+
+
 # --- real data: each placement held out, against a plain SciPy Levenberg-Marquardt ---------------
 
 
