@@ -625,26 +625,67 @@ class Fit:
         return model, tool
 
 
+SPREAD_LIMIT = 0.03  # m: RMS spread of a group under the nominal model beyond any real robot's
+DISTANCE_LIMIT = (0.2, 0.005)  # share of a known distance and m: wrong pair or wrong distance
+
+
+def check_plausible(problem: Problem, baseline_params: np.ndarray, source: str = "") -> None:
+    """Refuse what cannot be coincidences of this robot, naming the likely cause, from the
+    baseline fit (nominal geometry, the tool point and the group points fitted): a group whose
+    samples the nominal robot does not bring near one point (another robot, another joint order,
+    a tip link that is not the tool point's), or a known distance far from the one between the
+    points the nominal robot reaches (a wrong pair of groups, another plate's distance)."""
+    c = problem.coincidence
+    where = f"{source}: " if source else ""
+    model, tool, points = split_params(problem, baseline_params)
+    y = tool_points(model, problem.q, tool)
+    spread = np.linalg.norm(y - points[c.index], axis=1)
+    per_group = np.sqrt(
+        np.bincount(c.index, spread**2, c.n_groups)
+        / np.maximum(np.bincount(c.index, minlength=c.n_groups), 1)
+    )
+    worst = int(np.argmax(per_group))
+    if per_group[worst] > SPREAD_LIMIT:
+        raise RelcalError(
+            f"{where}the nominal robot puts the samples of group {c.names[worst]} "
+            f"{per_group[worst] * 1e3:.0f} mm RMS apart (calibration corrects millimetres, not "
+            "centimetres): are the joints this robot's, in its joint order and unit, and is the "
+            "chain's tip link at the tool point?"
+        )
+    share, floor = DISTANCE_LIMIT
+    found = np.linalg.norm(points[c.pairs[:, 0]] - points[c.pairs[:, 1]], axis=1)
+    for (i, j), want, got in zip(c.pairs, c.lengths, found, strict=True):
+        if abs(got - want) > max(share * want, floor):
+            raise RelcalError(
+                f"{where}distance {c.names[i]} to {c.names[j]}: {want * 1e3:g} mm given, "
+                f"{got * 1e3:.1f} mm between the points the nominal robot reaches: a wrong pair "
+                "of groups, or another plate's distance?"
+            )
+
+
 def nuisance_columns(problem: Problem) -> np.ndarray:
     """The tool point and group point columns of ``problem.full_layout``."""
     return np.arange(problem.layout.size, problem.full_layout.size)
 
 
-def fit(problem: Problem, max_nfev: int = 200) -> Fit:
+def fit(problem: Problem, max_nfev: int = 200, source: str = "") -> Fit:
     """The baseline and calibrated fits of ``problem`` (Levenberg-Marquardt on the identifiable
     subset, :func:`relcal.calibration.identify.identify_lm`), the rows weighted by the robust
-    point noise of a first fit of the geometry and distance rows by their own ``std``."""
+    point noise of a first fit of the geometry and distance rows by their own ``std``; data that
+    cannot be this robot's coincidences are refused (:func:`check_plausible`, ``source`` names
+    them)."""
     from relcal.calibration.identifiability import analyse_problem
     from relcal.calibration.identify import identify_lm
     from relcal.calibration.noise import robust_sigma
 
     ident = analyse_problem(problem)
+    nuisance = replace(ident, subset=nuisance_columns(problem))
+    check_plausible(problem, identify_lm(problem, max_nfev, nuisance).params, source)
     first = identify_lm(problem, max_nfev, ident)
     errors = sample_errors(problem, first.params)
     sigma = float(robust_sigma(np.concatenate([errors, errors], axis=1))[0])
     weighted = replace(problem, weights=np.full(6, 1.0 / sigma))
     calibrated = identify_lm(weighted, max_nfev, ident, initial=first.params)
-    nuisance = replace(ident, subset=nuisance_columns(problem))
     baseline = identify_lm(weighted, max_nfev, nuisance)
     return Fit(weighted, baseline, calibrated, sigma)
 
