@@ -457,6 +457,8 @@ def test_a_problem_restricted_to_some_samples_keeps_their_groups_and_distances(p
     c = make_coincidence(panda, exact.q, exact.groups, distances_of(exact))
     problem = coincidence_problem(panda, exact.q, c)
     keep = np.flatnonzero(np.isin(np.array(exact.groups), ["p0/hole_1", "p1/hole_0", "p1/hole_1"]))
+    first_two = [k for k, g in enumerate(exact.groups) if placement_of(g) in ("p0", "p1")]
+    assert c.samples_of(["p0", "p1"]).tolist() == first_two
     sub = restricted(problem, keep)
     assert sub.coincidence.names == ("p0/hole_1", "p1/hole_0", "p1/hole_1")
     assert sub.coincidence.pairs.tolist() == [[1, 2]]  # p0's distance lost its other group

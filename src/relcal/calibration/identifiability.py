@@ -360,6 +360,8 @@ def check_pose_set(problem: Problem, source: str, seed: int = 0) -> Identifiabil
     would (the structural null space of this robot and formulation), naming what they miss.
     ``source`` names the data in the message (e.g. the dataset file)."""
     ident = analyse_problem(problem)
+    if problem.formulation == "coincidence":  # generic poses seat no tool point in a group
+        return ident
     rng = np.random.default_rng(seed)
     model = problem.model
     lo = np.where(np.isfinite(model.lower), model.lower, -np.pi)
