@@ -26,9 +26,10 @@ from relcal.robot.model import RobotModel, parallel_axes
 DEFAULT_RCOND = 1e-6
 HandEye = Literal["estimated", "known"]
 INDEX_NAMES = ("O1", "O2", "O3", "O4", "O5")
-# Frames estimated alongside the geometry (not part of the robot): hand-eye X, or the tracker
-# formulation's instrument transform T and marker position m.
-NUISANCE_KINDS = ("handeye", "instrument", "marker")
+# Frames estimated alongside the geometry (not part of the robot): hand-eye X, the tracker
+# formulation's instrument transform T and marker position m, the coincidence formulation's tool
+# point and group points.
+NUISANCE_KINDS = ("handeye", "instrument", "marker", "tool_point", "point")
 _INVOLVED = 1e-6  # a parameter with a larger share of a null vector is not identifiable alone
 
 
@@ -77,9 +78,7 @@ class Combination:
             if unit not in ("m", "rad"):  # scale, compliance
                 shown[k] = self.coefficients[k] * DISPLAY_UNITS[unit][0]
                 shown_units[k] = DISPLAY_UNITS[unit][1]
-        lead = next(
-            (k for k, n in enumerate(self.names) if n.split(".")[0] not in NUISANCE_KINDS), None
-        )
+        lead = next((k for k, n in enumerate(self.names) if _kind(n) not in NUISANCE_KINDS), None)
         shown /= shown[lead] if lead is not None else np.abs(shown).max()
         big = np.abs(shown) >= 1e-3 * np.abs(shown).max()
         terms = [
@@ -87,7 +86,22 @@ class Combination:
             for n, c, u, keep in zip(self.names, shown, shown_units, big, strict=True)
             if keep
         ]
+        groups = {
+            n.split("].")[0]
+            for n, keep in zip(self.names, big, strict=True)
+            if keep and _kind(n) == "point"
+        }
+        if len(groups) > 2:  # coincidence group points: how many, not each coordinate
+            terms = [t for t in terms if _kind(t) != "point"] + [
+                f"the points of {len(groups)} groups"
+            ]
         return f"{' with '.join(terms)} together: {self.reason}"
+
+
+def _kind(name: str) -> str:
+    """The kind of a parameter from its name: ``handeye.tx`` -> ``handeye``, ``point[a/b].x`` ->
+    ``point``."""
+    return name.split(".")[0].split("[")[0]
 
 
 @dataclass(frozen=True)
@@ -164,7 +178,7 @@ def pivot_weights(layout: Layout) -> np.ndarray:
     transform first (estimated whole, so the link parameters it absorbs stay at nominal), then
     the geometry, then non-geometric terms (a term that duplicates a geometric parameter at these
     poses is the one left out)."""
-    frames = ("handeye", "instrument", "marker")  # estimated whole where they can be
+    frames = NUISANCE_KINDS  # estimated whole where they can be
     geometric = ("theta_off", "a", "d", "alpha", "beta", "base", "tool", "origin")
     return np.array([10.0 if k in frames else 1.0 if k in geometric else 0.1 for k in layout.kinds])
 
@@ -230,6 +244,10 @@ def analyse(
 
 def explainer(problem: Problem):
     """A function naming why a null-space direction (parameter units) leaves the data unchanged."""
+    if problem.formulation == "coincidence":
+        from relcal.calibration.coincidence import explainer as coincidence_explainer
+
+        return coincidence_explainer(problem)
     model, layout = problem.model, problem.full_layout
     n_geo = problem.layout.size
 
@@ -321,8 +339,13 @@ def analyse_problem(
 
     ``jac``: the identification Jacobian there, if the caller has it already. With
     ``handeye="known"`` the hand-eye columns of the frame-invariant formulation are left out (the
-    transform is taken as given).
+    transform is taken as given). A coincidence problem is judged at its samples nudged onto their
+    group points (:func:`relcal.calibration.coincidence.consistent`; ``jac`` is not used).
     """
+    if problem.formulation == "coincidence":
+        from relcal.calibration.coincidence import consistent
+
+        _, jac = residuals(consistent(problem), np.zeros(problem.full_layout.size))
     if jac is None:
         _, jac = residuals(problem, np.zeros(problem.full_layout.size))
     layout = problem.full_layout
@@ -337,6 +360,8 @@ def check_pose_set(problem: Problem, source: str, seed: int = 0) -> Identifiabil
     would (the structural null space of this robot and formulation), naming what they miss.
     ``source`` names the data in the message (e.g. the dataset file)."""
     ident = analyse_problem(problem)
+    if problem.formulation == "coincidence":  # generic poses seat no tool point in a group
+        return ident
     rng = np.random.default_rng(seed)
     model = problem.model
     lo = np.where(np.isfinite(model.lower), model.lower, -np.pi)

@@ -15,6 +15,10 @@ Residuals follow ``r ~ A (p_true - p)``: measured minus modelled, so a Gauss-New
   position ``m`` in the flange frame (3 parameters ``marker.*``, added to the guess) estimated with
   the geometry. ``T`` absorbs whatever moves the base rigidly, ``m`` whatever moves the flange
   point by a constant amount in the flange frame.
+- ``coincidence``: a tool point seated again and again at unknown points (a ball in the sockets
+  of a plate, a touch-off pin): ``r_k = p_g(k) - F(q_k) t`` per sample, with the tool point ``t``
+  and each group's point ``p_g`` estimated with the geometry, plus a row per known distance
+  between groups (:mod:`relcal.calibration.coincidence`, which ``problem.coincidence`` describes).
 
 ``measure="position"`` keeps the 3 translation rows of each measurement, ``"pose"`` all 6.
 """
@@ -23,7 +27,7 @@ from __future__ import annotations
 
 import functools
 from dataclasses import dataclass, field, replace
-from typing import Literal
+from typing import TYPE_CHECKING, Literal
 
 import numpy as np
 
@@ -38,9 +42,12 @@ from relcal.robot.kinematics import (
 )
 from relcal.robot.model import RobotModel
 
+if TYPE_CHECKING:
+    from relcal.calibration.coincidence import Coincidence
+
 MARKER_COMPONENTS = ("x", "y", "z")  # the tracker formulation's marker position, m
 
-Formulation = Literal["absolute", "published", "invariant", "tracker"]
+Formulation = Literal["absolute", "published", "invariant", "tracker", "coincidence"]
 Measure = Literal["position", "pose"]
 PairStrategy = Literal["consecutive", "star", "all"]
 
@@ -86,6 +93,7 @@ class Problem:
     pair_weights: np.ndarray | None = None
     instrument: np.ndarray = field(default_factory=lambda: np.eye(4))  # tracker: guess of T
     marker: np.ndarray = field(default_factory=lambda: np.zeros(3))  # tracker: guess of m (m)
+    coincidence: Coincidence | None = None  # coincidence: groups, guesses, known distances
 
     @property
     def full_layout(self) -> Layout:
@@ -95,11 +103,16 @@ class Problem:
             return self.layout.extended("handeye")
         if self.formulation == "tracker":
             return self.layout.extended("instrument").extended("marker", MARKER_COMPONENTS)
+        if self.formulation == "coincidence":
+            from relcal.calibration.coincidence import full_layout
+
+            return full_layout(self.layout, self.coincidence)
         return self.layout
 
     @property
     def rows_per_measurement(self) -> int:
-        return 3 if self.measure == "position" or self.formulation == "tracker" else 6
+        point = self.formulation in ("tracker", "coincidence")
+        return 3 if self.measure == "position" or point else 6
 
     def pair_indices(self) -> np.ndarray:
         if self.pairs is not None:
@@ -113,6 +126,8 @@ class Problem:
         return relative_measurements(self.poses, self.pair_indices())
 
     def n_residuals(self) -> int:
+        if self.formulation == "coincidence":  # 3 rows per sample, 1 per known distance
+            return 3 * len(self.q) + len(self.coincidence.lengths)
         per_pose = self.formulation in ("absolute", "tracker")
         count = len(self.q) if per_pose else len(self.pair_indices())
         return count * self.rows_per_measurement
@@ -175,6 +190,10 @@ def residuals(
     """
     if problem.formulation == "tracker":
         return _tracker(problem, params, jacobian)
+    if problem.formulation == "coincidence":
+        from relcal.calibration import coincidence
+
+        return coincidence.residuals(problem, params, jacobian)
     model, handeye = split_params(problem, params)
     if jacobian and problem.formulation == "invariant":
         tip, jac = spatial_jacobian(model, problem.q, problem.layout)
@@ -264,6 +283,11 @@ def pair_errors(problem: Problem, params: np.ndarray) -> np.ndarray:
 
     With position-only measurements the rotation columns are NaN.
     """
+    if problem.formulation == "coincidence":  # per sample, the distance rows left out
+        from relcal.calibration.coincidence import sample_errors
+
+        r = sample_errors(problem, params)
+        return np.concatenate([r, np.full_like(r, np.nan)], axis=1)
     if problem.formulation == "tracker":  # points: 3 rows per sample, no orientation
         plain = replace(problem, weights=None, pair_weights=None)
         r = residuals(plain, params, jacobian=False).reshape(-1, 3)

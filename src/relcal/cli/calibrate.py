@@ -24,6 +24,25 @@ examples:
 """
 
 
+def _not_coincidence(dataset, command: str) -> None:
+    """Coincidence samples (joints and groups) neither need measuring nor run through the pose
+    and point pipeline."""
+    from relcal.errors import RelcalError
+
+    if dataset.measured != "coincidence":
+        return
+    if command == "measure":
+        raise RelcalError(
+            f"{dataset.spec_path}: coincidence samples (a group per sample) have nothing to "
+            "measure: their joints and groups are the data"
+        )
+    raise RelcalError(
+        f"{dataset.spec_path}: relcal calibrate does not take coincidence samples yet; hold "
+        "placements out with relcal.calibration.coincidence.leave_one_placement_out (see "
+        "docs/howto/coincidence.md)"
+    )
+
+
 def run_measure(args: argparse.Namespace) -> int:
     from relcal.data.dataset import load_dataset
     from relcal.data.imaging import measure
@@ -31,6 +50,7 @@ def run_measure(args: argparse.Namespace) -> int:
     from relcal.reporting.outputs import write_measurements
 
     dataset = load_dataset(args.dataset)
+    _not_coincidence(dataset, "measure")
     out = Path(args.out or Path(args.dataset) / "measured")
     check(_destinations(out, args.json))  # refuse before the work, not after it
     m = measure(dataset, workers=args.workers, progress=not args.quiet, max_rms=args.max_rms)
@@ -96,6 +116,7 @@ def run_calibrate(args: argparse.Namespace) -> int:
     from relcal.reporting.text import calibration_summary
 
     dataset = load_dataset(args.dataset)
+    _not_coincidence(dataset, "calibrate")
     out = Path(args.out or Path(args.dataset) / "calibration")
     holdout_ids = _ids(args.holdout_ids) if args.holdout_ids else None
     check(_destinations(out, args.json, args.report))  # refuse before the work, not after it

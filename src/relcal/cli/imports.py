@@ -17,9 +17,13 @@ examples:
   relcal import rosbag run_bag/ --joints /joint_states --pose /mocap/tool_pose --out run/
   relcal import rct-images rct_charuco_eye_to_hand/ --out charuco/ --intrinsics calibrate
   relcal measure charuco/ --max-rms 1.5           # camera poses, intrinsics, rejected frames
+  relcal import mukca mukca/data/panda_1 --urdf mukca/urdf/panda.urdf --tip ball_link \
+      --distance 0.050 --out panda_1/               # ball-in-socket joints, 50 mm sockets
 
 rct-images: a robot_cal_tools image set (cal_data.yaml, target.yaml, camera_intr*.yaml); the
 images stay where they are; the recorded tool poses become the joints of a pose chain.
+mukca: a robot's folder of PLACEMENT/hole_*.csv joint files (MUKCa layout): a coincidence
+dataset, one group per socket file, the URDF referenced where it is.
 """
 
 
@@ -31,7 +35,7 @@ def run(args: argparse.Namespace) -> int:
     source = Path(args.file)
     if not source.exists():
         raise RelcalError(f"{source}: file not found")
-    folder = args.format == "rct-images"
+    folder = args.format in ("rct-images", "mukca")
     if args.format != "rosbag" and source.is_dir() != folder:
         want = "a folder (the image set)" if folder else "a file"
         raise RelcalError(f"{source}: expected {want} for {args.format}")
@@ -51,6 +55,21 @@ def run(args: argparse.Namespace) -> int:
             ],
             "skipped": list(done.skipped),
         }
+    elif args.format == "mukca":
+        from relcal.data.importers import import_mukca
+
+        if not args.urdf:
+            raise RelcalError("relcal import mukca: --urdf FILE is required")
+        note_input(Path(args.urdf))
+        done = import_mukca(
+            source,
+            args.out,
+            args.urdf,
+            tip=args.tip,
+            root=args.root,
+            distance=args.distance,
+            distance_std=args.distance_std,
+        )
     elif folder:
         from relcal.data.importers import import_rct_images
 
@@ -109,12 +128,14 @@ def register(sub: argparse._SubParsersAction) -> None:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument(
-        "format", choices=("rct-positioner", "rct-images", "rosbag"), help="input format"
+        "format",
+        choices=("rct-positioner", "rct-images", "rosbag", "mukca"),
+        help="input format",
     )
     p.add_argument(
         "file",
-        help="input file (rct-positioner), image set folder (rct-images), or bag (rosbag: a "
-        ".bag, a ROS 2 bag folder, .mcap or .db3)",
+        help="input file (rct-positioner), image set folder (rct-images), bag (rosbag: a "
+        ".bag, a ROS 2 bag folder, .mcap or .db3), or a robot's folder (mukca)",
     )
     p.add_argument(
         "--out",
@@ -156,6 +177,29 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     ros.add_argument(
         "--settle", type=float, default=0.5, help="... for at least this long (s; default 0.5)"
+    )
+    mukca = p.add_argument_group("mukca")
+    mukca.add_argument("--urdf", metavar="FILE", help="the robot's URDF (referenced, not copied)")
+    mukca.add_argument(
+        "--tip",
+        metavar="LINK",
+        default="ball_link",
+        help="the link at the ball centre (default ball_link): its origin is the tool point guess",
+    )
+    mukca.add_argument("--root", metavar="LINK", help="first link of the chain (default the root)")
+    mukca.add_argument(
+        "--distance",
+        type=float,
+        metavar="M",
+        help="distance between the two sockets of every placement, m (e.g. 0.050); without it "
+        "the scale is not determined",
+    )
+    mukca.add_argument(
+        "--distance-std",
+        type=float,
+        default=1e-4,
+        metavar="M",
+        help="its standard deviation, m (default 0.0001)",
     )
     json_arg(p, "the list of files written and the number of samples")
     p.add_argument("--quiet", action="store_true", help="print nothing but errors")

@@ -10,6 +10,7 @@ from relcal.cli.common import (
     load_robot,
     output_file,
     output_folder,
+    positive_float,
     robot_args,
 )
 
@@ -21,6 +22,9 @@ examples:
   relcal simulate --robot a465 --images synthetic/ --poses 40   # rendered images, full pipeline
   relcal simulate --robot a465 --measure pose --nongeometric scale,harmonic  # + joint scale, runout
   relcal simulate --robot arm_with_masses.yaml --nongeometric compliance     # needs link masses
+  relcal simulate --robot panda.urdf --tip ball_link --coincidence balls/   # ball-in-socket data
+  relcal simulate --robot panda.urdf --tip ball_link --coincidence balls/ --placements 6 \
+      --seating 0.05 --no-distance                   # no known distance: the scale is not seen
 """
 
 
@@ -52,6 +56,8 @@ def run(args: argparse.Namespace) -> int:
     model = nongeometric_model(args, load_robot(args))
     if args.images:
         return run_images(args, model)
+    if args.coincidence:
+        return run_coincidence(args, model)
     noise = Noise.parse(args.noise) if args.noise else Noise()
     errors = load_errors(args.errors, make_layout(model)) if args.errors else None
     check(
@@ -122,6 +128,61 @@ def run_images(args: argparse.Namespace, model) -> int:
     return 0 if cal.result.converged else 1
 
 
+def run_coincidence(args: argparse.Namespace, model) -> int:
+    """Write a simulated ball-in-socket dataset (planted errors, seating scatter, several
+    placements of a plate with two sockets), then hold out each placement in turn and print the
+    spread of the predicted points and the distance error, nominal against calibrated."""
+    from relcal.calibration.coincidence import leave_one_placement_out
+    from relcal.data.dataset import load_dataset
+    from relcal.io import Folder, write_set
+    from relcal.robot.model import auto_hayati
+    from relcal.sim.coincidence import dataset_files, robot_entry, simulate_coincidence
+    from relcal.sim.scenario import load_errors
+
+    if args.hayati == "auto":
+        model = auto_hayati(model)
+    from relcal.robot.kinematics import make_layout
+
+    errors = load_errors(args.errors, make_layout(model)) if args.errors else None
+    truth = simulate_coincidence(
+        model,
+        placements=args.placements,
+        per_socket=args.per_socket,
+        spacing=args.spacing * 1e-3,
+        seating=args.seating * 1e-3,
+        errors=errors,
+        seed=args.seed,
+    )
+    files = dataset_files(
+        truth,
+        robot_entry(args.robot, args.root, args.tip),
+        None if args.no_distance else args.distance_std * 1e-3,
+    )
+    write_set(Folder(args.coincidence, files, what="--coincidence", replace="refuse"))
+    if args.quiet:
+        return 0
+    print(
+        f"dataset written to {args.coincidence}: {len(truth.q)} samples, {args.placements} "
+        f"placements of two sockets {args.spacing:g} mm apart, seating scatter {args.seating:g} "
+        "mm (truth.yaml holds the planted errors)"
+    )
+    if args.placements < 2:
+        return 0
+    dataset = load_dataset(args.coincidence)
+    check = leave_one_placement_out(
+        dataset.model, dataset.q, dataset.groups, dataset.distances, dataset.tool_point
+    )
+    print("each placement held out in turn (its points refitted, the rest frozen):")
+    for which in ("baseline", "calibrated"):
+        summary = getattr(check, which).summary()
+        spread, dist = summary["spread_mm"], summary["distance_error_mm"]
+        line = f"  {which:10s} spread RMS {spread['rms']:.3f} mm, max {spread['max']:.3f} mm"
+        if dist is not None:
+            line += f"; distance error RMS {dist['rms']:.3f} mm, max {dist['max']:.3f} mm"
+        print(line)
+    return 0
+
+
 def register(sub: argparse._SubParsersAction) -> None:
     sim = sub.add_parser(
         "simulate",
@@ -162,6 +223,36 @@ def register(sub: argparse._SubParsersAction) -> None:
         type=output_folder,
         help="render a synthetic image dataset (2448x2048 px, 8 mm lens, chessboard; --poses "
         "images) into DIR and calibrate it with the real image pipeline",
+    )
+    ball = sim.add_argument_group("coincidence (a ball seated in the sockets of a plate)")
+    ball.add_argument(
+        "--coincidence",
+        metavar="DIR",
+        type=output_folder,
+        help="write a coincidence dataset into DIR (new or empty): planted errors (--errors or "
+        "random), joints that seat the tool point in two sockets per placement",
+    )
+    ball.add_argument("--placements", type=int_at_least(1), default=4, help="default 4")
+    ball.add_argument(
+        "--per-socket", type=int_at_least(3), default=30, help="samples per socket (default 30)"
+    )
+    ball.add_argument(
+        "--spacing", type=positive_float, default=50.0, help="socket spacing, mm (default 50)"
+    )
+    ball.add_argument(
+        "--seating",
+        type=float,
+        default=0.08,
+        help="standard deviation of the ball centre within a socket, mm per axis (default 0.08)",
+    )
+    ball.add_argument(
+        "--distance-std",
+        type=positive_float,
+        default=0.05,
+        help="standard deviation of the spacing written in distances:, mm (default 0.05)",
+    )
+    ball.add_argument(
+        "--no-distance", action="store_true", help="write no distances: (the scale is unseen)"
     )
     sim.add_argument("--quiet", action="store_true", help="print nothing but errors")
     sim.set_defaults(func=run)

@@ -20,6 +20,10 @@
       length_mm: 10            #   largest identified correction of a link length
       angle_deg: 2             #   of a joint offset or twist
     robot_id: cell4-arm2       # optional: which physical robot (history); default folder name
+    measurement: coincidence   # optional: coincidence samples (inferred from a group column)
+    tool: {xyz: [0, 0, 0.03]}  # coincidence: guess of the tool point in the tip frame (m)
+    distances:                 # coincidence: known distances between groups' points (m)
+      - {groups: [front/hole_0, front/hole_1], distance: 0.050, std: 0.0002}
 
 ``samples.csv`` has a header: ``id`` (optional: without it a sample's id is its line number), one
 column per joint, named ``q1`` .. ``qn`` or by the model's joint names (``torso_lift_joint``, ...,
@@ -31,7 +35,10 @@ matched by name in any order), then what was measured, one of:
   board frame (eye-in-hand), the board in the camera frame (eye-to-hand), or a motion-capture
   rigid body in the instrument's frame; the instrument-to-base transform cancels;
 - a position ``x, y, z`` alone: a laser tracker's reflector or a marker, in the instrument's
-  frame (calibrated with the instrument transform and the marker position estimated).
+  frame (calibrated with the instrument transform and the marker position estimated);
+- nothing but a ``group`` (coincidence samples: the tool point seated at the same unknown point
+  for every sample of a group, e.g. a ball in a socket), named ``PLACEMENT/NAME``
+  (``front/hole_0``), or with a ``placement`` column that is prefixed to the group's name.
 """
 
 from __future__ import annotations
@@ -53,7 +60,8 @@ from relcal.robot.model import RobotModel, auto_hayati, model_from_dict
 POSE_COLUMNS = ("x", "y", "z", "qx", "qy", "qz", "qw")
 RPY_COLUMNS = ("x", "y", "z", "roll", "pitch", "yaw")
 POSITION_COLUMNS = ("x", "y", "z")
-Measured = Literal["image", "pose", "position"]
+Measured = Literal["image", "pose", "position", "coincidence"]
+COINCIDENCE_COLUMNS = ("group", "placement")
 
 
 class _Frame(pydantic.BaseModel):
@@ -73,6 +81,20 @@ class _Tolerances(pydantic.BaseModel):
     rotation_deg: pydantic.PositiveFloat | None = None
     scale_percent: pydantic.PositiveFloat | None = None
     joint_limit_deg: pydantic.PositiveFloat | None = None
+
+
+class _Distance(pydantic.BaseModel):
+    """A known distance between two groups' points: ``{groups: [A, B], distance: M, std: M}``."""
+
+    model_config = pydantic.ConfigDict(extra="forbid")
+    groups: tuple[str, str]
+    distance: pydantic.PositiveFloat  # m
+    std: pydantic.PositiveFloat = 1e-4  # m
+
+
+class _ToolPoint(pydantic.BaseModel):
+    model_config = pydantic.ConfigDict(extra="forbid")
+    xyz: tuple[pydantic.FiniteFloat, pydantic.FiniteFloat, pydantic.FiniteFloat]
 
 
 class _UrdfRobot(pydantic.BaseModel):
@@ -100,6 +122,9 @@ class _DatasetSpec(pydantic.BaseModel):
     samples: str = "samples.csv"
     tolerances: _Tolerances | None = None
     robot_id: str | None = None  # which physical robot (fleet history); default the folder name
+    measurement: Literal["coincidence"] | None = None  # default: from the samples' columns
+    tool: _ToolPoint | None = None  # coincidence: tool point guess in the tip frame (m)
+    distances: list[_Distance] = []  # coincidence: known distances between groups (m)
 
     @pydantic.field_validator("hayati", mode="before")
     @classmethod
@@ -130,6 +155,12 @@ class Dataset:
     tolerances: dict[str, float] | None = None  # plausibility thresholds (mm, deg, percent)
     measured: Measured = "image"  # or "pose"; "position": poses hold points (rotation unused)
     robot_id: str | None = None  # ``robot_id`` of dataset.yaml (the folder name when absent)
+    # Coincidence samples (``measured == "coincidence"``): each sample's group, the tool point
+    # guess (tip frame, m; None: solved from the data) and the known distances between groups as
+    # ``(group_a, group_b, distance_m, std_m)``.
+    groups: tuple[str, ...] | None = None
+    tool_point: np.ndarray | None = None
+    distances: tuple[tuple[str, str, float, float], ...] = ()
 
 
 def _resolve(root: Path, value: str | dict | None, loader, what: str, spec: Path):
@@ -161,6 +192,7 @@ def load_dataset(folder: str | Path) -> Dataset:
         root / spec.samples, model, spec.joint_unit, spec.pose_angle_unit, spec.columns
     )
     ids, q, images, poses = table.ids, table.q, table.images, table.poses
+    groups, distances = _coincidence_spec(spec, spec_path, table)
     board = camera = None
     if images is not None:
         from relcal.vision.boards import load_board
@@ -191,7 +223,51 @@ def load_dataset(folder: str | Path) -> Dataset:
         tolerances,
         table.measured,
         robot_id=spec.robot_id or root.resolve().name,
+        groups=groups,
+        tool_point=None if spec.tool is None else np.array(spec.tool.xyz, dtype=float),
+        distances=distances,
     )
+
+
+def _coincidence_spec(spec: _DatasetSpec, spec_path: Path, table: SampleTable):
+    """The groups of coincidence samples and the known distances, checked against each other."""
+    if table.measured != "coincidence":
+        if spec.measurement == "coincidence":
+            raise RelcalError(
+                f"{spec_path}: measurement: coincidence, but {spec.samples} has no 'group' column "
+                "(one group name per sample, e.g. front/hole_0)"
+            )
+        extra = [k for k in ("tool", "distances") if getattr(spec, k)]
+        if extra:
+            raise RelcalError(
+                f"{spec_path}: {', '.join(extra)}: only for coincidence samples (a 'group' column "
+                f"in {spec.samples})"
+            )
+        return None, ()
+    known = list(dict.fromkeys(table.groups))
+    distances = []
+    for k, d in enumerate(spec.distances):
+        for name in d.groups:
+            if name not in known:
+                import difflib
+
+                hint = difflib.get_close_matches(name, known, n=1)
+                raise RelcalError(
+                    f"{spec_path}: distances entry {k + 1}: group '{name}' has no samples in "
+                    f"{spec.samples}"
+                    + (f" (did you mean '{hint[0]}'?)" if hint else "")
+                    + f"; its groups are {', '.join(known[:6])}"
+                    + (" ..." if len(known) > 6 else "")
+                )
+        if d.groups[0] == d.groups[1]:
+            raise RelcalError(f"{spec_path}: distances entry {k + 1}: a group with itself")
+        if d.distance > 10:
+            raise RelcalError(
+                f"{spec_path}: distances entry {k + 1}: distance {d.distance:g} m: distances "
+                "are in metres (0.05 for 50 mm)"
+            )
+        distances.append((d.groups[0], d.groups[1], float(d.distance), float(d.std)))
+    return table.groups, tuple(distances)
 
 
 def _robot(root: Path, value: str | dict, spec_path: Path, node) -> RobotModel:
@@ -238,6 +314,7 @@ class SampleTable:
     images: tuple[Path, ...] | None
     poses: np.ndarray | None
     measured: Measured
+    groups: tuple[str, ...] | None = None  # coincidence: each sample's group (PLACEMENT/NAME)
 
 
 def read_samples(
@@ -251,7 +328,7 @@ def read_samples(
 def _rename(path: Path, header: list[str], columns: dict[str, str], model: RobotModel) -> list[str]:
     """The header with the file's names replaced by relcal's (``columns``: relcal name -> the
     file's name), each mapped name required."""
-    known = ["id", "image", *POSE_COLUMNS, *RPY_COLUMNS[3:]]
+    known = ["id", "image", *POSE_COLUMNS, *RPY_COLUMNS[3:], *COINCIDENCE_COLUMNS]
     known += [f"q{i + 1}" for i in range(model.n_joints)] + list(model.joint_names)
     unknown = [ours for ours in columns if ours not in known]
     if unknown:
@@ -333,6 +410,8 @@ def read_sample_table(
     header, data = read_table(path, "sample")
     header = _rename(path, header, columns or {}, model)
     joints = _joint_columns(path, header, model)
+    if "group" in header:
+        return _coincidence_table(path, header, data, joints, model, joint_unit)
     measured, meas_cols = _measured_columns(path, header)
     dupes = sorted({h for h in header if header.count(h) > 1})
     if dupes:
@@ -382,6 +461,46 @@ def read_sample_table(
     return SampleTable(
         tuple(ids), q_arr, tuple(images) if measured == "image" else None, pose_arr, measured
     )
+
+
+def _coincidence_table(
+    path: Path, header: list[str], data: list, joints: list[str], model: RobotModel, unit: str
+) -> SampleTable:
+    """A table of coincidence samples: ``id`` (optional), ``group``, optional ``placement``
+    (prefixed to the group as ``PLACEMENT/GROUP``), and the joints."""
+    measured = [c for c in ("image", *POSE_COLUMNS, *RPY_COLUMNS[3:]) if c in header]
+    if measured:
+        raise RelcalError(
+            f"{path} line 1: header: a 'group' column (coincidence samples) with measured "
+            f"column(s) {', '.join(measured)}: a table is either one or the other"
+        )
+    dupes = sorted({h for h in header if header.count(h) > 1})
+    if dupes:
+        raise RelcalError(f"{path} line 1: header: column(s) {', '.join(dupes)} appear twice")
+    col = {h: i for i, h in enumerate(header)}
+    ids, q, groups, seen = [], [], [], {}
+    for row in data:
+        line_no = row.line
+        if len(row) != len(header):
+            raise RelcalError(
+                f"{path} line {line_no}: {len(row)} fields, expected {len(header)} as in the header"
+            )
+        sid = row[col["id"]].strip() if "id" in col else str(line_no)
+        if sid in seen:
+            raise RelcalError(f"{path} line {line_no}: id '{sid}' duplicates line {seen[sid]}")
+        seen[sid] = line_no
+        group = row[col["group"]].strip()
+        if not group:
+            raise RelcalError(f"{path} line {line_no}: group: empty; expected a group name")
+        if "placement" in col:
+            place = row[col["placement"]].strip()
+            group = f"{place}/{group}" if place else group
+        ids.append(sid)
+        groups.append(group)
+        q.append([parse_number(path, line_no, c, row[col[c]]) for c in joints])
+    q_arr = _joint_values(path, np.array(q, dtype=float), model, unit)
+    poses = np.broadcast_to(np.eye(4), (len(ids), 4, 4)).copy()
+    return SampleTable(tuple(ids), q_arr, None, poses, "coincidence", tuple(groups))
 
 
 def parse_number(path: Path, line_no: int, column: str, text: str) -> float:
@@ -519,4 +638,14 @@ def write_samples(
             quat = Rotation.from_matrix(poses[k][:3, :3]).as_quat()
             cells += [f"{v:.12g}" for v in (*poses[k][:3, 3], *quat)]
         lines.append(",".join(cells))
+    return "\n".join(lines) + "\n"
+
+
+def write_coincidence_samples(ids, groups, q: np.ndarray, digits: int = 17) -> str:
+    """CSV text of a coincidence samples table: ``id, group, q1 .. qn`` (joint values as
+    given)."""
+    n = q.shape[1]
+    lines = [",".join(["id", "group", *[f"q{i + 1}" for i in range(n)]])]
+    for sid, group, row in zip(ids, groups, q, strict=True):
+        lines.append(",".join([str(sid), str(group), *[f"{v:.{digits}g}" for v in row]]))
     return "\n".join(lines) + "\n"

@@ -225,3 +225,128 @@ def import_rct_images(
     out = Path(out)
     write_set(Folder(out, contents, what="--out", replace="refuse"))
     return Imported(out, tuple(out / name for name in contents), len(entries))
+
+
+MUKCA_SOCKET = "hole_*.csv"
+
+
+def _mukca_joints(path: Path, n_joints: int):
+    """Joint angles ``(N, n)`` (rad) of one MUKCa socket file: no header, one configuration per
+    row, comma-separated; errors name the file and the line."""
+    import numpy as np
+
+    from relcal.errors import RelcalError
+    from relcal.io import note_input
+
+    note_input(path)
+    rows = []
+    for line_no, line in enumerate(path.read_text(encoding="utf-8").splitlines(), start=1):
+        if not line.strip():
+            continue
+        cells = [c for c in line.replace(";", ",").split(",") if c.strip()]
+        if len(cells) != n_joints:
+            raise RelcalError(
+                f"{path} line {line_no}: {len(cells)} values, expected {n_joints} joint angles "
+                "(rad) for the robot of --urdf"
+            )
+        try:
+            values = [float(c) for c in cells]
+        except ValueError:
+            raise RelcalError(
+                f"{path} line {line_no}: expected numbers (joint angles in rad, no header)"
+            ) from None
+        if not all(np.isfinite(values)):
+            raise RelcalError(f"{path} line {line_no}: a joint angle is not finite")
+        rows.append(values)
+    if not rows:
+        raise RelcalError(f"{path}: no joint configurations")
+    q = np.array(rows)
+    if np.abs(q).max() > 2 * np.pi + 0.1:
+        raise RelcalError(
+            f"{path}: joint angles reach {np.abs(q).max():.1f}: degrees? MUKCa files hold radians"
+        )
+    return q
+
+
+def import_mukca(
+    source: str | Path,
+    out: str | Path,
+    urdf: str | Path,
+    tip: str = "ball_link",
+    root: str | None = None,
+    distance: float | None = None,
+    distance_std: float = 1e-4,
+) -> Imported:
+    """Write a coincidence dataset folder from one robot's folder of the MUKCa layout
+    (``ROBOT/PLACEMENT/hole_0.csv``, ``hole_1.csv``: joint angles in rad, no header).
+
+    Each placement folder is a placement, each ``hole_*.csv`` a group (``PLACEMENT/hole_0``);
+    ``hole_*_pose.csv`` (the controller's own FK of another frame) are not read: they may hold
+    more rows than the joint files, and nothing here pairs rows across files. The URDF is
+    referenced by its absolute path (chain ``root`` .. ``tip``, whose origin is the ball centre
+    guess); ``distance`` (m) between the two sockets of every placement, with ``distance_std``,
+    goes into ``distances:``. The folder ``out`` must be new or empty.
+    """
+    from relcal.errors import RelcalError
+    from relcal.robot.urdf import load_urdf
+
+    source, urdf = Path(source), Path(urdf)
+    if not source.is_dir():
+        raise RelcalError(f"{source}: not a folder (expected ROBOT/PLACEMENT/hole_*.csv)")
+    model = load_urdf(urdf, root, tip)
+    placements = []
+    for folder in sorted(p for p in source.iterdir() if p.is_dir()):
+        files = sorted(f for f in folder.glob(MUKCA_SOCKET) if not f.stem.endswith("_pose"))
+        if files:
+            placements.append((folder.name, files))
+    if not placements:
+        raise RelcalError(
+            f"{source}: no placement folders with hole_*.csv (expected the MUKCa layout "
+            "ROBOT/PLACEMENT/hole_0.csv; give the robot's folder, e.g. data/panda_1)"
+        )
+    ids, groups, blocks = [], [], []
+    distances = []
+    for place, files in placements:
+        for f in files:
+            q = _mukca_joints(f, model.n_joints)
+            group = f"{place}/{f.stem}"
+            ids += [f"{group}/{k:03d}" for k in range(len(q))]
+            groups += [group] * len(q)
+            blocks.append(q)
+        if distance is not None:
+            if len(files) != 2:
+                raise RelcalError(
+                    f"{source / place}: {len(files)} socket files; --distance needs exactly two "
+                    "per placement"
+                )
+            distances.append(
+                {
+                    "groups": [f"{place}/{files[0].stem}", f"{place}/{files[1].stem}"],
+                    "distance": float(distance),
+                    "std": float(distance_std),
+                }
+            )
+    import numpy as np
+
+    from relcal.data.dataset import write_coincidence_samples
+
+    robot: dict = {"urdf": str(urdf.resolve()), "tip": tip}
+    if root:
+        robot["root"] = root
+    spec: dict = {
+        "robot": robot,
+        "measurement": "coincidence",
+        "joint_unit": "rad",
+        "samples": "samples.csv",
+        "tool": {"xyz": [0.0, 0.0, 0.0]},
+        "robot_id": source.resolve().name,
+    }
+    if distances:
+        spec["distances"] = distances
+    contents = {
+        "samples.csv": write_coincidence_samples(ids, groups, np.concatenate(blocks)),
+        "dataset.yaml": yaml_text(spec),
+    }
+    out = Path(out)
+    write_set(Folder(out, contents, what="--out", replace="refuse"))
+    return Imported(out, tuple(out / name for name in contents), len(ids))
