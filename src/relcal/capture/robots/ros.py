@@ -238,10 +238,7 @@ class RosRobot:
         try:
             self._topic.unsubscribe()
         finally:
-            self._ros.close()
-            terminate = getattr(self._ros, "terminate", None)
-            if terminate is not None:
-                terminate()
+            self._ros.close()  # roslibpy's event loop thread stays, shared by the process
 
 
 def _describe(message) -> str:
