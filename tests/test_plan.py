@@ -7,6 +7,7 @@ import pytest
 
 from relcal import geometry as tf
 from relcal.cli import main
+from relcal.cli.plan import parse_board, parse_camera
 from relcal.data.dataset import read_joints
 from relcal.design.cell import Cell
 from relcal.design.plan import (
@@ -21,8 +22,6 @@ from relcal.design.plan import (
     exchange,
     greedy,
     information,
-    parse_board,
-    parse_camera,
     plan,
     selection_problem,
     travel_order,
@@ -237,11 +236,12 @@ def test_plan_on_the_cluster_chooses_the_same_poses(hayati, cluster, monkeypatch
     both workers, and the pool, the plan and the random sets are those of one process."""
     from distributed import Client, get_task_stream
 
-    import relcal.design.plan as design
+    import relcal.design.feasibility as feasibility
+    import relcal.design.scoring as scoring
 
-    monkeypatch.setattr(design, "MIN_SHARD", 100)  # a shard per worker for a small pool
-    monkeypatch.setattr(design, "BLOCK", 64)  # several blocks per shard
-    monkeypatch.setattr(design, "TASK_SECONDS", 1e-6)  # one IK batch per task
+    monkeypatch.setattr(scoring, "MIN_SHARD", 100)  # a shard per worker for a small pool
+    monkeypatch.setattr(scoring, "BLOCK", 64)  # several blocks per shard
+    monkeypatch.setattr(feasibility, "TASK_SECONDS", 1e-6)  # one IK batch per task
     cell = Cell(**CELL)
     options = dict(k=10, n_candidates=400, random_sets=3, seed=3)
     here = plan(hayati, cell, **options)
@@ -264,9 +264,9 @@ def test_cluster_scoring_breaks_ties_as_one_process(hayati, pool, cluster, monke
     the Woodbury path and one of the eigenvalue path."""
     from distributed import Client
 
-    import relcal.design.plan as design
+    import relcal.design.scoring as scoring
 
-    monkeypatch.setattr(design, "MIN_SHARD", 50)
+    monkeypatch.setattr(scoring, "MIN_SHARD", 50)
     q = np.concatenate([pool[0][:60]] * 3)
     info = information(selection_problem(hayati, Cell(), q), DEFAULT_NOISE, 0.5)
     with Client(cluster) as client:

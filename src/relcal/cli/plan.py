@@ -23,6 +23,9 @@ from relcal.cli.observability import add_noise_arg
 if TYPE_CHECKING:
     import numpy as np
 
+    from relcal.vision.boards import Board
+    from relcal.vision.camera import Camera
+
 EPILOG = """\
 examples:
   relcal plan --robot a465 --hayati auto --out plan.csv
@@ -37,6 +40,54 @@ make it a dataset's samples.csv. Collisions with anything but the board plane ar
 With --workers or --scheduler the plan is the same as in one process (each batch of candidates
 has its own random stream from --seed).
 """
+
+
+def parse_board(text: str) -> Board:
+    """A chessboard from ``ROWSxCOLS@SQUARE`` (squares; ``SQUARE`` in m, or with ``mm``), e.g.
+    ``7x10@0.02`` or ``7x10@20mm``, or a board YAML file (:func:`boards.load_board`)."""
+    import re
+
+    from relcal.errors import RelcalError
+    from relcal.vision.boards import Board
+
+    match = re.fullmatch(r"\s*(\d+)\s*[xX]\s*(\d+)\s*@\s*([0-9.eE+-]+)\s*(mm|m)?\s*", text)
+    if match:
+        rows, cols, size, unit = match.groups()
+        try:
+            spacing = float(size) * (1e-3 if unit == "mm" else 1.0)
+            return Board(type="chessboard", rows=int(rows), columns=int(cols), spacing=spacing)
+        except ValueError as exc:
+            raise RelcalError(f"--board '{text}': {exc}") from None
+    from pathlib import Path
+
+    if Path(text).suffix in (".yaml", ".yml") or Path(text).exists():
+        from relcal.vision.boards import load_board
+
+        return load_board(text)
+    raise RelcalError(
+        f"--board '{text}': expected ROWSxCOLS@SQUARE (squares, metres or mm, e.g. 7x10@0.02) "
+        "or a board YAML file"
+    )
+
+
+def parse_camera(text: str) -> Camera:
+    """A camera from ``FX,FY,CX,CY,WIDTH,HEIGHT`` (px) or a camera YAML file."""
+    from relcal.errors import RelcalError
+    from relcal.vision.camera import Camera
+
+    parts = text.split(",")
+    if len(parts) == 6:
+        try:
+            fx, fy, cx, cy = (float(v) for v in parts[:4])
+            return Camera(fx=fx, fy=fy, cx=cx, cy=cy, width=int(parts[4]), height=int(parts[5]))
+        except ValueError as exc:
+            raise RelcalError(f"--camera '{text}': {exc}") from None
+    from relcal.vision.camera import load_camera
+
+    camera = load_camera(text)
+    if camera.width is None or camera.height is None:
+        raise RelcalError(f"{text}: the camera's image size (width, height) is needed to plan")
+    return camera
 
 
 def _floats(text: str, count: tuple[int, ...], what: str) -> list[float]:
@@ -59,7 +110,6 @@ def build_cell(args: argparse.Namespace):
 
     from relcal import geometry as tf
     from relcal.design.cell import Cell
-    from relcal.design.plan import parse_board, parse_camera
 
     cell = Cell(board=parse_board(args.board))
     if args.camera:

@@ -20,8 +20,9 @@ from relcal.calibration.validate import Validation, pooled, ratio_interval, stat
 from relcal.data.dataset import Dataset
 from relcal.data.imaging import Measurements
 from relcal.data.importers import Imported
+from relcal.design.criteria import Quality
 from relcal.design.observability import Report
-from relcal.design.plan import PlanResult, Quality
+from relcal.design.plan import PlanResult
 from relcal.geometry import to_xyz_rpy
 from relcal.robot.kinematics import DISPLAY_UNITS
 from relcal.robot.model import KINDS, NONGEOMETRIC_KINDS, RobotModel, model_to_dict

@@ -10,8 +10,9 @@ import numpy as np
 from relcal.calibration.compensate import Compensation
 from relcal.calibration.identify import Result
 from relcal.calibration.uncertainty import Accuracy, Uncertainty
+from relcal.design.criteria import Quality
 from relcal.design.observability import Report
-from relcal.design.plan import PlanResult, Quality
+from relcal.design.plan import PlanResult
 from relcal.geometry import DEG, MM
 from relcal.reporting.documents import accuracy_document
 from relcal.robot.kinematics import DISPLAY_UNITS, Layout
