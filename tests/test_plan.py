@@ -171,12 +171,16 @@ def test_planned_poses_beat_random_feasible_sets_and_the_study_confirms_it(hayat
     assert spreads["random"] / spreads["plan"] > 1.7, spreads
 
 
-def test_travel_order_is_a_permutation_with_short_moves(pool):
+def test_travel_order_is_a_permutation_with_short_moves(hayati, pool):
     q = pool[0][:40]
-    order = travel_order(q)
-    assert sorted(order) == list(range(40))
-    step = np.abs(np.diff(q[order], axis=0)).max(axis=1).sum()
+    route = travel_order(hayati, q)
+    assert sorted(route.order) == list(range(40))
+    np.testing.assert_allclose(fk(hayati, route.q), fk(hayati, q[route.order]), atol=1e-12)
+    step = np.abs(np.diff(route.q, axis=0)).max(axis=1).sum()
+    assert step == pytest.approx(route.total)
     assert step < np.abs(np.diff(q, axis=0)).max(axis=1).sum()
+    move, joint, value = route.longest
+    assert value == np.abs(np.diff(route.q, axis=0)).max() == route.moves[move, joint]
 
 
 def test_board_and_camera_arguments(tmp_path):

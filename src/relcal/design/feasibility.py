@@ -1,7 +1,8 @@
 """Which joint configurations a plan may use: candidates drawn as camera poses over the board,
 solved by inverse kinematics, and kept when every constraint holds (:func:`check`): joint limits,
 the whole board in view with a margin, distance and viewing angle, away from singularities,
-clearance above the board, and no collision (:mod:`relcal.design.collision`).
+clearance above the board, no self-collision and no collision with the cell's obstacles (capsules
+about the links, :mod:`relcal.design.collision`).
 
 On a Dask cluster the candidate batches are tasks; each batch draws from its own stream of the
 seed (:func:`batch_seed`), so the pool does not depend on where or in which order batches run.
@@ -16,6 +17,7 @@ import numpy as np
 from relcal import geometry as tf
 from relcal.cluster import prepare_worker
 from relcal.design.cell import Cell
+from relcal.design.collision import cell_collision, self_collision
 from relcal.errors import RelcalError
 from relcal.geometry import look_at
 from relcal.robot.ik import joint_layout, solve
@@ -34,6 +36,9 @@ class Constraints:
     clearance: float = 0.05
     length_scale: float = 0.5
     aim: float = 0.1  # sampled aim points within this fraction of the pattern size of its centre
+    link_radius: float = 0.04  # m: capsules about the links' skeleton (0: no self-collision check)
+    camera_radius: float = 0.04  # m: a sphere about the camera
+    obstacles: tuple[tuple[float, ...], ...] = ()  # boxes (xmin, ymin, zmin, xmax, ymax, zmax), m
 
 
 def camera_poses(model: RobotModel, cell: Cell, q: np.ndarray) -> np.ndarray:
@@ -86,6 +91,11 @@ def check(
     points = np.concatenate([frames, cameras[:, None, :3, 3]], axis=1)
     height = (points - cell.center) @ cell.normal
     lo, hi = constraints.distance
+    radii = (constraints.link_radius, constraints.camera_radius)
+    if max(radii) > 0:
+        free = self_collision(model, q, cell.handeye, *radii)
+    else:
+        free = np.ones(len(q), dtype=bool)
     return {
         "joint limits": np.all((q >= model.lower) & (q <= model.upper), axis=1),
         "board in view": inside,
@@ -94,6 +104,10 @@ def check(
         "singularity": inverse_condition(model, q, constraints.length_scale)
         >= constraints.min_inverse_condition,
         "clearance": (height >= constraints.clearance).all(axis=1),
+        "self-collision": free,
+        "cell collision": cell_collision(
+            model, q, cell.handeye, np.array(constraints.obstacles), *radii
+        ),
     }
 
 

@@ -40,6 +40,7 @@ from relcal.design.criteria import (
 from relcal.design.feasibility import Constraints, candidates, check, feasible, inverse_condition
 from relcal.design.scoring import Scorer
 from relcal.design.search import exchange, greedy
+from relcal.design.travel import Route, travel_order
 from relcal.errors import RelcalError
 from relcal.robot.model import RobotModel
 
@@ -51,6 +52,7 @@ __all__ = [
     "Information",
     "PlanResult",
     "Quality",
+    "Route",
     "Scorer",
     "_values",
     "candidates",
@@ -70,26 +72,11 @@ __all__ = [
 Algorithm = Literal["greedy", "exchange"]
 
 
-def travel_order(q: np.ndarray) -> np.ndarray:
-    """An order of configurations ``(K, n)`` for the controller: nearest neighbour in joint space
-    (largest joint move) from the one nearest the zero position. The Cramer-Rao bound does not
-    depend on the order."""
-    left = list(range(len(q)))
-    order = [left.pop(int(np.argmin(np.abs(q).max(axis=1))))]
-    while left:
-        step = np.abs(q[left] - q[order[-1]]).max(axis=1)
-        order.append(left.pop(int(np.argmin(step))))
-    return np.array(order)
-
-
-# --- the plan -------------------------------------------------------------------------------------
-
-
 @dataclass(frozen=True)
 class PlanResult:
     """A plan, the candidate pool it came from, and how it compares with random sets."""
 
-    q: np.ndarray  # (K, n) in travel order
+    q: np.ndarray  # (K, n) in travel order, angles the equivalents the route reaches (rad, m)
     criterion: str
     algorithm: str
     swaps: int
@@ -100,6 +87,7 @@ class PlanResult:
     seconds: float
     names: tuple[str, ...] = field(default=())
     random_q: np.ndarray | None = None  # (K, n) the random set with the median worst std
+    route: Route | None = None  # the plan's travel order and moves
 
     @property
     def random_median_worst(self) -> float:
@@ -159,16 +147,17 @@ def plan(
         swaps = 0
         if algorithm == "exchange":
             chosen, swaps = exchange(info, chosen, criterion, scorer=scorer)
-    chosen = chosen[travel_order(pool[chosen])]
+    route = travel_order(model, pool[chosen])
+    chosen = chosen[route.order]
     plan_quality = quality(info, chosen, problem, q_val)
     sets = [rng.choice(len(pool), k, replace=False) for _ in range(random_sets)]
     randoms = tuple(quality(info, idx, problem, q_val) for idx in sets)
     random_q = None
     if sets:
         middle = sets[int(np.argsort([r.worst[1] for r in randoms])[len(sets) // 2])]
-        random_q = pool[middle][travel_order(pool[middle])]
+        random_q = travel_order(model, pool[middle]).q
     return PlanResult(
-        q=pool[chosen],
+        q=route.q,
         criterion=criterion,
         algorithm=algorithm,
         swaps=swaps,
@@ -179,4 +168,5 @@ def plan(
         seconds=time.perf_counter() - start,
         names=problem.full_layout.names,
         random_q=random_q,
+        route=route,
     )
