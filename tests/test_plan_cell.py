@@ -178,3 +178,19 @@ def test_command_line_limits_and_obstacles_errors(tmp_path, capsys):
     from relcal.cli.plan import parse_limits
 
     assert parse_limits(str(spec), UR5E, "deg") == {"elbow": pytest.approx((-2.0944, 2.0944), 1e-4)}
+
+
+def test_dataset_joint_limits_narrow_the_model(tmp_path):
+    from relcal.data.dataset import load_dataset
+
+    rows = ["id,q1,q2,q3,q4,q5,q6,x,y,z,qx,qy,qz,qw"]
+    rows += [f"s{k},{10 * k},-80,90,-100,-90,45,0.1,0.2,0.3,0,0,0,1" for k in range(6)]
+    (tmp_path / "samples.csv").write_text("\n".join(rows) + "\n")
+    spec = "robot: ur5e\nhayati: off\njoint_unit: deg\njoint_limits:\n  elbow: [-120, 120]\n"
+    (tmp_path / "dataset.yaml").write_text(spec)
+    model = load_dataset(tmp_path).model
+    np.testing.assert_allclose(np.degrees([model.lower[2], model.upper[2]]), [-120, 120])
+    assert model.upper[0] == UR5E.upper[0]
+    (tmp_path / "dataset.yaml").write_text(spec.replace("[-120, 120]", "[-200, 200]"))
+    with pytest.raises(RelcalError, match="dataset.yaml: joint_limits: elbow: .* beyond"):
+        load_dataset(tmp_path)
