@@ -33,7 +33,7 @@ class ClockMap:
         are forgotten, so that a drift between the two clocks is followed).
     """
 
-    def __init__(self, clock: Clock | None = None, window: float = 1.0) -> None:
+    def __init__(self, clock: Clock | None = None, window: float = 0.25) -> None:
         self.clock = clock or RealClock()
         self.window = float(window)
         self._samples: deque[tuple[float, float]] = deque()  # (device stamp, now - stamp)
