@@ -127,7 +127,7 @@ def _open(table: Mapping[str, Device], kind: str, name: str, options, context: d
     cls = table[name].load()
     params = inspect.signature(cls).parameters
     hints = typing.get_type_hints(cls.__init__)
-    accepted = [p for p in params if p not in CONTEXT and p != "self"]
+    accepted = [p for p in params if p not in CONTEXT and p not in context and p != "self"]
     kwargs = {k: v for k, v in context.items() if k in params}
     for key, value in dict(options).items():
         if key not in accepted:
@@ -145,12 +145,21 @@ def _open(table: Mapping[str, Device], kind: str, name: str, options, context: d
     return cls(**kwargs)
 
 
-def open_robot(name: str, options: Mapping[str, str], *, joint_names: Sequence[str], clock=None):
+def open_robot(
+    name: str,
+    options: Mapping[str, str],
+    *,
+    joint_names: Sequence[str],
+    clock=None,
+    **context,
+):
     """Open robot driver ``name`` with its text ``options`` for a robot model with
     ``joint_names``; the manual driver's option ``source=NAME`` opens driver ``NAME`` with the
-    other options to read the joints from."""
+    other options to read the joints from. Further keyword arguments (``context``) go to the
+    driver's constructor where it has a parameter of that name (e.g. the virtual cell's shared
+    world), never taken as options."""
     options = dict(options)
-    context = {"joint_names": tuple(joint_names), "clock": clock}
+    context = {"joint_names": tuple(joint_names), "clock": clock, **context}
     if name == "manual" and "source" in options:
         source = options.pop("source")
         manual_keys = {"unit"}
@@ -160,9 +169,10 @@ def open_robot(name: str, options: Mapping[str, str], *, joint_names: Sequence[s
     return _open(ROBOTS, "--robot-driver", name, options, context)
 
 
-def open_camera(name: str, options: Mapping[str, str], *, clock=None):
-    """Open camera ``name`` with its text ``options``."""
-    return _open(CAMERAS, "--camera", name, options, {"clock": clock})
+def open_camera(name: str, options: Mapping[str, str], *, clock=None, **context):
+    """Open camera ``name`` with its text ``options``; ``context`` as in :func:`open_robot`
+    (e.g. ``robot=`` for a camera that needs the robot driver, as the virtual cell's does)."""
+    return _open(CAMERAS, "--camera", name, options, {"clock": clock, **context})
 
 
 def describe() -> str:
