@@ -47,6 +47,28 @@ class Calibration:
     reason: str = ""
     bootstrap_std: np.ndarray | None = None  # (P,) over training samples; NaN if not estimated
 
+    def __repr__(self) -> str:
+        from relcal._repr import plural, short
+
+        def held_out() -> str:
+            val = self.validation
+            if val is None:
+                return "no held-out samples"
+            before = stats(val.before)["position_mm"]["rms"]
+            after = stats(val.calibrated)["position_mm"]["rms"]
+            return f"held-out position RMS {before:.4g} -> {after:.4g} mm"
+
+        chosen = self.selection[self.chosen].candidate.name if self.selection else ""
+        return short(
+            "Calibration",
+            f"of {self.problem.model.name!r}",
+            f"{plural(len(self.dataset.ids), 'sample')} ({len(self.train)} fitted, "
+            f"{len(self.test)} held out, {len(self.outliers)} outliers)",
+            f"exported {self.exported}" + (f" ({chosen})" if chosen else ""),
+            "converged" if self.result.converged else "NOT converged",
+            held_out,
+        )
+
     @property
     def std(self) -> np.ndarray:
         """Standard deviations ``(P,)`` of the estimate (m, rad); NaN if not estimated."""
