@@ -84,3 +84,24 @@ def test_importing_relcal_is_light():
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.split("\n")[:2] == ["[]", "True"]
     assert set(relcal.__all__) <= set(dir(relcal))
+
+
+def test_version_py_typed_and_new_exports(capsys):
+    """``relcal --version`` is the package's version (pyproject's); ``py.typed`` ships with the
+    package so type checkers read the annotations; ``plan`` and ``write_calibration`` are
+    top-level names."""
+    import tomllib
+
+    from relcal.cli import main
+
+    root = Path(__file__).resolve().parents[1]
+    project = tomllib.loads((root / "pyproject.toml").read_text())
+    assert relcal.__version__ == project["project"]["version"]
+    assert main(["--version"]) == 0
+    assert capsys.readouterr().out.strip() == f"relcal {relcal.__version__}"
+    assert (Path(relcal.__file__).parent / "py.typed").is_file()
+    assert "py.typed" in project["tool"]["setuptools"]["package-data"]["relcal"]
+    from relcal.design.plan import plan
+    from relcal.reporting.outputs import write_calibration
+
+    assert relcal.plan is plan and relcal.write_calibration is write_calibration
