@@ -17,7 +17,8 @@ from relcal.robot.model import auto_hayati
 model = auto_hayati(relcal.get_robot("a465"))
 result = relcal.plan(model, relcal.Cell(), k=12, n_candidates=600, random_sets=10, seed=0)
 print(
-    f"{len(result.q)} poses from {result.n_candidates} feasible candidates in {result.seconds:.1f} s"
+    f"{len(result.q)} poses from {result.n_candidates} feasible candidates "
+    f"in {result.seconds:.1f} s"
 )
 print(
     f"worst-parameter std: plan {result.plan.worst[1] * 1e3:.4f} mm-equivalent, median random "
