@@ -1,5 +1,6 @@
 """The public Python API: the names of ``relcal.__all__`` and the covariance that
 :class:`relcal.Result` reports, checked against repeated noisy calibrations."""
+
 from dataclasses import replace
 from pathlib import Path
 
