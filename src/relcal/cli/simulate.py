@@ -87,7 +87,7 @@ def run(args: argparse.Namespace) -> int:
         doc = reports[0] if len(reports) == 1 else {"runs": reports}
         items.append(File(args.json, json_text(doc), "--json"))
     if args.report:
-        from relcal.reporting.html import simulation_report
+        from relcal.reporting.simulation_report import simulation_report
 
         items.append(File(args.report, simulation_report(runs), "--report"))
     write_set(*items)
