@@ -51,8 +51,9 @@ exclude_patterns = [
 ]
 suppress_warnings = ["config.cache"]  # sphinx-gallery's callables in the config
 
-# MyST: ::: fences, definition lists, $math$, anchors for headings down to ###.
-myst_enable_extensions = ["colon_fence", "deflist", "dollarmath"]
+# MyST: ::: fences, definition lists, anchors for headings down to ###. No math markup: MathJax
+# would come from a CDN, and the site must read offline.
+myst_enable_extensions = ["colon_fence", "deflist"]
 myst_heading_anchors = 3
 
 # API: one page per public name of relcal.__all__ (written into reference/api.rst at start-up).
