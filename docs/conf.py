@@ -77,6 +77,7 @@ sphinx_gallery_conf = {
     "show_signature": False,
     "reset_modules": ("matplotlib",),
     "abort_on_example_error": True,
+    "run_stale_examples": True,  # every build runs them: the numbers are of this tree
     "write_computation_times": False,
 }
 
