@@ -85,7 +85,7 @@ def test_candidates_satisfy_every_constraint(hayati, pool):
         for j in range(len(qk)):
             dq = np.zeros(len(qk))
             dq[j] = 1e-6
-            cols.append(tf.pose_error(fk(hayati, qk + dq), fk(hayati, qk - dq))[0] / 2e-6)
+            cols.append(tf.pose_error(fk(hayati, qk + dq), fk(hayati, qk - dq)) / 2e-6)
         jac = np.array(cols).T
         jac[:3] /= c.length_scale
         s = np.linalg.svd(jac, compute_uv=False)

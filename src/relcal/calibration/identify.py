@@ -106,6 +106,19 @@ class Result:
         finite-difference gradient of the cost vanishes there (:attr:`gradient_check`)."""
         return bool(self.stopped and self.gradient_check.passed)
 
+    def __repr__(self) -> str:
+        from relcal._repr import short
+
+        return short(
+            "Result",
+            "",
+            "converged" if self.converged else "NOT converged",
+            f"{self.method}, {self.iterations} iterations",
+            f"rank {self.rank} of {len(self.params)} parameters",
+            f"cost per observation {self.initial_cost_per_observation:.3g} -> "
+            f"{self.final_cost_per_observation:.3g}",
+        )
+
     @functools.cached_property
     def identifiable(self) -> np.ndarray:
         """``(P,)`` bool: determined by the data given the estimated subset (the others held at

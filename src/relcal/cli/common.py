@@ -157,6 +157,14 @@ def fraction(text: str) -> float:
     return value
 
 
+def fraction_at_most_one(text: str) -> float:
+    """A number in (0, 1]."""
+    value = _number(text)
+    if not 0 < value <= 1:
+        raise argparse.ArgumentTypeError(f"'{text}': expected a number above 0, at most 1")
+    return value
+
+
 def holdout_fraction(text: str) -> float:
     """A share in [0, 1): 0 holds nothing out."""
     value = _number(text)

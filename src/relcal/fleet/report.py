@@ -17,23 +17,9 @@ import numpy as np
 from matplotlib.figure import Figure
 
 from relcal.fleet.drift import display
-from relcal.reporting.html import (
-    AFTER,
-    BAD,
-    BEFORE,
-    DPI,
-    FIG_WIDTH,
-    PLOT_STYLE,
-    Html,
-    _badge,
-    _cards,
-    _figure_html,
-    _fmt,
-    _p,
-    _page,
-    _section,
-    _table,
-)
+from relcal.reporting import htmlkit as hk
+from relcal.reporting.htmlkit import DPI, Html
+from relcal.reporting.plots import AFTER, BAD, BEFORE, FIG_WIDTH, PLOT_STYLE
 
 # Whole-pixel line heights: every box, and so every plot, starts on a pixel row (a plot of fine
 # lines drawn half a pixel off would be resampled, and blurred, by the browser).
@@ -69,16 +55,16 @@ def _summary(doc: dict, entries: list[dict]) -> tuple:
         ("drift flagged", str(len(drifted)), ", ".join(e["robot_id"] for e in drifted) or "none"),
         (
             "held-out position RMS",
-            f"{_fmt(base, '.3g')} → {_fmt(after, '.3g')} mm",
+            f"{hk.fmt(base, '.3g')} → {hk.fmt(after, '.3g')} mm",
             "median over sessions, baseline → calibrated",
         ),
         ("time", f"{doc.get('seconds', 0):.1f} s", _where(doc)),
     ]
-    return _section(
+    return hk.section(
         "summary",
         "Summary",
-        _cards(cards, "wide"),
-        _p(
+        hk.cards(cards, "wide"),
+        hk.paragraph(
             "Drift: each session against the robot's previous calibration, over the parameters "
             f"both identify (alpha {doc.get('alpha', 0.01):g}; without a change at most "
             f"{2 * doc.get('alpha', 0.01):.0%} of comparisons are flagged)."
@@ -97,9 +83,9 @@ def _drift_cell(e: dict) -> Html | str:
     if not drift:
         return "–"
     if drift["verdict"] == "agree":
-        return _badge(True, f"agree (p={drift['p_value']:.2g})")
+        return hk.badge(True, f"agree (p={drift['p_value']:.2g})")
     what = ", ".join(drift["flagged"]) or "as a whole"
-    return _badge(False, no=f"drift: {what} (p={drift['p_value']:.2g})")
+    return hk.badge(False, no=f"drift: {what} (p={drift['p_value']:.2g})")
 
 
 def _robots(entries: list[dict]) -> tuple:
@@ -111,11 +97,11 @@ def _robots(entries: list[dict]) -> tuple:
                 e["session"],
                 e.get("robot_id", ""),
                 e.get("model") or "–",
-                _badge(ok, e["status"], e["status"]),
-                _fmt(e.get("baseline_position_rms_mm"), ".3f"),
-                _fmt(e.get("calibrated_position_rms_mm"), ".3f"),
-                _fmt(e.get("baseline_orientation_rms_deg"), ".4f"),
-                _fmt(e.get("calibrated_orientation_rms_deg"), ".4f"),
+                hk.badge(ok, e["status"], e["status"]),
+                hk.fmt(e.get("baseline_position_rms_mm"), ".3f"),
+                hk.fmt(e.get("calibrated_position_rms_mm"), ".3f"),
+                hk.fmt(e.get("baseline_orientation_rms_deg"), ".4f"),
+                hk.fmt(e.get("calibrated_orientation_rms_deg"), ".4f"),
                 _drift_cell(e),
             ]
         )
@@ -130,20 +116,20 @@ def _robots(entries: list[dict]) -> tuple:
         "calibrated deg",
         "drift vs previous",
     ]
-    return _section(
+    return hk.section(
         "robots",
         "Robots",
-        _p("Held-out relative errors (RMS over the held-out pairs of each session)."),
-        _table(head, rows, "num"),
+        hk.paragraph("Held-out relative errors (RMS over the held-out pairs of each session)."),
+        hk.table(head, rows, "num"),
     )
 
 
 def _failed(entries: list[dict]) -> tuple:
     failed = [e for e in entries if e["status"] != "ok"]
     if not failed:
-        return _section("failed", "Failed sessions", Html('<p class="none">none</p>'))
+        return hk.section("failed", "Failed sessions", Html('<p class="none">none</p>'))
     rows = [[e["session"], e.get("reason") or ""] for e in failed]
-    return _section("failed", "Failed sessions", _table(["session", "reason"], rows, "ids"))
+    return hk.section("failed", "Failed sessions", hk.table(["session", "reason"], rows, "ids"))
 
 
 def _parameter_values(group: list[dict]) -> tuple[list[str], dict]:
@@ -227,22 +213,22 @@ def _parameters(entries: list[dict]) -> list[tuple]:
         fig, flagged = parameter_figure(group, model)
         robots = sorted({e["robot_id"] for e in group})
         sections.append(
-            _section(
+            hk.section(
                 f"parameters-{slug}",
                 f"Parameters across the fleet: {model}",
-                _p(
+                hk.paragraph(
                     f"{len(group)} sessions of {len(robots)} robots ("
                     + ", ".join(robots)
                     + f", left to right). Red: a robot whose latest value lies more than "
                     f"{OUTLIER_Z} robust standard deviations from the median of the robots of "
                     f"this model (with {MIN_ROBOTS} robots or more)."
                 ),
-                _figure_html(
+                hk.figure_html(
                     f"plot-parameters-{slug}",
                     f"identified errors of every {model} robot, one plot per parameter",
                     fig,
                 ),
-                _p("Far from the others: " + ("; ".join(flagged) if flagged else "none")),
+                hk.paragraph("Far from the others: " + ("; ".join(flagged) if flagged else "none")),
             )
         )
     return sections
@@ -256,7 +242,7 @@ def fleet_report(doc: dict, entries: list[dict]) -> str:
     meta = [("root", str(doc.get("root", ""))), ("sessions", str(len(entries)))]
     if doc.get("registry"):
         meta.append(("registry", doc["registry"]))
-    page = _page("relcal fleet report", meta, sections)
+    page = hk.page("relcal fleet report", meta, sections)
     return page.replace("</style>", PIXEL_CSS + "</style>", 1)
 
 

@@ -103,13 +103,22 @@ def _cell(sim: Simulation, p: int | None, errors: list[float] | None) -> str:
     return f"{spec:>9.4f} {ident:>10.4f} {pct}"
 
 
-def format_truth(layout: Layout, truth: np.ndarray, result: Result) -> str:
-    """True against identified error of every identifiable parameter of ``layout`` (mm, deg;
-    ppm, urad/Nm for non-geometric terms); ``truth`` on the same layout."""
+def format_truth(
+    layout: Layout, truth: np.ndarray, result: Result, shown: np.ndarray | None = None
+) -> str:
+    """True against identified error of the parameters of ``layout`` (mm, deg; ppm, urad/Nm for
+    non-geometric terms); ``truth`` ``(layout.size,)`` on the same layout (e.g.
+    :meth:`relcal.sim.synth.Truth.errors_on`). ``shown`` masks the rows to print (default: every
+    identifiable parameter)."""
+    truth = np.asarray(truth, dtype=float)
+    if truth.shape != (layout.size,):
+        raise ValueError(f"truth has shape {truth.shape}, the layout {layout.size} parameters")
+    if shown is None:
+        shown = result.identifiable[: layout.size]
     lines = ["", f"{'parameter':<14s} {'unit':>4s} {'true':>9s} {'identified':>10s}"]
     factors, units = layout.display()
     for k, name in enumerate(layout.names):
-        if result.identifiable[k]:
+        if shown[k]:
             scale, unit = factors[k], units[k]
             lines.append(
                 f"{name:<14s} {unit:>4s} {truth[k] * scale:9.4f} {result.params[k] * scale:10.4f}"

@@ -159,6 +159,23 @@ class RobotModel:
     def n_joints(self) -> int:
         return len(self.theta_off)
 
+    def __repr__(self) -> str:
+        from relcal._repr import plural, short
+
+        slides = int(np.count_nonzero(self.prismatic))
+        joints = plural(self.n_joints, "joint") + (f" ({slides} prismatic)" if slides else "")
+        hayati = [str(i + 1) for i in np.flatnonzero(self.hayati)]
+        terms = sorted({t for flags in self.nongeometric for t in flags})
+        return short(
+            "RobotModel",
+            repr(self.name),
+            joints,
+            {"dh": "standard DH", "mdh": "modified DH"}.get(self.convention, self.convention),
+            f"Hayati beta at joint {', '.join(hayati)}" if hayati else "",
+            f"non-geometric {', '.join(terms)}" if terms else "",
+            f"from {Path(self.urdf.path).name}" if self.urdf is not None else "",
+        )
+
     def has_nongeometric_values(self) -> bool:
         """Whether any non-geometric term changes the kinematics."""
         return any(getattr(self, k).any() for k in NONGEOMETRIC_KINDS)
