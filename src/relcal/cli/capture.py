@@ -296,8 +296,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--min-sharpness",
         type=positive_float,
-        default=100.0,
-        help="smallest variance of the Laplacian over the board (default 100)",
+        default=150.0,
+        help="smallest variance of the Laplacian over the board, after a 1 px Gaussian "
+        "(default 150: rejects a blur of about 4 px)",
     )
     p.add_argument(
         "--min-points",
