@@ -262,7 +262,8 @@ def limit_problem(
     ):
         if lo is None or hi is None:
             continue
-        bad = np.flatnonzero((q < lo) | (q > hi))
+        slack = 1e-9  # rad, m: the round-off of a plan written in degrees with 12 digits
+        bad = np.flatnonzero((q < lo - slack) | (q > hi + slack))
         if bad.size:
             i = int(bad[0])
             prism = bool(model.prismatic[i])

@@ -339,6 +339,7 @@ class DatasetWriter:
         self.rows[pid] = ",".join([_csv_cell(pid), *(f"{v:.12g}" for v in q), name])
         entry = sample.record()
         entry["image"] = name
+        entry["run"] = int(self.log.get("runs", 1))
         entry["recorded_utc"] = datetime.now(UTC).isoformat(timespec="seconds")
         self.log.setdefault("samples", {})[pid] = entry
         self.log.setdefault("skipped", {}).pop(pid, None)

@@ -202,7 +202,7 @@ SLOW = ArmDynamics(omega=2 * np.pi * 0.8, zeta=0.2)
 class _Arm:
     """The arm's true joint state over time (integrated lazily up to the clock)."""
 
-    def __init__(self, q0: np.ndarray, dynamics: ArmDynamics, history: float = 30.0) -> None:
+    def __init__(self, q0: np.ndarray, dynamics: ArmDynamics, history: float = 300.0) -> None:
         self.dyn = dynamics
         self.phi = dynamics.transition(STEP)
         self.t = 0.0
@@ -518,6 +518,7 @@ class VirtualCell:
     board_pixels: str = "analytic"
     seed: int = 0
     frames: list[dict] = field(default_factory=list)  # truth of every delivered frame
+    moves: list[dict] = field(default_factory=list)  # truth of every move: still when it returned?
     render_seconds: float = 0.0  # wall time spent rendering
 
     def __post_init__(self) -> None:
@@ -629,6 +630,8 @@ class VirtualCell:
                 "slow_settle": self.faults.slow_settle,
                 "drop": self.faults.drop,
             },
+            "moves_note": "per move: plan row, when it returned (s), largest joint error then",
+            "moves": self.moves,
             "frames_note": "true joints (rad, m) at the exposure of each frame delivered",
             "frames": self.frames,
         }
@@ -658,7 +661,7 @@ class SimRobot:
         q = np.asarray(q, float)
         if q.shape != (model.n_joints,) or not np.all(np.isfinite(q)):
             raise MoveFailed(f"target must be {model.n_joints} finite joint values")
-        if np.any(q < model.lower) or np.any(q > model.upper):
+        if np.any(q < model.lower - 1e-9) or np.any(q > model.upper + 1e-9):
             raise MoveFailed("target outside the controller's joint limits")
         cell.moved_to(q, cell.clock.now())
         duration = cell.arm.command(q, cell.clock.now())
@@ -669,6 +672,14 @@ class SimRobot:
                 f"the move needs {duration:.1f} s, more than the {timeout:g} s timeout"
             )
         cell.clock.sleep(duration)  # returns when the reference ends: the arm still rings
+        now = cell.clock.now()
+        cell.moves.append(
+            {
+                "row": cell.row_of(q),
+                "returned": now,
+                "error_deg": float(np.degrees(np.abs(cell.arm.at(now) - q).max())),
+            }
+        )
 
     def stop(self) -> None:
         self.cell.arm.halt(self.cell.clock.now())
