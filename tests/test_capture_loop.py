@@ -293,3 +293,32 @@ def test_plan_files_name_joints_either_way_and_state_their_unit(tmp_path):
     (tmp_path / "e.csv").write_text("id,q1,q2,q3,q4,q5,q6\np1,1,2,3,4,5,6\np1,1,2,3,4,5,6\n")
     with pytest.raises(RelcalError, match="duplicates line 2"):
         read_plan(tmp_path / "e.csv", MODEL)
+
+
+def test_driver_tables_name_the_extra_to_install(capsys, tmp_path):
+    from relcal.capture import registry
+    from relcal.cli import main
+
+    context = registry.DriverContext(MODEL)
+    with pytest.raises(RelcalError, match=r"--robot-driver 'nope': unknown driver; known: .*sim"):
+        registry.open_robot("nope", context)
+    registry.register_robot(
+        "fake",
+        registry.Driver("relcal_no_such_library.driver:open", "fake", "relcal_no_such_library"),
+    )
+    try:
+        with pytest.raises(RelcalError, match=r"pip install 'relcal\[fake\]'"):
+            registry.open_robot("fake", context)
+    finally:
+        del registry.ROBOTS["fake"]
+    (tmp_path / "plan.csv").write_text("id,q1,q2,q3,q4,q5,q6\np1,1,2,3,4,5,6\n")
+    code = main(["capture", str(tmp_path / "plan.csv"), "--robot", "ur5e", "--robot-driver",
+                 "nope", "--camera", "sim", "--out", str(tmp_path / "ds")])  # fmt: skip
+    err = capsys.readouterr().err
+    assert code == 2 and err.count("\n") == 1 and "unknown driver" in err
+    assert not (tmp_path / "ds").exists()
+    code = main(["capture", str(tmp_path / "plan.csv"), "--robot", "ur5e", "--robot-driver",
+                 "sim", "--camera", "sim", "--robot-option", "colour=red",
+                 "--out", str(tmp_path / "ds")])  # fmt: skip
+    err = capsys.readouterr().err
+    assert code == 2 and "--robot-option colour: not an option of the sim driver" in err

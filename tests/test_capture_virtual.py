@@ -179,3 +179,41 @@ def test_faults_interrupt_and_resume_leave_a_whole_correctly_paired_dataset(tmp_
     errors = [m["error_deg"] for t in truths.values() for m in t["moves"]]
     assert np.median(errors) > 0.1
     del model
+
+
+def test_the_camera_follows_the_true_model_with_its_nongeometric_terms():
+    """The virtual camera's pose is relcal's forward kinematics of the true model, joint scale
+    and harmonics included, at the true joints of the exposure; the robot reports only noisy
+    joints and the camera only stamped images."""
+    from relcal.capture.virtual import make_cell
+    from relcal.robot.kinematics import effective_joints
+
+    model = get_robot("ur5e")
+    cell = make_cell(model, seed=5, nongeometric=("scale", "harmonic"))
+    truth = cell.truth
+    assert {"scale[2]", "harmonic_c[3]"} <= set(truth.layout.names)
+    assert truth.true_model.has_nongeometric_values()
+    q = np.radians([10.0, -100.0, 90.0, -80.0, -90.0, 20.0])
+    cell.robot.move(q, 60.0)
+    cell.clock.sleep(5.0)
+    reading = cell.robot.read()
+    frame = cell.camera.grab(1.0)
+    assert frame.stamp <= cell.clock.now() and frame.image.dtype == np.uint8
+    assert set(vars(reading)) == {"q", "stamp"} and set(vars(frame)) >= {"image", "stamp"}
+    record = cell.frames[-1]
+    q_true = np.array(record["q_true"])
+    assert np.abs(np.degrees(reading.q - q_true)).max() < 0.01  # encoder noise only
+    expected = tf.invert(truth.board_pose) @ fk(truth.true_model, q_true)[0] @ truth.handeye
+    np.testing.assert_allclose(record["camera_in_board"], expected, atol=1e-12)
+    geometric_only = replace_values(truth.true_model)
+    other = tf.invert(truth.board_pose) @ fk(geometric_only, q_true)[0] @ truth.handeye
+    assert np.abs(other[:3, 3] - expected[:3, 3]).max() > 1e-5  # the terms move the camera
+    assert not np.allclose(effective_joints(truth.true_model, q_true[None]), q_true)
+
+
+def replace_values(model):
+    """``model`` without its non-geometric values."""
+    from dataclasses import replace
+
+    zeros = np.zeros(model.n_joints)
+    return replace(model, scale=zeros, compliance=zeros, harmonic_c=zeros, harmonic_s=zeros)
