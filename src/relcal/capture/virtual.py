@@ -35,12 +35,14 @@ The image
     the true joint frames; an occluder where a fault hides the board. MuJoCo's pinhole camera has
     square pixels and a centred principal point, so the scene is rendered with a wide enough
     field of view and remapped through the real camera's intrinsics and lens distortion (every
-    output pixel takes the MuJoCo pixel its undistorted ray hits). MuJoCo's rasteriser places the
-    printed corners to about 0.2 px RMS (texture sampling on the CPU), where relcal's analytic
-    renderer (:func:`relcal.vision.render.render_levels`, exact area coverage) is at about
-    0.08 px; so by default the board's own pixels come from the analytic renderer wherever
-    MuJoCo's segmentation says the board is visible, and everything else (links, occluders,
-    table, what hides what) from MuJoCo. ``board_pixels="mujoco"`` takes MuJoCo's texture for
+    output pixel takes the MuJoCo pixel its undistorted ray hits). Through MuJoCo's texture
+    sampling (Mesa's rasteriser on the CPU, rendered at twice the resolution) the detected
+    corners lie about twice as far from their true projections as with relcal's analytic
+    renderer (:func:`relcal.vision.render.render_levels`, exact area coverage): median 0.08 px
+    against 0.04 px per frame in ``bench/capture.py``, up to 0.2 px on close views. So by
+    default the board's own pixels come from the analytic renderer wherever MuJoCo's
+    segmentation says the board is visible, and everything else (links, occluders, table, what
+    hides what) from MuJoCo: the analytic renderer knows nothing of a scene, MuJoCo draws one. ``board_pixels="mujoco"`` takes MuJoCo's texture for
     the board too. Then relcal's blur, lighting gradient and sensor noise
     (:func:`relcal.vision.render.finish_image`).
 
