@@ -48,12 +48,9 @@ class TableRow(list):
     line: int = 0
 
 
-def read_table(
-    path: str | Path, what: str, comments: bool = False
-) -> tuple[list[str], list[TableRow]]:
-    """The stripped header and the data rows of a CSV file (blank lines dropped, and with
-    ``comments`` lines whose first character is ``#``; each row keeps its line number in
-    ``row.line``).
+def read_table(path: str | Path, what: str) -> tuple[list[str], list[TableRow]]:
+    """The stripped header and the data rows of a CSV file (blank lines dropped; each row keeps
+    its line number in ``row.line``).
 
     A UTF-8 byte-order mark is skipped; a semicolon-delimited file (a header without commas) is
     read with semicolons. ``what`` names one data row in messages (``"sample"``, ``"target"``); a
@@ -70,19 +67,18 @@ def read_table(
         raise RelcalError(f"{path}: is a directory, expected a CSV file") from None
     except (OSError, UnicodeDecodeError) as exc:
         raise RelcalError(f"{path}: cannot read: {exc}") from None
-    lines = text.splitlines(keepends=True)
-    if comments:  # blanked, not removed: line numbers stay those of the file
-        lines = ["\n" if line.lstrip().startswith("#") else line for line in lines]
-    first = next((line for line in lines if line.strip()), "")
+    first = next((line for line in text.splitlines() if line.strip()), "")
     delimiter = ";" if ";" in first and "," not in first else ","
     rows: list[TableRow] = []
     try:
-        reader = csv.reader(lines, delimiter=delimiter)
+        reader = csv.reader(text.splitlines(keepends=True), delimiter=delimiter)
         start = 1
         for cells in reader:
             row = TableRow(cells)
             row.line = start
             start = reader.line_num + 1
+            if not rows and cells and cells[0].lstrip().startswith("#"):
+                continue  # a comment before the header (a plan file's first line)
             if cells and any(c.strip() for c in cells):
                 rows.append(row)
     except csv.Error as exc:

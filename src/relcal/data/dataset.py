@@ -20,6 +20,8 @@
       length_mm: 10            #   largest identified correction of a link length
       angle_deg: 2             #   of a joint offset or twist
     robot_id: cell4-arm2       # optional: which physical robot (history); default folder name
+    joint_limits:              # optional: the cell's limits, narrower than the robot's, in
+      elbow: [-170, 170]       #   joint_unit (prismatic joints in m); plan and capture keep them
 
 ``samples.csv`` has a header: ``id`` (optional: without it a sample's id is its line number), one
 column per joint, named ``q1`` .. ``qn`` or by the model's joint names (``torso_lift_joint``, ...,
@@ -48,7 +50,7 @@ from relcal import geometry as tf
 from relcal.errors import RelcalError
 from relcal.io import load_yaml, note_input, read_table, validate
 from relcal.robot.loading import get_robot
-from relcal.robot.model import RobotModel, auto_hayati, model_from_dict
+from relcal.robot.model import RobotModel, auto_hayati, model_from_dict, restrict_limits
 
 POSE_COLUMNS = ("x", "y", "z", "qx", "qy", "qz", "qw")
 RPY_COLUMNS = ("x", "y", "z", "roll", "pitch", "yaw")
@@ -100,6 +102,9 @@ class _DatasetSpec(pydantic.BaseModel):
     samples: str = "samples.csv"
     tolerances: _Tolerances | None = None
     robot_id: str | None = None  # which physical robot (fleet history); default the folder name
+    # the cell's own limits, narrower than the robot's (joint name or qK -> [lower, upper] in
+    # joint_unit, prismatic joints in m): what plan and capture keep to
+    joint_limits: dict[str, tuple[float, float]] | None = None
 
     @pydantic.field_validator("hayati", mode="before")
     @classmethod
@@ -153,6 +158,12 @@ def load_dataset(folder: str | Path) -> Dataset:
     model = _robot(root, spec.robot, spec_path, node)
     if spec.hayati == "auto":
         model = auto_hayati(model)
+    if spec.joint_limits:
+        model = restrict_limits(
+            model,
+            limits_from_unit(model, spec.joint_limits, spec.joint_unit),
+            f"{spec_path}: joint_limits",
+        )
 
     handeye = None
     if spec.handeye is not None:
@@ -414,6 +425,21 @@ def _joint_values(path: Path, q: np.ndarray, model: RobotModel, unit: str) -> np
                 "dataset.yaml declares joint_unit: deg"
             )
     return joints_from_unit(model, q, unit)
+
+
+def limits_from_unit(
+    model: RobotModel, limits: dict[str, tuple[float, float]], unit: str
+) -> dict[str, tuple[float, float]]:
+    """Joint limits by joint name (or ``qK``) from ``unit`` (deg or rad; prismatic joints in m)
+    to rad and m (unknown names are left for :func:`restrict_limits` to report)."""
+    index = {name: i for i, name in enumerate(model.joint_names)}
+    index.update({f"q{i + 1}": i for i in range(model.n_joints)})
+    out = {}
+    for name, (lo, hi) in limits.items():
+        i = index.get(name)
+        angle = unit == "deg" and (i is None or not model.prismatic[i])
+        out[name] = (np.radians(lo), np.radians(hi)) if angle else (float(lo), float(hi))
+    return out
 
 
 def read_joints(path: str | Path, model: RobotModel, joint_unit: str = "deg") -> np.ndarray:

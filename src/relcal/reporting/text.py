@@ -10,8 +10,9 @@ import numpy as np
 from relcal.calibration.compensate import Compensation
 from relcal.calibration.identify import Result
 from relcal.calibration.uncertainty import Accuracy, Uncertainty
+from relcal.design.criteria import Quality
 from relcal.design.observability import Report
-from relcal.design.plan import PlanResult, Quality
+from relcal.design.plan import PlanResult
 from relcal.geometry import DEG, MM
 from relcal.reporting.documents import accuracy_document
 from relcal.robot.kinematics import DISPLAY_UNITS, Layout
@@ -282,7 +283,20 @@ def _quality_row(label: str, q: Quality) -> str:
     )
 
 
-def format_plan(res: PlanResult, length_scale: float) -> str:
+def format_travel(res: PlanResult, model=None) -> str:
+    """One line: the route's longest single joint move and the sum of the largest joint moves
+    (``model`` names the joints and tells prismatic ones)."""
+    move, joint, value = res.route.longest
+    prismatic = model is not None and bool(model.prismatic[joint])
+    unit, f = ("m", 1.0) if prismatic else ("deg", np.degrees(1.0))
+    name = model.joint_names[joint] if model is not None else f"q{joint + 1}"
+    return (
+        f"travel order: longest single move {value * f:.1f} {unit} ({name}, pose {move + 1} to "
+        f"{move + 2}); largest joint moves add up to {res.route.total * np.degrees(1.0):.0f} deg"
+    )
+
+
+def format_plan(res: PlanResult, length_scale: float, model=None) -> str:
     """The plan against random sets: predicted standard deviations and accuracy."""
     k = len(res.q)
     lines = [
@@ -313,6 +327,8 @@ def format_plan(res: PlanResult, length_scale: float) -> str:
         "predicted accuracy: RMS error of relative camera poses between validation poses "
         "caused by the parameter uncertainty alone",
     ]
+    if res.route is not None and len(res.q) > 1:
+        lines.append(format_travel(res, model))
     if res.random:
         lines += ["", *_parameter_table(res.plan, median_set, len(res.random))]
     return "\n".join(lines)
