@@ -14,7 +14,6 @@ from relcal.capture.loop import DEG, CaptureSettings, capture, judge_frame, shar
 from relcal.capture.record import DatasetWriter
 from relcal.capture.virtual import SIM_CAMERA, SimClock
 from relcal.data.dataset import load_dataset
-from relcal.data.plans import read_plan
 from relcal.errors import RelcalError
 from relcal.outputset import tracking
 from relcal.robot.loading import get_robot
@@ -273,52 +272,71 @@ def test_resume_refuses_a_folder_it_did_not_write(tmp_path):
     assert (tmp_path / "mine" / "notes.txt").read_text() == "keep me"
 
 
-def test_plan_files_name_joints_either_way_and_state_their_unit(tmp_path):
-    names = ",".join(MODEL.joint_names)
-    (tmp_path / "a.csv").write_text("id,q1,q2,q3,q4,q5,q6\np1,10,20,30,40,50,60\n")
-    (tmp_path / "b.csv").write_text(
-        f"# robot: ur5e\n# unit: rad\nid,{names}\np1,0.1,0.2,0.3,0.4,0.5,0.6\n"
-    )
-    a = read_plan(tmp_path / "a.csv", MODEL)
-    b = read_plan(tmp_path / "b.csv", MODEL)
-    np.testing.assert_allclose(a.q[0], np.radians([10, 20, 30, 40, 50, 60]))
-    np.testing.assert_allclose(b.q[0], [0.1, 0.2, 0.3, 0.4, 0.5, 0.6])
-    assert (a.unit, b.unit, b.ids) == ("deg", "rad", ("p1",))
-    (tmp_path / "c.csv").write_text("# unit: grad\nid,q1,q2,q3,q4,q5,q6\np1,1,2,3,4,5,6\n")
-    with pytest.raises(RelcalError, match=r"c.csv line 1: unit 'grad'"):
-        read_plan(tmp_path / "c.csv", MODEL)
-    (tmp_path / "d.csv").write_text("id,q1,q2,q3,q4,q5\np1,1,2,3,4,5\n")
-    with pytest.raises(RelcalError, match="missing q6"):
-        read_plan(tmp_path / "d.csv", MODEL)
-    (tmp_path / "e.csv").write_text("id,q1,q2,q3,q4,q5,q6\np1,1,2,3,4,5,6\np1,1,2,3,4,5,6\n")
-    with pytest.raises(RelcalError, match="duplicates line 2"):
-        read_plan(tmp_path / "e.csv", MODEL)
-
-
-def test_driver_tables_name_the_extra_to_install(capsys, tmp_path):
-    from relcal.capture import registry
+def test_capture_opens_devices_by_name_and_refuses_bad_ones_in_one_line(capsys, tmp_path):
+    from relcal.capture import devices
     from relcal.cli import main
 
-    context = registry.DriverContext(MODEL)
-    with pytest.raises(RelcalError, match=r"--robot-driver 'nope': unknown driver; known: .*sim"):
-        registry.open_robot("nope", context)
-    registry.register_robot(
-        "fake",
-        registry.Driver("relcal_no_such_library.driver:open", "fake", "relcal_no_such_library"),
-    )
-    try:
-        with pytest.raises(RelcalError, match=r"pip install 'relcal\[fake\]'"):
-            registry.open_robot("fake", context)
-    finally:
-        del registry.ROBOTS["fake"]
+    with pytest.raises(RelcalError, match="--camera sim: the virtual camera belongs to the"):
+        devices.open_camera("sim", {})
     (tmp_path / "plan.csv").write_text("id,q1,q2,q3,q4,q5,q6\np1,1,2,3,4,5,6\n")
-    code = main(["capture", str(tmp_path / "plan.csv"), "--robot", "ur5e", "--robot-driver",
-                 "nope", "--camera", "sim", "--out", str(tmp_path / "ds")])  # fmt: skip
-    err = capsys.readouterr().err
-    assert code == 2 and err.count("\n") == 1 and "unknown driver" in err
-    assert not (tmp_path / "ds").exists()
-    code = main(["capture", str(tmp_path / "plan.csv"), "--robot", "ur5e", "--robot-driver",
-                 "sim", "--camera", "sim", "--robot-option", "colour=red",
-                 "--out", str(tmp_path / "ds")])  # fmt: skip
-    err = capsys.readouterr().err
-    assert code == 2 and "--robot-option colour: not an option of the sim driver" in err
+    base = ["capture", str(tmp_path / "plan.csv"), "--robot", "ur5e", "--out", str(tmp_path / "ds")]
+    for extra, message in [
+        (["--robot-driver", "nope", "--camera", "sim"], "--robot-driver 'nope': expected one of"),
+        (["--robot-driver", "sim", "--camera", "sim", "--robot-option", "colour=red"],
+         "--robot-driver sim: unknown option 'colour'"),
+        (["--robot-driver", "sim", "--camera", "opencv"], "robot and camera go together"),
+        (["--robot-driver", "sim", "--camera", "sim", "--robot-option", "faults=hide:p9"],
+         "'hide:p9': 'p9' is not a pose id of the plan"),
+    ]:  # fmt: skip
+        code = main([*base, *extra])
+        err = capsys.readouterr().err
+        assert code == 2 and err.count("\n") == 1 and message in err, err
+        assert not (tmp_path / "ds").exists()
+    (tmp_path / "bad.csv").write_text("id,q1,q2,q3,q4,q5,q6\np/1,1,2,3,4,5,6\n")
+    code = main([*base[:1], str(tmp_path / "bad.csv"), *base[2:], "--robot-driver", "sim",
+                 "--camera", "sim"])  # fmt: skip
+    assert code == 2 and "pose id 'p/1'" in capsys.readouterr().err
+
+
+def test_an_interrupt_held_back_during_a_write_keeps_the_sample(tmp_path, board_image):
+    """SIGINT during the renames is delivered after them: the sample is on disk, and the
+    writer's memory (what --resume and the final log rely on) says so too."""
+    import signal
+
+    ids, q = targets(2)
+    writer = _writer(tmp_path / "ds", ids, q)
+    clock = SimClock()
+    original = DatasetWriter.record
+
+    def record_then_signal(self, sample):
+        import relcal.capture.record as record
+
+        real = record._signals_held
+
+        def held():
+            context = real()
+
+            class Wrapped:
+                def __enter__(self):
+                    context.__enter__()
+                    signal.raise_signal(signal.SIGINT)  # arrives mid-write, held back
+
+                def __exit__(self, *exc):
+                    return context.__exit__(*exc)
+
+            return Wrapped()
+
+        record._signals_held = held
+        try:
+            original(self, sample)
+        finally:
+            record._signals_held = real
+
+    writer.record = record_then_signal.__get__(writer)
+    with pytest.raises(KeyboardInterrupt):
+        capture(ids, q, MODEL, FakeRobot(clock), FakeCamera(clock, board_image), clock, BOARD,
+                writer, SIM_CAMERA, CaptureSettings(settle_window=0.3), progress=False)  # fmt: skip
+    assert writer.done == {"p1"}
+    writer.finish({"interrupted": True})
+    resumed = _writer(tmp_path / "ds", ids, q, resume=True)
+    assert resumed.done == {"p1"}

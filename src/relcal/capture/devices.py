@@ -51,7 +51,11 @@ ROBOTS: dict[str, Device] = {
         "the operator jogs; joints typed or read from another driver (option source=NAME)",
     ),
 }
-# `sim` (the virtual cell) is registered by relcal.capture.sim.
+ROBOTS["sim"] = Device(
+    "relcal.capture.virtual:VirtualRobot",
+    "virtual",
+    "the virtual cell (MuJoCo): an arm with planted errors; with --camera sim",
+)
 
 CAMERAS: dict[str, Device] = {
     "opencv": Device(
@@ -73,8 +77,16 @@ CAMERAS: dict[str, Device] = {
         "new image files another program writes into a folder",
     ),
 }
+CAMERAS["sim"] = Device(
+    "relcal.capture.virtual:VirtualCamera",
+    "virtual",
+    "the virtual cell's flange camera; with --robot-driver sim",
+)
 
-CONTEXT = ("joint_names", "clock", "source", "ask", "tell", "prismatic")  # given, not options
+# Given by the caller, not options: the loop's clock and joint names, and for drivers that want
+# them (the virtual cell) the robot model, the board, the plan, and the robot already opened.
+CONTEXT = ("joint_names", "clock", "source", "ask", "tell", "prismatic")
+CONTEXT += ("model", "board", "plan_ids", "plan_targets", "robot")
 
 
 def parse_options(items: Sequence[str], what: str) -> dict[str, str]:
@@ -145,24 +157,38 @@ def _open(table: Mapping[str, Device], kind: str, name: str, options, context: d
     return cls(**kwargs)
 
 
-def open_robot(name: str, options: Mapping[str, str], *, joint_names: Sequence[str], clock=None):
+def open_robot(
+    name: str,
+    options: Mapping[str, str],
+    *,
+    joint_names: Sequence[str],
+    clock=None,
+    context: Mapping | None = None,
+):
     """Open robot driver ``name`` with its text ``options`` for a robot model with
     ``joint_names``; the manual driver's option ``source=NAME`` opens driver ``NAME`` with the
-    other options to read the joints from."""
+    other options to read the joints from. ``context``: further :data:`CONTEXT` values (``model``,
+    ``board``, ``plan_ids``, ``plan_targets``), given to the drivers that take them."""
     options = dict(options)
-    context = {"joint_names": tuple(joint_names), "clock": clock}
+    extra = dict(context or {})
+    context = {**extra, "joint_names": tuple(joint_names), "clock": clock}
     if name == "manual" and "source" in options:
         source = options.pop("source")
         manual_keys = {"unit"}
         inner = {k: v for k, v in options.items() if k not in manual_keys}
         options = {k: v for k, v in options.items() if k in manual_keys}
-        context["source"] = open_robot(source, inner, joint_names=joint_names, clock=clock)
+        context["source"] = open_robot(
+            source, inner, joint_names=joint_names, clock=clock, context=extra
+        )
     return _open(ROBOTS, "--robot-driver", name, options, context)
 
 
-def open_camera(name: str, options: Mapping[str, str], *, clock=None):
-    """Open camera ``name`` with its text ``options``."""
-    return _open(CAMERAS, "--camera", name, options, {"clock": clock})
+def open_camera(
+    name: str, options: Mapping[str, str], *, clock=None, context: Mapping | None = None
+):
+    """Open camera ``name`` with its text ``options``; ``context``: further :data:`CONTEXT`
+    values (``robot``: the robot driver opened, which the virtual cell's camera belongs to)."""
+    return _open(CAMERAS, "--camera", name, options, {**dict(context or {}), "clock": clock})
 
 
 def describe() -> str:

@@ -75,8 +75,10 @@ def _stage(path: Path, data: bytes) -> Path:
     return Path(tmp)
 
 
-def _commit(pairs: Sequence[tuple[Path, bytes]]) -> None:
-    """Write several files, each atomically, renamed in order with signals held back."""
+def _commit(pairs: Sequence[tuple[Path, bytes]], done: list | None = None) -> None:
+    """Write several files, each atomically, renamed in order with signals held back; ``done``
+    gets ``True`` appended once every rename is made (a signal held back meanwhile is raised
+    after that, so the caller can tell a write that happened from one that did not)."""
     staged = []
     try:
         for path, data in pairs:
@@ -85,6 +87,8 @@ def _commit(pairs: Sequence[tuple[Path, bytes]]) -> None:
             for tmp, path in staged:
                 os.replace(tmp, path)
             staged = []
+            if done is not None:
+                done.append(True)
             for folder in {path.parent for path, _ in pairs}:
                 _fsync_dir(folder)
     finally:
@@ -343,17 +347,20 @@ class DatasetWriter:
         entry["recorded_utc"] = datetime.now(UTC).isoformat(timespec="seconds")
         self.log.setdefault("samples", {})[pid] = entry
         self.log.setdefault("skipped", {}).pop(pid, None)
+        done: list = []
         try:
             _commit(
                 [
                     (self.root / name, encode_image(sample.frame.image)),
                     (self.root / SAMPLES, self._table()),
                     (self.root / LOG, self._log_bytes()),
-                ]
+                ],
+                done,
             )
         except BaseException:
-            self.rows.pop(pid, None)
-            self.log["samples"].pop(pid, None)
+            if not done:  # not written: forget it (an interrupt after the renames keeps it)
+                self.rows.pop(pid, None)
+                self.log["samples"].pop(pid, None)
             raise
 
     def skip(self, pose_id: str, index: int, reasons: Sequence[str]) -> None:

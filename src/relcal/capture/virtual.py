@@ -42,12 +42,14 @@ The image
     against 0.04 px per frame in ``bench/capture.py``, up to 0.2 px on close views. So by
     default the board's own pixels come from the analytic renderer wherever MuJoCo's
     segmentation says the board is visible, and everything else (links, occluders, table, what
-    hides what) from MuJoCo: the analytic renderer knows nothing of a scene, MuJoCo draws one. ``board_pixels="mujoco"`` takes MuJoCo's texture for
-    the board too. Then relcal's blur, lighting gradient and sensor noise
-    (:func:`relcal.vision.render.finish_image`).
+    hides what) from MuJoCo: the analytic renderer knows nothing of a scene, MuJoCo draws one.
+    ``board_pixels="mujoco"`` takes MuJoCo's texture for the board too. Then relcal's blur,
+    lighting gradient and sensor noise (:func:`relcal.vision.render.finish_image`).
 
 What the devices report
-    :class:`SimRobot` and :class:`SimCamera` implement the interfaces of
+    :class:`SimRobot` and :class:`SimCamera` (registered as ``sim`` in
+    :mod:`relcal.capture.devices`: :class:`VirtualRobot`, :class:`VirtualCamera`) implement the
+    interfaces of
     :mod:`relcal.capture.interfaces` and report only what real ones would: noisy joint readings
     with stamps, frames with stamps and sequence numbers. The truth (planted errors, true joints
     at every delivered frame's exposure) stays in the cell, for :meth:`VirtualCell.truth`, which
@@ -130,16 +132,17 @@ class Faults:
 
     @classmethod
     def parse(cls, text: str, ids: list[str] | None = None) -> Faults:
-        """From ``hide=p003,p010;hide-once=p005;stale=8;slow;drop=0.3`` (pose ids of the plan
-        ``ids``, or 0-based rows)."""
+        """From ``hide:p003+p010;hide_once:p005;stale:8;slow;drop:0.3``: faults separated by
+        ``;``, a value after ``:``, pose ids (of the plan ``ids``, or 0-based rows) joined by
+        ``+`` (no ``=`` or ``,``, so that the text passes as one ``--robot-option faults=...``)."""
         out: dict[str, Any] = {}
         for part in filter(None, (p.strip() for p in text.split(";"))):
-            key, _, value = part.partition("=")
+            key, _, value = part.partition(":")
             key = key.strip().lower().replace("_", "-")
             try:
                 if key in ("hide", "hide-once"):
                     rows = []
-                    for name in filter(None, (v.strip() for v in value.split(","))):
+                    for name in filter(None, (v.strip() for v in value.split("+"))):
                         if ids is not None and name in ids:
                             rows.append(ids.index(name))
                         elif name.isdigit():
@@ -156,9 +159,9 @@ class Faults:
                     if not 0 <= out["drop"] < 1:
                         raise ValueError("expected a share from 0 up to 1")
                 else:
-                    raise ValueError("unknown fault (hide, hide-once, stale, slow, drop)")
+                    raise ValueError("unknown fault (hide, hide_once, stale, slow, drop)")
             except ValueError as exc:
-                raise RelcalError(f"--sim-faults '{part}': {exc}") from None
+                raise RelcalError(f"--robot-option faults: '{part}': {exc}") from None
         return cls(**out)
 
 
@@ -838,24 +841,14 @@ __all__ = [
     "SimClock",
     "SimRobot",
     "Truth",
+    "VirtualCamera",
     "VirtualCell",
+    "VirtualRobot",
     "make_cell",
 ]
 
 
-# ---------------------------------------------------------------------------- driver factories
-
-ROBOT_OPTIONS = {
-    "seed": "integer drawing the planted errors, true hand-eye and noise (default 0)",
-    "truth": "write the planted truth and the true joints of every frame to this JSON file",
-    "faults": "e.g. 'hide=p003,p010;hide-once=p005;stale=8;slow;drop=0.3'",
-    "board-center": "X,Y,Z of the pattern centre in the base frame, m (default 0.45,0,0)",
-    "handeye": "mount drawing X,Y,Z[,ROLL,PITCH,YAW] in m and deg (default 0,0.04,0.06)",
-    "nongeometric": "non-geometric terms to plant too: scale,compliance,harmonic",
-    "errors": "planted errors from a YAML file (relcal simulate --errors format)",
-    "joint-noise": "encoder noise per reading, deg (default 0.001)",
-    "board-pixels": "analytic (default) or mujoco: where the board's pixels come from",
-}
+# ------------------------------------------------------------------ the drivers of the registry
 
 
 def _floats(text: str, counts: tuple[int, ...], what: str) -> np.ndarray:
@@ -868,71 +861,88 @@ def _floats(text: str, counts: tuple[int, ...], what: str) -> np.ndarray:
     return values
 
 
-def cell_from_options(context) -> VirtualCell:
-    """A :class:`VirtualCell` from ``--robot-option`` values (:data:`ROBOT_OPTIONS`)."""
-    from relcal.capture.registry import check_options
+class VirtualRobot(SimRobot):
+    """``--robot-driver sim``: the arm of a virtual cell built for the robot model, the board and
+    the plan of the run (see the module docstring); use it with ``--camera sim``. The loop runs on
+    the cell's simulated clock (:attr:`clock`).
 
-    check_options(context, ROBOT_OPTIONS, "sim")
-    opts = context.options
-    flag = "--robot-option"
-    try:
-        seed = int(opts.get("seed", "0"))
-    except ValueError:
-        raise RelcalError(f"{flag} seed='{opts['seed']}': expected a whole number") from None
-    centre = None
-    if "board-center" in opts:
-        centre = _floats(opts["board-center"], (3,), f"{flag} board-center")
-    handeye = None
-    if "handeye" in opts:
-        he = np.r_[_floats(opts["handeye"], (3, 6), f"{flag} handeye"), 0.0, 0.0, 0.0][:6]
-        handeye = tf.from_xyz_rpy(he[:3], np.radians(he[3:]))
-    terms = tuple(t for t in opts.get("nongeometric", "").replace(" ", "").split(",") if t)
-    extra: dict[str, Any] = {}
-    if "joint-noise" in opts:
-        noise = _floats(opts["joint-noise"], (1,), f"{flag} joint-noise")[0]
-        if noise < 0:
-            raise RelcalError(f"{flag} joint-noise: expected a standard deviation >= 0 deg")
-        extra["joint_noise"] = float(noise) * DEG
-    if "board-pixels" in opts:
-        if opts["board-pixels"] not in ("analytic", "mujoco"):
-            raise RelcalError(f"{flag} board-pixels: expected analytic or mujoco")
-        extra["board_pixels"] = opts["board-pixels"]
-    faults = Faults.parse(opts.get("faults", ""), list(context.plan_ids))
-    model = context.model
-    errors = None
-    if "errors" in opts:
-        from relcal.sim.scenario import load_errors
+    Options (``--robot-option KEY=VALUE``): ``seed`` (planted errors, true hand-eye, noise;
+    default 0); ``truth`` (a JSON file written when the robot is closed: planted errors, true
+    hand-eye, the true joints of every frame; the loop never reads it); ``faults``
+    (``hide:p003+p010;hide_once:p005;stale:4;slow;drop:0.3``, see :meth:`Faults.parse`);
+    ``board_center`` (X,Y,Z m, default 0.45,0,0 as ``relcal plan``); ``handeye`` (the mount
+    drawing X,Y,Z[,ROLL,PITCH,YAW] in m and deg, default 0,0.04,0.06 as ``relcal plan``);
+    ``nongeometric`` (terms to plant too: scale,compliance,harmonic); ``errors`` (planted errors
+    from a YAML file in ``relcal simulate --errors`` format instead of random ones);
+    ``joint_noise`` (deg per reading, default 0.001); ``board_pixels`` (analytic or mujoco).
+    """
 
-        nominal = auto_hayati(model)
-        if terms:
-            nominal = with_nongeometric(nominal, terms)
-        errors = load_errors(opts["errors"], make_layout(nominal))
-    if "truth" in opts:
-        from relcal.outputset import File, check_file
+    simulated = True
 
-        check_file(File(opts["truth"], b"", f"{flag} truth"))
-    return make_cell(
-        model,
-        context.board,
-        seed=seed,
-        board_center=centre,
-        handeye=handeye,
-        nongeometric=terms,
-        errors=errors,
-        faults=faults,
-        targets=context.plan_targets,
-        **extra,
-    )
+    def __init__(
+        self,
+        joint_names=(),
+        clock=None,
+        model=None,
+        board=None,
+        plan_ids=(),
+        plan_targets=None,
+        seed: int = 0,
+        truth: str | None = None,
+        faults: str = "",
+        board_center: str | None = None,
+        handeye: str | None = None,
+        nongeometric: str = "",
+        errors: str | None = None,
+        joint_noise: float = 0.001,
+        board_pixels: str = "analytic",
+    ) -> None:
+        if model is None:
+            raise RelcalError("--robot-driver sim: the virtual cell needs the robot model")
+        flag = "--robot-option"
+        centre = (
+            None if board_center is None else _floats(board_center, (3,), f"{flag} board_center")
+        )
+        guess = None
+        if handeye is not None:
+            he = np.r_[_floats(handeye, (3, 6), f"{flag} handeye"), 0.0, 0.0, 0.0][:6]
+            guess = tf.from_xyz_rpy(he[:3], np.radians(he[3:]))
+        terms = tuple(t for t in nongeometric.replace(" ", "").split(",") if t)
+        if joint_noise < 0:
+            raise RelcalError(f"{flag} joint_noise: expected a standard deviation >= 0 deg")
+        if board_pixels not in ("analytic", "mujoco"):
+            raise RelcalError(f"{flag} board_pixels: expected analytic or mujoco")
+        planted = None
+        if errors is not None:
+            from relcal.sim.scenario import load_errors
 
+            nominal = auto_hayati(model)
+            if terms:
+                nominal = with_nongeometric(nominal, terms)
+            planted = load_errors(errors, make_layout(nominal))
+        if truth:
+            from relcal.outputset import File, check_file
 
-class _TruthWritingRobot(SimRobot):
-    """The virtual arm; closing it writes the truth file (``--robot-option truth=FILE``)."""
-
-    def __init__(self, cell: VirtualCell, truth_path: str | None) -> None:
+            check_file(File(truth, b"", f"{flag} truth"))
+        cell = make_cell(
+            model,
+            board,
+            seed=int(seed),
+            board_center=centre,
+            handeye=guess,
+            nongeometric=terms,
+            errors=planted,
+            faults=Faults.parse(faults, list(plan_ids)),
+            targets=plan_targets,
+            joint_noise=float(joint_noise) * DEG,
+            board_pixels=board_pixels,
+        )
         super().__init__(cell)
-        self.truth_path = truth_path
+        self.clock = cell.clock
+        self.truth_path = truth
 
     def close(self) -> None:
+        """Write the truth file (``truth`` option), once."""
         if self.truth_path:
             from relcal.io import json_text, write_text
 
@@ -940,26 +950,16 @@ class _TruthWritingRobot(SimRobot):
             self.truth_path = None
 
 
-def open_robot(context) -> SimRobot:
-    """Factory of ``--robot-driver sim``: builds the virtual cell, shares it with ``--camera
-    sim``, and makes the loop run on the cell's simulated clock."""
-    cell = cell_from_options(context)
-    context.clock = cell.clock
-    context.shared["virtual_cell"] = cell
-    robot = _TruthWritingRobot(cell, context.options.get("truth"))
-    cell.robot = robot
-    return robot
+class VirtualCamera(SimCamera):
+    """``--camera sim``: the flange camera of the virtual cell that ``--robot-driver sim`` built
+    (no options; its intrinsics are the cell's true ones)."""
 
+    simulated = True
 
-def open_camera(context) -> SimCamera:
-    """Factory of ``--camera sim``: the flange camera of the virtual cell."""
-    from relcal.capture.registry import check_options
-
-    check_options(context, {}, "sim")
-    cell = context.shared.get("virtual_cell")
-    if cell is None:
-        raise RelcalError(
-            "--camera sim: the virtual camera belongs to the virtual cell; use it with "
-            "--robot-driver sim"
-        )
-    return cell.camera
+    def __init__(self, robot=None, clock=None) -> None:
+        if not isinstance(robot, VirtualRobot):
+            raise RelcalError(
+                "--camera sim: the virtual camera belongs to the virtual cell; use it with "
+                "--robot-driver sim"
+            )
+        super().__init__(robot.cell)

@@ -20,8 +20,9 @@ examples:
   relcal calibrate ds
   relcal capture plan.csv --robot ur5e --robot-driver sim --camera sim --out ds --resume
   relcal capture plan.csv --robot ur5e --robot-driver sim --camera sim --out ds2 \\
-      --robot-option seed=3 --robot-option truth=truth.json \\
-      --robot-option faults='hide=p004;stale=6'
+      --robot-option seed=3,truth=truth.json --robot-option 'faults=hide:p004;stale:6'
+  relcal capture plan.csv --robot ur5e --robot-driver ur --robot-option host=192.168.1.10 \\
+      --camera realsense --out ds --handeye 0,0.04,0.06
 
 For every pose of PLAN (the CSV of relcal plan): check the joint limits, move, wait until the
 joints are still over --settle-window, take a frame stamped after that (older buffered frames are
@@ -29,16 +30,10 @@ discarded), detect the board and check corners, sharpness and reprojection error
 image and the mean joints of the still window as one sample of the dataset. A pose that fails is
 tried again (--retries), then skipped with its reason. Samples are written whole as they are
 taken: an interrupted run (Ctrl-C) leaves a dataset relcal calibrate reads, and --resume
-continues it. Drivers: --robot-driver and --camera name one of the tables in
-relcal.capture.registry; their settings are --robot-option / --camera-option KEY=VALUE.
+continues it. --robot-driver and --camera name a device of relcal.capture.devices (below);
+their settings are --robot-option / --camera-option KEY=VALUE (several per option, comma-
+separated).
 """
-
-
-def _drivers(table: str) -> str:
-    from relcal.capture import registry  # light: no driver library is imported
-
-    entries = registry.ROBOTS if table == "robot" else registry.CAMERAS
-    return "; ".join(f"{k}: {d.summary}" for k, d in entries.items())
 
 
 def _settings(args: argparse.Namespace, model):
@@ -83,17 +78,19 @@ def run(args: argparse.Namespace) -> int:
     import numpy as np
 
     from relcal import geometry as tf
+    from relcal.capture import devices
+    from relcal.capture.interfaces import RealClock
     from relcal.capture.loop import capture
     from relcal.capture.record import DatasetWriter, check_destination
-    from relcal.capture.registry import DriverContext, open_camera, open_robot, parse_options
-    from relcal.data.plans import read_plan
-    from relcal.design.plan import parse_board
+    from relcal.cli.plan import parse_board
+    from relcal.design.planfile import read_plan
     from relcal.errors import RelcalError
-    from relcal.io import File, json_text, write_set
+    from relcal.io import File, json_text, note_input, write_set
     from relcal.outputset import check
     from relcal.reporting.capture_text import format_capture
 
     model = load_robot(args)
+    note_input(args.plan)
     plan = read_plan(args.plan, model, args.joint_unit)
     board = parse_board(args.board)
     settings = _settings(args, model)
@@ -115,20 +112,37 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         check([File(args.json, b"", "--json")])
     check_destination(args.out, args.resume)  # before any device is touched
-    context = DriverContext(
-        model,
-        parse_options(args.robot_option, "--robot-option"),
-        board,
-        plan.ids,
-        plan.q,
+    check_ids(args.plan, plan.ids)
+    clock = RealClock()
+    robot = devices.open_robot(
+        args.robot_driver,
+        devices.parse_options(args.robot_option or [], "--robot-option"),
+        joint_names=model.joint_names,
+        clock=clock,
+        context={"model": model, "board": board, "plan_ids": plan.ids, "plan_targets": plan.q},
     )
-    robot = open_robot(args.robot_driver, context)
     camera = None
     try:
-        context.options = parse_options(args.camera_option, "--camera-option")
-        camera = open_camera(args.camera, context)
-        if "virtual_cell" in context.shared and args.camera != "sim":
-            raise RelcalError("--robot-driver sim runs on simulated time: use it with --camera sim")
+        if tuple(robot.joint_names) != tuple(model.joint_names):
+            raise RelcalError(
+                f"--robot-driver {args.robot_driver}: the robot reports joints "
+                f"{', '.join(robot.joint_names)}, the model {model.name} has "
+                f"{', '.join(model.joint_names)}; is --robot the robot connected?"
+            )
+        clock = getattr(robot, "clock", None) or clock  # a simulated robot keeps its own time
+        entry = devices.CAMERAS.get(args.camera)
+        simulated = entry is not None and getattr(entry.load(), "simulated", False)
+        if getattr(robot, "simulated", False) != simulated:
+            raise RelcalError(
+                "the virtual cell's robot and camera go together (simulated time): use "
+                "--robot-driver sim with --camera sim"
+            )
+        camera = devices.open_camera(
+            args.camera,
+            devices.parse_options(args.camera_option or [], "--camera-option"),
+            clock=clock,
+            context={"robot": robot},
+        )
         if intrinsics is None:
             intrinsics = camera.intrinsics()
         writer = DatasetWriter(
@@ -139,7 +153,7 @@ def run(args: argparse.Namespace) -> int:
             intrinsics,
             plan.ids,
             plan.q,
-            plan_path=plan.path,
+            plan_path=args.plan,
             joint_unit=args.dataset_joint_unit,
             handeye=handeye,
             resume=args.resume,
@@ -158,7 +172,7 @@ def run(args: argparse.Namespace) -> int:
                 model,
                 robot,
                 camera,
-                context.clock,
+                clock,
                 board,
                 writer,
                 intrinsics=intrinsics,
@@ -183,7 +197,7 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         write_set(File(args.json, json_text({"dataset": str(args.out), **doc}), "--json"))
     if not args.quiet:
-        print(format_capture(summary, args.out, str(plan.path)))
+        print(format_capture(summary, args.out, str(args.plan)))
     return 0 if doc["recorded"] + doc["recorded_before"] > 0 else 1
 
 
@@ -192,32 +206,51 @@ def context_options(pairs: list[str] | None) -> list[str]:
     return list(pairs or [])
 
 
+def check_ids(path: str, ids) -> None:
+    """Pose ids name image files: unique, and letters, digits, ``_``, ``-`` and ``.`` only."""
+    import re
+
+    from relcal.errors import RelcalError
+
+    seen: set[str] = set()
+    for pid in ids:
+        if not re.fullmatch(r"[A-Za-z0-9_.-]+", pid) or pid in (".", ".."):
+            raise RelcalError(
+                f"{path}: pose id '{pid}': use letters, digits, '_', '-' and '.' only (it names "
+                "the image file)"
+            )
+        if pid in seen:
+            raise RelcalError(f"{path}: pose id '{pid}' appears twice; ids must be unique")
+        seen.add(pid)
+
+
+def _describe() -> str:
+    from relcal.capture.devices import describe  # light: imports no driver library
+
+    return describe()
+
+
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "capture",
         help="move the robot through a plan and record a dataset (or rehearse in the virtual cell)",
         description="Capture a dataset: for every planned pose move, wait until still, take a "
         "fresh frame, check it and record joints and image as one sample.",
-        epilog=EPILOG,
+        epilog=EPILOG + "\n" + _describe(),
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument("plan", metavar="PLAN", help="the plan CSV (relcal plan --out)")
     robot_args(p)
     p.add_argument(
-        "--robot-driver",
-        required=True,
-        metavar="NAME",
-        help=f"robot driver ({_drivers('robot')})",
+        "--robot-driver", required=True, metavar="NAME", help="robot driver (listed below)"
     )
-    p.add_argument(
-        "--camera", required=True, metavar="NAME", help=f"camera driver ({_drivers('camera')})"
-    )
+    p.add_argument("--camera", required=True, metavar="NAME", help="camera (listed below)")
     p.add_argument(
         "--robot-option",
         action="append",
         metavar="KEY=VALUE",
-        help="a setting of the robot driver (repeat; the sim driver: seed, truth, faults, "
-        "board-center, handeye, nongeometric, errors, joint-noise, board-pixels)",
+        help="settings of the robot driver (repeat, or comma-separate; sim: seed, truth, faults, "
+        "board_center, handeye, nongeometric, errors, joint_noise, board_pixels)",
     )
     p.add_argument(
         "--camera-option", action="append", metavar="KEY=VALUE", help="a setting of the camera"
