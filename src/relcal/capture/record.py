@@ -161,6 +161,8 @@ class DatasetWriter:
         Of ``samples.csv`` (prismatic joints in m).
     handeye : ndarray (4, 4) or None
         Flange-from-camera guess for ``dataset.yaml``.
+    limits : dict or None
+        The cell's joint limits by joint name (rad, m), for ``dataset.yaml``'s ``joint_limits``.
     resume : bool
         Continue the capture in an existing folder (its robot, board, intrinsics and the targets
         of its recorded poses must match); without it an existing non-empty folder is refused.
@@ -180,6 +182,7 @@ class DatasetWriter:
         plan_path: str | Path | None = None,
         joint_unit: str = "deg",
         handeye: np.ndarray | None = None,
+        limits: dict[str, tuple[float, float]] | None = None,
         resume: bool = False,
         devices: dict | None = None,
     ) -> None:
@@ -200,7 +203,7 @@ class DatasetWriter:
         self.rows: dict[str, str] = {}
         self.log: dict[str, Any] = {}
         check_destination(self.root, resume)
-        spec = self._spec(robot, handeye)
+        spec = self._spec(robot, handeye, limits)
         if resume and (self.root / LOG).is_file():
             self._resume(spec)
         else:
@@ -208,7 +211,7 @@ class DatasetWriter:
 
     # ------------------------------------------------------------------ set-up
 
-    def _spec(self, robot: str, handeye: np.ndarray | None) -> dict[str, Any]:
+    def _spec(self, robot: str, handeye: np.ndarray | None, limits=None) -> dict[str, Any]:
         spec: dict[str, Any] = {
             "robot": robot if robot in library_names() else "robot.yaml",
             "hayati": "auto",
@@ -222,8 +225,17 @@ class DatasetWriter:
             xyz, rpy = tf.to_xyz_rpy(np.asarray(handeye, float))
             spec["handeye"] = {
                 "xyz": [round(float(v), 9) for v in xyz],
-                "rpy": [round(float(np.degrees(v)), 9) for v in rpy],
+                "rpy": [round(float(np.degrees(v)), 9) + 0.0 for v in rpy],
             }
+        if limits:
+            index = {name: i for i, name in enumerate(self.model.joint_names)}
+            index.update({f"q{i + 1}": i for i in range(self.model.n_joints)})
+            spec["joint_limits"] = {}
+            for name, (lo, hi) in limits.items():
+                pair = np.array([[lo, hi]])
+                if not self.model.prismatic[index[name]] and self.joint_unit == "deg":
+                    pair = np.degrees(pair)
+                spec["joint_limits"][name] = [round(float(v), 9) for v in pair[0]]
         return spec
 
     def _start(self, spec: dict, plan_path, devices: dict) -> None:

@@ -36,27 +36,9 @@ separated).
 """
 
 
-def _settings(args: argparse.Namespace, model):
-    import numpy as np
-
+def _settings(args: argparse.Namespace):
     from relcal.capture.loop import DEG, CaptureSettings
 
-    lower = upper = None
-    if args.limits:
-        from relcal.errors import RelcalError
-
-        try:
-            pairs = [tuple(float(v) for v in p.split(":")) for p in args.limits.split(",")]
-        except ValueError:
-            pairs = []
-        if len(pairs) != model.n_joints or any(len(p) != 2 for p in pairs):
-            raise RelcalError(
-                f"--limits '{args.limits}': expected {model.n_joints} LOW:HIGH pairs (deg; mm for "
-                "prismatic joints), comma-separated"
-            )
-        values = np.array(pairs, float)
-        factor = np.where(model.prismatic, 1e-3, DEG)
-        lower, upper = values[:, 0] * factor, values[:, 1] * factor
     return CaptureSettings(
         retries=args.retries,
         move_timeout=args.timeout,
@@ -67,8 +49,6 @@ def _settings(args: argparse.Namespace, model):
         max_rms=args.max_rms,
         min_sharpness=args.min_sharpness,
         min_points=args.min_points,
-        lower=lower,
-        upper=upper,
     )
 
 
@@ -90,10 +70,17 @@ def run(args: argparse.Namespace) -> int:
     from relcal.reporting.capture_text import format_capture
 
     model = load_robot(args)
+    limits = None
+    if args.limits:  # the cell's limits, as relcal plan takes them; kept in dataset.yaml
+        from relcal.cli.plan import parse_limits
+        from relcal.robot.model import restrict_limits
+
+        limits = parse_limits(args.limits, model, args.joint_unit or "deg")
+        model = restrict_limits(model, limits, f"--limits {args.limits}")
     note_input(args.plan)
     plan = read_plan(args.plan, model, args.joint_unit)
     board = parse_board(args.board)
-    settings = _settings(args, model)
+    settings = _settings(args)
     intrinsics = None
     if args.intrinsics:
         from relcal.vision.camera import load_camera
@@ -156,6 +143,7 @@ def run(args: argparse.Namespace) -> int:
             plan_path=args.plan,
             joint_unit=args.dataset_joint_unit,
             handeye=handeye,
+            limits=limits,
             resume=args.resume,
             devices={
                 "robot_driver": args.robot_driver,
@@ -317,8 +305,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument(
         "--limits",
-        metavar="LO:HI,...",
-        help="joint limits of the cell, tighter than the model's: one LOW:HIGH per joint (deg)",
+        metavar="NAME=LO:HI,...|FILE",
+        help="the cell's joint limits, narrower than the robot's (as relcal plan takes them; "
+        "angles in --joint-unit, default deg): no target outside them is sent; written to "
+        "dataset.yaml",
     )
     p.add_argument(
         "--max-rms",
