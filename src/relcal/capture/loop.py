@@ -169,8 +169,8 @@ class Sink(Protocol):
 
 @dataclass
 class PoseOutcome:
-    """What became of one pose: ``status`` ``recorded``, ``skipped`` or ``done before``
-    (recorded by an earlier run, with ``--resume``)."""
+    """What became of one pose: ``status`` ``recorded``, ``skipped``, or with ``--resume``
+    ``done before`` (recorded by an earlier run) or ``skipped before``."""
 
     pose_id: str
     index: int
@@ -220,6 +220,7 @@ class CaptureSummary:
             "recorded": len(self.recorded),
             "recorded_before": len(self.ids("done before")),
             "skipped": len(self.skipped),
+            "skipped_before": len(self.ids("skipped before")),
             "interrupted": self.interrupted,
             "seconds": self.seconds,
             "poses_per_minute": (
@@ -487,6 +488,7 @@ def capture(
     done: frozenset[str] | set[str] = frozenset(),
     precheck: Callable[[np.ndarray], str | None] | None = None,
     progress: bool = True,
+    skipped_before: frozenset[str] | set[str] = frozenset(),
 ) -> CaptureSummary:
     """Visit every planned pose and record a sample at each (see the module docstring).
 
@@ -508,6 +510,9 @@ def capture(
     settings : CaptureSettings
     done : set of str
         Ids recorded by an earlier run (``--resume``): not visited again.
+    skipped_before : set of str
+        Ids an earlier run skipped: not visited again either (``--resume`` without
+        ``--retry-skipped``).
     precheck : callable or None
         ``precheck(q) -> reason or None``: a further check before moving (collisions).
     progress : bool
@@ -534,8 +539,9 @@ def capture(
     summary = CaptureSummary(outcomes, 0.0)
     try:
         for k, (pose_id, target) in enumerate(zip(ids, targets, strict=True)):
-            if pose_id in done:
-                outcomes.append(PoseOutcome(pose_id, k, "done before"))
+            if pose_id in done or pose_id in skipped_before:
+                status = "done before" if pose_id in done else "skipped before"
+                outcomes.append(PoseOutcome(pose_id, k, status))
                 bar.update(1)
                 continue
             started = clock.now()

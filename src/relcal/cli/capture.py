@@ -152,7 +152,7 @@ def run(args: argparse.Namespace) -> int:
                 "camera_options": context_options(args.camera_option),
             },
         )
-        done = writer.done if args.retry_skipped else writer.done | writer.skipped_before()
+        skipped_before = set() if args.retry_skipped else writer.skipped_before()
         try:
             summary = capture(
                 plan.ids,
@@ -165,7 +165,8 @@ def run(args: argparse.Namespace) -> int:
                 writer,
                 intrinsics=intrinsics,
                 settings=settings,
-                done=done,
+                done=writer.done,
+                skipped_before=skipped_before,
                 progress=not args.quiet,
             )
         except KeyboardInterrupt as exc:

@@ -12,6 +12,8 @@ def format_capture(summary: CaptureSummary, out: str, planned_file: str = "") ->
     before = (
         f", {doc['recorded_before']} recorded by an earlier run" if doc["recorded_before"] else ""
     )
+    if doc["skipped_before"]:
+        before += f", {doc['skipped_before']} skipped by an earlier run (--retry-skipped: again)"
     rate = doc["poses_per_minute"]
     pace = f" ({rate:.1f} poses/min)" if rate else ""
     lines.append(
