@@ -340,3 +340,25 @@ def test_an_interrupt_held_back_during_a_write_keeps_the_sample(tmp_path, board_
     writer.finish({"interrupted": True})
     resumed = _writer(tmp_path / "ds", ids, q, resume=True)
     assert resumed.done == {"p1"}
+
+
+def test_a_urdf_robot_is_kept_as_its_urdf_in_the_dataset(tmp_path, board_image):
+    from urdf_helpers import UR5E_KINEMATICS, ur_description_urdf
+
+    from relcal.robot.urdf import load_urdf
+
+    path = tmp_path / "ur5e.urdf"
+    path.write_text(ur_description_urdf(UR5E_KINEMATICS))
+    model = load_urdf(path, "base_link", "tool0")
+    ids, q = targets(1)
+    clock = SimClock()
+    writer = DatasetWriter(tmp_path / "ds", model, str(path), BOARD, SIM_CAMERA, ids, q)
+    robot = FakeRobot(clock)
+    robot.joint_names = model.joint_names
+    capture(ids, q, model, robot, FakeCamera(clock, board_image), clock, BOARD, writer,
+            SIM_CAMERA, CaptureSettings(settle_window=0.3), progress=False)  # fmt: skip
+    assert (tmp_path / "ds" / "robot.urdf").read_bytes() == path.read_bytes()
+    with tracking():
+        data = load_dataset(tmp_path / "ds")
+    assert data.model.urdf is not None and data.model.joint_names == model.joint_names
+    np.testing.assert_allclose(data.q, q, atol=0.002 * DEG)

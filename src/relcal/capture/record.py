@@ -7,7 +7,7 @@ Layout (relcal's dataset format, :mod:`relcal.data.dataset`)::
       dataset.yaml      robot, board, camera intrinsics, joint unit, mode (written first)
       board.yaml        the board
       camera.yaml       the intrinsics (absent with ``camera: calibrate``)
-      robot.yaml        the robot model, when it is not a built-in name
+      robot.yaml        the robot model, when it is not a built-in name (robot.urdf: a URDF)
       samples.csv       id, one column per joint (named as the robot names them), image
       images/ID.png     one image per recorded pose, named by the pose id
       capture.json      the capture log: plan, devices, per pose the attempts, reasons, frame
@@ -148,8 +148,9 @@ class DatasetWriter:
         The folder (``--out``).
     model : RobotModel
     robot : str
-        How ``dataset.yaml`` names the robot: a built-in name is written as is; anything else
-        is written as ``robot.yaml`` (the model) in the folder.
+        How ``dataset.yaml`` names the robot: a built-in name is written as is; a robot from a
+        URDF as a copy of the file, ``robot.urdf``, with its root and tip links; any other as
+        ``robot.yaml`` (the model) in the folder.
     board : Board
     intrinsics : Camera or None
         Written as ``camera.yaml``; None writes ``camera: calibrate`` (intrinsics from the same
@@ -212,8 +213,16 @@ class DatasetWriter:
     # ------------------------------------------------------------------ set-up
 
     def _spec(self, robot: str, handeye: np.ndarray | None, limits=None) -> dict[str, Any]:
+        if robot in library_names():
+            named: Any = robot
+        elif self.model.urdf is not None:  # the URDF itself, copied: exports go back into it
+            u = self.model.urdf
+            named = {"urdf": "robot.urdf", "root": u.root, "tip": u.tip}
+            named["parametrisation"] = u.parametrisation
+        else:
+            named = "robot.yaml"
         spec: dict[str, Any] = {
-            "robot": robot if robot in library_names() else "robot.yaml",
+            "robot": named,
             "hayati": "auto",
             "mode": "eye_in_hand",
             "board": "board.yaml",
@@ -261,6 +270,8 @@ class DatasetWriter:
             files.append((self.root / "camera.yaml", yaml_text(self.intrinsics.to_dict()).encode()))
         if spec["robot"] == "robot.yaml":
             files.append((self.root / "robot.yaml", dump_model(self.model).encode()))
+        elif isinstance(spec["robot"], dict):
+            files.append((self.root / "robot.urdf", self.model.urdf.data))
         files.append((self.root / LOG, self._log_bytes()))
         files.append((self.root / "dataset.yaml", yaml_text(spec).encode()))
         (self.root / IMAGES).mkdir(parents=True, exist_ok=True)
