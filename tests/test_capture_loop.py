@@ -333,9 +333,14 @@ def test_an_interrupt_held_back_during_a_write_keeps_the_sample(tmp_path, board_
             record._signals_held = real
 
     writer.record = record_then_signal.__get__(writer)
-    with pytest.raises(KeyboardInterrupt):
-        capture(ids, q, MODEL, FakeRobot(clock), FakeCamera(clock, board_image), clock, BOARD,
-                writer, SIM_CAMERA, CaptureSettings(settle_window=0.3), progress=False)  # fmt: skip
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)  # as in a shell
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            capture(ids, q, MODEL, FakeRobot(clock), FakeCamera(clock, board_image), clock,
+                    BOARD, writer, SIM_CAMERA, CaptureSettings(settle_window=0.3),
+                    progress=False)  # fmt: skip
+    finally:
+        signal.signal(signal.SIGINT, previous)
     assert writer.done == {"p1"}
     writer.finish({"interrupted": True})
     resumed = _writer(tmp_path / "ds", ids, q, resume=True)

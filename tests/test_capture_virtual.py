@@ -1,7 +1,7 @@
 """End to end in the virtual cell (MuJoCo): relcal plan -> relcal capture -> calibrate, checked
-against the truth the cell planted; and a capture with faults (board hidden, stale frames, a
-slowly settling arm, Ctrl-C half-way, --resume) whose dataset is whole and pairs every image with
-the joints read around its own exposure."""
+against the truth the cell planted; and a capture with faults (board hidden, stale frames, dropped
+frames, a slowly settling arm, Ctrl-C half-way, --resume) whose dataset is whole and pairs every
+image with the joints read around its own exposure."""
 
 import json
 import os
@@ -129,7 +129,7 @@ def test_faults_interrupt_and_resume_leave_a_whole_correctly_paired_dataset(tmp_
     good = [ids[k] for k in usable_poses(robot, seed, plan)]
     assert len(good) >= 8  # (a pose can show a link in front of the board: see usable_poses)
     hidden, hidden_once = good[1], good[3]
-    faults = f"hide:{hidden};hide_once:{hidden_once};stale:4;slow"
+    faults = f"hide:{hidden};hide_once:{hidden_once};stale:4;slow;drop:0.3"
     command = [
         sys.executable, "-c", "import sys; from relcal.cli import main; sys.exit(main())",
         "capture", str(plan), "--robot", robot,
