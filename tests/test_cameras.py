@@ -171,10 +171,15 @@ def viky() -> str:
 
 
 def test_genicam_on_the_simulated_producer():
+    import signal
+
     from relcal.capture.cameras.genicam import GenICamCamera
 
     clock = RealClock()
+    before = signal.getsignal(signal.SIGINT)
     camera = GenICamCamera(viky(), clock=clock, device="1")  # the green Viky camera
+    # harvesters' own SIGINT handler (which swallows Ctrl+C) is not left in place
+    assert signal.getsignal(signal.SIGINT) is before
     try:
         assert isinstance(camera, Camera) and camera.intrinsics() is None
         before = clock.now()

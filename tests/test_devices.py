@@ -130,3 +130,18 @@ def test_a_missing_library_names_its_extra(monkeypatch):
     monkeypatch.setitem(sys.modules, "franky", None)
     with pytest.raises(RelcalError, match=r"pip install 'relcal\[franka\]'"):
         devices.open_robot("manual", {"source": "franka", "host": "x"}, joint_names=NAMES)
+
+
+def test_context_reaches_drivers_that_take_it(tmp_path, monkeypatch):
+    """A driver may take shared objects (the virtual cell's world) that are never options."""
+
+    class Paired:
+        def __init__(self, path: str, *, clock=None, robot=None) -> None:
+            self.path, self.robot = path, robot
+
+    monkeypatch.setitem(devices.CAMERAS, "paired", devices.Device(f"{__name__}:Paired", None, "x"))
+    monkeypatch.setattr(sys.modules[__name__], "Paired", Paired, raising=False)
+    camera = devices.open_camera("paired", {"path": "p"}, robot="the robot")
+    assert camera.robot == "the robot" and camera.path == "p"
+    with pytest.raises(RelcalError, match="unknown option 'speed'; its options are path$"):
+        devices.open_camera("paired", {"path": "p", "speed": "1"}, robot="the robot")

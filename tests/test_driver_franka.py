@@ -108,9 +108,12 @@ def test_ten_poses_with_settle_detection(franky_sim):
             mean = np.mean([r.q for r in window], axis=0)
             assert np.abs(mean - q).max() < 3e-3, np.abs(mean - q)
             stamps = np.array([r.stamp for r in window])
-            # franky-sim runs at about 0.9 x real time here: stamps lag by up to 0.1 x the
-            # ClockMap's 1 s window, a real controller's clock by a few ms.
-            assert (np.diff(stamps) >= 0).all() and 0 <= clock.now() - stamps[-1] < 0.2
+            # on the loop clock, never in the future; how far in the past depends on how late
+            # the state arrives (franky-sim, slower than real time on a busy machine, lags by
+            # tenths of a second; a controller by a few ms; the mapping itself is checked
+            # exactly in test_driver_ur.py)
+            lag = clock.now() - stamps[-1]
+            assert (np.diff(stamps) >= 0).all() and 0 <= lag < 2.0, lag
         # "move returned" is not "settled": the arm still moved after most moves and the wait
         # for stillness took time.
         assert moving_at_return >= 7, moving_at_return

@@ -83,10 +83,7 @@ CAMERAS["sim"] = Device(
     "the virtual cell's flange camera; with --robot-driver sim",
 )
 
-# Given by the caller, not options: the loop's clock and joint names, and for drivers that want
-# them (the virtual cell) the robot model, the board, the plan, and the robot already opened.
-CONTEXT = ("joint_names", "clock", "source", "ask", "tell", "prismatic")
-CONTEXT += ("model", "board", "plan_ids", "plan_targets", "robot")
+CONTEXT = ("joint_names", "clock", "source", "ask", "tell", "prismatic")  # given, not options
 
 
 def parse_options(items: Sequence[str], what: str) -> dict[str, str]:
@@ -139,7 +136,7 @@ def _open(table: Mapping[str, Device], kind: str, name: str, options, context: d
     cls = table[name].load()
     params = inspect.signature(cls).parameters
     hints = typing.get_type_hints(cls.__init__)
-    accepted = [p for p in params if p not in CONTEXT and p != "self"]
+    accepted = [p for p in params if p not in CONTEXT and p not in context and p != "self"]
     kwargs = {k: v for k, v in context.items() if k in params}
     for key, value in dict(options).items():
         if key not in accepted:
@@ -163,32 +160,28 @@ def open_robot(
     *,
     joint_names: Sequence[str],
     clock=None,
-    context: Mapping | None = None,
+    **context,
 ):
     """Open robot driver ``name`` with its text ``options`` for a robot model with
     ``joint_names``; the manual driver's option ``source=NAME`` opens driver ``NAME`` with the
-    other options to read the joints from. ``context``: further :data:`CONTEXT` values (``model``,
-    ``board``, ``plan_ids``, ``plan_targets``), given to the drivers that take them."""
+    other options to read the joints from. Further keyword arguments (``context``) go to the
+    driver's constructor where it has a parameter of that name (e.g. the virtual cell's shared
+    world), never taken as options."""
     options = dict(options)
-    extra = dict(context or {})
-    context = {**extra, "joint_names": tuple(joint_names), "clock": clock}
+    context = {"joint_names": tuple(joint_names), "clock": clock, **context}
     if name == "manual" and "source" in options:
         source = options.pop("source")
         manual_keys = {"unit"}
         inner = {k: v for k, v in options.items() if k not in manual_keys}
         options = {k: v for k, v in options.items() if k in manual_keys}
-        context["source"] = open_robot(
-            source, inner, joint_names=joint_names, clock=clock, context=extra
-        )
+        context["source"] = open_robot(source, inner, joint_names=joint_names, clock=clock)
     return _open(ROBOTS, "--robot-driver", name, options, context)
 
 
-def open_camera(
-    name: str, options: Mapping[str, str], *, clock=None, context: Mapping | None = None
-):
-    """Open camera ``name`` with its text ``options``; ``context``: further :data:`CONTEXT`
-    values (``robot``: the robot driver opened, which the virtual cell's camera belongs to)."""
-    return _open(CAMERAS, "--camera", name, options, {**dict(context or {}), "clock": clock})
+def open_camera(name: str, options: Mapping[str, str], *, clock=None, **context):
+    """Open camera ``name`` with its text ``options``; ``context`` as in :func:`open_robot`
+    (e.g. ``robot=`` for a camera that needs the robot driver, as the virtual cell's does)."""
+    return _open(CAMERAS, "--camera", name, options, {"clock": clock, **context})
 
 
 def describe() -> str:

@@ -1,4 +1,5 @@
-"""Device time to the capture loop's clock, and the optional libraries drivers import lazily.
+"""Device time to the capture loop's clock (and :func:`~relcal.errors.require`, with which
+drivers import their optional libraries lazily).
 
 A robot controller or a camera stamps its samples on its own clock (the controller's uptime, the
 camera's hardware counter, ROS time). The loop compares stamps on *its* clock (:class:`Clock`),
@@ -13,12 +14,12 @@ real time; crystal drift is negligible) adds at most the rate difference times `
 
 from __future__ import annotations
 
-import importlib
 from collections import deque
-from types import ModuleType
 
 from relcal.capture.interfaces import Clock, RealClock
-from relcal.errors import RelcalError
+from relcal.errors import require
+
+__all__ = ["ClockMap", "require"]
 
 
 class ClockMap:
@@ -33,7 +34,7 @@ class ClockMap:
         are forgotten, so that a drift between the two clocks is followed).
     """
 
-    def __init__(self, clock: Clock | None = None, window: float = 1.0) -> None:
+    def __init__(self, clock: Clock | None = None, window: float = 0.25) -> None:
         self.clock = clock or RealClock()
         self.window = float(window)
         self._samples: deque[tuple[float, float]] = deque()  # (device stamp, now - stamp)
@@ -61,15 +62,3 @@ class ClockMap:
         """Loop clock minus device clock (s, plus the smallest latency), ``None`` before any
         sample."""
         return min(o for _, o in self._samples) if self._samples else None
-
-
-def require(module: str, extra: str, what: str) -> ModuleType:
-    """Import the optional library ``module`` of a driver, or raise a :class:`RelcalError`
-    naming the extra that installs it (``pip install 'relcal[extra]'``)."""
-    try:
-        return importlib.import_module(module)
-    except ImportError as exc:
-        raise RelcalError(
-            f"{what} needs the Python module '{module}', which is not installed ({exc}); "
-            f"install it with: pip install 'relcal[{extra}]'"
-        ) from None

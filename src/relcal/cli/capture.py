@@ -106,7 +106,10 @@ def run(args: argparse.Namespace) -> int:
         devices.parse_options(args.robot_option or [], "--robot-option"),
         joint_names=model.joint_names,
         clock=clock,
-        context={"model": model, "board": board, "plan_ids": plan.ids, "plan_targets": plan.q},
+        model=model,
+        board=board,
+        plan_ids=plan.ids,
+        plan_targets=plan.q,
     )
     camera = None
     try:
@@ -128,7 +131,7 @@ def run(args: argparse.Namespace) -> int:
             args.camera,
             devices.parse_options(args.camera_option or [], "--camera-option"),
             clock=clock,
-            context={"robot": robot},
+            robot=robot,
         )
         if intrinsics is None:
             intrinsics = camera.intrinsics()

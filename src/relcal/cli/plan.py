@@ -43,10 +43,10 @@ output: a CSV, first line  # relcal plan: robot NAME, joint unit UNIT, then  id,
 nearest the previous pose); the longest single move is printed. Run it with `relcal capture`, or
 on the robot by other means. Checked for every pose: joint limits (the robot's own, narrowed by
 --limits), the board in view with --margin, distance, viewing angle, singularity, clearance above
-the board plane, self-collision and collision with --obstacle boxes (capsules of --link-radius
-about the kinematic skeleton, a sphere of --camera-radius about the camera: the true link shapes
-are not known to relcal). With --workers or --scheduler the plan is the same as in one process
-(each batch of candidates has its own random stream from --seed).
+the board plane, self-collision and collision with --obstacle boxes (a URDF's <collision>
+geometry with python-fcl where it has some, else capsules of --link-radius about the kinematic
+skeleton; a sphere of --camera-radius about the camera). With --workers or --scheduler the plan
+is the same as in one process (each batch of candidates has its own random stream from --seed).
 """
 
 

@@ -91,12 +91,7 @@ def check(
     points = np.concatenate([frames, cameras[:, None, :3, 3]], axis=1)
     height = (points - cell.center) @ cell.normal
     lo, hi = constraints.distance
-    radii = (constraints.link_radius, constraints.camera_radius)
-    if max(radii) > 0:
-        free = self_collision(model, q, cell.handeye, *radii)
-    else:
-        free = np.ones(len(q), dtype=bool)
-    return {
+    masks = {
         "joint limits": np.all((q >= model.lower) & (q <= model.upper), axis=1),
         "board in view": inside,
         "distance": (distance >= lo) & (distance <= hi),
@@ -104,11 +99,66 @@ def check(
         "singularity": inverse_condition(model, q, constraints.length_scale)
         >= constraints.min_inverse_condition,
         "clearance": (height >= constraints.clearance).all(axis=1),
-        "self-collision": free,
-        "cell collision": cell_collision(
-            model, q, cell.handeye, np.array(constraints.obstacles), *radii
-        ),
     }
+    rest = np.logical_and.reduce(list(masks.values()))
+    masks.update(collisions(model, cell, q, constraints, rest))
+    return masks
+
+
+def collisions(
+    model: RobotModel, cell: Cell, q: np.ndarray, constraints: Constraints, rest: np.ndarray
+) -> dict[str, np.ndarray]:
+    """``self-collision`` and ``cell collision`` masks ``(N,)`` of configurations ``q``.
+
+    From the URDF's collision geometry with python-fcl where the model comes from a URDF whose
+    chain links have some (checked only where ``rest``, the other constraints, holds: the exact
+    test costs more; elsewhere the masks are True), else from capsules about the kinematic
+    skeleton (:mod:`relcal.design.collision`)."""
+    radii = (constraints.link_radius, constraints.camera_radius)
+    obstacles = np.array(constraints.obstacles, dtype=float).reshape(-1, 6)
+    geometry = urdf_geometry(model) if max(radii) > 0 or len(obstacles) else None
+    if geometry is not None:
+        free, clear = np.ones(len(q), dtype=bool), np.ones(len(q), dtype=bool)
+        idx = np.flatnonzero(rest)
+        if max(radii) > 0:
+            free[idx] = geometry.self_collision_free(q[idx])
+        camera = camera_poses(model, cell, q[idx])[:, :3, 3]
+        clear[idx] = geometry.cell_free(q[idx], camera, obstacles, constraints.camera_radius)
+        return {"self-collision": free, "cell collision": clear}
+    if max(radii) > 0:
+        free = self_collision(model, q, cell.handeye, *radii)
+    else:
+        free = np.ones(len(q), dtype=bool)
+    return {
+        "self-collision": free,
+        "cell collision": cell_collision(model, q, cell.handeye, obstacles, *radii),
+    }
+
+
+_GEOMETRY: dict[tuple, object] = {}
+
+
+def urdf_geometry(model: RobotModel):
+    """The :class:`~relcal.design.urdf_collision.UrdfCollision` of a URDF model whose chain has
+    collision geometry (built once per model), else ``None``. Without python-fcl installed it is
+    ``None`` too, with a warning: the capsules are used instead."""
+    if model.urdf is None:
+        return None
+    chain = model.urdf
+    key = (hash(chain.data), chain.root, chain.tip, model.lower.tobytes(), model.upper.tobytes())
+    if key not in _GEOMETRY:
+        from relcal.design.urdf_collision import UrdfCollision
+        from relcal.errors import RelcalError
+
+        try:
+            geometry = UrdfCollision(model)
+        except RelcalError as exc:
+            import warnings
+
+            warnings.warn(f"{exc}; checking capsules about the links instead", stacklevel=2)
+            geometry = None
+        _GEOMETRY[key] = geometry if geometry is not None and geometry.has_chain_geometry else None
+    return _GEOMETRY[key]
 
 
 def feasible(model: RobotModel, cell: Cell, q: np.ndarray, constraints: Constraints) -> np.ndarray:

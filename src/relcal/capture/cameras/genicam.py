@@ -12,6 +12,8 @@ grey images.
 
 from __future__ import annotations
 
+import signal
+import threading
 from pathlib import Path
 
 import numpy as np
@@ -84,11 +86,18 @@ class GenICamCamera:
             self._harvester.reset()
             raise CaptureError(f"genicam: the producer {cti} finds no camera")
         key = self._search_key(str(device), found)
+        # harvesters replaces the SIGINT handler with one that destroys the acquirer and swallows
+        # the interrupt: the capture loop's own handling of Ctrl+C is put back
+        main = threading.current_thread() is threading.main_thread()
+        sigint = signal.getsignal(signal.SIGINT) if main else None
         try:
             self._acquirer = self._harvester.create(key)
         except Exception as exc:
             self._harvester.reset()
             raise CaptureError(f"genicam: cannot open camera '{device}': {exc}") from None
+        finally:
+            if main and sigint is not None:
+                signal.signal(signal.SIGINT, sigint)
         nodes = self._acquirer.remote_device.node_map
         if pixel_format:
             try:
