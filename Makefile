@@ -6,7 +6,7 @@ CORE := $(VENV)/.installed-core
 DEV := $(VENV)/.installed-dev
 LINTED := src tests bench docs examples
 
-.PHONY: demo test docs lint bench clean chromium postgresql
+.PHONY: demo test docs lint bench clean chromium postgresql mujoco-gl
 
 $(CORE): pyproject.toml
 	test -x $(PY) || python3 -m venv $(VENV)
@@ -45,10 +45,18 @@ postgresql:
 	  export DEBIAN_FRONTEND=noninteractive; \
 	  apt-get update -qq && apt-get install -y -qq postgresql >/dev/null; }
 
+# Offscreen OpenGL for the virtual cell's MuJoCo renderer (tests/test_capture_*.py): EGL with
+# Mesa's software rasteriser, from Debian (apt-get, as root). MUJOCO_GL=egl is the default.
+mujoco-gl:
+	@ldconfig -p | grep -q 'libEGL_mesa.so' && ls /usr/lib/*/dri/swrast_dri.so >/dev/null 2>&1 || { \
+	  test "$$(id -u)" = 0 || { echo "make mujoco-gl: install Debian's libegl1 libegl-mesa0 libgl1-mesa-dri (needs root)"; exit 1; }; \
+	  export DEBIAN_FRONTEND=noninteractive; \
+	  apt-get update -qq && apt-get install -y -qq libegl1 libegl-mesa0 libgl1-mesa-dri libgles2 >/dev/null; }
+
 # One BLAS thread: relcal's matrices are small, and threads only add overhead (see relcal.cli).
 # The suite includes the documentation: tests/test_docs_site.py builds the site (warnings as
 # errors) and opens it in Chromium; tests/test_docs_commands.py runs the commands of the pages.
-test: $(DEV) chromium postgresql
+test: $(DEV) chromium postgresql mujoco-gl
 	$(VENV)/bin/ruff check $(LINTED)
 	$(VENV)/bin/ruff format --check $(LINTED)
 	OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1 $(PY) -m pytest

@@ -51,7 +51,11 @@ ROBOTS: dict[str, Device] = {
         "the operator jogs; joints typed or read from another driver (option source=NAME)",
     ),
 }
-# `sim` (the virtual cell) is registered by relcal.capture.sim.
+ROBOTS["sim"] = Device(
+    "relcal.capture.virtual:VirtualRobot",
+    "virtual",
+    "the virtual cell (MuJoCo): an arm with planted errors; with --camera sim",
+)
 
 CAMERAS: dict[str, Device] = {
     "opencv": Device(
@@ -73,6 +77,11 @@ CAMERAS: dict[str, Device] = {
         "new image files another program writes into a folder",
     ),
 }
+CAMERAS["sim"] = Device(
+    "relcal.capture.virtual:VirtualCamera",
+    "virtual",
+    "the virtual cell's flange camera; with --robot-driver sim",
+)
 
 CONTEXT = ("joint_names", "clock", "source", "ask", "tell", "prismatic")  # given, not options
 

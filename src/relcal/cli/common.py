@@ -25,6 +25,7 @@ COMMANDS = [
     "observability",
     "study",
     "plan",
+    "capture",
     "fleet",
     "history",
 ]
