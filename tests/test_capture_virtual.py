@@ -226,10 +226,10 @@ def test_the_camera_follows_the_true_model_with_its_nongeometric_terms():
     record = cell.frames[-1]
     q_true = np.array(record["q_true"])
     assert np.abs(np.degrees(reading.q - q_true)).max() < 0.01  # encoder noise only
-    expected = tf.invert(truth.board_pose) @ fk(truth.true_model, q_true)[0] @ truth.handeye
+    expected = tf.invert(truth.board_pose) @ fk(truth.true_model, q_true) @ truth.handeye
     np.testing.assert_allclose(record["camera_in_board"], expected, atol=1e-12)
     geometric_only = replace_values(truth.true_model)
-    other = tf.invert(truth.board_pose) @ fk(geometric_only, q_true)[0] @ truth.handeye
+    other = tf.invert(truth.board_pose) @ fk(geometric_only, q_true) @ truth.handeye
     assert np.abs(other[:3, 3] - expected[:3, 3]).max() > 1e-5  # the terms move the camera
     assert not np.allclose(effective_joints(truth.true_model, q_true[None]), q_true)
 
