@@ -27,6 +27,7 @@ COMMANDS = [
     "plan",
     "fleet",
     "history",
+    "verify",
 ]
 
 

@@ -124,7 +124,11 @@ def calibration_record(
         "model_name": cal.dataset.model.name,
         "dataset_path": str(root),
         "outputs_path": None if outputs is None else str(Path(outputs).resolve()),
-        "settings": {**cal.settings, "chosen_model": chosen_model(cal)},
+        "settings": {
+            **cal.settings,
+            "chosen_model": chosen_model(cal),
+            "joint_ranges": doc.get("joint_ranges"),  # what `relcal verify` checks a session by
+        },
         "input_hashes": input_hashes(root, cal.dataset.images),
         "converged": bool(cal.result.converged),
         "rank": int(cal.result.identifiability.rank),
