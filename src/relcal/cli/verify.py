@@ -1,4 +1,4 @@
-"""``relcal verify CALIBRATION DATASET``: does a finished calibration still hold on a new session?"""
+"""``relcal verify CALIBRATION DATASET``: does a finished calibration hold on a new session?"""
 
 from __future__ import annotations
 
