@@ -70,10 +70,16 @@ RANGE_SLACK_SHARE = 0.05  # of the covered span
 EXIT_STATUS = {"holds": 0, "degraded": 1, "inconclusive": 1, "worse": 1}
 
 NUISANCE = {
-    "pose": "the hand-eye (camera or marker mounting) transform X; the board placement cancels",
+    "pose": "the hand-eye transform X (camera or marker mounting)",
     "position": "the instrument-to-base transform T and the marker position m",
-    "coincidence": "the point of each group (the tool point is the calibration's own: frozen)",
+    "coincidence": "the point of each group",
 }
+FROZEN = {
+    "pose": "the kinematics of both models (the board placement cancels in relative poses)",
+    "position": "the kinematics of both models",
+    "coincidence": "the kinematics and the tool point of both models (the robot's tool)",
+}
+FORMULATIONS = {"invariant": "pose", "tracker": "position", "coincidence": "coincidence"}
 
 
 def session_kind(measured: str) -> Kind:

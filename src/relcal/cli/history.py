@@ -23,13 +23,19 @@ comparisons are flagged.
 def run_history(args: argparse.Namespace) -> int:
     from relcal.fleet.drift import consecutive
     from relcal.fleet.registry import require_registry
-    from relcal.fleet.text import drift_summary, history_text, run_document
+    from relcal.fleet.text import (
+        drift_summary,
+        history_text,
+        run_document,
+        verification_run_document,
+    )
     from relcal.io import write_json
 
     with require_registry(args.registry) as registry:
         runs = registry.runs(args.robot_id)
+        checks = registry.verifications(args.robot_id)
         where = registry.engine.url.render_as_string(hide_password=True)
-        if not runs:
+        if not runs and not checks:
             from relcal.errors import RelcalError
 
             known = registry.robots()
@@ -37,6 +43,7 @@ def run_history(args: argparse.Namespace) -> int:
             raise RelcalError(f"registry {where}: no calibration of robot {args.robot_id!r}{hint}")
     if args.last:
         runs = runs[-args.last :]
+        checks = checks[-args.last :]
     comparisons = consecutive(runs, args.alpha)
     if args.json:
         write_json(
@@ -51,10 +58,11 @@ def run_history(args: argparse.Namespace) -> int:
                     }
                     for k, (r, c) in enumerate(zip(runs, comparisons, strict=True))
                 ],
+                "verifications": [verification_run_document(v) for v in checks],
             },
         )
     if not args.quiet:
-        print(history_text(args.robot_id, runs, comparisons, where))
+        print(history_text(args.robot_id, runs, comparisons, where, checks))
     return 0
 
 
@@ -88,14 +96,19 @@ def register(sub: argparse._SubParsersAction) -> None:
         "history",
         help="calibrations of one robot over time",
         description="Every recorded calibration of ROBOT_ID, oldest first: held-out errors, "
-        "drift against the previous run, and the parameters with their standard deviations.",
+        "drift against the previous run, the parameters with their standard deviations, and "
+        "the verifications of its calibrations on new sessions (relcal verify --registry): "
+        "their prediction error on new data against the nominal baseline and against the "
+        "calibration's own held-out error.",
         epilog=EPILOG,
         formatter_class=fmt,
     )
     hp.add_argument("robot_id")
     hp.add_argument("--last", type=int, metavar="N", help="only the N latest runs")
     _common(hp)
-    json_arg(hp, "the runs (parameters in SI units) with their drift verdicts")
+    json_arg(
+        hp, "the runs (parameters in SI units) with their drift verdicts, and the verifications"
+    )
     hp.set_defaults(func=run_history)
     cp = sub.add_parser(
         "compare",

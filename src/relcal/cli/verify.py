@@ -78,7 +78,8 @@ def run(args: argparse.Namespace) -> int:
                 seed=args.seed,
                 progress=not args.quiet,
             )
-            a = assess(ver, source.reference, source.ranges, seed=args.seed)
+            reference, why = source.reference_for(kind)
+            a = assess(ver, reference, source.ranges, seed=args.seed)
         robot_id = args.robot_id or (source.run.robot_id if source.run else dataset.robot_id)
         session = dataset.root.resolve().name
         calibration = {
@@ -87,7 +88,7 @@ def run(args: argparse.Namespace) -> int:
             "model": source.model.name,
             "chosen_model": source.chosen_model,
             "exported": source.exported,
-            "notes": list(source.notes),
+            "notes": list(source.notes) + ([why] if why else []),
         }
         session_doc = {
             "dataset": str(dataset.root),

@@ -61,6 +61,28 @@ class Source:
         )
 
     @property
+    def kind(self) -> str | None:
+        """What the calibration's own held-out errors measure: ``pose`` (relative poses),
+        ``position`` (points) or ``coincidence``; None when unknown."""
+        from relcal.calibration.verify import FORMULATIONS
+
+        settings = (self.results or {}).get("settings") or (self.run.settings if self.run else {})
+        return FORMULATIONS.get((settings or {}).get("formulation"))
+
+    def reference_for(self, kind: str) -> tuple[Reference | None, str | None]:
+        """The calibration's held-out errors if they measure what a session of ``kind`` does;
+        else None, and why."""
+        if self.reference is None:
+            return None, None
+        if self.kind != kind:
+            words = {"pose": "relative poses", "position": "points", "coincidence": "coincidences"}
+            return None, (
+                f"the calibration was validated on {words.get(self.kind, 'other data')}, this "
+                f"session has {words[kind]}: its held-out error at calibration does not compare"
+            )
+        return self.reference, None
+
+    @property
     def chosen_model(self) -> str | None:
         if self.results is not None:
             return (self.results.get("model_selection") or {}).get("chosen")

@@ -17,7 +17,7 @@ from relcal.calibration.measurement import tracker_frames
 from relcal.calibration.outcome import Calibration
 from relcal.calibration.uncertainty import Accuracy
 from relcal.calibration.validate import Validation, pooled, ratio_interval, stats
-from relcal.calibration.verify import Assessment, JointRanges, Verification
+from relcal.calibration.verify import FROZEN, Assessment, JointRanges, Verification
 from relcal.data.dataset import Dataset
 from relcal.data.imaging import Measurements
 from relcal.data.importers import Imported
@@ -592,8 +592,7 @@ def verification_document(
         "session": {**session, "kind": ver.kind, "n_evaluated": a.n_samples},
         "nuisance": {
             "refitted": nuisance_words,
-            "frozen": "the kinematics of both models"
-            + (" and their tool points" if ver.kind == "coincidence" else ""),
+            "frozen": FROZEN[ver.kind],
             "scheme": ver.scheme,
             "folds": ver.n_folds,
             "seed": ver.seed,

@@ -610,7 +610,8 @@ def verification_text(doc: dict, per_sample: bool = True) -> str:
                 f"({r['ci95'][0]:.2f}..{r['ci95'][1]:.2f})"
             )
     elif not at:
-        lines.append("  at calibration: no held-out error recorded (calibrated with --holdout 0?)")
+        why = "see the note below" if cal.get("notes") else "calibrated with --holdout 0?"
+        lines.append(f"  at calibration: no comparable held-out error ({why})")
     ranges = doc["joint_ranges"]
     if not ranges["checked"]:
         lines.append(f"joint ranges not checked: {ranges['source']}")
