@@ -95,8 +95,10 @@ def calibration_record(
     doc: dict,
     outputs: str | Path | None = None,
     session: str | None = None,
+    robot_id: str | None = None,
 ) -> dict[str, Any]:
-    """The registry record (:meth:`Registry.add`) of a calibration and its results document."""
+    """The registry record (:meth:`Registry.add`) of a calibration and its results document;
+    ``robot_id`` (default: the dataset's) is the robot it is recorded under."""
     names, cov = covariance(cal)
     layout = cal.problem.full_layout
     angle = layout.is_angle()
@@ -118,7 +120,7 @@ def calibration_record(
         )
     root = Path(cal.dataset.root).resolve()
     return {
-        "robot_id": cal.dataset.robot_id or root.name,
+        "robot_id": robot_id or cal.dataset.robot_id or root.name,
         "session": session or root.name,
         "relcal_version": relcal.__version__,
         "model_name": cal.dataset.model.name,

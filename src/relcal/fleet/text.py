@@ -227,7 +227,11 @@ def drift_summary(c: Comparison | None, against: str | None) -> dict[str, Any] |
     }
 
 
-def fleet_text(entries: list[dict]) -> str:
+def fleet_text(
+    entries: list[dict], models: list[dict] | None = None, verifications: list[dict] | None = None
+) -> str:
+    """The sessions of a fleet run (status, held-out errors, drift), the failures, a summary per
+    robot model and the latest verification of each robot (when a registry has them)."""
     rows = [["session", "robot", "status", "held-out position RMS mm", "drift vs previous"]]
     for e in entries:
         drift = e.get("drift")
@@ -248,6 +252,25 @@ def fleet_text(entries: list[dict]) -> str:
     for e in entries:
         if e["status"] == "failed":
             lines.append(f"failed {e['session']}: {e['reason']}")
+    for m in models or []:
+        base, after = m["median_baseline_position_rms_mm"], m["median_calibrated_position_rms_mm"]
+        errors = ""
+        if base is not None and after is not None:
+            errors = f"; held-out position RMS {base:.3f} -> {after:.3f} mm (median)"
+        lines.append(
+            f"{m['model'] or '(model unknown)'}: {m['n_sessions']} sessions of "
+            f"{len(m['robots'])} robots, {m['n_ok']} calibrated, {m['n_failed']} failed, drift: "
+            + (", ".join(m["drift_robots"]) or "none")
+            + errors
+        )
+    for v in verifications or []:
+        at = v.get("at_calibration_position_rms_mm")
+        lines.append(
+            f"latest verification of {v['robot_id']} ({v['created_at'][:10]}, session "
+            f"{v.get('session')}): {v['verdict']}, position RMS "
+            f"{v['baseline_position_rms_mm']:.3f} -> {v['calibrated_position_rms_mm']:.3f} mm"
+            + (f" (at calibration {at:.3f} mm)" if at is not None else "")
+        )
     return "\n".join(lines)
 
 
