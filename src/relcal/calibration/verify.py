@@ -27,8 +27,8 @@ calibration's own held-out error (from its results document, bootstrapped over t
 - ``holds``: the 95 % interval of the ratio calibrated / baseline lies entirely below 1, and the
   error is not beyond doubt larger than at calibration;
 - ``degraded``: it beats the baseline, but its error on this session exceeds the held-out error
-  of the calibration with the whole interval of that ratio above 1 (the robot, its mounting or
-  the cell changed; or this session is noisier or reaches farther);
+  of the calibration with the whole 99 % interval of that ratio above 1 (the drift test's level;
+  the robot, its mounting or the cell changed, or this session is noisier or reaches farther);
 - ``inconclusive``: the interval of the ratio to the baseline spans 1: no evidence of
   improvement on this session;
 - ``worse``: the whole interval lies above 1 (position, or orientation for pose data).
@@ -62,6 +62,10 @@ EMPTY = Layout((), (), ())  # no kinematic parameter is free: the nuisance alone
 DEFAULT_FOLDS = 5
 MIN_SAMPLES = 10  # fewer session samples: the intervals rest on little, said so
 N_BOOT = 2000
+# "degraded" needs the 99 % interval of the ratio to the calibration's own held-out error above 1
+# (the drift test's level: at most about 0.5 % false alarms by design; the 95 % interval gave 7
+# of 200 noise-only sessions of synthetic A465 and UR5e, from bootstraps of 8 held-out samples)
+DEGRADED_LEVEL = 0.99
 # A joint is outside the covered range when beyond it by more than the larger of these (a sample
 # at the edge of the range is inside it).
 RANGE_SLACK_RAD = np.radians(1.0)
@@ -505,8 +509,9 @@ def _summary(errors: np.ndarray, pairs: np.ndarray, draws: dict[str, np.ndarray]
     return out
 
 
-def _interval(boot: np.ndarray) -> list[float]:
-    return [float(v) for v in np.percentile(boot, [2.5, 97.5])]
+def _interval(boot: np.ndarray, level: float = 0.95) -> list[float]:
+    tail = 50 * (1 - level)
+    return [float(v) for v in np.percentile(boot, [tail, 100 - tail])]
 
 
 @dataclass(frozen=True)
@@ -603,9 +608,11 @@ def assess(
                 "n_samples": reference.n_samples,
             }
             m = min(len(boot), len(draws_c[key]))
+            ratios = draws_c[key][:m] / np.maximum(boot[:m], 1e-300)
             to_cal[key] = {
                 "ratio": calibrated[key]["rms"] / max(rms, 1e-300),
-                "ci95": _interval(draws_c[key][:m] / np.maximum(boot[:m], 1e-300)),
+                "ci95": _interval(ratios),
+                "ci99": _interval(ratios, DEGRADED_LEVEL),
             }
         at_cal, to_cal = at_cal or None, to_cal or None
 
@@ -681,12 +688,12 @@ def _verdict(
         f"{lo:.2f}..{hi:.2f})"
     )
     degraded = ""
-    if to_cal is not None and to_cal["position_mm"]["ci95"][0] > 1.0:
+    if to_cal is not None and to_cal["position_mm"]["ci99"][0] > 1.0:
         t = to_cal["position_mm"]
         degraded = (
             f"its error on this session is x{t['ratio']:.2f} its held-out error at calibration "
-            f"({at_cal['position_mm']['rms']:.3f} mm; 95% interval {t['ci95'][0]:.2f}.."
-            f"{t['ci95'][1]:.2f}, entirely above 1): the robot, its mounting or the cell changed "
+            f"({at_cal['position_mm']['rms']:.3f} mm; 99% interval {t['ci99'][0]:.2f}.."
+            f"{t['ci99'][1]:.2f}, entirely above 1): the robot, its mounting or the cell changed "
             "since (or this session is noisier or reaches farther); recalibrate"
         )
     if identical:

@@ -16,7 +16,13 @@ examples:
 Drift: the difference of two calibrations over the parameters both identify, with its
 covariance the sum of both runs' covariances; flagged when the chi-square test or a parameter's
 z (Bonferroni) rejects at --alpha (default 0.01). Without a change, at most 2 alpha of
-comparisons are flagged.
+comparisons are flagged. When the two runs chose different models (a joint scale or a
+compliance in one of them), both are refitted from their datasets on one model (the geometric
+model with the union of their non-geometric terms) before comparing: a difference of model
+terms is not a change of the robot (--as-recorded compares the recorded values).
+
+Verifications (relcal verify --registry) are listed under the robot: the calibration's
+prediction error on a new session, the drift signal in millimetres.
 """
 
 
@@ -44,7 +50,7 @@ def run_history(args: argparse.Namespace) -> int:
     if args.last:
         runs = runs[-args.last :]
         checks = checks[-args.last :]
-    comparisons = consecutive(runs, args.alpha)
+    comparisons = consecutive(runs, args.alpha, common=not args.as_recorded)
     if args.json:
         write_json(
             args.json,
@@ -74,7 +80,7 @@ def run_compare(args: argparse.Namespace) -> int:
 
     with require_registry(args.registry) as registry:
         a, b = registry.get(args.run_a), registry.get(args.run_b)
-    c = compare(a, b, args.alpha, include_handeye=args.with_handeye)
+    c = compare(a, b, args.alpha, include_handeye=args.with_handeye, common=not args.as_recorded)
     if args.json:
         write_json(args.json, comparison_document(c))
     if not args.quiet:
@@ -86,6 +92,13 @@ def _common(p: argparse.ArgumentParser) -> None:
     registry_arg(p)
     p.add_argument(
         "--alpha", type=float, default=DRIFT_ALPHA, help=f"drift test level (default {DRIFT_ALPHA})"
+    )
+    p.add_argument(
+        "--as-recorded",
+        action="store_true",
+        help="compare the recorded values even when the runs chose different models (default: "
+        "both refitted from their datasets on the geometric model with the union of the "
+        "non-geometric terms either chose)",
     )
     p.add_argument("--quiet", action="store_true", help="no text (use with --json)")
 

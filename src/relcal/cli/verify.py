@@ -24,7 +24,8 @@ fitted on the other folds (--folds, default 5), so no error is judged on the dat
 verdict and exit status:
   holds         0  the 95% interval of calibrated / baseline RMS lies below 1, and the error is not
                    beyond doubt larger than the calibration's own held-out error
-  degraded      1  better than the baseline, but worse than at calibration beyond the interval
+  degraded      1  better than the baseline, but worse than the calibration's own held-out error
+                   with the whole 99% interval of that ratio above 1
   inconclusive  1  the interval spans 1: no evidence of improvement on this session
   worse         1  the whole interval lies above 1 (position, or orientation for poses)
   (2: bad input; nothing recorded)

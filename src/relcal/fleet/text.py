@@ -207,6 +207,7 @@ def comparison_document(c: Comparison) -> dict[str, Any]:
             for p in c.parameters
         ],
         "parameter_unit": "a, b, difference and std in SI: m for lengths, rad for angles",
+        "common_model": c.common_model,  # both refitted on it (their chosen models differed)
         "left_out": list(c.left_out),
         "one_sided": list(c.one_sided),  # of left_out: estimated in one run only
         "notes": list(c.notes),

@@ -607,7 +607,7 @@ def verification_text(doc: dict, per_sample: bool = True) -> str:
             lines.append(
                 f"  at calibration (its own held-out {key.split('_')[0]}{count}): "
                 f"{_with_interval(ref, digits)} {unit}; on this session x{r['ratio']:.2f} "
-                f"({r['ci95'][0]:.2f}..{r['ci95'][1]:.2f})"
+                f"(99% interval {r['ci99'][0]:.2f}..{r['ci99'][1]:.2f})"
             )
     elif not at:
         why = "see the note below" if cal.get("notes") else "calibrated with --holdout 0?"
