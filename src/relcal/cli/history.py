@@ -17,9 +17,9 @@ Drift: the difference of two calibrations over the parameters both identify, wit
 covariance the sum of both runs' covariances; flagged when the chi-square test or a parameter's
 z (Bonferroni) rejects at --alpha (default 0.01). Without a change, at most 2 alpha of
 comparisons are flagged. When the two runs chose different models (a joint scale or a
-compliance in one of them), both are refitted from their datasets on one model (the geometric
-model with the union of their non-geometric terms) before comparing: a difference of model
-terms is not a change of the robot (--as-recorded compares the recorded values).
+compliance in one of them), they are compared on one model, the geometric model with the terms
+both chose (the other run refitted from its dataset with its recorded settings): a difference
+of model terms is not a change of the robot (--as-recorded compares the recorded values).
 
 Verifications (relcal verify --registry) are listed under the robot: the calibration's
 prediction error on a new session, the drift signal in millimetres.
@@ -97,8 +97,8 @@ def _common(p: argparse.ArgumentParser) -> None:
         "--as-recorded",
         action="store_true",
         help="compare the recorded values even when the runs chose different models (default: "
-        "both refitted from their datasets on the geometric model with the union of the "
-        "non-geometric terms either chose)",
+        "the run with more non-geometric terms refitted from its dataset on the geometric model "
+        "with the terms both chose)",
     )
     p.add_argument("--quiet", action="store_true", help="no text (use with --json)")
 
