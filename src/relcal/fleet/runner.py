@@ -261,8 +261,14 @@ def model_summaries(entries: list[dict[str, Any]]) -> list[dict[str, Any]]:
     """Per robot model (the fleet's robots of one model are comparable, those of two are not):
     sessions, robots, calibrated and failed sessions, robots flagged for drift, and the median
     over its calibrated sessions of the baseline and calibrated held-out errors (mm, deg).
-    Sessions that failed before their model was known count under ``model: None``."""
+    A session that failed before its model was known counts under its robot's model (from the
+    robot's other sessions), else under ``model: None``."""
     import numpy as np
+
+    known = {e.get("robot_id"): e["model"] for e in entries if e.get("model")}
+    entries = [
+        e if e.get("model") else {**e, "model": known.get(e.get("robot_id"))} for e in entries
+    ]
 
     def median(values: list) -> float | None:
         values = [v for v in values if v is not None]
