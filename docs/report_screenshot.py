@@ -28,8 +28,8 @@ from relcal import geometry as tf  # noqa: E402
 from relcal.calibration.pipeline import calibrate  # noqa: E402
 from relcal.data.dataset import load_dataset  # noqa: E402
 from relcal.data.imaging import measure  # noqa: E402
+from relcal.reporting.calibration_report import calibration_report  # noqa: E402
 from relcal.reporting.documents import results_document  # noqa: E402
-from relcal.reporting.html import calibration_report  # noqa: E402
 
 SCALE = 0.6
 

@@ -1,22 +1,17 @@
-"""The public Python API: the names of ``relcal.__all__``, the README's example, and the
-covariance that :class:`relcal.Result` reports, checked against repeated noisy calibrations."""
+"""The public Python API: the names of ``relcal.__all__`` and the covariance that
+:class:`relcal.Result` reports, checked against repeated noisy calibrations."""
 
-import re
 from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
-from conftest import DATA
 from helpers_sim import make_problem
 
 import relcal
 from relcal import geometry as tf
 from relcal.calibration.identify import least_squares_covariance
 from relcal.calibration.measurement import residuals
-from relcal.data.importers import import_rct_positioner
 from relcal.robot.model import auto_hayati
-
-README = Path(__file__).resolve().parents[1] / "README.md"
 
 
 def test_api_names_are_importable():
@@ -24,21 +19,6 @@ def test_api_names_are_importable():
     assert needed <= set(relcal.__all__)
     for name in relcal.__all__:
         assert getattr(relcal, name) is not None
-
-
-def test_readme_example_runs(tmp_path, monkeypatch):
-    """The README's Python example, as printed there, on the real positioner."""
-    section = README.read_text().split("## Python API", 1)[1]
-    code = re.search(r"```python\n(.*?)```", section, re.S).group(1)
-    import_rct_positioner(
-        DATA / "rct_positioner" / "positioner_kinematic_measurements.yaml", tmp_path / "positioner"
-    )
-    monkeypatch.chdir(tmp_path)
-    scope: dict = {}
-    exec(compile(code, "README.md", "exec"), scope)
-    cal = scope["cal"]
-    assert isinstance(cal, relcal.Calibration) and cal.result.converged
-    assert isinstance(cal.model, relcal.RobotModel)
 
 
 def test_result_covariance_matches_repeated_calibrations(a465, rng):
@@ -84,3 +64,24 @@ def test_importing_relcal_is_light():
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.split("\n")[:2] == ["[]", "True"]
     assert set(relcal.__all__) <= set(dir(relcal))
+
+
+def test_version_py_typed_and_new_exports(capsys):
+    """``relcal --version`` is the package's version (pyproject's); ``py.typed`` ships with the
+    package so type checkers read the annotations; ``plan`` and ``write_calibration`` are
+    top-level names."""
+    import tomllib
+
+    from relcal.cli import main
+
+    root = Path(__file__).resolve().parents[1]
+    project = tomllib.loads((root / "pyproject.toml").read_text())
+    assert relcal.__version__ == project["project"]["version"]
+    assert main(["--version"]) == 0
+    assert capsys.readouterr().out.strip() == f"relcal {relcal.__version__}"
+    assert (Path(relcal.__file__).parent / "py.typed").is_file()
+    assert "py.typed" in project["tool"]["setuptools"]["package-data"]["relcal"]
+    from relcal.design.plan import plan
+    from relcal.reporting.outputs import write_calibration
+
+    assert relcal.plan is plan and relcal.write_calibration is write_calibration

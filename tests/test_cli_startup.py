@@ -21,7 +21,7 @@ COMPUTING = ("calibration", "robot", "vision", "data", "design", "sim", "reporti
 ALL_HELP = [
     [],
     *([c] for c in ("simulate", "measure", "calibrate", "import", "compensate", "board")),
-    *([c] for c in ("observability", "study", "plan", "fleet", "history", "compare")),
+    *([c] for c in ("observability", "study", "plan", "capture", "fleet", "history", "compare")),
     ["fleet", "calibrate"],
 ]
 

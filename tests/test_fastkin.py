@@ -55,7 +55,7 @@ def test_kernel_zero_and_one_configuration(convention, a465):
     model = replace(a465, convention=convention)
     assert fastkin.fk(model, np.zeros((0, 6))).shape == (0, 4, 4)
     q = np.array([0.1, -0.2, 0.3, -0.4, 0.5, -0.6])
-    np.testing.assert_allclose(fastkin.fk(model, q)[0], fk(model, q, "numpy")[0], atol=1e-12)
+    np.testing.assert_allclose(fastkin.fk(model, q)[0], fk(model, q, "numpy"), atol=1e-12)
 
 
 def test_kernel_rejects_wrong_joint_count(a465):

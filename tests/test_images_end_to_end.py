@@ -58,3 +58,38 @@ def test_identified_parameters_within_three_predicted_std(calibration):
     assert np.all(np.abs(err) < 3 * std), list(
         zip(np.array(truth.layout.names)[ok], err / std, strict=True)
     )
+
+
+def test_truth_table_on_the_calibration_layout(calibration):
+    """The calibration's layout adds model selection's non-geometric candidates to the truth's
+    (``relcal simulate --images`` once ended in an IndexError indexing the truth with it): the
+    truth maps by name, terms it does not have were not planted (0)."""
+    from relcal.reporting.documents import parameter_status
+    from relcal.reporting.text import format_truth
+
+    truth, _, cal = calibration
+    layout = cal.problem.layout
+    assert layout.size > truth.layout.size  # the candidates' scale and harmonic terms
+    true = truth.errors_on(layout)
+    assert true.shape == (layout.size,)
+    for name, value in zip(truth.layout.names, truth.errors, strict=True):
+        assert true[layout.names.index(name)] == value
+    assert not true[~layout.is_geometric()].any()
+    estimated = np.array([s == "estimated" for s in parameter_status(cal)[: layout.size]])
+    table = format_truth(layout, true, cal.result, estimated)
+    assert len(table.splitlines()) == 2 + estimated.sum()
+    shown = format_truth(layout, true, cal.result)  # default: every identifiable parameter
+    assert (
+        "scale[" in shown
+        or not cal.result.identifiable[: layout.size][~layout.is_geometric()].any()
+    )
+    with pytest.raises(ValueError, match="shape"):
+        format_truth(layout, truth.errors, cal.result)
+
+
+def test_camera_scaled_keeps_the_field_of_view():
+    from relcal.sim.synth import DEFAULT_CAMERA
+
+    half = DEFAULT_CAMERA.scaled(0.5)
+    assert half == CAMERA
+    assert DEFAULT_CAMERA.scaled(1) is DEFAULT_CAMERA

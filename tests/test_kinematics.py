@@ -109,3 +109,15 @@ def test_layout_order_and_hayati(a465):
     assert layout.size == 24
     hay = make_layout(auto_hayati(a465))
     assert "beta[2]" in hay.names and "d[2]" not in hay.names and hay.size == 24
+
+
+def test_fk_of_one_configuration_is_one_pose(a465, rng):
+    """``fk`` of ``(n,)`` is ``(4, 4)``; of ``(N, n)`` it stays ``(N, 4, 4)``, even for N = 1."""
+    q = rng.uniform(-1, 1, (3, 6))
+    batch = fk(a465, q)
+    assert batch.shape == (3, 4, 4)
+    assert fk(a465, q[:1]).shape == (1, 4, 4)
+    one = fk(a465, q[1])
+    assert one.shape == (4, 4)
+    np.testing.assert_array_equal(one, batch[1])
+    assert fk(a465, list(q[2])).shape == (4, 4)

@@ -7,6 +7,7 @@ import pytest
 
 from relcal import geometry as tf
 from relcal.cli import main
+from relcal.cli.plan import parse_board, parse_camera
 from relcal.data.dataset import read_joints
 from relcal.design.cell import Cell
 from relcal.design.plan import (
@@ -21,8 +22,6 @@ from relcal.design.plan import (
     exchange,
     greedy,
     information,
-    parse_board,
-    parse_camera,
     plan,
     selection_problem,
     travel_order,
@@ -86,7 +85,7 @@ def test_candidates_satisfy_every_constraint(hayati, pool):
         for j in range(len(qk)):
             dq = np.zeros(len(qk))
             dq[j] = 1e-6
-            cols.append(tf.pose_error(fk(hayati, qk + dq), fk(hayati, qk - dq))[0] / 2e-6)
+            cols.append(tf.pose_error(fk(hayati, qk + dq), fk(hayati, qk - dq)) / 2e-6)
         jac = np.array(cols).T
         jac[:3] /= c.length_scale
         s = np.linalg.svd(jac, compute_uv=False)
@@ -172,12 +171,16 @@ def test_planned_poses_beat_random_feasible_sets_and_the_study_confirms_it(hayat
     assert spreads["random"] / spreads["plan"] > 1.7, spreads
 
 
-def test_travel_order_is_a_permutation_with_short_moves(pool):
+def test_travel_order_is_a_permutation_with_short_moves(hayati, pool):
     q = pool[0][:40]
-    order = travel_order(q)
-    assert sorted(order) == list(range(40))
-    step = np.abs(np.diff(q[order], axis=0)).max(axis=1).sum()
+    route = travel_order(hayati, q)
+    assert sorted(route.order) == list(range(40))
+    np.testing.assert_allclose(fk(hayati, route.q), fk(hayati, q[route.order]), atol=1e-12)
+    step = np.abs(np.diff(route.q, axis=0)).max(axis=1).sum()
+    assert step == pytest.approx(route.total)
     assert step < np.abs(np.diff(q, axis=0)).max(axis=1).sum()
+    move, joint, value = route.longest
+    assert value == np.abs(np.diff(route.q, axis=0)).max() == route.moves[move, joint]
 
 
 def test_board_and_camera_arguments(tmp_path):
@@ -237,11 +240,12 @@ def test_plan_on_the_cluster_chooses_the_same_poses(hayati, cluster, monkeypatch
     both workers, and the pool, the plan and the random sets are those of one process."""
     from distributed import Client, get_task_stream
 
-    import relcal.design.plan as design
+    import relcal.design.feasibility as feasibility
+    import relcal.design.scoring as scoring
 
-    monkeypatch.setattr(design, "MIN_SHARD", 100)  # a shard per worker for a small pool
-    monkeypatch.setattr(design, "BLOCK", 64)  # several blocks per shard
-    monkeypatch.setattr(design, "TASK_SECONDS", 1e-6)  # one IK batch per task
+    monkeypatch.setattr(scoring, "MIN_SHARD", 100)  # a shard per worker for a small pool
+    monkeypatch.setattr(scoring, "BLOCK", 64)  # several blocks per shard
+    monkeypatch.setattr(feasibility, "TASK_SECONDS", 1e-6)  # one IK batch per task
     cell = Cell(**CELL)
     options = dict(k=10, n_candidates=400, random_sets=3, seed=3)
     here = plan(hayati, cell, **options)
@@ -264,9 +268,9 @@ def test_cluster_scoring_breaks_ties_as_one_process(hayati, pool, cluster, monke
     the Woodbury path and one of the eigenvalue path."""
     from distributed import Client
 
-    import relcal.design.plan as design
+    import relcal.design.scoring as scoring
 
-    monkeypatch.setattr(design, "MIN_SHARD", 50)
+    monkeypatch.setattr(scoring, "MIN_SHARD", 50)
     q = np.concatenate([pool[0][:60]] * 3)
     info = information(selection_problem(hayati, Cell(), q), DEFAULT_NOISE, 0.5)
     with Client(cluster) as client:

@@ -25,8 +25,9 @@ from relcal.calibration.pipeline import calibrate
 from relcal.cli import main
 from relcal.data.dataset import load_dataset
 from relcal.data.imaging import measure
+from relcal.reporting.calibration_report import calibration_report
 from relcal.reporting.documents import results_document
-from relcal.reporting.html import _compact_names, _flatten, calibration_report
+from relcal.reporting.htmlkit import compact_names, flatten
 
 CAL_SECTIONS = {
     "summary",
@@ -232,12 +233,12 @@ def test_calibration_report_renders_in_chromium(calibration, tmp_path):
     assert "&lt;script&gt;alert(1)&lt;/script&gt;" in text
     for name in doc["outliers"]:
         assert name in cells
-    for key, value in _flatten(doc["settings"]):
+    for key, value in flatten(doc["settings"]):
         assert cells[cells.index(key) + 1] == value
 
     # the parameter plot: beside the table, with what was held at nominal listed under it
     held = [r["name"] for r in doc["parameters"] if r["status"] == "unidentifiable"]
-    assert held and f"nominal kept: {_compact_names(held)}." in text
+    assert held and f"nominal kept: {compact_names(held)}." in text
     assert text.index('id="plot-parameters"') < text.index("<table", text.index('id="parameters"'))
 
     found, shot = check_rendering(path, tmp_path, CAL_PLOTS)

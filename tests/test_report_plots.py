@@ -11,12 +11,12 @@ import pytest
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.colors import to_rgb
 
-from relcal.reporting.html import (
+from relcal.reporting.htmlkit import compact_names
+from relcal.reporting.plots import (
     AFTER,
-    _compact_names,
-    _log_bins,
     calibration_parameter_figure,
     histogram_figure,
+    log_bins,
     per_pair_figure,
     singular_value_figure,
 )
@@ -127,7 +127,7 @@ def test_histograms_bin_alike_and_fit_their_data(name):
     assert orientation.get_xlabel() == "relative orientation error (deg)"
     for ax, col, scale in ((position, 0, 1e3), (orientation, 3, np.degrees(1.0))):
         values = np.concatenate([before[:, col], after[:, col]]) * scale
-        bins = _log_bins(before[:, col] * scale, after[:, col] * scale)
+        bins = log_bins(before[:, col] * scale, after[:, col] * scale)
         assert ax.get_xlim() == pytest.approx((bins[0], bins[-1]))
         assert bins[0] < values.min() and values.max() < bins[-1]
         steps = np.diff(np.log10(bins))
@@ -264,4 +264,4 @@ def test_parameter_plot_shows_the_documents_numbers_by_kind():
 
 def test_compact_names():
     names = ["scale[1]", "scale[2]", "scale[3]", "harmonic_c[2]", "harmonic_c[4]", "base.tx"]
-    assert _compact_names(names) == "scale[1–3], harmonic_c[2, 4], base.tx"
+    assert compact_names(names) == "scale[1–3], harmonic_c[2, 4], base.tx"

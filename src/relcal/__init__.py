@@ -5,10 +5,12 @@ The Python API, in the order of the flow of data::
     import relcal
 
     dataset = relcal.load_dataset("positioner")  # dataset.yaml + samples (+ images)
+    # or from arrays in memory: relcal.Dataset.from_arrays(model, q, poses, mode=, handeye=)
     cal = relcal.calibrate(dataset)              # measure, identify, validate
     cal.result.converged, cal.result.std         # the Result: estimate, covariance, costs
     cal.validation.improvement()                 # held-out position RMS, before / after
     cal.model                                    # the calibrated RobotModel
+    relcal.write_calibration(cal, "out/")        # model.yaml, robot.urdf, results.json, ...
 
 Lower-level pieces: :func:`get_robot`, :func:`load_model` and :func:`load_urdf` (robot
 models; a URDF chain converts exactly to modified DH), :func:`calibrated_urdf` and
@@ -17,7 +19,9 @@ calibrated joint origins),
 :func:`make_layout` and :func:`fk` (parameters and kinematics), :class:`Problem` (an
 identification problem), :func:`identify` with :class:`SolverOptions` giving a :class:`Result`,
 :func:`analyse_problem` (identifiability), :func:`simulate` (the published simulation),
-:func:`import_rosbag` (a recorded calibration run to a dataset folder).
+:func:`import_rosbag` (a recorded calibration run to a dataset folder), :func:`plan` with a
+:class:`Cell` (joint configurations that identify the parameters well), :func:`write_calibration`
+(a calibration's files, written as one set).
 """
 
 from __future__ import annotations
@@ -31,6 +35,7 @@ __version__ = "0.1.0"
 # command line starts without importing SciPy, OpenCV and Matplotlib for a ``--help``.
 _API = {
     "Calibration": "relcal.calibration.outcome",
+    "Cell": "relcal.design.cell",
     "Dataset": "relcal.data.dataset",
     "Identifiability": "relcal.calibration.identifiability",
     "Layout": "relcal.robot.kinematics",
@@ -57,12 +62,15 @@ _API = {
     "make_layout": "relcal.robot.kinematics",
     "make_pairs": "relcal.calibration.measurement",
     "measure": "relcal.data.imaging",
+    "plan": "relcal.design.plan",
     "robot_files": "relcal.robot.export",
     "simulate": "relcal.sim.simulate",
+    "write_calibration": "relcal.reporting.outputs",
 }
 
 __all__ = [
     "Calibration",
+    "Cell",
     "Dataset",
     "Identifiability",
     "Layout",
@@ -89,8 +97,10 @@ __all__ = [
     "make_layout",
     "make_pairs",
     "measure",
+    "plan",
     "robot_files",
     "simulate",
+    "write_calibration",
 ]
 
 
@@ -116,7 +126,10 @@ if TYPE_CHECKING:  # for type checkers and editors: the same names, imported eag
     from relcal.data.dataset import Dataset, load_dataset
     from relcal.data.imaging import Measurements, measure
     from relcal.data.rosbag import import_rosbag
+    from relcal.design.cell import Cell
+    from relcal.design.plan import plan
     from relcal.errors import RelcalError
+    from relcal.reporting.outputs import write_calibration
     from relcal.robot.export import calibrated_model, calibrated_urdf, robot_files
     from relcal.robot.kinematics import Layout, apply_errors, fk, make_layout
     from relcal.robot.loading import get_robot

@@ -77,6 +77,8 @@ def read_table(path: str | Path, what: str) -> tuple[list[str], list[TableRow]]:
             row = TableRow(cells)
             row.line = start
             start = reader.line_num + 1
+            if not rows and cells and cells[0].lstrip().startswith("#"):
+                continue  # a comment before the header (a plan file's first line)
             if cells and any(c.strip() for c in cells):
                 rows.append(row)
     except csv.Error as exc:

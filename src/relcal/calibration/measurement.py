@@ -95,6 +95,21 @@ class Problem:
     marker: np.ndarray = field(default_factory=lambda: np.zeros(3))  # tracker: guess of m (m)
     coincidence: Coincidence | None = None  # coincidence: groups, guesses, known distances
 
+    def __repr__(self) -> str:
+        from relcal._repr import plural, short
+
+        pairs = "" if self.pairs is None else plural(len(self.pairs), "pair")
+        extra = self.full_layout.size - self.layout.size
+        return short(
+            "Problem",
+            "",
+            f"robot {self.model.name!r}",
+            plural(len(self.q), "sample"),
+            pairs,
+            f"{self.formulation} formulation, {self.measure}",
+            f"{self.layout.size} parameters" + (f" + {extra} nuisance" if extra else ""),
+        )
+
     @property
     def full_layout(self) -> Layout:
         """The parameter layout including the hand-eye 6-vector when it is estimated (or, for the

@@ -4,12 +4,14 @@ samples."""
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, replace
+from typing import Literal
 
 import numpy as np
 
 from relcal.calibration.identify import Result, calibrated_handeye
-from relcal.calibration.measurement import Problem
+from relcal.calibration.measurement import Problem, pair_errors
 from relcal.calibration.noise import PoseNoise
 from relcal.calibration.selection import BASELINE_CANDIDATES, Score
 from relcal.calibration.validate import Validation, ratio_interval, stats
@@ -19,6 +21,22 @@ from relcal.robot.export import calibrated_model
 from relcal.robot.model import RobotModel
 
 ROBUST_SCALE = 3.0  # residual (in noise standard deviations) where the robust loss bends
+
+
+@dataclass(frozen=True)
+class Comparison:
+    """The errors that show what a calibration did: ``before`` (the baseline) and ``after`` (the
+    exported model), ``(P, 6)`` per pair (position m, rotation rad) or per point (tracker).
+
+    ``source`` says where they come from: ``held-out pairs`` (pairs among held-out samples),
+    ``held-out points`` (position-only data), or ``training pairs`` when nothing was held out
+    (optimistic: the fit saw them). ``count`` is the number of pairs or points.
+    """
+
+    before: np.ndarray
+    after: np.ndarray
+    source: Literal["held-out pairs", "held-out points", "training pairs"]
+    count: int
 
 
 @dataclass(frozen=True)
@@ -46,6 +64,28 @@ class Calibration:
     chosen: int = 0  # index into selection
     reason: str = ""
     bootstrap_std: np.ndarray | None = None  # (P,) over training samples; NaN if not estimated
+
+    def __repr__(self) -> str:
+        from relcal._repr import plural, short
+
+        def held_out() -> str:
+            val = self.validation
+            if val is None:
+                return "no held-out samples"
+            before = stats(val.before)["position_mm"]["rms"]
+            after = stats(val.calibrated)["position_mm"]["rms"]
+            return f"held-out position RMS {before:.4g} -> {after:.4g} mm"
+
+        chosen = self.selection[self.chosen].candidate.name if self.selection else ""
+        return short(
+            "Calibration",
+            f"of {self.problem.model.name!r}",
+            f"{plural(len(self.dataset.ids), 'sample')} ({len(self.train)} fitted, "
+            f"{len(self.test)} held out, {len(self.outliers)} outliers)",
+            f"exported {self.exported}" + (f" ({chosen})" if chosen else ""),
+            "converged" if self.result.converged else "NOT converged",
+            held_out,
+        )
 
     @property
     def std(self) -> np.ndarray:
@@ -87,6 +127,24 @@ class Calibration:
             return model
         columns = self.selection[self.chosen].candidate.columns
         return exported_model(model, {layout.kinds[c] for c in columns if c < layout.size})
+
+    @functools.cached_property
+    def comparison(self) -> Comparison:
+        """Baseline against exported model: on the held-out samples when there are some,
+        otherwise the training residuals (unweighted)."""
+        val = self.validation
+        if val is not None:
+            source = (
+                "held-out points" if self.problem.formulation == "tracker" else "held-out pairs"
+            )
+            return Comparison(val.before, val.after, source, len(val.pairs))
+        problem = replace(self.problem, weights=None, pair_weights=None)
+        return Comparison(
+            pair_errors(problem, self.baseline.params),
+            pair_errors(problem, self.result.params),
+            "training pairs",
+            len(problem.pair_indices()),
+        )
 
     @property
     def handeye(self) -> np.ndarray:

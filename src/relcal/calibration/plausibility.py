@@ -482,6 +482,8 @@ def check_dataset(dataset, measurements) -> dict:
         return {}
     spec = dataset.spec_path or dataset.root / "dataset.yaml"
     where = str(spec.parent / "samples.csv") if dataset.poses is not None else str(spec)
+    if dataset.spec_path is None:  # Dataset.from_arrays: no file to name
+        where = "poses (Dataset.from_arrays)" if dataset.poses is not None else "images"
     q, poses = dataset.q[usable], measurements.poses[usable]
     scale = check_inputs(
         dataset.model,

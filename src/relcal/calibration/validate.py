@@ -204,3 +204,13 @@ def folds(n_samples: int, k: int, seed: int = 0) -> list[np.ndarray]:
     """``k`` disjoint held-out index sets covering all samples (shuffled with ``seed``)."""
     order = np.random.default_rng(seed).permutation(n_samples)
     return [np.sort(f) for f in np.array_split(order, k)]
+
+
+def error_norms(errors: np.ndarray) -> dict[str, np.ndarray]:
+    """Per-pair (or per-point) error norms of ``errors`` ``(P, 6)``: ``position`` (m) and
+    ``orientation`` (rad; absent when orientation was not measured, i.e. all NaN)."""
+    out = {"position": np.linalg.norm(errors[:, :3], axis=1)}
+    rotation = np.linalg.norm(errors[:, 3:], axis=1)
+    if len(rotation) and not np.all(np.isnan(rotation)):
+        out["orientation"] = rotation
+    return out

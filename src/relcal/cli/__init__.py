@@ -48,8 +48,10 @@ def build_parser() -> argparse.ArgumentParser:
         epilog="exit codes: " + "; ".join(f"{k} {v}" for k, v in EXIT_CODES.items()),
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
+    from relcal import __version__
     from relcal.cli.common import register_all
 
+    parser.add_argument("--version", action="version", version=f"relcal {__version__}")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     register_all(sub)
     return parser

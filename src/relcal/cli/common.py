@@ -25,6 +25,7 @@ COMMANDS = [
     "observability",
     "study",
     "plan",
+    "capture",
     "fleet",
     "history",
     "verify",
@@ -155,6 +156,14 @@ def fraction(text: str) -> float:
     value = _number(text)
     if not 0 < value < 1:
         raise argparse.ArgumentTypeError(f"'{text}': expected a fraction between 0 and 1")
+    return value
+
+
+def fraction_at_most_one(text: str) -> float:
+    """A number in (0, 1]."""
+    value = _number(text)
+    if not 0 < value <= 1:
+        raise argparse.ArgumentTypeError(f"'{text}': expected a number above 0, at most 1")
     return value
 
 

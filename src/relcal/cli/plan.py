@@ -23,6 +23,9 @@ from relcal.cli.observability import add_noise_arg
 if TYPE_CHECKING:
     import numpy as np
 
+    from relcal.vision.boards import Board
+    from relcal.vision.camera import Camera
+
 EPILOG = """\
 examples:
   relcal plan --robot a465 --hayati auto --out plan.csv
@@ -31,12 +34,68 @@ examples:
   relcal plan --robot a465 --hayati auto --candidates 20000 --workers 2
   relcal plan --robot a465 --hayati auto --candidates 100000 --scheduler tcp://head:8786
 
-output: a CSV  id,q1..qn  (angles in --joint-unit, prismatic joints in m) in an order that keeps
-joint moves short; run it on the robot, record an image at each pose, and add an image column to
-make it a dataset's samples.csv. Collisions with anything but the board plane are not checked.
-With --workers or --scheduler the plan is the same as in one process (each batch of candidates
-has its own random stream from --seed).
+  relcal plan --robot ur5e --limits elbow=-160:160,wrist3=-180:180 --out plan.csv
+  relcal plan --robot ur5e --obstacle 0.2,-0.6,0,0.6,-0.3,0.5 --link-radius 0.05 --out plan.csv
+
+output: a CSV, first line  # relcal plan: robot NAME, joint unit UNIT, then  id,<joint names>
+(angles in --joint-unit, prismatic joints in m), in a travel order that keeps joint moves short
+(nearest neighbour + 2-opt on the largest joint move, each angle the equivalent within the limits
+nearest the previous pose); the longest single move is printed. Run it with `relcal capture`, or
+on the robot by other means. Checked for every pose: joint limits (the robot's own, narrowed by
+--limits), the board in view with --margin, distance, viewing angle, singularity, clearance above
+the board plane, self-collision and collision with --obstacle boxes (a URDF's <collision>
+geometry with python-fcl where it has some, else capsules of --link-radius about the kinematic
+skeleton; a sphere of --camera-radius about the camera). With --workers or --scheduler the plan
+is the same as in one process (each batch of candidates has its own random stream from --seed).
 """
+
+
+def parse_board(text: str) -> Board:
+    """A chessboard from ``ROWSxCOLS@SQUARE`` (squares; ``SQUARE`` in m, or with ``mm``), e.g.
+    ``7x10@0.02`` or ``7x10@20mm``, or a board YAML file (:func:`boards.load_board`)."""
+    import re
+
+    from relcal.errors import RelcalError
+    from relcal.vision.boards import Board
+
+    match = re.fullmatch(r"\s*(\d+)\s*[xX]\s*(\d+)\s*@\s*([0-9.eE+-]+)\s*(mm|m)?\s*", text)
+    if match:
+        rows, cols, size, unit = match.groups()
+        try:
+            spacing = float(size) * (1e-3 if unit == "mm" else 1.0)
+            return Board(type="chessboard", rows=int(rows), columns=int(cols), spacing=spacing)
+        except ValueError as exc:
+            raise RelcalError(f"--board '{text}': {exc}") from None
+    from pathlib import Path
+
+    if Path(text).suffix in (".yaml", ".yml") or Path(text).exists():
+        from relcal.vision.boards import load_board
+
+        return load_board(text)
+    raise RelcalError(
+        f"--board '{text}': expected ROWSxCOLS@SQUARE (squares, metres or mm, e.g. 7x10@0.02) "
+        "or a board YAML file"
+    )
+
+
+def parse_camera(text: str) -> Camera:
+    """A camera from ``FX,FY,CX,CY,WIDTH,HEIGHT`` (px) or a camera YAML file."""
+    from relcal.errors import RelcalError
+    from relcal.vision.camera import Camera
+
+    parts = text.split(",")
+    if len(parts) == 6:
+        try:
+            fx, fy, cx, cy = (float(v) for v in parts[:4])
+            return Camera(fx=fx, fy=fy, cx=cx, cy=cy, width=int(parts[4]), height=int(parts[5]))
+        except ValueError as exc:
+            raise RelcalError(f"--camera '{text}': {exc}") from None
+    from relcal.vision.camera import load_camera
+
+    camera = load_camera(text)
+    if camera.width is None or camera.height is None:
+        raise RelcalError(f"{text}: the camera's image size (width, height) is needed to plan")
+    return camera
 
 
 def _floats(text: str, count: tuple[int, ...], what: str) -> list[float]:
@@ -53,13 +112,51 @@ def _floats(text: str, count: tuple[int, ...], what: str) -> list[float]:
     return values
 
 
+def parse_limits(text: str, model, unit: str) -> dict[str, tuple[float, float]]:
+    """User joint limits (rad, m) from ``NAME=LOWER:UPPER,...`` (angles in ``unit``, prismatic
+    joints in m; NAME a joint name or qK) or a YAML file with ``joint_limits:`` (a dataset.yaml,
+    whose ``joint_unit`` applies, default deg)."""
+    from pathlib import Path
+
+    from relcal.data.dataset import limits_from_unit
+    from relcal.errors import RelcalError
+
+    if Path(text).suffix in (".yaml", ".yml") or Path(text).is_file():
+        from relcal.io import load_yaml
+
+        data, _ = load_yaml(text)
+        if not isinstance(data, dict) or not isinstance(data.get("joint_limits"), dict):
+            raise RelcalError(f"--limits {text}: expected a YAML mapping with joint_limits:")
+        raw, unit = data["joint_limits"], data.get("joint_unit", "deg")
+        limits = {}
+        for name, pair in raw.items():
+            ok = isinstance(pair, list) and len(pair) == 2
+            if not ok or not all(isinstance(v, int | float) for v in pair):
+                raise RelcalError(f"--limits {text}: joint_limits.{name}: expected [lower, upper]")
+            limits[str(name)] = (float(pair[0]), float(pair[1]))
+        return limits_from_unit(model, limits, unit)
+    limits = {}
+    for part in text.split(","):
+        name, sep, rest = part.partition("=")
+        lo, sep2, hi = rest.partition(":")
+        try:
+            if not (sep and sep2):
+                raise ValueError
+            limits[name.strip()] = (float(lo), float(hi))
+        except ValueError:
+            raise RelcalError(
+                f"--limits '{part}': expected NAME=LOWER:UPPER (e.g. elbow=-160:160, in "
+                f"--joint-unit {unit}) or a YAML file with joint_limits:"
+            ) from None
+    return limits_from_unit(model, limits, unit)
+
+
 def build_cell(args: argparse.Namespace):
     """The cell from the command line (board, its centre, camera, hand-eye guess)."""
     import numpy as np
 
     from relcal import geometry as tf
     from relcal.design.cell import Cell
-    from relcal.design.plan import parse_board, parse_camera
 
     cell = Cell(board=parse_board(args.board))
     if args.camera:
@@ -74,8 +171,8 @@ def build_cell(args: argparse.Namespace):
 
 def run(args: argparse.Namespace) -> int:
     from relcal.calibration.noise import Noise
-    from relcal.data.dataset import joints_in_unit, write_samples
     from relcal.design.plan import Constraints, plan
+    from relcal.design.planfile import plan_text
     from relcal.io import File, json_text, write_set
     from relcal.outputset import check
     from relcal.reporting.documents import plan_document
@@ -83,6 +180,20 @@ def run(args: argparse.Namespace) -> int:
 
     named = ((args.out, "--out"), (args.random_out, "--random-out"), (args.json, "--json"))
     model = load_robot(args)
+    if args.limits:
+        from relcal.robot.model import restrict_limits
+
+        limits = parse_limits(args.limits, model, args.joint_unit)
+        model = restrict_limits(model, limits, f"--limits {args.limits}")
+    obstacles = tuple(tuple(_floats(o, (6,), "--obstacle")) for o in args.obstacle or ())
+    for box in obstacles:
+        if not all(lo < hi for lo, hi in zip(box[:3], box[3:], strict=True)):
+            from relcal.errors import RelcalError
+
+            raise RelcalError(
+                f"--obstacle {','.join(f'{v:g}' for v in box)}: expected XMIN,YMIN,ZMIN,XMAX,"
+                "YMAX,ZMAX with each minimum below its maximum (m, base frame)"
+            )
     check([File(p, b"", what) for p, what in named if p])  # before the work
     cell = build_cell(args)
     lo, hi = _floats(args.distance, (2,), "--distance")
@@ -93,6 +204,9 @@ def run(args: argparse.Namespace) -> int:
         min_inverse_condition=args.min_inverse_condition,
         clearance=args.clearance,
         length_scale=args.length_scale,
+        link_radius=args.link_radius,
+        camera_radius=args.camera_radius,
+        obstacles=obstacles,
     )
     noise = Noise.parse(args.noise)
     client, cluster = None, None
@@ -121,8 +235,7 @@ def run(args: argparse.Namespace) -> int:
             cluster.close()
 
     def joints_table(q: np.ndarray) -> str:
-        ids = [f"p{k + 1:03d}" for k in range(len(q))]
-        return write_samples(args.out, ids, joints_in_unit(model, q, args.joint_unit))
+        return plan_text(model, q, unit=args.joint_unit)
 
     items = []
     if args.out:
@@ -135,7 +248,7 @@ def run(args: argparse.Namespace) -> int:
     if not args.quiet:
         center = ",".join(f"{v:g}" for v in cell.center)
         print(f"{model.name}: {cell.board.describe()}, centre {center} m")
-        print(format_plan(res, args.length_scale))
+        print(format_plan(res, args.length_scale, model))
         if args.out:
             print(f"wrote {len(res.q)} joint configurations to {args.out}")
         if args.random_out:
@@ -205,6 +318,31 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument(
         "--clearance", type=nonnegative_float, default=0.05, help="above the board plane, m"
+    )
+    p.add_argument(
+        "--limits",
+        metavar="NAME=LO:HI,...|FILE",
+        help="narrower joint limits than the robot's: joint name (or qK) = lower:upper in "
+        "--joint-unit (prismatic joints in m), or a YAML file with joint_limits: (a dataset.yaml)",
+    )
+    p.add_argument(
+        "--obstacle",
+        action="append",
+        metavar="XMIN,YMIN,ZMIN,XMAX,YMAX,ZMAX",
+        help="a box in the cell the arm and camera must not touch (m, base frame); repeatable",
+    )
+    p.add_argument(
+        "--link-radius",
+        type=nonnegative_float,
+        default=0.04,
+        help="radius of the capsules about the links for the collision checks, m (default 0.04; "
+        "0 with --camera-radius 0: no self-collision check)",
+    )
+    p.add_argument(
+        "--camera-radius",
+        type=nonnegative_float,
+        default=0.04,
+        help="radius of the sphere about the camera for the collision checks, m (default 0.04)",
     )
     p.add_argument(
         "--length-scale",

@@ -24,6 +24,8 @@
     tool: {xyz: [0, 0, 0.03]}  # coincidence: guess of the tool point in the tip frame (m)
     distances:                 # coincidence: known distances between groups' points (m)
       - {groups: [front/hole_0, front/hole_1], distance: 0.050, std: 0.0002}
+    joint_limits:              # optional: the cell's limits, narrower than the robot's, in
+      elbow: [-170, 170]       #   joint_unit (prismatic joints in m); plan and capture keep them
 
 ``samples.csv`` has a header: ``id`` (optional: without it a sample's id is its line number), one
 column per joint, named ``q1`` .. ``qn`` or by the model's joint names (``torso_lift_joint``, ...,
@@ -43,6 +45,7 @@ matched by name in any order), then what was measured, one of:
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal
@@ -55,7 +58,7 @@ from relcal import geometry as tf
 from relcal.errors import RelcalError
 from relcal.io import load_yaml, note_input, read_table, validate
 from relcal.robot.loading import get_robot
-from relcal.robot.model import RobotModel, auto_hayati, model_from_dict
+from relcal.robot.model import RobotModel, auto_hayati, model_from_dict, restrict_limits
 
 POSE_COLUMNS = ("x", "y", "z", "qx", "qy", "qz", "qw")
 RPY_COLUMNS = ("x", "y", "z", "roll", "pitch", "yaw")
@@ -125,6 +128,9 @@ class _DatasetSpec(pydantic.BaseModel):
     measurement: Literal["coincidence"] | None = None  # default: from the samples' columns
     tool: _ToolPoint | None = None  # coincidence: tool point guess in the tip frame (m)
     distances: list[_Distance] = []  # coincidence: known distances between groups (m)
+    # the cell's own limits, narrower than the robot's (joint name or qK -> [lower, upper] in
+    # joint_unit, prismatic joints in m): what plan and capture keep to
+    joint_limits: dict[str, tuple[float, float]] | None = None
 
     @pydantic.field_validator("hayati", mode="before")
     @classmethod
@@ -162,6 +168,237 @@ class Dataset:
     tool_point: np.ndarray | None = None
     distances: tuple[tuple[str, str, float, float], ...] = ()
 
+    @classmethod
+    def from_arrays(
+        cls,
+        model: RobotModel | str,
+        q: np.ndarray,
+        poses: np.ndarray | None = None,
+        mode: Literal["eye_in_hand", "eye_to_hand"] = "eye_in_hand",
+        handeye: np.ndarray | None = None,
+        *,
+        joint_unit: Literal["rad", "deg"] = "rad",
+        hayati: Literal["auto", "off"] = "auto",
+        ids: Sequence[str] | None = None,
+        images: Sequence[str | Path] | None = None,
+        board: Any = None,
+        camera: Any = None,
+        tolerances: dict[str, float] | None = None,
+        robot_id: str | None = None,
+        root: str | Path = ".",
+    ) -> Dataset:
+        """A dataset from arrays in memory: what :func:`load_dataset` reads from a folder.
+
+        Parameters
+        ----------
+        model : RobotModel or str
+            The nominal robot, or what :func:`relcal.get_robot` takes (a built-in name, a model
+            YAML or a URDF path).
+        q : array_like, shape (N, n)
+            Joint values, one row per sample, in ``joint_unit`` (prismatic joints in m).
+        poses : array_like, shape (N, 4, 4), (N, 7) or (N, 3), optional
+            What was measured at each configuration. ``(N, 4, 4)`` homogeneous transforms (m) or
+            ``(N, 7)`` rows ``x, y, z, qx, qy, qz, qw``: the camera in the board frame
+            (``eye_in_hand``), the board in the camera frame (``eye_to_hand``), or a
+            motion-capture rigid body in the instrument's frame. ``(N, 3)``: positions alone
+            (a laser tracker's reflector, a marker), calibrated with the instrument transform
+            and the marker position estimated. Give ``images`` instead for images.
+        mode : {"eye_in_hand", "eye_to_hand"}
+            Camera on the flange looking at a fixed board, or a fixed camera and the board on
+            the flange.
+        handeye : array_like, shape (4, 4), optional
+            Guess of the flange-from-camera (eye-in-hand) or flange-from-board transform, m.
+            Without it a hand-eye solve on the data gives the starting guess.
+        joint_unit : {"rad", "deg"}
+            Unit of the revolute joints in ``q``.
+        hayati : {"auto", "off"}
+            Hayati's ``beta`` for parallel consecutive axes, as ``hayati:`` in dataset.yaml.
+        ids : sequence of str, optional
+            Sample ids (default ``"0"`` .. ``"N-1"``).
+        images, board, camera : optional
+            Image paths (one per sample) with the board (:func:`relcal.vision.boards.load_board`)
+            and camera intrinsics (:func:`relcal.vision.camera.load_camera`, or ``"calibrate"``).
+        tolerances : dict, optional
+            Plausibility thresholds as ``tolerances:`` in dataset.yaml (mm, deg, percent).
+        robot_id : str, optional
+            Which physical robot, for the registry's history.
+        root : str or Path
+            Where the data came from (shown in results; default the working folder).
+
+        Returns
+        -------
+        Dataset
+            Ready for :func:`relcal.calibrate`.
+
+        Raises
+        ------
+        RelcalError
+            An argument of the wrong shape, not finite, not a rigid transform, or in a unit
+            that looks wrong (degrees given as radians), naming the argument and the cause.
+
+        Examples
+        --------
+        >>> import numpy as np, relcal
+        >>> model = relcal.get_robot("a465")
+        >>> q = np.radians([[10, 20, 30, 40, 50, 60]] * 8) + np.arange(8)[:, None] * 0.1
+        >>> poses = relcal.fk(model, q)  # stand-ins for measured camera poses
+        >>> relcal.Dataset.from_arrays(model, q, poses)
+        <Dataset '.': 8 samples, poses given, eye_in_hand, robot 'Thermo CRS A465' (6 joints)>
+        """
+        return _from_arrays(
+            cls, model, q, poses, mode, handeye, joint_unit, hayati, ids, images, board, camera,
+            tolerances, robot_id, root,
+        )  # fmt: skip
+
+    def __repr__(self) -> str:
+        from relcal._repr import plural, short
+
+        given = {"image": "images", "pose": "poses given", "position": "positions given"}
+        return short(
+            "Dataset",
+            repr(self.robot_id or self.root.name or str(self.root)),
+            plural(len(self.ids), "sample"),
+            given.get(self.measured, self.measured),
+            self.mode if self.measured != "position" else "",
+            f"robot {self.model.name!r} ({plural(self.model.n_joints, 'joint')})",
+        )
+
+
+def _array(name: str, value, what: str) -> np.ndarray:
+    """``value`` as a float array, or a RelcalError naming the argument."""
+    try:
+        out = np.asarray(value, dtype=float)
+    except (TypeError, ValueError) as exc:
+        raise RelcalError(f"{name}: expected {what}, got {type(value).__name__} ({exc})") from None
+    if not np.all(np.isfinite(out)):
+        bad = np.argwhere(~np.isfinite(out))[0]
+        raise RelcalError(f"{name}: {what}; entry {tuple(int(i) for i in bad)} is not finite")
+    return out
+
+
+def _rigid(name: str, transforms: np.ndarray) -> None:
+    """Each ``(4, 4)`` must be a rigid transform: a rotation and ``0 0 0 1`` as last row."""
+    last = np.abs(transforms[..., 3, :] - [0, 0, 0, 1]).max(axis=-1)
+    rot = transforms[..., :3, :3]
+    ortho = np.abs(np.swapaxes(rot, -1, -2) @ rot - np.eye(3)).max(axis=(-1, -2))
+    bad = np.flatnonzero((last > 1e-9) | (ortho > 1e-6) | (np.linalg.det(rot) < 0))
+    if bad.size:
+        k = int(bad[0])
+        where = f"{name}[{k}]" if transforms.ndim == 3 else name
+        raise RelcalError(
+            f"{where}: not a rigid transform (rotation part orthonormal with determinant +1, last "
+            f"row 0 0 0 1); {len(bad)} of them are not: transposed matrices, a scale, or rows "
+            "in another layout?"
+        )
+
+
+def _from_arrays(
+    cls, model, q, poses, mode, handeye, joint_unit, hayati, ids, images, board, camera,
+    tolerances, robot_id, root,
+) -> Dataset:  # fmt: skip
+    """:meth:`Dataset.from_arrays`, with the checks at the boundary."""
+    if isinstance(model, str | Path):
+        model = get_robot(model)
+    if not isinstance(model, RobotModel):
+        raise RelcalError(f"model: expected a RobotModel or a robot name/file, got {model!r}")
+    if hayati not in ("auto", "off"):
+        raise RelcalError(f"hayati: {hayati!r}; use 'auto' or 'off'")
+    if hayati == "auto":
+        model = auto_hayati(model)
+    if mode not in ("eye_in_hand", "eye_to_hand"):
+        raise RelcalError(f"mode: {mode!r}; use 'eye_in_hand' or 'eye_to_hand'")
+    if joint_unit not in ("rad", "deg"):
+        raise RelcalError(f"joint_unit: {joint_unit!r}; use 'rad' or 'deg'")
+    n = model.n_joints
+    q = _array("q", q, f"joint values of shape (N, {n})")
+    if q.ndim != 2 or q.shape[1] != n:
+        raise RelcalError(
+            f"q: shape {q.shape}, expected (N, {n}) for the {n}-joint robot '{model.name}' (one "
+            "row per sample, one column per joint" + ("; one sample needs q[None]" if q.ndim == 1
+            else "; transposed?" if q.ndim == 2 and q.shape[0] == n else "") + ")"
+        )  # fmt: skip
+    if len(q) < 4:
+        raise RelcalError(f"q: {len(q)} samples; at least 4 are needed (many more to calibrate)")
+    revolute = ~model.prismatic
+    if revolute.any():
+        peak = np.abs(q[:, revolute]).max()
+        if joint_unit == "rad" and peak > 2 * np.pi + 0.1:
+            raise RelcalError(
+                f"q: joint angles reach {peak:.1f}, which looks like degrees, but joint_unit is "
+                "'rad' (pass joint_unit='deg', or np.radians(q))"
+            )
+        if joint_unit == "deg" and len(q) >= 5 and peak < np.pi + 0.05 and np.abs(q).mean() > 1e-3:
+            raise RelcalError(
+                f"q: no joint angle exceeds {peak:.2f}, which looks like radians, but joint_unit "
+                "is 'deg'"
+            )
+    q = joints_from_unit(model, q, joint_unit)
+    if (poses is None) == (images is None):
+        raise RelcalError("give either poses (measured poses or positions) or images, not both")
+    measured: Measured
+    image_paths = None
+    if images is not None:
+        image_paths = tuple(Path(p) for p in images)
+        if len(image_paths) != len(q):
+            raise RelcalError(f"images: {len(image_paths)} paths for {len(q)} samples in q")
+        missing = [p for p in image_paths if not p.is_file()]
+        if missing:
+            raise RelcalError(f"images: file not found: {missing[0]} ({len(missing)} missing)")
+        if board is None or camera is None:
+            raise RelcalError(
+                "images need board= (relcal.vision.boards.load_board) and camera= (intrinsics, "
+                "relcal.vision.camera.load_camera, or 'calibrate')"
+            )
+        measured, pose_arr = "image", None
+    else:
+        pose_arr = _array("poses", poses, "measured poses (N, 4, 4), (N, 7) or positions (N, 3)")
+        shape = pose_arr.shape
+        if shape[:1] != (len(q),):
+            raise RelcalError(
+                f"poses: {shape[0] if shape else 0} measurements for {len(q)} samples in q "
+                f"(shape {shape}): one per row of q"
+            )
+        if shape[1:] == (4, 4):
+            _rigid("poses", pose_arr)
+            measured = "pose"
+        elif shape[1:] == (7,):
+            pose_arr = _poses(Path("poses"), pose_arr, list(range(len(q))))
+            measured = "pose"
+        elif shape[1:] == (3,):
+            positions = pose_arr
+            pose_arr = np.broadcast_to(np.eye(4), (len(q), 4, 4)).copy()
+            pose_arr[:, :3, 3] = positions
+            measured = "position"
+        else:
+            raise RelcalError(
+                f"poses: shape {shape}; expected (N, 4, 4) homogeneous transforms, (N, 7) rows "
+                "x, y, z, qx, qy, qz, qw (m, unit quaternion, x-first), or (N, 3) positions (m)"
+            )
+    if handeye is not None:
+        handeye = _array("handeye", handeye, "a (4, 4) transform")
+        if handeye.shape != (4, 4):
+            raise RelcalError(f"handeye: shape {handeye.shape}, expected (4, 4) (metres)")
+        _rigid("handeye", handeye)
+    ids = tuple(str(k) for k in range(len(q))) if ids is None else tuple(str(i) for i in ids)
+    if len(ids) != len(q) or len(set(ids)) != len(ids):
+        raise RelcalError(f"ids: {len(ids)} ids for {len(q)} samples; each sample one unique id")
+    return cls(
+        Path(root),
+        model,
+        mode,
+        handeye,
+        ids,
+        q,
+        image_paths,
+        pose_arr,
+        board,
+        camera,
+        None,
+        dict(tolerances) if tolerances else None,
+        measured,
+        robot_id=robot_id,
+    )
+
 
 def _resolve(root: Path, value: str | dict | None, loader, what: str, spec: Path):
     """A path (relative to the dataset) or an inline mapping, loaded by ``loader``."""
@@ -184,6 +421,12 @@ def load_dataset(folder: str | Path) -> Dataset:
     model = _robot(root, spec.robot, spec_path, node)
     if spec.hayati == "auto":
         model = auto_hayati(model)
+    if spec.joint_limits:
+        model = restrict_limits(
+            model,
+            limits_from_unit(model, spec.joint_limits, spec.joint_unit),
+            f"{spec_path}: joint_limits",
+        )
 
     handeye = None
     if spec.handeye is not None:
@@ -533,6 +776,21 @@ def _joint_values(path: Path, q: np.ndarray, model: RobotModel, unit: str) -> np
                 "dataset.yaml declares joint_unit: deg"
             )
     return joints_from_unit(model, q, unit)
+
+
+def limits_from_unit(
+    model: RobotModel, limits: dict[str, tuple[float, float]], unit: str
+) -> dict[str, tuple[float, float]]:
+    """Joint limits by joint name (or ``qK``) from ``unit`` (deg or rad; prismatic joints in m)
+    to rad and m (unknown names are left for :func:`restrict_limits` to report)."""
+    index = {name: i for i, name in enumerate(model.joint_names)}
+    index.update({f"q{i + 1}": i for i in range(model.n_joints)})
+    out = {}
+    for name, (lo, hi) in limits.items():
+        i = index.get(name)
+        angle = unit == "deg" and (i is None or not model.prismatic[i])
+        out[name] = (np.radians(lo), np.radians(hi)) if angle else (float(lo), float(hi))
+    return out
 
 
 def read_joints(path: str | Path, model: RobotModel, joint_unit: str = "deg") -> np.ndarray:

@@ -100,6 +100,6 @@ def measure_dataset_images(
 def _never_found(dataset: Dataset, reasons: list[str]) -> RelcalError:
     first = next((r for r in reasons if r), "no reason recorded")
     return RelcalError(
-        f"{dataset.spec_path}: the board was not found (or not posed) in enough of the "
+        f"{dataset.spec_path or 'images'}: the board was not found (or not posed) in enough of the "
         f"{len(reasons)} images; first reason: {first}"
     )

@@ -18,23 +18,9 @@ import numpy as np
 from matplotlib.figure import Figure
 
 from relcal.fleet.drift import display
-from relcal.reporting.html import (
-    AFTER,
-    BAD,
-    BEFORE,
-    DPI,
-    FIG_WIDTH,
-    PLOT_STYLE,
-    Html,
-    _badge,
-    _cards,
-    _figure_html,
-    _fmt,
-    _p,
-    _page,
-    _section,
-    _table,
-)
+from relcal.reporting import htmlkit as hk
+from relcal.reporting.htmlkit import DPI, Html
+from relcal.reporting.plots import AFTER, BAD, BEFORE, FIG_WIDTH, PLOT_STYLE
 
 # Whole-pixel line heights: every box, and so every plot, starts on a pixel row (a plot of fine
 # lines drawn half a pixel off would be resampled, and blurred, by the browser).
@@ -51,11 +37,6 @@ MIN_ROBOTS = 8  # fewer robots of a model: no robust spread to judge "far" by
 
 def _slug(text: str) -> str:
     return re.sub(r"[^a-z0-9]+", "-", text.lower()).strip("-") or "model"
-
-
-def _median(values: list) -> float | None:
-    values = [v for v in values if v is not None]
-    return float(np.median(values)) if values else None
 
 
 def _summary(doc: dict, entries: list[dict]) -> tuple:
@@ -77,23 +58,23 @@ def _summary(doc: dict, entries: list[dict]) -> tuple:
             str(m["n_ok"]),
             str(m["n_failed"]),
             ", ".join(m["drift_robots"]) or "none",
-            _fmt(m["median_baseline_position_rms_mm"], ".3f"),
-            _fmt(m["median_calibrated_position_rms_mm"], ".3f"),
+            hk.fmt(m["median_baseline_position_rms_mm"], ".3f"),
+            hk.fmt(m["median_calibrated_position_rms_mm"], ".3f"),
         ]
         for m in models
     ]
     head = ["robot model", "sessions", "robots", "calibrated", "failed", "drift flagged"]
     head += ["baseline mm", "calibrated mm"]
-    return _section(
+    return hk.section(
         "summary",
         "Summary",
-        _cards(cards, "wide"),
-        _p(
+        hk.cards(cards, "wide"),
+        hk.paragraph(
             "Per robot model (robots of one model compare, of two do not): held-out position RMS, "
             "median over the model's calibrated sessions."
         ),
-        _table(head, rows, "num"),
-        _p(
+        hk.table(head, rows, "num"),
+        hk.paragraph(
             "Drift: each session against the robot's previous calibration, over the parameters "
             f"both identify (alpha {doc.get('alpha', 0.01):g}; without a change at most "
             f"{2 * doc.get('alpha', 0.01):.0%} of comparisons are flagged)."
@@ -107,7 +88,7 @@ def _verifications(doc: dict) -> tuple:
     against the calibration's own held-out error."""
     found = doc.get("verifications") or []
     if not found:
-        return _section(
+        return hk.section(
             "verifications",
             "Verifications on new sessions",
             Html(
@@ -118,9 +99,7 @@ def _verifications(doc: dict) -> tuple:
     rows = []
     for v in found:
         ci = (v.get("intervals") or {}).get("calibrated_position_mm")
-        at = v.get("at_calibration_position_rms_mm")
         now = v.get("calibrated_position_rms_mm")
-        good = v["verdict"] == "holds"
         rows.append(
             [
                 v["robot_id"],
@@ -128,25 +107,25 @@ def _verifications(doc: dict) -> tuple:
                 f"run {v['calibration_id']}" if v.get("calibration_id") else v["calibration"],
                 v.get("session") or "",
                 str(v["n_samples"]),
-                _fmt(v.get("baseline_position_rms_mm"), ".3f"),
-                _fmt(now, ".3f") + (f" ({ci[0]:.3f}..{ci[1]:.3f})" if ci else ""),
-                _fmt(at, ".3f"),
-                _badge(good, v["verdict"], v["verdict"]),
+                hk.fmt(v.get("baseline_position_rms_mm"), ".3f"),
+                hk.fmt(now, ".3f") + (f" ({ci[0]:.3f}..{ci[1]:.3f})" if ci else ""),
+                hk.fmt(v.get("at_calibration_position_rms_mm"), ".3f"),
+                hk.badge(v["verdict"] == "holds", v["verdict"], v["verdict"]),
             ]
         )
     head = ["robot", "time (UTC)", "calibration", "session", "samples", "baseline mm"]
     head += ["calibrated mm", "at calibration mm", "verdict"]
-    return _section(
+    return hk.section(
         "verifications",
         "Verifications on new sessions",
-        _p(
+        hk.paragraph(
             "The latest verification of each robot: its calibration's prediction error on a new "
             "session (kinematics frozen, the session's hand-eye or instrument and marker refitted "
             "by cross-fitting, for the calibration and the nominal baseline alike), beside the "
             "calibration's own held-out error. 'degraded': still better than the nominal model, "
             "but worse than at calibration beyond the interval."
         ),
-        _table(head, rows, "num"),
+        hk.table(head, rows, "num"),
     )
 
 
@@ -161,9 +140,9 @@ def _drift_cell(e: dict) -> Html | str:
     if not drift:
         return "–"
     if drift["verdict"] == "agree":
-        return _badge(True, f"agree (p={drift['p_value']:.2g})")
+        return hk.badge(True, f"agree (p={drift['p_value']:.2g})")
     what = ", ".join(drift["flagged"]) or "as a whole"
-    return _badge(False, no=f"drift: {what} (p={drift['p_value']:.2g})")
+    return hk.badge(False, no=f"drift: {what} (p={drift['p_value']:.2g})")
 
 
 def _robots(entries: list[dict]) -> tuple:
@@ -175,11 +154,11 @@ def _robots(entries: list[dict]) -> tuple:
                 e["session"],
                 e.get("robot_id", ""),
                 e.get("model") or "–",
-                _badge(ok, e["status"], e["status"]),
-                _fmt(e.get("baseline_position_rms_mm"), ".3f"),
-                _fmt(e.get("calibrated_position_rms_mm"), ".3f"),
-                _fmt(e.get("baseline_orientation_rms_deg"), ".4f"),
-                _fmt(e.get("calibrated_orientation_rms_deg"), ".4f"),
+                hk.badge(ok, e["status"], e["status"]),
+                hk.fmt(e.get("baseline_position_rms_mm"), ".3f"),
+                hk.fmt(e.get("calibrated_position_rms_mm"), ".3f"),
+                hk.fmt(e.get("baseline_orientation_rms_deg"), ".4f"),
+                hk.fmt(e.get("calibrated_orientation_rms_deg"), ".4f"),
                 _drift_cell(e),
             ]
         )
@@ -194,20 +173,20 @@ def _robots(entries: list[dict]) -> tuple:
         "calibrated deg",
         "drift vs previous",
     ]
-    return _section(
+    return hk.section(
         "robots",
         "Robots",
-        _p("Held-out relative errors (RMS over the held-out pairs of each session)."),
-        _table(head, rows, "num"),
+        hk.paragraph("Held-out relative errors (RMS over the held-out pairs of each session)."),
+        hk.table(head, rows, "num"),
     )
 
 
 def _failed(entries: list[dict]) -> tuple:
     failed = [e for e in entries if e["status"] != "ok"]
     if not failed:
-        return _section("failed", "Failed sessions", Html('<p class="none">none</p>'))
+        return hk.section("failed", "Failed sessions", Html('<p class="none">none</p>'))
     rows = [[e["session"], e.get("reason") or ""] for e in failed]
-    return _section("failed", "Failed sessions", _table(["session", "reason"], rows, "ids"))
+    return hk.section("failed", "Failed sessions", hk.table(["session", "reason"], rows, "ids"))
 
 
 def _parameter_values(group: list[dict]) -> tuple[list[str], dict]:
@@ -291,22 +270,22 @@ def _parameters(entries: list[dict]) -> list[tuple]:
         fig, flagged = parameter_figure(group, model)
         robots = sorted({e["robot_id"] for e in group})
         sections.append(
-            _section(
+            hk.section(
                 f"parameters-{slug}",
                 f"Parameters across the fleet: {model}",
-                _p(
+                hk.paragraph(
                     f"{len(group)} sessions of {len(robots)} robots ("
                     + ", ".join(robots)
                     + f", left to right). Red: a robot whose latest value lies more than "
                     f"{OUTLIER_Z} robust standard deviations from the median of the robots of "
                     f"this model (with {MIN_ROBOTS} robots or more)."
                 ),
-                _figure_html(
+                hk.figure_html(
                     f"plot-parameters-{slug}",
                     f"identified errors of every {model} robot, one plot per parameter",
                     fig,
                 ),
-                _p("Far from the others: " + ("; ".join(flagged) if flagged else "none")),
+                hk.paragraph("Far from the others: " + ("; ".join(flagged) if flagged else "none")),
             )
         )
     return sections
@@ -320,7 +299,7 @@ def fleet_report(doc: dict, entries: list[dict]) -> str:
     meta = [("root", str(doc.get("root", ""))), ("sessions", str(len(entries)))]
     if doc.get("registry"):
         meta.append(("registry", doc["registry"]))
-    page = _page("relcal fleet report", meta, sections)
+    page = hk.page("relcal fleet report", meta, sections)
     return page.replace("</style>", PIXEL_CSS + "</style>", 1)
 
 

@@ -21,8 +21,9 @@ from relcal.calibration.verify import FROZEN, Assessment, JointRanges, Verificat
 from relcal.data.dataset import Dataset
 from relcal.data.imaging import Measurements
 from relcal.data.importers import Imported
+from relcal.design.criteria import Quality
 from relcal.design.observability import Report
-from relcal.design.plan import PlanResult, Quality
+from relcal.design.plan import PlanResult
 from relcal.geometry import to_xyz_rpy
 from relcal.robot.kinematics import DISPLAY_UNITS
 from relcal.robot.model import KINDS, NONGEOMETRIC_KINDS, RobotModel, model_to_dict
@@ -412,11 +413,29 @@ def plan_document(res: PlanResult, model: RobotModel) -> dict:
         "n_candidates": res.n_candidates,
         "rejected": res.rejected,
         "seconds": res.seconds,
+        "joint_names": list(model.joint_names),
         "joints": [[float(v) for v in row] for row in res.q],
+        "travel": travel_document(res, model),
         "plan": one(res.plan),
         "random": [one(r) for r in res.random],
         "random_median_worst_m": res.random_median_worst,
         "improvement": res.improvement,
+    }
+
+
+def travel_document(res: PlanResult, model: RobotModel) -> dict | None:
+    """The route's longest single joint move and its total (rad, or m for a prismatic joint)."""
+    if res.route is None:
+        return None
+    move, joint, value = res.route.longest
+    return {
+        "longest_move": {
+            "joint": model.joint_names[joint],
+            "from_pose": move + 1,
+            "to_pose": move + 2,
+            "value": value,
+        },
+        "total_of_largest_joint_moves": res.route.total,
     }
 
 

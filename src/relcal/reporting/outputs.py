@@ -57,7 +57,7 @@ def calibration_outputs(
     if json_path:
         items.append(File(json_path, json_text({**doc, "run_id": run_id}), "--json"))
     if report_path:
-        from relcal.reporting.html import calibration_report
+        from relcal.reporting.calibration_report import calibration_report
 
         items.append(File(report_path, calibration_report(cal, doc), "--report"))
     return items

@@ -10,8 +10,9 @@ import numpy as np
 from relcal.calibration.compensate import Compensation
 from relcal.calibration.identify import Result
 from relcal.calibration.uncertainty import Accuracy, Uncertainty
+from relcal.design.criteria import Quality
 from relcal.design.observability import Report
-from relcal.design.plan import PlanResult, Quality
+from relcal.design.plan import PlanResult
 from relcal.geometry import DEG, MM
 from relcal.reporting.documents import accuracy_document
 from relcal.robot.kinematics import DISPLAY_UNITS, Layout
@@ -102,13 +103,22 @@ def _cell(sim: Simulation, p: int | None, errors: list[float] | None) -> str:
     return f"{spec:>9.4f} {ident:>10.4f} {pct}"
 
 
-def format_truth(layout: Layout, truth: np.ndarray, result: Result) -> str:
-    """True against identified error of every identifiable parameter of ``layout`` (mm, deg;
-    ppm, urad/Nm for non-geometric terms); ``truth`` on the same layout."""
+def format_truth(
+    layout: Layout, truth: np.ndarray, result: Result, shown: np.ndarray | None = None
+) -> str:
+    """True against identified error of the parameters of ``layout`` (mm, deg; ppm, urad/Nm for
+    non-geometric terms); ``truth`` ``(layout.size,)`` on the same layout (e.g.
+    :meth:`relcal.sim.synth.Truth.errors_on`). ``shown`` masks the rows to print (default: every
+    identifiable parameter)."""
+    truth = np.asarray(truth, dtype=float)
+    if truth.shape != (layout.size,):
+        raise ValueError(f"truth has shape {truth.shape}, the layout {layout.size} parameters")
+    if shown is None:
+        shown = result.identifiable[: layout.size]
     lines = ["", f"{'parameter':<14s} {'unit':>4s} {'true':>9s} {'identified':>10s}"]
     factors, units = layout.display()
     for k, name in enumerate(layout.names):
-        if result.identifiable[k]:
+        if shown[k]:
             scale, unit = factors[k], units[k]
             lines.append(
                 f"{name:<14s} {unit:>4s} {truth[k] * scale:9.4f} {result.params[k] * scale:10.4f}"
@@ -282,7 +292,20 @@ def _quality_row(label: str, q: Quality) -> str:
     )
 
 
-def format_plan(res: PlanResult, length_scale: float) -> str:
+def format_travel(res: PlanResult, model=None) -> str:
+    """One line: the route's longest single joint move and the sum of the largest joint moves
+    (``model`` names the joints and tells prismatic ones)."""
+    move, joint, value = res.route.longest
+    prismatic = model is not None and bool(model.prismatic[joint])
+    unit, f = ("m", 1.0) if prismatic else ("deg", np.degrees(1.0))
+    name = model.joint_names[joint] if model is not None else f"q{joint + 1}"
+    return (
+        f"travel order: longest single move {value * f:.1f} {unit} ({name}, pose {move + 1} to "
+        f"{move + 2}); largest joint moves add up to {res.route.total * np.degrees(1.0):.0f} deg"
+    )
+
+
+def format_plan(res: PlanResult, length_scale: float, model=None) -> str:
     """The plan against random sets: predicted standard deviations and accuracy."""
     k = len(res.q)
     lines = [
@@ -313,6 +336,8 @@ def format_plan(res: PlanResult, length_scale: float) -> str:
         "predicted accuracy: RMS error of relative camera poses between validation poses "
         "caused by the parameter uncertainty alone",
     ]
+    if res.route is not None and len(res.q) > 1:
+        lines.append(format_travel(res, model))
     if res.random:
         lines += ["", *_parameter_table(res.plan, median_set, len(res.random))]
     return "\n".join(lines)

@@ -384,7 +384,8 @@ def _use_fast(backend: Backend, n_conf: int) -> bool:
 
 
 def fk(model: RobotModel, q: np.ndarray, backend: Backend = "numpy") -> np.ndarray:
-    """Flange/tool poses in the base frame ``F(q)``, shape ``(N, 4, 4)`` for ``q`` of ``(N, n)``.
+    """Flange/tool poses in the base frame ``F(q)``: ``(4, 4)`` for one configuration ``q`` of
+    shape ``(n,)``, ``(N, 4, 4)`` for a batch ``(N, n)``.
 
     ``backend="numpy"`` (the default) is the reference implementation; ``"numba"`` the compiled
     kernel of :mod:`relcal.robot.fastkin` (same result to round-off, about 40 times faster on large
@@ -394,7 +395,9 @@ def fk(model: RobotModel, q: np.ndarray, backend: Backend = "numpy") -> np.ndarr
     default never depends on whether it is installed. Non-geometric terms enter both paths
     through :func:`effective_joints`.
     """
-    q = np.atleast_2d(np.asarray(q, dtype=float))
+    q = np.asarray(q, dtype=float)
+    if q.ndim == 1:
+        return fk(model, q[None], backend)[0]
     if _use_fast(backend, q.shape[0]):
         try:
             from relcal.robot import fastkin

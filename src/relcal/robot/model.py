@@ -159,6 +159,23 @@ class RobotModel:
     def n_joints(self) -> int:
         return len(self.theta_off)
 
+    def __repr__(self) -> str:
+        from relcal._repr import plural, short
+
+        slides = int(np.count_nonzero(self.prismatic))
+        joints = plural(self.n_joints, "joint") + (f" ({slides} prismatic)" if slides else "")
+        hayati = [str(i + 1) for i in np.flatnonzero(self.hayati)]
+        terms = sorted({t for flags in self.nongeometric for t in flags})
+        return short(
+            "RobotModel",
+            repr(self.name),
+            joints,
+            {"dh": "standard DH", "mdh": "modified DH"}.get(self.convention, self.convention),
+            f"Hayati beta at joint {', '.join(hayati)}" if hayati else "",
+            f"non-geometric {', '.join(terms)}" if terms else "",
+            f"from {Path(self.urdf.path).name}" if self.urdf is not None else "",
+        )
+
     def has_nongeometric_values(self) -> bool:
         """Whether any non-geometric term changes the kinematics."""
         return any(getattr(self, k).any() for k in NONGEOMETRIC_KINDS)
@@ -569,3 +586,33 @@ def auto_hayati(model: RobotModel, tol_deg: float = 1.0) -> RobotModel:
     """Mark joints whose axis is parallel (within ``tol_deg``) to the neighbouring one as Hayati
     joints (:func:`parallel_axes`)."""
     return replace(model, hayati=model.hayati | parallel_axes(model, tol_deg)[0])
+
+
+def restrict_limits(
+    model: RobotModel, limits: dict[str, tuple[float, float]], source: str = "joint limits"
+) -> RobotModel:
+    """A copy of ``model`` with narrower joint limits: ``limits`` maps a joint name (or ``q1`` ..
+    ``qn``) to ``(lower, upper)`` in rad (m for prismatic joints). A user's limits may narrow the
+    robot's own, never widen them: a limit outside the robot's is refused (it would plan poses the
+    controller stops at), naming ``source``."""
+    lower, upper = model.lower.copy(), model.upper.copy()
+    index = {name: i for i, name in enumerate(model.joint_names)}
+    index.update({f"q{i + 1}": i for i in range(model.n_joints)})
+    for name, (lo, hi) in limits.items():
+        if name not in index:
+            raise RelcalError(
+                f"{source}: unknown joint '{name}'; the robot '{model.name}' has joints "
+                f"{', '.join(model.joint_names)} (or q1..q{model.n_joints})"
+            )
+        i = index[name]
+        if not lo < hi:
+            raise RelcalError(f"{source}: {name}: lower {lo:g} must be below upper {hi:g}")
+        if lo < model.lower[i] - 1e-9 or hi > model.upper[i] + 1e-9:
+            unit, f = ("m", 1.0) if model.prismatic[i] else ("deg", np.degrees(1.0))
+            raise RelcalError(
+                f"{source}: {name}: [{lo * f:g}, {hi * f:g}] {unit} goes beyond the robot's own "
+                f"limits [{model.lower[i] * f:g}, {model.upper[i] * f:g}] {unit}; a user limit "
+                "may only narrow them (wrong unit?)"
+            )
+        lower[i], upper[i] = lo, hi
+    return replace(model, lower=lower, upper=upper)

@@ -14,7 +14,13 @@ from dataclasses import dataclass
 import numpy as np
 
 from relcal.calibration.identify import Method, Result, SolverOptions, identify
-from relcal.calibration.measurement import Formulation, Measure, PairStrategy, Problem
+from relcal.calibration.measurement import (
+    Formulation,
+    Measure,
+    PairStrategy,
+    Problem,
+    pair_errors,
+)
 from relcal.calibration.noise import Noise
 from relcal.design.cell import Cell
 from relcal.robot.kinematics import Layout
@@ -33,6 +39,23 @@ class Simulation:
     formulation: Formulation
     measure: Measure
     noise: Noise
+
+    def pair_errors(self) -> tuple[np.ndarray, np.ndarray]:
+        """Residuals ``(P, 6)`` per pair of the nominal model (no correction) and of the
+        identified one (training residuals: the simulation holds nothing out)."""
+        zero = np.zeros_like(self.result.params)
+        return pair_errors(self.problem, zero), pair_errors(self.problem, self.result.params)
+
+    def identification_rms(self) -> tuple[float, float]:
+        """RMS of identified minus specified error over the identifiable parameters: lengths
+        (m) and angles (rad); NaN where there are none."""
+        ok, units = self.result.identifiable, np.array(self.layout.units())
+        diff = self.result.params - self.specified
+        out = []
+        for mask in (units == "m", units == "rad"):
+            d = diff[ok & mask]
+            out.append(float(np.sqrt(np.mean(d**2))) if d.size else float("nan"))
+        return out[0], out[1]
 
 
 def simulate(

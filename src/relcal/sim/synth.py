@@ -51,6 +51,13 @@ class Truth:
     handeye: np.ndarray  # true flange-from-camera X
     board_pose: np.ndarray  # board frame in the robot base frame
 
+    def errors_on(self, layout: Layout) -> np.ndarray:
+        """The true errors ``(layout.size,)`` on another layout, matched by parameter name:
+        e.g. a calibration's, which adds the non-geometric candidates of model selection. A
+        parameter the truth does not have was not planted: its true error is 0."""
+        true = dict(zip(self.layout.names, self.errors, strict=True))
+        return np.array([true.get(name, 0.0) for name in layout.names])
+
 
 def _render_to_file(job: tuple) -> None:
     board, camera, pose, blur, noise, seed, path = job

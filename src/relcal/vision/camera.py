@@ -66,6 +66,27 @@ class Camera:
         if not (self.fx > 0 and self.fy > 0):
             raise ValueError(f"focal lengths must be positive, got fx={self.fx}, fy={self.fy}")
 
+    def scaled(self, factor: float) -> Camera:
+        """The same lens and field of view on a sensor of ``factor`` times the resolution
+        (``factor`` 0.5: pixels binned 2 x 2). Focal lengths scale, the principal point maps
+        pixel centres (``(c + 0.5) f - 0.5``), distortion (in normalised coordinates) stays.
+        The image size, when known, is rounded to whole pixels."""
+        if factor == 1:
+            return self
+        size = {
+            name: max(1, round(getattr(self, name) * factor))
+            for name in ("width", "height")
+            if getattr(self, name) is not None
+        }
+        return replace(
+            self,
+            fx=self.fx * factor,
+            fy=self.fy * factor,
+            cx=(self.cx + 0.5) * factor - 0.5,
+            cy=(self.cy + 0.5) * factor - 0.5,
+            **size,
+        )
+
     @property
     def matrix(self) -> np.ndarray:
         """Camera matrix ``K`` ``(3, 3)``."""

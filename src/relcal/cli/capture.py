@@ -1,0 +1,348 @@
+"""``relcal capture``: move the robot through a plan and record a dataset."""
+
+from __future__ import annotations
+
+import argparse
+
+from relcal.cli.common import (
+    json_arg,
+    load_robot,
+    nonnegative_int,
+    output_folder,
+    positive_float,
+    positive_int,
+    robot_args,
+)
+
+EPILOG = """\
+examples:
+  relcal capture plan.csv --robot ur5e --robot-driver sim --camera sim --out ds
+  relcal calibrate ds
+  relcal capture plan.csv --robot ur5e --robot-driver sim --camera sim --out ds --resume
+  relcal capture plan.csv --robot ur5e --robot-driver sim --camera sim --out ds2 \\
+      --robot-option seed=3,truth=truth.json --robot-option 'faults=hide:p004;stale:6'
+  relcal capture plan.csv --robot ur5e --robot-driver ur --robot-option host=192.168.1.10 \\
+      --camera realsense --out ds --handeye 0,0.04,0.06
+
+For every pose of PLAN (the CSV of relcal plan): check the joint limits, move, wait until the
+joints are still over --settle-window, take a frame stamped after that (older buffered frames are
+discarded), detect the board and check corners, sharpness and reprojection error, then write the
+image and the mean joints of the still window as one sample of the dataset. A pose that fails is
+tried again (--retries), then skipped with its reason. Samples are written whole as they are
+taken: an interrupted run (Ctrl-C) leaves a dataset relcal calibrate reads, and --resume
+continues it. --robot-driver and --camera name a device of relcal.capture.devices (below);
+their settings are --robot-option / --camera-option KEY=VALUE (several per option, comma-
+separated).
+"""
+
+
+def _settings(args: argparse.Namespace):
+    from relcal.capture.loop import DEG, CaptureSettings
+
+    return CaptureSettings(
+        retries=args.retries,
+        move_timeout=args.timeout,
+        settle_window=args.settle_window,
+        settle_threshold=args.settle_threshold * DEG,
+        settle_timeout=args.settle_timeout,
+        joint_tolerance=args.joint_tolerance * DEG,
+        max_rms=args.max_rms,
+        min_sharpness=args.min_sharpness,
+        min_points=args.min_points,
+    )
+
+
+def run(args: argparse.Namespace) -> int:
+    import sys
+
+    import numpy as np
+
+    from relcal import geometry as tf
+    from relcal.capture import devices
+    from relcal.capture.interfaces import RealClock
+    from relcal.capture.loop import capture
+    from relcal.capture.record import DatasetWriter, check_destination
+    from relcal.cli.plan import parse_board
+    from relcal.design.planfile import read_plan
+    from relcal.errors import RelcalError
+    from relcal.io import File, json_text, note_input, write_set
+    from relcal.outputset import check
+    from relcal.reporting.capture_text import format_capture
+
+    model = load_robot(args)
+    limits = None
+    if args.limits:  # the cell's limits, as relcal plan takes them; kept in dataset.yaml
+        from relcal.cli.plan import parse_limits
+        from relcal.robot.model import restrict_limits
+
+        limits = parse_limits(args.limits, model, args.joint_unit or "deg")
+        model = restrict_limits(model, limits, f"--limits {args.limits}")
+    note_input(args.plan)
+    plan = read_plan(args.plan, model, args.joint_unit)
+    board = parse_board(args.board)
+    settings = _settings(args)
+    intrinsics = None
+    if args.intrinsics:
+        from relcal.vision.camera import load_camera
+
+        intrinsics = load_camera(args.intrinsics)
+    handeye = None
+    if args.handeye:
+        try:
+            he = [float(v) for v in args.handeye.split(",")]
+        except ValueError:
+            he = []
+        if len(he) not in (3, 6) or not np.all(np.isfinite(he)):
+            raise RelcalError(f"--handeye '{args.handeye}': expected X,Y,Z[,ROLL,PITCH,YAW]")
+        he = np.r_[he, 0.0, 0.0, 0.0][:6]
+        handeye = tf.from_xyz_rpy(he[:3], np.radians(he[3:]))
+    if args.json:
+        check([File(args.json, b"", "--json")])
+    check_destination(args.out, args.resume)  # before any device is touched
+    check_ids(args.plan, plan.ids)
+    clock = RealClock()
+    robot = devices.open_robot(
+        args.robot_driver,
+        devices.parse_options(args.robot_option or [], "--robot-option"),
+        joint_names=model.joint_names,
+        clock=clock,
+        model=model,
+        board=board,
+        plan_ids=plan.ids,
+        plan_targets=plan.q,
+    )
+    camera = None
+    try:
+        if tuple(robot.joint_names) != tuple(model.joint_names):
+            raise RelcalError(
+                f"--robot-driver {args.robot_driver}: the robot reports joints "
+                f"{', '.join(robot.joint_names)}, the model {model.name} has "
+                f"{', '.join(model.joint_names)}; is --robot the robot connected?"
+            )
+        clock = getattr(robot, "clock", None) or clock  # a simulated robot keeps its own time
+        entry = devices.CAMERAS.get(args.camera)
+        simulated = entry is not None and getattr(entry.load(), "simulated", False)
+        if getattr(robot, "simulated", False) != simulated:
+            raise RelcalError(
+                "the virtual cell's robot and camera go together (simulated time): use "
+                "--robot-driver sim with --camera sim"
+            )
+        camera = devices.open_camera(
+            args.camera,
+            devices.parse_options(args.camera_option or [], "--camera-option"),
+            clock=clock,
+            robot=robot,
+        )
+        if intrinsics is None:
+            intrinsics = camera.intrinsics()
+        writer = DatasetWriter(
+            args.out,
+            model,
+            args.robot,
+            board,
+            intrinsics,
+            plan.ids,
+            plan.q,
+            plan_path=args.plan,
+            joint_unit=args.dataset_joint_unit,
+            handeye=handeye,
+            limits=limits,
+            resume=args.resume,
+            devices={
+                "robot_driver": args.robot_driver,
+                "robot_options": context_options(args.robot_option),
+                "camera": args.camera,
+                "camera_options": context_options(args.camera_option),
+            },
+        )
+        skipped_before = set() if args.retry_skipped else writer.skipped_before()
+        try:
+            summary = capture(
+                plan.ids,
+                plan.q,
+                model,
+                robot,
+                camera,
+                clock,
+                board,
+                writer,
+                intrinsics=intrinsics,
+                settings=settings,
+                done=writer.done,
+                skipped_before=skipped_before,
+                progress=not args.quiet,
+            )
+        except KeyboardInterrupt as exc:
+            summary = getattr(exc, "capture_summary", None)
+            if summary is not None:
+                writer.finish(summary.document())
+                print(format_capture(summary, args.out), file=sys.stderr)
+            raise
+    finally:
+        try:
+            if camera is not None:
+                camera.close()
+        finally:
+            robot.close()
+    doc = summary.document()
+    writer.finish(doc)
+    if args.json:
+        write_set(File(args.json, json_text({"dataset": str(args.out), **doc}), "--json"))
+    if not args.quiet:
+        print(format_capture(summary, args.out, str(args.plan)))
+    return 0 if doc["recorded"] + doc["recorded_before"] > 0 else 1
+
+
+def context_options(pairs: list[str] | None) -> list[str]:
+    """The options as given, for the capture log."""
+    return list(pairs or [])
+
+
+def check_ids(path: str, ids) -> None:
+    """Pose ids name image files: unique, and letters, digits, ``_``, ``-`` and ``.`` only."""
+    import re
+
+    from relcal.errors import RelcalError
+
+    seen: set[str] = set()
+    for pid in ids:
+        if not re.fullmatch(r"[A-Za-z0-9_.-]+", pid) or pid in (".", ".."):
+            raise RelcalError(
+                f"{path}: pose id '{pid}': use letters, digits, '_', '-' and '.' only (it names "
+                "the image file)"
+            )
+        if pid in seen:
+            raise RelcalError(f"{path}: pose id '{pid}' appears twice; ids must be unique")
+        seen.add(pid)
+
+
+def _describe() -> str:
+    from relcal.capture.devices import describe  # light: imports no driver library
+
+    return describe()
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "capture",
+        help="move the robot through a plan and record a dataset (or rehearse in the virtual cell)",
+        description="Capture a dataset: for every planned pose move, wait until still, take a "
+        "fresh frame, check it and record joints and image as one sample.",
+        epilog=EPILOG + "\n" + _describe(),
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument("plan", metavar="PLAN", help="the plan CSV (relcal plan --out)")
+    robot_args(p)
+    p.add_argument(
+        "--robot-driver", required=True, metavar="NAME", help="robot driver (listed below)"
+    )
+    p.add_argument("--camera", required=True, metavar="NAME", help="camera (listed below)")
+    p.add_argument(
+        "--robot-option",
+        action="append",
+        metavar="KEY=VALUE",
+        help="settings of the robot driver (repeat, or comma-separate; sim: seed, truth, faults, "
+        "board_center, handeye, nongeometric, errors, joint_noise, board_pixels)",
+    )
+    p.add_argument(
+        "--camera-option", action="append", metavar="KEY=VALUE", help="a setting of the camera"
+    )
+    p.add_argument(
+        "--board",
+        default="7x10@0.02",
+        help="ROWSxCOLS@SQUARE chessboard (m, or with mm) or a board YAML file (default "
+        "7x10@0.02, as relcal plan)",
+    )
+    p.add_argument(
+        "--intrinsics",
+        metavar="FILE",
+        help="camera YAML (default: the camera driver's own; without either, the dataset "
+        "says camera: calibrate)",
+    )
+    p.add_argument(
+        "--handeye",
+        help="flange-from-camera guess X,Y,Z[,ROLL,PITCH,YAW] (m, deg) written to dataset.yaml "
+        "(default: none; calibrate then solves hand-eye from the data)",
+    )
+    p.add_argument("--out", required=True, type=output_folder, help="the dataset folder")
+    p.add_argument(
+        "--resume",
+        action="store_true",
+        help="continue the capture in --out: poses recorded (or skipped) there are not visited",
+    )
+    p.add_argument(
+        "--retry-skipped", action="store_true", help="with --resume, try skipped poses again"
+    )
+    p.add_argument(
+        "--retries",
+        type=nonnegative_int,
+        default=2,
+        help="further attempts at a pose before it is skipped (default 2)",
+    )
+    p.add_argument(
+        "--timeout", type=positive_float, default=60.0, help="s allowed for one move (default 60)"
+    )
+    p.add_argument(
+        "--settle-window",
+        type=positive_float,
+        default=0.5,
+        help="s the joints must stay still before a frame is taken (default 0.5)",
+    )
+    p.add_argument(
+        "--settle-threshold",
+        type=positive_float,
+        default=0.01,
+        help="deg (mm for prismatic joints): largest peak-to-peak spread of a joint over the "
+        "window (default 0.01)",
+    )
+    p.add_argument(
+        "--settle-timeout",
+        type=positive_float,
+        default=15.0,
+        help="s after the move within which the arm must be still (default 15)",
+    )
+    p.add_argument(
+        "--joint-tolerance",
+        type=positive_float,
+        default=0.1,
+        help="deg: largest difference of the still joints from the target (default 0.1)",
+    )
+    p.add_argument(
+        "--limits",
+        metavar="NAME=LO:HI,...|FILE",
+        help="the cell's joint limits, narrower than the robot's (as relcal plan takes them; "
+        "angles in --joint-unit, default deg): no target outside them is sent; written to "
+        "dataset.yaml",
+    )
+    p.add_argument(
+        "--max-rms",
+        type=positive_float,
+        default=0.5,
+        help="px: largest reprojection RMS of a frame (default 0.5)",
+    )
+    p.add_argument(
+        "--min-sharpness",
+        type=positive_float,
+        default=150.0,
+        help="smallest variance of the Laplacian over the board, after a 1 px Gaussian "
+        "(default 150: rejects a blur of about 4 px)",
+    )
+    p.add_argument(
+        "--min-points",
+        type=positive_int,
+        help="fewest board points in a frame (default: the whole board; half of a ChArUco's)",
+    )
+    p.add_argument(
+        "--joint-unit",
+        choices=("deg", "rad"),
+        help="angle unit of PLAN when it states none (default deg, as relcal plan writes)",
+    )
+    p.add_argument(
+        "--dataset-joint-unit",
+        choices=("deg", "rad"),
+        default="deg",
+        help="angle unit of the dataset's samples.csv (default deg)",
+    )
+    json_arg(p, "the capture summary (per pose: status, attempts, reasons)")
+    p.add_argument("--quiet", action="store_true", help="print nothing but errors")
+    p.set_defaults(func=run)

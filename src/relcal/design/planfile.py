@@ -1,0 +1,145 @@
+"""The plan file: the joint configurations ``relcal plan`` writes and ``relcal capture`` runs.
+
+A CSV whose first line is a comment stating the robot and the unit, then a header naming the
+joints as the robot model does, one row per pose in travel order::
+
+    # relcal plan: robot Universal Robots UR5e, joint unit deg
+    id,shoulder_pan,shoulder_lift,elbow,wrist1,wrist2,wrist3
+    p001,12.5,-95.1,101.7,-96.3,-88.0,30.2
+    ...
+
+Angles are in the stated unit (``deg`` or ``rad``), prismatic joints always in m. The files of
+older versions (``id,q1..qn`` in degrees, no comment line) are read too. :func:`read_plan` is the
+one reader; :func:`plan_text` the one writer.
+"""
+
+from __future__ import annotations
+
+import csv
+import re
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from relcal.errors import RelcalError
+from relcal.robot.model import RobotModel
+
+COMMENT = re.compile(r"#\s*relcal plan:\s*robot\s+(?P<robot>.*?),\s*joint unit\s+(?P<unit>\w+)\s*$")
+
+
+@dataclass(frozen=True)
+class PlanFile:
+    """A read plan: ``ids`` (K,), ``q`` ``(K, n)`` in rad (m for prismatic joints) in the model's
+    joint order, the ``unit`` the file was in and the ``robot`` it names (``None`` for an old
+    file)."""
+
+    ids: tuple[str, ...]
+    q: np.ndarray
+    unit: str
+    robot: str | None
+
+
+def plan_text(model: RobotModel, q: np.ndarray, ids=None, unit: str = "deg") -> str:
+    """The plan file's text for configurations ``q`` ``(K, n)`` (rad, m) of ``model``, angles
+    written in ``unit`` (``deg`` or ``rad``); ``ids`` default ``p001``, ``p002``, ..."""
+    if unit not in ("deg", "rad"):
+        raise ValueError(f"unit '{unit}': use deg or rad")
+    q = np.atleast_2d(q)
+    ids = [f"p{k + 1:03d}" for k in range(len(q))] if ids is None else list(ids)
+    values = np.where(model.prismatic, q, np.degrees(q)) if unit == "deg" else q
+    lines = [
+        f"# relcal plan: robot {model.name}, joint unit {unit}",
+        ",".join(["id", *model.joint_names]),
+    ]
+    for sid, row in zip(ids, values, strict=True):
+        lines.append(",".join([str(sid), *(f"{v:.12g}" for v in row)]))
+    return "\n".join(lines) + "\n"
+
+
+def read_plan(path: str | Path, model: RobotModel, joint_unit: str | None = None) -> PlanFile:
+    """Read a plan file for ``model``.
+
+    Parameters
+    ----------
+    path : str or Path
+        The plan CSV.
+    model : RobotModel
+        The robot the plan is for: its joint names (or ``q1`` .. ``qn``) must head the columns.
+    joint_unit : {"deg", "rad"}, optional
+        The unit of an old file without the comment line (default ``deg``, what older versions
+        wrote); a file that states its unit is read in it, and a different ``joint_unit`` is an
+        error.
+
+    Returns
+    -------
+    PlanFile
+        Ids and joint values ``(K, n)`` in rad (m for prismatic joints).
+
+    Raises
+    ------
+    RelcalError
+        The file is missing or malformed, names another robot or other joints, or its values
+        are not numbers; the message names the file and line.
+    """
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8-sig")
+    except FileNotFoundError:
+        raise RelcalError(f"{path}: plan file not found") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise RelcalError(f"{path}: cannot read the plan file: {exc}") from None
+    rows = [(no, line) for no, line in enumerate(text.splitlines(), 1) if line.strip()]
+    robot, unit = None, None
+    comments = [(no, line) for no, line in rows if line.lstrip().startswith("#")]
+    for no, line in comments:
+        found = COMMENT.match(line.strip())
+        if found:
+            robot, unit = found["robot"], found["unit"]
+            if unit not in ("deg", "rad"):
+                raise RelcalError(f"{path} line {no}: joint unit '{unit}': expected deg or rad")
+    if unit is not None and joint_unit is not None and joint_unit != unit:
+        raise RelcalError(f"{path}: the file states joint unit {unit}, but {joint_unit} was asked")
+    if robot is not None and robot != model.name:
+        raise RelcalError(
+            f"{path} line 1: the plan is for robot '{robot}', not '{model.name}'; plan again "
+            "for this robot or load the robot the plan was made for"
+        )
+    unit = unit or joint_unit or "deg"
+    data = [(no, line) for no, line in rows if not line.lstrip().startswith("#")]
+    if len(data) < 2:
+        raise RelcalError(f"{path}: expected a header line and one line per pose")
+    header = [h.strip() for h in next(csv.reader([data[0][1]]))]
+    named, numbered = list(model.joint_names), [f"q{i + 1}" for i in range(model.n_joints)]
+    columns = named if set(named) <= set(header) else numbered
+    missing = [c for c in columns if c not in header]
+    if "id" not in header or missing:
+        raise RelcalError(
+            f"{path} line {data[0][0]}: header: expected id and the joints of '{model.name}' "
+            f"({', '.join(named)}, or {numbered[0]}..{numbered[-1]})"
+            + (f"; missing {', '.join(missing)}" if missing else "")
+        )
+    col = [header.index(c) for c in columns]
+    ids, values = [], []
+    for no, line in data[1:]:
+        cells = next(csv.reader([line]))
+        if len(cells) != len(header):
+            raise RelcalError(f"{path} line {no}: {len(cells)} fields, expected {len(header)}")
+        row = []
+        for name, i in zip(columns, col, strict=True):
+            try:
+                row.append(float(cells[i]))
+            except ValueError:
+                raise RelcalError(
+                    f"{path} line {no}: {name}: expected a number, got '{cells[i].strip()}'"
+                ) from None
+        ids.append(cells[header.index("id")].strip())
+        values.append(row)
+    q = np.array(values)
+    if not np.isfinite(q).all():
+        raise RelcalError(f"{path}: joint values must be finite numbers")
+    if unit == "deg":
+        q = np.where(model.prismatic, q, np.radians(q))
+    elif (~model.prismatic).any() and np.abs(q[:, ~model.prismatic]).max() > 4 * np.pi + 0.1:
+        raise RelcalError(f"{path}: joint angles exceed 4 pi, which looks like degrees, not rad")
+    return PlanFile(tuple(ids), q, unit, robot)

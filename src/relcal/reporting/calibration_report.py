@@ -1,0 +1,411 @@
+"""The calibration report: one self-contained HTML file that opens offline.
+
+Plots (:mod:`relcal.reporting.plots`) are embedded as base64 PNG ``data:`` URIs; the CSS is
+inline (:mod:`relcal.reporting.htmlkit`) and there is no JavaScript. Every plot is an ``<img>``
+with an ``id`` and an ``alt`` text, every part of the page a ``<section>`` with an ``id``
+(``summary``, ``parameters``, ``singular-values``, ``residuals``, ``per-pair``, ``rejected``,
+``settings``), so that tests and people can find them. All text from data is escaped. The report
+reads a :class:`relcal.Calibration` and its results document; it computes nothing.
+"""
+
+from __future__ import annotations
+
+import matplotlib
+import numpy as np
+
+from relcal.calibration.identifiability import Identifiability
+from relcal.calibration.outcome import Calibration
+from relcal.calibration.validate import stats
+from relcal.reporting import htmlkit as hk
+from relcal.reporting.htmlkit import Html
+from relcal.reporting.plots import (
+    PLOT_STYLE,
+    QUANTITIES,
+    calibration_parameter_figure,
+    histogram_figure,
+    per_pair_figure,
+    singular_value_figure,
+)
+from relcal.reporting.text import pose_noise_parts
+
+__all__ = ["calibration_report", "singular_value_parts"]
+
+
+def _error_sets(cal: Calibration) -> tuple[np.ndarray, np.ndarray, str, str]:
+    """Per-pair errors before and after (:attr:`relcal.Calibration.comparison`), a short label
+    and a sentence saying where they come from."""
+    c = cal.comparison
+    if c.source == "held-out points":
+        sentence = (
+            f"Held-out validation: absolute position errors of {c.count} points that the "
+            "identification did not use; before = nominal model with the instrument transform and "
+            "marker fitted to the training points, after = calibrated model."
+        )
+    elif c.source == "held-out pairs":
+        sentence = (
+            f"Held-out validation: {c.count} pairs among {len(cal.test)} samples that the "
+            "identification did not use; before = the baseline (nominal kinematics with the "
+            "hand-eye transform fitted on the training samples, the best a user gets without "
+            "kinematic calibration), after = the exported model."
+        )
+    else:
+        sentence = (
+            f"No held-out samples: training residuals of {c.count} pairs "
+            "(optimistic: the fit saw them)."
+        )
+    return c.before, c.after, c.source, sentence
+
+
+def _accuracy_cards(before: dict, after: dict, label: str) -> list[tuple[str, str, str]]:
+    cards = []
+    for _, (name, unit, key) in QUANTITIES.items():
+        if key in before:
+            b, a = before[key]["rms"], after[key]["rms"]
+            cards.append(
+                (
+                    f"{label.split()[0]} {name.split()[1]} error, RMS",
+                    f"{b:.3g} → {a:.3g} {unit}",
+                    f"{label}, against the baseline: {_change(b, a)}",
+                )
+            )
+    return cards
+
+
+def _change(before: float, after: float) -> str:
+    """``2.4× smaller``, ``unchanged`` or ``12 % larger``: never a factor that hides a loss."""
+    if after <= 0:
+        return "smaller"
+    ratio = after / before
+    if abs(ratio - 1) < 0.005:
+        return "unchanged (within 0.5 %)"
+    if ratio < 1:
+        return f"{1 / ratio:.2f}× smaller" if ratio < 0.5 else f"{(1 - ratio) * 100:.1f} % smaller"
+    return f"{(ratio - 1) * 100:.1f} % larger"
+
+
+def _fit_cards(cal: Calibration, doc: dict) -> list[tuple[str, str, str]]:
+    r = cal.result
+    return [
+        (
+            "identification",
+            "converged" if r.converged else "NOT converged",
+            f"{r.method}, {r.iterations} iterations; weighted residual "
+            f"{r.initial_residual_norm:.3g} → {r.residual_norm:.3g}",
+        ),
+        (
+            "identifiable",
+            f"{r.rank} of {len(r.params)}",
+            f"parameters; {len(r.unidentifiable)} unidentifiable combination(s)",
+        ),
+        (
+            "samples",
+            f"{doc['n_used']} of {doc['n_samples']} used",
+            f"{len(cal.train)} fit, {len(cal.test)} held out, {len(doc['rejected'])} rejected, "
+            f"{len(doc.get('outliers', []))} outlier(s)",
+        ),
+    ]
+
+
+def _stats_table(
+    before: dict, after: dict, interval: dict | None = None, guess: dict | None = None
+) -> Html:
+    """Statistics before (the baseline) and after; ``interval``: the held-out ratio to the
+    baseline (after / before, bootstrap over samples); ``guess``: the nominal model with the
+    hand-eye guess, shown beside it."""
+    keys = [q for q in QUANTITIES.values() if q[2] in before]
+    head = [""] + [f"{n.split()[1]} {w} ({u})" for n, u, _ in keys for w in ("before", "after")]
+    rows = []
+    for stat, label in (
+        ("mean", "mean"),
+        ("rms", "RMS"),
+        ("median", "median"),
+        ("p95", "95th percentile"),
+        ("max", "max"),
+    ):
+        rows.append([label] + [hk.fmt(s[k][stat]) for _, _, k in keys for s in (before, after)])
+    ratio = ["RMS after / before"]
+    for _, _, k in keys:
+        ratio += ["", hk.fmt(after[k]["rms"] / max(before[k]["rms"], 1e-300), ".3f")]
+    rows.append(ratio)
+    if interval:
+        row = ["95 % interval of after / before (bootstrap over held-out samples)"]
+        for _, _, k in keys:
+            lo, hi = interval[k]["ci95"]
+            row += ["", f"{hk.fmt(lo, '.3f')} – {hk.fmt(hi, '.3f')}"]
+        rows.append(row)
+    if guess:
+        row = ["RMS of the nominal model with the hand-eye guess"]
+        for _, _, k in keys:
+            row += [hk.fmt(guess[k]["rms"]), ""]
+        rows.append(row)
+    return hk.table(head, rows, "num")
+
+
+def _summary(cal: Calibration, doc: dict, errors: tuple) -> tuple[str, str, Html]:
+    before, after, label, sentence = errors
+    b, a = stats(before), stats(after)
+    converged = cal.result.converged
+    return hk.section(
+        "summary",
+        "Summary",
+        hk.cards(_accuracy_cards(b, a, label), "wide"),
+        hk.cards(_fit_cards(cal, doc)),
+        hk.paragraph(sentence),
+        _stats_table(
+            b,
+            a,
+            (doc.get("validation") or {}).get("ratio_to_baseline"),
+            (doc.get("validation") or {}).get("baseline_handeye_guess"),
+        ),
+        _selection(doc),
+        Html(
+            "<p>Convergence: "
+            + hk.badge(converged, "converged", "not converged")
+            + hk.escape(
+                f" after {cal.result.iterations} iterations of {cal.result.method}; "
+                f"stacked residual norm {cal.result.initial_residual_norm:.4g} → "
+                f"{cal.result.residual_norm:.4g} (weighted rows)."
+            )
+            + "</p>"
+        ),
+    )
+
+
+def _parameter_table(cal: Calibration, doc: dict) -> tuple[Html, str]:
+    rows = doc["parameters"]
+    std = [row.get("std") for row in rows]
+    source = (
+        "Standard deviations: least-squares covariance of the fit (pair correlations included), "
+        "with the pose noise estimated robustly from the residuals."
+    )
+    body = [
+        [
+            Html(f"<code>{hk.escape(row['name'])}</code>"),
+            row["unit"],
+            hk.fmt(row["nominal"], ".3f"),
+            hk.fmt(row["error"], "+.4f"),
+            hk.fmt(s, ".2g"),
+            hk.fmt(row.get("bootstrap_std"), ".2g"),
+            hk.fmt(row.get("significance"), ".1f"),
+            row.get("status", "estimated" if row["identifiable"] else "unidentifiable"),
+        ]
+        for row, s in zip(rows, std, strict=True)
+    ]
+    head = [
+        "parameter",
+        "unit",
+        "nominal",
+        "identified error",
+        "std",
+        "bootstrap std",
+        "|error| / std",
+        "status",
+    ]
+    return hk.table(head, body, "num"), source
+
+
+def _selection(doc: dict) -> Html:
+    """The candidate models with their cross-validated held-out errors, the choice and why."""
+    sel = doc.get("model_selection")
+    if not sel or not sel.get("candidates"):
+        return Html("")
+    rows = [
+        [
+            ("▶ " if c["chosen"] else "") + c["name"],
+            c["weighting"],
+            str(c["n_params"]),
+            hk.fmt(c["cv_position_rms_mm"], ".4f"),
+            hk.fmt(c["cv_orientation_rms_deg"], ".4f"),
+        ]
+        for c in sel["candidates"]
+    ]
+    head = [
+        "candidate model",
+        "row weighting",
+        "parameters",
+        "CV position RMS (mm)",
+        "CV orientation RMS (deg)",
+    ]
+    note = f"Chosen: {sel['chosen']} ({sel['weighting']}): {sel['reason']}."
+    if sel["exported"] == "baseline":
+        note += (
+            " The data support no kinematic correction: the exported model is the nominal "
+            "kinematics with the fitted hand-eye transform."
+        )
+    noise = doc.get("noise_model")
+    if noise:
+        mm, deg, rho = pose_noise_parts(noise)
+        note += (
+            f" Learned pose noise (camera frame): {mm} mm and {deg} deg; largest "
+            f"translation-rotation correlation {rho}."
+        )
+    return Html(
+        f"<h3>Model selection ({sel['folds']}-fold cross-validation on the training samples)</h3>"
+        + hk.table(head, rows, "num")
+        + f'<p class="hint">{hk.escape(note)}</p>'
+    )
+
+
+def _handeye_table(doc: dict) -> Html:
+    he = doc.get("handeye")
+    if not he:
+        return Html("")
+    xyz = [hk.fmt(v * 1e3, ".3f") for v in he["xyz_m"]]
+    rpy = [hk.fmt(v, ".4f") for v in he["rpy_deg"]]
+    return hk.table(
+        ["calibrated hand-eye X", "x / roll", "y / pitch", "z / yaw"],
+        [["translation (mm)", *xyz], ["rotation rpy (deg)", *rpy]],
+        "num",
+    )
+
+
+def _held_at_nominal(doc: dict) -> Html:
+    """The parameters the calibration did not estimate, by reason, in compact form."""
+    parts = []
+    for status, why in (
+        ("unidentifiable", "Unidentifiable (the data cannot determine them)"),
+        ("not supported", "Not supported by model selection (left out of the chosen model)"),
+    ):
+        names = [r["name"] for r in doc["parameters"] if r["status"] == status]
+        if names:
+            parts.append(f"{why}, nominal kept: {hk.compact_names(names)}.")
+    if not parts:
+        return Html("")
+    return Html(f'<p class="hint">{hk.escape(" ".join(parts))}</p>')
+
+
+def _parameter_plot(cal: Calibration, doc: dict) -> Html:
+    kinds = cal.problem.full_layout.kinds
+    names = [r["name"] for r in doc["parameters"]]
+    if tuple(names) != tuple(cal.problem.full_layout.names):
+        return Html("")  # a document of another calibration: no plot rather than a wrong one
+    return hk.figure_html(
+        "plot-parameters",
+        "Identified error of each parameter with ± 1 standard deviation (blue: predicted, "
+        "orange: bootstrap over the training samples; often smaller than the dot), lengths and "
+        "angles of the geometry and the non-geometric terms of the chosen model on separate "
+        "axes; grey marks at zero: held at nominal",
+        calibration_parameter_figure(doc["parameters"], kinds),
+    )
+
+
+def _parameters(cal: Calibration, doc: dict) -> tuple[str, str, Html]:
+    table, source = _parameter_table(cal, doc)
+    return hk.section(
+        "parameters",
+        "Parameters",
+        hk.paragraph(
+            "Identified errors are corrections to the nominal model (lengths in mm, angles in "
+            "degrees); handeye.* are corrections to the hand-eye guess (in the table, not the "
+            "plot). Unidentifiable parameters keep their nominal value."
+        ),
+        _parameter_plot(cal, doc),
+        _held_at_nominal(doc),
+        table,
+        Html(f'<p class="hint">{hk.escape(source)}</p>'),
+        Html("<h3>Unidentifiable combinations, with the reason</h3>"),
+        hk.bullet_list(
+            doc["identification"]["unidentifiable"], "none: every parameter is identifiable"
+        ),
+        Html("<h3>Hand-eye transform</h3>"),
+        _handeye_table(doc),
+    )
+
+
+def singular_value_parts(ident: Identifiability, ident_id: str = "plot-singular-values"):
+    """The singular-value plot and its explanation (shared with the simulation report)."""
+    s = ident.singular_values
+    cond = ident.condition_number
+    return (
+        hk.figure_html(
+            ident_id,
+            f"Singular values of the scaled identification Jacobian (log scale): rank "
+            f"{ident.rank} of {len(s)}, tolerance {ident.rcond:g} × the largest",
+            singular_value_figure(ident),
+        ),
+        hk.paragraph(
+            f"Columns scaled to unit norm so that metres and radians compare; condition number "
+            f"of the identifiable part {cond:.3g}. Directions below the tolerance are the null "
+            "space: the unidentifiable combinations listed with the parameters."
+        ),
+    )
+
+
+def _rejected(doc: dict) -> tuple[str, str, Html]:
+    rejected = doc.get("rejected", [])
+    outliers = doc.get("outliers", [])
+    kept = not doc["settings"].get("reject_outliers", True)
+    parts: list[object] = []
+    if rejected:
+        rows = [[r["id"], r["reason"]] for r in rejected]
+        parts.append(hk.table(["sample", "reason"], rows, "ids"))
+    else:
+        parts.append(Html('<p class="none">none: every sample gave a camera pose</p>'))
+    parts.append(Html("<h3>Outliers</h3>"))
+    if outliers:
+        why = "kept in the fit (--keep-outliers)" if kept else "left out of the final fit"
+        rows = [[o, f"its pairs fit badly after a robust fit; {why}"] for o in outliers]
+        parts.append(hk.table(["sample", "reason"], rows, "ids"))
+    else:
+        parts.append(Html('<p class="none">none</p>'))
+    return hk.section("rejected", "Rejected images", *parts)
+
+
+def _settings(cal: Calibration, doc: dict) -> tuple[str, str, Html]:
+    rows = [
+        ("robot", doc["robot"]),
+        ("dataset", doc["dataset"]),
+        ("identification method", cal.result.method),
+        (
+            "rank tolerance (relative to the largest singular value)",
+            f"{cal.result.identifiability.rcond:g}",
+        ),
+        ("training pairs", str(len(cal.problem.pair_indices()))),
+    ]
+    rows += hk.flatten(doc["settings"])
+    return hk.section("settings", "Settings", hk.table(["setting", "value"], rows))
+
+
+def calibration_report(cal: Calibration, doc: dict) -> str:
+    """The HTML report of a calibration; ``doc`` is :func:`documents.results_document`."""
+    errors = _error_sets(cal)
+    before, after, label, sentence = errors
+    with matplotlib.rc_context(PLOT_STYLE):
+        sections = [
+            _summary(cal, doc, errors),
+            _parameters(cal, doc),
+            hk.section(
+                "singular-values",
+                "Singular value spectrum",
+                *singular_value_parts(cal.result.identifiability),
+            ),
+            hk.section(
+                "residuals",
+                "Residual histograms",
+                hk.paragraph(sentence),
+                hk.figure_html(
+                    "plot-residuals",
+                    f"Histograms of the relative pose errors of {label} before and after "
+                    "calibration (logarithmic bins)",
+                    histogram_figure(before, after, label),
+                ),
+            ),
+            hk.section(
+                "per-pair",
+                "Errors per pair, before and after",
+                hk.figure_html(
+                    "plot-per-pair",
+                    f"Relative pose error of each of the {len(before)} {label} before (grey) and "
+                    "after (blue) calibration, log scale",
+                    per_pair_figure(before, after, label),
+                ),
+            ),
+            _rejected(doc),
+            _settings(cal, doc),
+        ]
+    meta = [
+        ("robot", doc["robot"]),
+        ("dataset", doc["dataset"]),
+        ("samples", f"{doc['n_used']} of {doc['n_samples']}"),
+    ]
+    return hk.page("Calibration report", meta, sections)
