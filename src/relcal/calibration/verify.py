@@ -768,9 +768,12 @@ class CalibrationFiles:
 
     @property
     def tool_points(self) -> tuple[np.ndarray, np.ndarray] | None:
-        """(calibrated, baseline) tool points of a coincidence calibration (tip frame, m)."""
-        tool = self.results.get("tool_point_m")
-        base = (self.results.get("baseline") or {}).get("tool_point_m")
+        """(calibrated, baseline) tool points of a coincidence calibration (tip frame, m):
+        ``tool_point_xyz_m`` and ``baseline_tool_point_xyz_m`` of the results document (None
+        unless it has both: the baseline's own tool point, fitted with the nominal kinematics,
+        is what the baseline is verified with)."""
+        tool = self.results.get("tool_point_xyz_m")
+        base = self.results.get("baseline_tool_point_xyz_m")
         if tool is None or base is None:
             return None
         return np.asarray(tool, dtype=float), np.asarray(base, dtype=float)

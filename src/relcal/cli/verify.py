@@ -57,9 +57,10 @@ def run(args: argparse.Namespace) -> int:
         kind = session_kind(dataset.measured)
         if kind == "coincidence" and source.tool_points is None:
             raise RelcalError(
-                f"{dataset.spec_path}: coincidence samples: the calibration records no tool point "
-                "(relcal calibrate does not take coincidence samples yet); verify from Python "
-                "with relcal.calibration.verify.verify(..., tool_points=(calibrated, baseline))"
+                f"{dataset.spec_path}: coincidence samples: the calibration does not record both "
+                "tool points, its own and its baseline's (results.json: tool_point_xyz_m and "
+                "baseline_tool_point_xyz_m); verify from Python with "
+                "relcal.calibration.verify.verify(..., tool_points=(calibrated, baseline))"
             )
         m = measure(dataset, workers=args.workers, progress=not args.quiet, max_rms=args.max_rms)
         usable = np.flatnonzero(m.ok)
