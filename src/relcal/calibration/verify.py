@@ -804,3 +804,62 @@ def load_calibration(folder: str | Path) -> CalibrationFiles:
     if not isinstance(results, dict):
         raise RelcalError(f"{path}: not a relcal results document")
     return CalibrationFiles(folder, load_model(folder / "model.yaml"), results)
+
+
+def verify_session(
+    calibration: CalibrationFiles | str | Path,
+    dataset,
+    measurements=None,
+    folds: int = DEFAULT_FOLDS,
+    seed: int = 0,
+    progress: bool = False,
+) -> tuple[Verification, Assessment]:
+    """A finished calibration verified on a new session: does it still hold?
+
+    :func:`verify` on the session's usable samples, with the session's own robot as the nominal
+    baseline, then :func:`assess` with the calibration's own held-out error (when it measures
+    what the session does) and the joint ranges it covered.
+
+    Parameters
+    ----------
+    calibration
+        The output folder of ``relcal calibrate`` (or :func:`load_calibration` of it).
+    dataset
+        The new session (:func:`relcal.load_dataset`).
+    measurements
+        Its measurements (:func:`relcal.measure`), when its images are already measured.
+    folds, seed
+        Folds of the cross-fitted nuisance refit, and the seed of the folds and bootstraps.
+    progress
+        Progress bars (measuring images; the refits when they take over a second).
+
+    Returns
+    -------
+    tuple of Verification and Assessment
+        Every sample's errors under both models, and the numbers with the verdict
+        (``summary.verdict``, ``summary.exit_status``).
+    """
+    from relcal.data.imaging import measure
+
+    files = calibration if isinstance(calibration, CalibrationFiles) else None
+    files = files or load_calibration(calibration)
+    if measurements is None:
+        measurements = measure(dataset, progress=progress)
+    kind = session_kind(dataset.measured)
+    usable = np.flatnonzero(measurements.ok)
+    ver = verify(
+        files.model,
+        dataset.model,
+        kind,
+        [dataset.ids[i] for i in usable],
+        dataset.q[usable],
+        None if kind == "coincidence" else measurements.poses[usable],
+        None if dataset.groups is None else [dataset.groups[i] for i in usable],
+        files.tool_points,
+        folds=folds,
+        seed=seed,
+        progress=progress,
+    )
+    settings = files.results.get("settings") or {}
+    same = FORMULATIONS.get(settings.get("formulation")) == kind
+    return ver, assess(ver, files.reference if same else None, files.covered_ranges()[0], seed=seed)
