@@ -500,12 +500,12 @@ def verify(
 # --- the verdict ---------------------------------------------------------------------------------
 
 
-def _summary(errors: np.ndarray, pairs: np.ndarray, draws: dict[str, np.ndarray]) -> dict:
+def _summary(errors: np.ndarray, draws: dict[str, np.ndarray]) -> dict:
     """:func:`validate.stats` of the error norms with the bootstrap interval of the RMS."""
     out = stats(errors)
     for key, boot in draws.items():
         if key in out:
-            out[key]["ci95"] = [float(v) for v in np.percentile(boot, [2.5, 97.5])]
+            out[key]["ci95"] = _interval(boot)
     return out
 
 
@@ -584,8 +584,8 @@ def assess(
     and the verdict (see the module's docstring)."""
     draws_b = rms_draws(ver.pairs, ver.baseline, n_boot, seed)
     draws_c = rms_draws(ver.pairs, ver.calibrated, n_boot, seed)  # the same draws
-    baseline = _summary(ver.baseline, ver.pairs, draws_b)
-    calibrated = _summary(ver.calibrated, ver.pairs, draws_c)
+    baseline = _summary(ver.baseline, draws_b)
+    calibrated = _summary(ver.calibrated, draws_c)
     ratio = {}
     for key in draws_c:
         rms_b, rms_c = baseline[key]["rms"], calibrated[key]["rms"]
