@@ -266,10 +266,11 @@ def fleet_text(
         )
     for v in verifications or []:
         at = v.get("at_calibration_position_rms_mm")
+        base, after = v.get("baseline_position_rms_mm"), v.get("calibrated_position_rms_mm")
+        errors = f", position RMS {base:.3f} -> {after:.3f} mm" if None not in (base, after) else ""
         lines.append(
             f"latest verification of {v['robot_id']} ({v['created_at'][:10]}, session "
-            f"{v.get('session')}): {v['verdict']}, position RMS "
-            f"{v['baseline_position_rms_mm']:.3f} -> {v['calibrated_position_rms_mm']:.3f} mm"
+            f"{v.get('session')}): {v['verdict']}{errors}"
             + (f" (at calibration {at:.3f} mm)" if at is not None else "")
         )
     return "\n".join(lines)
