@@ -285,3 +285,33 @@ def test_bad_calibrations_are_one_line_errors(argv, message, tmp_path, capsys, m
     assert main([a.replace("{tmp}", str(tmp_path)) for a in argv]) == 2
     err = capsys.readouterr().err
     assert message in err and "Traceback" not in err and err.count("\n") == 1
+
+
+def test_the_fleet_report_and_text_show_the_latest_verification(tmp_path):
+    """A robot of the fleet with verifications in the registry: the fleet's text and report show
+    its latest one (verdict, errors, the calibration's own held-out error)."""
+    from relcal.cli.fleet import latest_verifications
+    from relcal.fleet.report import fleet_report
+    from relcal.fleet.runner import model_summaries
+    from relcal.fleet.text import fleet_text
+
+    robot = make_robot("a465", "arm9", 4)
+    first = write_session(tmp_path / "arm9" / "a", robot, 41)
+    second = write_session(tmp_path / "arm9" / "b", robot, 42, change={"a[2]": 1e-3})
+    db = tmp_path / "h.sqlite"
+    assert main(["calibrate", str(first), "--quiet", "--registry", str(db)]) == 0
+    assert (
+        main(["verify", str(first / "calibration"), str(second), "--quiet", "--registry", str(db)])
+        == 1
+    )
+    entries = [{"session": "arm9/c", "robot_id": "arm9", "model": None, "status": "failed",
+                "reason": "a reason"}]  # fmt: skip
+    with Registry(registry_url(db)) as registry:
+        found = latest_verifications(registry, entries)
+    assert [v["verdict"] for v in found] == ["degraded"] and found[0]["robot_id"] == "arm9"
+    text = fleet_text(entries, model_summaries(entries), found)
+    assert "latest verification of arm9" in text and "degraded" in text
+    doc = {"models": model_summaries(entries), "verifications": found, "seconds": 1.0}
+    page = fleet_report(doc, entries)
+    assert 'id="verifications"' in page and "degraded" in page
+    assert f"{found[0]['calibrated_position_rms_mm']:.3f}" in page
