@@ -144,7 +144,7 @@ def test_runs_of_different_models_are_compared_on_the_common_one(tmp_path):
     one run chose geometry + scale, the other was calibrated with the geometry alone. Compared
     as recorded, the geometry of the two models differs (flagged on theta_off[3]); on the common
     model (the first run refitted with the geometry alone, from its dataset and settings) the
-    sessions agree. (Over 10 such pairs: 4 flagged as recorded, none on the common model.)"""
+    sessions agree. (Over 12 such pairs: 5 flagged as recorded, none on the common model.)"""
     robot = make_robot("a465", "r0", 300)
     scale = {2: 1e-3, 3: -1e-3}
     a = _run(tmp_path / "s0", robot, 400, scale=scale, id=1)

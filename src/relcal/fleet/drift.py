@@ -27,9 +27,9 @@ difference of models. So when the runs' chosen models differ in their non-geomet
 the run(s) with more are refitted (the dataset read again and checked against the recorded
 hashes, calibrated with the recorded settings) on the **common candidate**: the geometric model
 with the families both chose, every identifiable parameter of it estimated (``--select all``, or
-the run's own selection when that one is not determined). Measured on 10 pairs of sessions of a
+the run's own selection when that one is not determined). Measured on 12 pairs of sessions of a
 synthetic A465 with a planted joint scale of 1000 ppm on two joints, one run choosing geometry +
-scale and the other geometry alone: compared as recorded, 4 of 10 were flagged; on the common
+scale and the other geometry alone: compared as recorded, 5 of 12 were flagged; on the common
 (geometric) model none, with p-values from 0.08 to 0.95. (On the union, geometry + scale for
 both, none was flagged either, but every p-value was 1.00: the recorded standard deviations of
 models with joint scales are 4 to 8 times the spread of their estimates over sessions, so a test
