@@ -46,15 +46,22 @@ def write_session(
     n: int = 30,
     noise: tuple[float, float] = NOISE,
     change: dict[str, float] | None = None,
+    scale: dict[int, float] | None = None,
 ) -> Path:
     """A dataset folder of ``n`` samples of ``robot`` (new poses and noise for each ``seed``);
-    ``change`` adds to named true errors (SI), e.g. ``{"a[2]": 3e-4}`` for 0.3 mm."""
+    ``change`` adds to named true errors (SI), e.g. ``{"a[2]": 3e-4}`` for 0.3 mm; ``scale``
+    gives joints (1-based) a true joint scale (gear ratio error), e.g. ``{2: 5e-4}``."""
     nominal = auto_hayati(get_robot(robot.model))
     layout = make_layout(nominal)
     truth = robot.truth.copy()
     for name, delta in (change or {}).items():
         truth[layout.names.index(name)] += delta
     true_model = apply_errors(nominal, layout, truth)
+    if scale:
+        factors = np.zeros(nominal.n_joints)
+        for joint, value in scale.items():
+            factors[joint - 1] = value
+        true_model = true_model.with_values(scale=factors)
     rng = np.random.default_rng(seed)
     q = random_q(nominal, n, rng, scale=0.8)
     poses = BOARD @ fk(true_model, q) @ robot.handeye

@@ -108,7 +108,11 @@ def test_runs_that_chose_different_models_compare_what_both_estimated():
     names = ["a[1]", "a[2]", "scale[2]"]
     a = hand_made([0.0, 0.0, 7e-5], cov_a, names, chosen="geometric + scale", id=1)
     b = hand_made([1e-5, 2e-5], np.eye(2) * 1e-10, names[:2], held=["scale[2]"], id=2)
-    c = compare(a, b)
+    # hand-made runs have no dataset to be refitted on the common model from: said so first
+    fallback = compare(a, b)
+    assert "could not be refitted on a common one" in fallback.notes[0]
+    assert fallback.common_model is None
+    c = compare(a, b, common=False)
     assert [p.name for p in c.parameters] == ["a[1]", "a[2]"]
     assert c.one_sided == ("scale[2]",) and "scale[2]" in c.left_out
     d = np.array([1e-5, 2e-5])
@@ -123,16 +127,44 @@ def test_runs_that_chose_different_models_compare_what_both_estimated():
     assert comparison_document(c)["one_sided"] == ["scale[2]"]
     # the other way round, and a parameter estimated in both but identifiable in one only
     b.parameters[0]["identifiable"] = False
-    c = compare(b, a)
+    c = compare(b, a, common=False)
     assert [p.name for p in c.parameters] == ["a[2]"] and c.one_sided == ("scale[2]",)
     assert "run 1 (geometric + scale) only: scale[2]" in c.notes[0]
     assert compare(a, a).one_sided == () and not compare(a, a).notes
 
 
-def _run(root, robot, seed, change=None):
-    dataset = load_dataset(write_session(root, robot, seed, change=change))
-    cal = calibrate(dataset, measure(dataset, progress=False))
-    return run_from_record(calibration_record(cal, results_document(cal)))
+def _run(root, robot, seed, change=None, scale=None, nongeometric="auto", id=0):
+    dataset = load_dataset(write_session(root, robot, seed, change=change, scale=scale))
+    cal = calibrate(dataset, measure(dataset, progress=False), nongeometric=nongeometric)
+    return run_from_record(calibration_record(cal, results_document(cal)), id)
+
+
+def test_runs_of_different_models_are_compared_on_the_common_one(tmp_path):
+    """Two sessions of one robot whose joints 2 and 3 have a real gear ratio error (1000 ppm):
+    one run chose geometry + scale, the other was calibrated with the geometry alone. Compared
+    as recorded, the geometry of the two models differs (flagged on theta_off[3]); on the common
+    model (the first run refitted with the geometry alone, from its dataset and settings) the
+    sessions agree. (Over 12 such pairs: 5 flagged as recorded, none on the common model.)"""
+    robot = make_robot("a465", "r0", 300)
+    scale = {2: 1e-3, 3: -1e-3}
+    a = _run(tmp_path / "s0", robot, 400, scale=scale, id=1)
+    b = _run(tmp_path / "s1", robot, 401, scale=scale, nongeometric="none", id=2)
+    assert a.settings["chosen_model"] == "geometric + scale"
+    assert b.settings["chosen_model"] == "geometric"
+    recorded = compare(a, b, common=False)
+    assert recorded.drift and "theta_off[3]" in recorded.flagged
+    c = compare(a, b)
+    assert c.common_model == "geometric" and not c.drift and c.p_value > 0.1, c.notes
+    assert "both compared on the common model geometric (run 1 refitted" in c.notes[0]
+    assert c.one_sided == ()  # the refitted run estimates no scale any more
+    assert comparison_document(c)["common_model"] == "geometric"
+    assert [r.id for r in (c.run_a, c.run_b)] == [1, 2]
+    # the dataset changed since: compared as recorded, and said so
+    (tmp_path / "s0" / "samples.csv").write_text(
+        (tmp_path / "s0" / "samples.csv").read_text() + "\n"
+    )
+    c = compare(a, b)
+    assert c.common_model is None and "changed since it was calibrated" in c.notes[0]
 
 
 SEEDS = 40

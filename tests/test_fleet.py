@@ -86,6 +86,13 @@ def test_fleet_command_calibrates_every_session_and_flags_the_changed_robot(
         else:
             assert drift["verdict"] == "agree", (robot, drift)
         assert entries[f"{robot}/2026-01"]["drift"] is None
+    # summaries per robot model: robots of one model compare, of two do not
+    models = {m["model"]: m for m in doc["models"]}
+    assert sorted(m["n_sessions"] for m in models.values()) == [10, 10]
+    changed = next(m for m in models.values() if CHANGED in m["robots"])
+    assert changed["drift_robots"] == [CHANGED] and len(changed["robots"]) == 5
+    corrupt = next(m for m in models.values() if CORRUPT in m["robots"])
+    assert corrupt["n_failed"] == 1 and corrupt["n_ok"] == 9  # counted under its robot's model
     with Registry(registry_url(db)) as registry:
         assert len(registry.runs()) == 19
         assert [r.session for r in registry.runs(CHANGED)] == [
@@ -94,6 +101,55 @@ def test_fleet_command_calibrates_every_session_and_flags_the_changed_robot(
         ]
     assert main(["history", CHANGED, "--registry", str(db)]) == 0
     assert "DRIFT" in capsys.readouterr().out
+
+
+def test_the_robot_of_a_session_is_its_robot_folder(tmp_path):
+    """ROOT/ROBOT/SESSION: the robot id is the robot's folder, not the session's; a dataset
+    directly under the root is a robot with one session; robot_id of dataset.yaml wins."""
+    robot = make_robot("a465", "ignored", 1)
+    layout = {"arm1/2026-01": None, "arm1/2026-06": None, "arm2": None, "arm3/s1": "cell-9"}
+    for name, robot_id in layout.items():
+        folder = write_session(tmp_path / name, robot, 1, n=6)
+        spec = folder / "dataset.yaml"
+        lines = [line for line in spec.read_text().splitlines() if not line.startswith("robot_")]
+        lines += [f"robot_id: {robot_id}"] if robot_id else []
+        spec.write_text("\n".join(lines) + "\n")
+    found = {s.name: s.robot_id for s in discover(tmp_path)}
+    assert found == {
+        "arm1/2026-01": "arm1",
+        "arm1/2026-06": "arm1",
+        "arm2": "arm2",
+        "arm3/s1": "cell-9",
+    }
+
+
+def test_fleet_summaries_are_per_robot_model():
+    from relcal.fleet.runner import model_summaries
+
+    def entry(model, robot, status, base=None, after=None, drift=None):
+        return {
+            "model": model,
+            "robot_id": robot,
+            "status": status,
+            "baseline_position_rms_mm": base,
+            "calibrated_position_rms_mm": after,
+            "drift": None if drift is None else {"verdict": drift},
+        }
+
+    entries = [
+        entry("A465", "r0", "ok", 10.0, 0.2),
+        entry("A465", "r0", "ok", 12.0, 0.4, "drift"),
+        entry("UR5e", "r1", "ok", 30.0, 0.3),
+        entry("UR5e", "r3", "ok", 20.0, 0.1, "agree"),
+        entry(None, "r2", "failed"),
+    ]
+    (a465, ur5e, unknown) = model_summaries(entries)
+    assert a465["model"] == "A465" and a465["n_sessions"] == 2 and a465["robots"] == ["r0"]
+    assert a465["drift_robots"] == ["r0"] and a465[
+        "median_calibrated_position_rms_mm"
+    ] == pytest.approx(0.3)
+    assert ur5e["median_baseline_position_rms_mm"] == 25.0 and ur5e["drift_robots"] == []
+    assert unknown["model"] is None and unknown["n_failed"] == 1
 
 
 def test_fleet_report_renders_in_chromium(fleet_run, tmp_path):

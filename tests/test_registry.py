@@ -45,7 +45,8 @@ def test_a_record_holds_what_the_calibration_found(calibrated, tmp_path):
     assert run.robot_id == "arm1" and run.session == "cell1"
     assert run.model_name == cal.dataset.model.name
     chosen = cal.selection[cal.chosen].candidate
-    assert run.settings == json.loads(json.dumps({**cal.settings, "chosen_model": chosen.name}))
+    settings = {**cal.settings, "chosen_model": chosen.name, "joint_ranges": doc["joint_ranges"]}
+    assert run.settings == json.loads(json.dumps(settings))
     assert set(run.input_hashes) == {"dataset.yaml", "samples.csv"}
     assert run.outputs_path == str((tmp_path / "out").resolve())
     # parameters, standard deviations and covariance in SI units, over the estimated subset
@@ -112,7 +113,7 @@ def test_schema_is_migrated_on_open_and_keeps_old_rows(calibrated, tmp_path):
     assert reg.current_revision(engine) == "0001"
     engine.dispose()
     with reg.open_registry(path) as registry:
-        assert reg.current_revision(registry.engine) == reg.head_revision() == "0002"
+        assert reg.current_revision(registry.engine) == reg.head_revision() == "0003"
         (run,) = registry.runs("arm1")
         assert run.session is None and run.uid == "a" * 32
         with registry.engine.connect() as conn:

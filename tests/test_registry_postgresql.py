@@ -107,3 +107,36 @@ def test_postgresql_registry_round_trip_and_concurrent_writers(postgres_url, rec
     assert run.parameters == record["parameters"]
     assert run.errors == record["errors"]
     assert run.created_at.tzinfo is not None
+
+
+def test_postgresql_keeps_verifications(postgres_url, record):
+    """A verification record (relcal verify --registry) round-trips through PostgreSQL: its
+    errors, intervals and details, under its calibration's run."""
+    with reg.Registry(postgres_url) as registry:
+        run_id = registry.add(record)
+        verification = {
+            "calibration_id": run_id,
+            "calibration": f"run {run_id}",
+            "robot_id": "pg-arm",
+            "session": "next-week",
+            "dataset_path": "/data/next-week",
+            "relcal_version": "x",
+            "kind": "pose",
+            "n_samples": 30,
+            "folds": 5,
+            "baseline_position_rms_mm": 12.5,
+            "calibrated_position_rms_mm": 0.21,
+            "baseline_orientation_rms_deg": 0.8,
+            "calibrated_orientation_rms_deg": 0.01,
+            "ratio_position": 0.0168,
+            "at_calibration_position_rms_mm": 0.19,
+            "verdict": "holds",
+            "intervals": {"ratio_position": [0.014, 0.02]},
+            "details": {"reason": "better than the nominal model", "warnings": []},
+        }
+        vid = registry.add_verification(verification)
+        (found,) = registry.verifications("pg-arm")
+        assert registry.verifications(calibration_id=run_id)[0].id == vid == found.id
+    assert found.intervals == verification["intervals"] and found.verdict == "holds"
+    assert found.details == verification["details"] and found.created_at.tzinfo is not None
+    assert found.calibrated_position_rms_mm == 0.21

@@ -21,7 +21,8 @@ identification problem), :func:`identify` with :class:`SolverOptions` giving a :
 :func:`analyse_problem` (identifiability), :func:`simulate` (the published simulation),
 :func:`import_rosbag` (a recorded calibration run to a dataset folder), :func:`plan` with a
 :class:`Cell` (joint configurations that identify the parameters well), :func:`write_calibration`
-(a calibration's files, written as one set).
+(a calibration's files, written as one set), :func:`verify_session` (a finished calibration on a
+new session: does it still hold?).
 """
 
 from __future__ import annotations
@@ -65,6 +66,7 @@ _API = {
     "plan": "relcal.design.plan",
     "robot_files": "relcal.robot.export",
     "simulate": "relcal.sim.simulate",
+    "verify_session": "relcal.calibration.verify",
     "write_calibration": "relcal.reporting.outputs",
 }
 
@@ -100,6 +102,7 @@ __all__ = [
     "plan",
     "robot_files",
     "simulate",
+    "verify_session",
     "write_calibration",
 ]
 
@@ -123,6 +126,7 @@ if TYPE_CHECKING:  # for type checkers and editors: the same names, imported eag
     from relcal.calibration.noise import Noise
     from relcal.calibration.outcome import Calibration
     from relcal.calibration.pipeline import calibrate
+    from relcal.calibration.verify import verify_session
     from relcal.data.dataset import Dataset, load_dataset
     from relcal.data.imaging import Measurements, measure
     from relcal.data.rosbag import import_rosbag

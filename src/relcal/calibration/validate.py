@@ -39,20 +39,11 @@ def stats(errors: np.ndarray) -> dict[str, dict[str, float]]:
     return out
 
 
-def ratio_interval(
-    pairs: np.ndarray,
-    before: np.ndarray,
-    after: np.ndarray,
-    n_boot: int = 2000,
-    seed: int = 0,
-) -> dict[str, dict[str, float]]:
-    """The ratio of RMS after to RMS before, with a 95 % interval from a paired bootstrap over
-    the held-out *samples* (each pair counts as often as both its samples are drawn).
-
-    Pairs share samples (``n`` samples make ``n (n - 1) / 2`` pairs), so resampling pairs would
-    pretend far more independent evidence than there is. Per-sample errors (absolute and
-    tracker formulations) come as pairs ``(k, k)`` and count once per draw of their sample.
-    """
+def _resampler(pairs: np.ndarray, n_boot: int, seed: int):
+    """The paired bootstrap over the *samples* of ``pairs`` ``(P, 2)``: a function mapping a value
+    per pair ``(P,)`` to its sum in each of ``n_boot`` draws (a pair counts as often as both its
+    samples are drawn; per-sample values, pairs ``(k, k)``, once per draw of their sample), and
+    the mask of draws holding at least one pair."""
     samples, index = np.unique(pairs, return_inverse=True)
     i, j = index.reshape(pairs.shape).T
     per_sample = bool(np.all(i == j))
@@ -69,7 +60,24 @@ def ratio_interval(
             return counts @ np.diag(table)
         return np.einsum("bi,ij,bj->b", counts, table, counts)
 
-    drawn = resampled(np.ones(len(pairs))) > 0  # draws with at least one pair
+    return resampled, resampled(np.ones(len(pairs))) > 0
+
+
+def ratio_interval(
+    pairs: np.ndarray,
+    before: np.ndarray,
+    after: np.ndarray,
+    n_boot: int = 2000,
+    seed: int = 0,
+) -> dict[str, dict[str, float]]:
+    """The ratio of RMS after to RMS before, with a 95 % interval from a paired bootstrap over
+    the held-out *samples* (each pair counts as often as both its samples are drawn).
+
+    Pairs share samples (``n`` samples make ``n (n - 1) / 2`` pairs), so resampling pairs would
+    pretend far more independent evidence than there is. Per-sample errors (absolute and
+    tracker formulations) come as pairs ``(k, k)`` and count once per draw of their sample.
+    """
+    resampled, drawn = _resampler(pairs, n_boot, seed)
     out = {}
     for key, cols, scale in _KINDS:
         b2, a2 = _norms(before, cols, scale) ** 2, _norms(after, cols, scale) ** 2
@@ -80,6 +88,33 @@ def ratio_interval(
         ratio = np.sqrt(a2.sum() / max(b2.sum(), 1e-300))
         out[key] = {"after_over_before": float(ratio), "ci95": [float(lo), float(hi)]}
     return out
+
+
+def rms_draws(
+    pairs: np.ndarray, errors: np.ndarray, n_boot: int = 2000, seed: int = 0
+) -> dict[str, np.ndarray]:
+    """The RMS error norms (mm, deg) in each draw of the paired bootstrap over the samples of
+    ``pairs`` that :func:`ratio_interval` uses (the same draws for the same ``seed``), per kind
+    (``position_mm``, ``orientation_deg``; kinds without values left out)."""
+    resampled, drawn = _resampler(pairs, n_boot, seed)
+    weight = resampled(np.ones(len(pairs)))[drawn]
+    out = {}
+    for key, cols, scale in _KINDS:
+        e2 = _norms(errors, cols, scale) ** 2
+        if len(e2) == 0 or np.all(np.isnan(e2)):
+            continue
+        out[key] = np.sqrt(resampled(e2)[drawn] / weight)
+    return out
+
+
+def rms_interval(
+    pairs: np.ndarray, errors: np.ndarray, n_boot: int = 2000, seed: int = 0
+) -> dict[str, list[float]]:
+    """The 95 % interval of the RMS error norms (mm, deg) by :func:`rms_draws`."""
+    return {
+        key: [float(v) for v in np.percentile(boot, [2.5, 97.5])]
+        for key, boot in rms_draws(pairs, errors, n_boot, seed).items()
+    }
 
 
 @dataclass(frozen=True)

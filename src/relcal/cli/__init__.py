@@ -25,7 +25,8 @@ from relcal.errors import RelcalError  # noqa: E402
 
 EXIT_CODES = {
     0: "ok",
-    1: "finished, but a calibration did not converge (nothing written) or a target was missed",
+    1: "finished, but a calibration did not converge (nothing written), a target was missed, "
+    "or a verified calibration does not hold on the new session",
     2: "bad input, bad option or refused output (nothing written)",
     3: "internal error (please report; RELCAL_DEBUG=1 shows the traceback)",
     130: "interrupted (SIGINT)",

@@ -28,6 +28,7 @@ COMMANDS = [
     "capture",
     "fleet",
     "history",
+    "verify",
 ]
 
 

@@ -61,6 +61,8 @@ def run_fleet_calibrate(args: argparse.Namespace) -> int:
     attach_drift(entries, registry, started, args.alpha)
     elapsed = (datetime.now(UTC) - started).total_seconds()
     doc = fleet_document(args, sessions, entries, elapsed, registry)
+    if registry is not None:
+        doc["verifications"] = latest_verifications(registry, entries)
     if args.json:
         write_json(args.json, doc)
     if args.report:
@@ -68,7 +70,7 @@ def run_fleet_calibrate(args: argparse.Namespace) -> int:
 
         write_text(args.report, fleet_report(doc, entries))
     if not args.quiet:
-        print(fleet_text(entries))
+        print(fleet_text(entries, doc["models"], doc.get("verifications")))
         n_ok = sum(e["status"] == "ok" for e in entries)
         print(f"{n_ok} of {len(entries)} sessions calibrated in {elapsed:.1f} s")
         if registry is not None:
@@ -80,7 +82,22 @@ def run_fleet_calibrate(args: argparse.Namespace) -> int:
     return 0 if all(e["status"] == "ok" for e in entries) else 1
 
 
+def latest_verifications(registry, entries: list[dict]) -> list[dict]:
+    """The latest recorded verification of each robot of the fleet, as JSON."""
+    from relcal.fleet.text import verification_run_document
+
+    robots = sorted({str(e.get("robot_id")) for e in entries if e.get("robot_id")})
+    out = []
+    for robot in robots:
+        found = registry.verifications(robot)
+        if found:
+            out.append(verification_run_document(found[-1]))
+    return out
+
+
 def fleet_document(args, sessions, entries, elapsed: float, registry) -> dict:
+    from relcal.fleet.runner import model_summaries
+
     keep = (
         "session",
         "robot_id",
@@ -109,6 +126,7 @@ def fleet_document(args, sessions, entries, elapsed: float, registry) -> dict:
         else registry.engine.url.render_as_string(hide_password=True),
         "seconds": elapsed,
         "alpha": args.alpha,
+        "models": model_summaries(entries),
         "sessions": [{k: e.get(k) for k in keep} for e in entries],
     }
 
@@ -127,7 +145,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         "calibrate",
         help="calibrate every dataset folder under ROOT",
         description="Every folder under ROOT with a dataset.yaml is one session (robot id: "
-        "`robot_id` of dataset.yaml, else the folder name), calibrated as `relcal calibrate` "
+        "`robot_id` of dataset.yaml, else the robot's folder: ROOT/ROBOT/SESSION or "
+        "ROOT/ROBOT), calibrated as `relcal calibrate` "
         "does, as one Dask task each; a bad dataset fails alone with its reason. Each session "
         "is compared with the robot's previous calibration (drift or agree).",
         epilog=EPILOG,

@@ -16,20 +16,32 @@ examples:
 Drift: the difference of two calibrations over the parameters both identify, with its
 covariance the sum of both runs' covariances; flagged when the chi-square test or a parameter's
 z (Bonferroni) rejects at --alpha (default 0.01). Without a change, at most 2 alpha of
-comparisons are flagged.
+comparisons are flagged. When the two runs chose different models (a joint scale or a
+compliance in one of them), they are compared on one model, the geometric model with the terms
+both chose (the other run refitted from its dataset with its recorded settings): a difference
+of model terms is not a change of the robot (--as-recorded compares the recorded values).
+
+Verifications (relcal verify --registry) are listed under the robot: the calibration's
+prediction error on a new session, the drift signal in millimetres.
 """
 
 
 def run_history(args: argparse.Namespace) -> int:
     from relcal.fleet.drift import consecutive
     from relcal.fleet.registry import require_registry
-    from relcal.fleet.text import drift_summary, history_text, run_document
+    from relcal.fleet.text import (
+        drift_summary,
+        history_text,
+        run_document,
+        verification_run_document,
+    )
     from relcal.io import write_json
 
     with require_registry(args.registry) as registry:
         runs = registry.runs(args.robot_id)
+        checks = registry.verifications(args.robot_id)
         where = registry.engine.url.render_as_string(hide_password=True)
-        if not runs:
+        if not runs and not checks:
             from relcal.errors import RelcalError
 
             known = registry.robots()
@@ -37,7 +49,8 @@ def run_history(args: argparse.Namespace) -> int:
             raise RelcalError(f"registry {where}: no calibration of robot {args.robot_id!r}{hint}")
     if args.last:
         runs = runs[-args.last :]
-    comparisons = consecutive(runs, args.alpha)
+        checks = checks[-args.last :]
+    comparisons = consecutive(runs, args.alpha, common=not args.as_recorded)
     if args.json:
         write_json(
             args.json,
@@ -51,10 +64,11 @@ def run_history(args: argparse.Namespace) -> int:
                     }
                     for k, (r, c) in enumerate(zip(runs, comparisons, strict=True))
                 ],
+                "verifications": [verification_run_document(v) for v in checks],
             },
         )
     if not args.quiet:
-        print(history_text(args.robot_id, runs, comparisons, where))
+        print(history_text(args.robot_id, runs, comparisons, where, checks))
     return 0
 
 
@@ -66,7 +80,7 @@ def run_compare(args: argparse.Namespace) -> int:
 
     with require_registry(args.registry) as registry:
         a, b = registry.get(args.run_a), registry.get(args.run_b)
-    c = compare(a, b, args.alpha, include_handeye=args.with_handeye)
+    c = compare(a, b, args.alpha, include_handeye=args.with_handeye, common=not args.as_recorded)
     if args.json:
         write_json(args.json, comparison_document(c))
     if not args.quiet:
@@ -79,6 +93,13 @@ def _common(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--alpha", type=float, default=DRIFT_ALPHA, help=f"drift test level (default {DRIFT_ALPHA})"
     )
+    p.add_argument(
+        "--as-recorded",
+        action="store_true",
+        help="compare the recorded values even when the runs chose different models (default: "
+        "the run with more non-geometric terms refitted from its dataset on the geometric model "
+        "with the terms both chose)",
+    )
     p.add_argument("--quiet", action="store_true", help="no text (use with --json)")
 
 
@@ -88,14 +109,19 @@ def register(sub: argparse._SubParsersAction) -> None:
         "history",
         help="calibrations of one robot over time",
         description="Every recorded calibration of ROBOT_ID, oldest first: held-out errors, "
-        "drift against the previous run, and the parameters with their standard deviations.",
+        "drift against the previous run, the parameters with their standard deviations, and "
+        "the verifications of its calibrations on new sessions (relcal verify --registry): "
+        "their prediction error on new data against the nominal baseline and against the "
+        "calibration's own held-out error.",
         epilog=EPILOG,
         formatter_class=fmt,
     )
     hp.add_argument("robot_id")
     hp.add_argument("--last", type=int, metavar="N", help="only the N latest runs")
     _common(hp)
-    json_arg(hp, "the runs (parameters in SI units) with their drift verdicts")
+    json_arg(
+        hp, "the runs (parameters in SI units) with their drift verdicts, and the verifications"
+    )
     hp.set_defaults(func=run_history)
     cp = sub.add_parser(
         "compare",

@@ -95,8 +95,10 @@ def calibration_record(
     doc: dict,
     outputs: str | Path | None = None,
     session: str | None = None,
+    robot_id: str | None = None,
 ) -> dict[str, Any]:
-    """The registry record (:meth:`Registry.add`) of a calibration and its results document."""
+    """The registry record (:meth:`Registry.add`) of a calibration and its results document;
+    ``robot_id`` (default: the dataset's) is the robot it is recorded under."""
     names, cov = covariance(cal)
     layout = cal.problem.full_layout
     angle = layout.is_angle()
@@ -118,13 +120,17 @@ def calibration_record(
         )
     root = Path(cal.dataset.root).resolve()
     return {
-        "robot_id": cal.dataset.robot_id or root.name,
+        "robot_id": robot_id or cal.dataset.robot_id or root.name,
         "session": session or root.name,
         "relcal_version": relcal.__version__,
         "model_name": cal.dataset.model.name,
         "dataset_path": str(root),
         "outputs_path": None if outputs is None else str(Path(outputs).resolve()),
-        "settings": {**cal.settings, "chosen_model": chosen_model(cal)},
+        "settings": {
+            **cal.settings,
+            "chosen_model": chosen_model(cal),
+            "joint_ranges": doc.get("joint_ranges"),  # what `relcal verify` checks a session by
+        },
         "input_hashes": input_hashes(root, cal.dataset.images),
         "converged": bool(cal.result.converged),
         "rank": int(cal.result.identifiability.rank),

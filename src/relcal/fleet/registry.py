@@ -63,6 +63,31 @@ calibrations = sa.Table(
     sa.Column("calibrated_orientation_rms_deg", sa.Float),
     sa.Column("validation", sa.JSON),
 )
+verifications = sa.Table(
+    "verifications",
+    metadata,
+    sa.Column("id", sa.Integer, primary_key=True, autoincrement=True),
+    sa.Column("uid", sa.String(32), nullable=False, unique=True),
+    sa.Column("calibration_id", sa.Integer),  # the calibration's run in this registry, if known
+    sa.Column("calibration", sa.Text, nullable=False),  # what was verified, in words
+    sa.Column("robot_id", sa.String(200), nullable=False),
+    sa.Column("session", sa.String(200)),
+    sa.Column("dataset_path", sa.Text, nullable=False),
+    sa.Column("created_at", sa.DateTime(timezone=True), nullable=False),
+    sa.Column("relcal_version", sa.String(40), nullable=False),
+    sa.Column("kind", sa.String(20), nullable=False),
+    sa.Column("n_samples", sa.Integer, nullable=False),
+    sa.Column("folds", sa.Integer, nullable=False),
+    sa.Column("baseline_position_rms_mm", sa.Float),
+    sa.Column("calibrated_position_rms_mm", sa.Float),
+    sa.Column("baseline_orientation_rms_deg", sa.Float),
+    sa.Column("calibrated_orientation_rms_deg", sa.Float),
+    sa.Column("ratio_position", sa.Float),
+    sa.Column("at_calibration_position_rms_mm", sa.Float),
+    sa.Column("verdict", sa.String(20), nullable=False),
+    sa.Column("intervals", sa.JSON, nullable=False),
+    sa.Column("details", sa.JSON, nullable=False),
+)
 ERROR_COLUMNS = (
     "baseline_position_rms_mm",
     "baseline_orientation_rms_deg",
@@ -112,6 +137,37 @@ class Run:
         idx = [where[n] for n in names]
         matrix = np.asarray(self.covariance["matrix"], dtype=float)
         return matrix[np.ix_(idx, idx)] if idx else np.zeros((0, 0))
+
+
+@dataclass(frozen=True)
+class VerificationRun:
+    """One stored verification: a calibration's prediction errors on a new session, nuisance
+    refitted (``relcal verify``). Errors in mm and degrees; ``intervals`` holds the 95 %
+    intervals (``baseline_position_mm``, ``calibrated_position_mm``, ``ratio_position``, ... as
+    ``[low, high]``), ``details`` the verdict's reason, warnings and the joints outside the
+    calibration's ranges."""
+
+    id: int
+    uid: str
+    calibration_id: int | None
+    calibration: str
+    robot_id: str
+    session: str | None
+    dataset_path: str
+    created_at: datetime
+    relcal_version: str
+    kind: str
+    n_samples: int
+    folds: int
+    baseline_position_rms_mm: float | None
+    calibrated_position_rms_mm: float | None
+    baseline_orientation_rms_deg: float | None
+    calibrated_orientation_rms_deg: float | None
+    ratio_position: float | None
+    at_calibration_position_rms_mm: float | None
+    verdict: str
+    intervals: dict
+    details: dict
 
 
 def registry_url(where: str | os.PathLike | None = None) -> str | None:
@@ -301,6 +357,40 @@ class Registry:
             query = query.where(calibrations.c.robot_id == robot_id)
         return self._select(query)
 
+    def add_verification(self, record: dict[str, Any]) -> int:
+        """Store one verification (the keys of :class:`VerificationRun` but ``id``; ``uid`` and
+        ``created_at`` are filled in when missing); its id."""
+        row = dict(record)
+        row.setdefault("uid", uuid.uuid4().hex)
+        row.setdefault("created_at", datetime.now(UTC))
+        unknown = set(row) - set(verifications.c.keys())
+        if unknown:
+            raise ValueError(f"unknown verification fields: {sorted(unknown)}")
+
+        def insert() -> int:
+            with self.engine.begin() as conn:
+                return int(
+                    conn.execute(verifications.insert().values(**row)).inserted_primary_key[0]
+                )
+
+        return _retry(insert, f"recording the verification of {row.get('robot_id')}")
+
+    def verifications(
+        self, robot_id: str | None = None, calibration_id: int | None = None
+    ) -> list[VerificationRun]:
+        """Every verification (of one robot, or of one calibration run), oldest first."""
+        query = sa.select(verifications).order_by(verifications.c.created_at, verifications.c.id)
+        if robot_id is not None:
+            query = query.where(verifications.c.robot_id == robot_id)
+        if calibration_id is not None:
+            query = query.where(verifications.c.calibration_id == calibration_id)
+
+        def read() -> list[VerificationRun]:
+            with self.engine.connect() as conn:
+                return [_verification(r) for r in conn.execute(query).mappings()]
+
+        return _retry(read, "reading the verifications")
+
     def robots(self) -> list[str]:
         query = sa.select(calibrations.c.robot_id).distinct().order_by(calibrations.c.robot_id)
         with self.engine.connect() as conn:
@@ -348,6 +438,13 @@ def _run(row) -> Run:
         errors={k: row[k] for k in ERROR_COLUMNS},
         validation=row["validation"],
     )
+
+
+def _verification(row) -> VerificationRun:
+    created = row["created_at"]
+    if created.tzinfo is None:  # SQLite stores naive datetimes; relcal writes UTC
+        created = created.replace(tzinfo=UTC)
+    return VerificationRun(**{**row, "created_at": created})
 
 
 def open_registry(where: str | os.PathLike | None = None, create: bool = True) -> Registry | None:

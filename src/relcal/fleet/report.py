@@ -1,8 +1,9 @@
 """The fleet report: one self-contained HTML page of a fleet run (like the calibration report:
 inline CSS, plots as PNG ``data:`` URIs, no script, nothing fetched).
 
-Sections: ``summary`` (cards), ``robots`` (one row per session: status, baseline and calibrated
-held-out errors, drift against the previous calibration), ``failed`` (the reasons), and one
+Sections: ``summary`` (cards, and one row per robot model), ``robots`` (one row per session:
+status, baseline and calibrated held-out errors, drift against the previous calibration),
+``failed`` (the reasons), ``verifications`` (the latest ``relcal verify`` of each robot), and one
 ``parameters-<model>`` section per robot model with the identified errors of every robot, one
 small plot per parameter (image ``plot-parameters-<model>``): robots whose value lies far from
 the others of their model (robust z above 3.5) are drawn in red and listed.
@@ -38,37 +39,93 @@ def _slug(text: str) -> str:
     return re.sub(r"[^a-z0-9]+", "-", text.lower()).strip("-") or "model"
 
 
-def _median(values: list) -> float | None:
-    values = [v for v in values if v is not None]
-    return float(np.median(values)) if values else None
-
-
 def _summary(doc: dict, entries: list[dict]) -> tuple:
     ok = [e for e in entries if e["status"] == "ok"]
     drifted = [e for e in entries if (e.get("drift") or {}).get("verdict") == "drift"]
-    base = _median([e.get("baseline_position_rms_mm") for e in ok])
-    after = _median([e.get("calibrated_position_rms_mm") for e in ok])
     robots = {e.get("robot_id") for e in entries}
+    models = doc.get("models") or []
     cards = [
-        ("sessions", str(len(entries)), f"{len(robots)} robots"),
+        ("sessions", str(len(entries)), f"{len(robots)} robots of {len(models)} model(s)"),
         ("calibrated", str(len(ok)), f"{len(entries) - len(ok)} failed"),
         ("drift flagged", str(len(drifted)), ", ".join(e["robot_id"] for e in drifted) or "none"),
-        (
-            "held-out position RMS",
-            f"{hk.fmt(base, '.3g')} → {hk.fmt(after, '.3g')} mm",
-            "median over sessions, baseline → calibrated",
-        ),
         ("time", f"{doc.get('seconds', 0):.1f} s", _where(doc)),
     ]
+    rows = [
+        [
+            m["model"] or "(unknown: failed before loading)",
+            str(m["n_sessions"]),
+            str(len(m["robots"])),
+            str(m["n_ok"]),
+            str(m["n_failed"]),
+            ", ".join(m["drift_robots"]) or "none",
+            hk.fmt(m["median_baseline_position_rms_mm"], ".3f"),
+            hk.fmt(m["median_calibrated_position_rms_mm"], ".3f"),
+        ]
+        for m in models
+    ]
+    head = ["robot model", "sessions", "robots", "calibrated", "failed", "drift flagged"]
+    head += ["baseline mm", "calibrated mm"]
     return hk.section(
         "summary",
         "Summary",
         hk.cards(cards, "wide"),
         hk.paragraph(
+            "Per robot model (robots of one model compare, of two do not): held-out position RMS, "
+            "median over the model's calibrated sessions."
+        ),
+        hk.table(head, rows, "num"),
+        hk.paragraph(
             "Drift: each session against the robot's previous calibration, over the parameters "
             f"both identify (alpha {doc.get('alpha', 0.01):g}; without a change at most "
             f"{2 * doc.get('alpha', 0.01):.0%} of comparisons are flagged)."
         ),
+    )
+
+
+def _verifications(doc: dict) -> tuple:
+    """The latest verification of each robot of the fleet (``relcal verify --registry``): the
+    prediction error of its calibration on a new session, against the nominal baseline and
+    against the calibration's own held-out error."""
+    found = doc.get("verifications") or []
+    if not found:
+        return hk.section(
+            "verifications",
+            "Verifications on new sessions",
+            Html(
+                '<p class="none">none recorded for these robots (relcal verify CALIBRATION '
+                "SESSION --registry ...)</p>"
+            ),
+        )
+    rows = []
+    for v in found:
+        ci = (v.get("intervals") or {}).get("calibrated_position_mm")
+        now = v.get("calibrated_position_rms_mm")
+        rows.append(
+            [
+                v["robot_id"],
+                v["created_at"][:19].replace("T", " "),
+                f"run {v['calibration_id']}" if v.get("calibration_id") else v["calibration"],
+                v.get("session") or "",
+                str(v["n_samples"]),
+                hk.fmt(v.get("baseline_position_rms_mm"), ".3f"),
+                hk.fmt(now, ".3f") + (f" ({ci[0]:.3f}..{ci[1]:.3f})" if ci else ""),
+                hk.fmt(v.get("at_calibration_position_rms_mm"), ".3f"),
+                hk.badge(v["verdict"] == "holds", v["verdict"], v["verdict"]),
+            ]
+        )
+    head = ["robot", "time (UTC)", "calibration", "session", "samples", "baseline mm"]
+    head += ["calibrated mm", "at calibration mm", "verdict"]
+    return hk.section(
+        "verifications",
+        "Verifications on new sessions",
+        hk.paragraph(
+            "The latest verification of each robot: its calibration's prediction error on a new "
+            "session (kinematics frozen, the session's hand-eye or instrument and marker refitted "
+            "by cross-fitting, for the calibration and the nominal baseline alike), beside the "
+            "calibration's own held-out error. 'degraded': still better than the nominal model, "
+            "but worse than at calibration beyond the interval."
+        ),
+        hk.table(head, rows, "num"),
     )
 
 
@@ -237,7 +294,7 @@ def _parameters(entries: list[dict]) -> list[tuple]:
 def fleet_report(doc: dict, entries: list[dict]) -> str:
     """The page of a fleet run: ``doc`` as ``relcal fleet calibrate --json`` writes it, and the
     entries of :func:`relcal.fleet.runner.run_fleet` (with their registry records)."""
-    sections = [_summary(doc, entries), _robots(entries), _failed(entries)]
+    sections = [_summary(doc, entries), _robots(entries), _failed(entries), _verifications(doc)]
     sections += _parameters(entries)
     meta = [("root", str(doc.get("root", ""))), ("sessions", str(len(entries)))]
     if doc.get("registry"):

@@ -29,22 +29,26 @@ class Session:
     robot_id: str
 
 
-def _robot_id(folder: Path) -> str:
-    """``robot_id`` of ``dataset.yaml`` if it has one (unreadable files: the folder name; the
-    task reports what is wrong with them)."""
+def _robot_id(folder: Path, root: Path) -> str:
+    """``robot_id`` of ``dataset.yaml`` if it has one, else the robot's folder: in a fleet laid
+    out ``ROOT/ROBOT/SESSION`` (a session two or more levels below the root) the session's
+    parent, else the session folder itself (``ROOT/ROBOT``, one session per robot). Unreadable
+    files give the same default; the task reports what is wrong with them."""
     import yaml
 
+    default = folder.parent.name if folder.parent != root and folder != root else folder.name
     try:
         data = yaml.safe_load((folder / "dataset.yaml").read_text())
     except (OSError, yaml.YAMLError):
-        return folder.name
+        return default
     value = data.get("robot_id") if isinstance(data, dict) else None
-    return str(value) if value not in (None, "") else folder.name
+    return str(value) if value not in (None, "") else default
 
 
 def discover(root: str | Path) -> list[Session]:
     """Every folder under ``root`` (``root`` itself included) holding a ``dataset.yaml``, in
-    path order; the robot id is ``robot_id`` of ``dataset.yaml``, by default the folder name."""
+    path order; the robot id is ``robot_id`` of ``dataset.yaml``, by default the robot's folder
+    (the parent of a session in ``ROOT/ROBOT/SESSION``, the session folder in ``ROOT/ROBOT``)."""
     root = Path(root)
     if not root.is_dir():
         raise RelcalError(f"{root}: not a folder (expected a folder of dataset folders)")
@@ -52,7 +56,7 @@ def discover(root: str | Path) -> list[Session]:
     if not folders:
         raise RelcalError(f"{root}: no dataset folder (a folder with dataset.yaml) under it")
     return [
-        Session(f, f.relative_to(root).as_posix() if f != root else f.name, _robot_id(f))
+        Session(f, f.relative_to(root).as_posix() if f != root else f.name, _robot_id(f, root))
         for f in folders
     ]
 
@@ -65,10 +69,15 @@ def outputs_folder(session: Session, out_root: str | Path | None) -> Path:
 
 
 def calibrate_session(
-    path: str, name: str, out: str, options: dict[str, Any] | None = None
+    path: str,
+    name: str,
+    out: str,
+    options: dict[str, Any] | None = None,
+    robot_id: str | None = None,
 ) -> dict[str, Any]:
     """Calibrate one session (runs on a worker): its entry, with the registry record under
-    ``record`` when it succeeded. Bad input gives ``status: failed`` and the reason."""
+    ``record`` when it succeeded (recorded under ``robot_id``, default the dataset's). Bad input
+    gives ``status: failed`` and the reason."""
     from threadpoolctl import threadpool_limits
 
     from relcal.cluster import prepare_worker
@@ -80,7 +89,7 @@ def calibrate_session(
         from relcal.outputset import tracking
 
         with threadpool_limits(limits=1), tracking():  # this session's inputs only
-            entry.update(_calibrate(Path(path), name, Path(out), dict(options or {})))
+            entry.update(_calibrate(Path(path), name, Path(out), dict(options or {}), robot_id))
     except RelcalError as exc:
         entry.update(status="failed", reason=str(exc))
     except Exception as exc:  # a bug or a broken file: still this session's failure alone
@@ -93,7 +102,9 @@ def calibrate_session(
     return entry
 
 
-def _calibrate(path: Path, name: str, out: Path, options: dict) -> dict[str, Any]:
+def _calibrate(
+    path: Path, name: str, out: Path, options: dict, robot_id: str | None = None
+) -> dict[str, Any]:
     import numpy as np
 
     from relcal.calibration.pipeline import calibrate
@@ -111,7 +122,7 @@ def _calibrate(path: Path, name: str, out: Path, options: dict) -> dict[str, Any
     if cal.hurts:  # as `relcal calibrate`: a model worse than the baseline is not written
         val = doc["validation"]
         return {
-            "robot_id": dataset.robot_id,
+            "robot_id": robot_id or dataset.robot_id,
             "model": dataset.model.name,
             "status": "rejected",
             "reason": f"the chosen model ({doc['model_selection']['chosen']}) is worse than the "
@@ -121,7 +132,7 @@ def _calibrate(path: Path, name: str, out: Path, options: dict) -> dict[str, Any
             **held_out_errors(doc),
         }
     write_calibration(cal, out, doc)  # the files of `relcal calibrate`, as one set
-    record = calibration_record(cal, doc, outputs=out, session=name)
+    record = calibration_record(cal, doc, outputs=out, session=name, robot_id=robot_id)
     return {
         "robot_id": record["robot_id"],
         "model": dataset.model.name,
@@ -161,6 +172,7 @@ def iterate_fleet(
                 s.name,
                 str(outputs_folder(s, out_root)),
                 options,
+                s.robot_id,
                 key=f"relcal-session-{s.name}-{time.time_ns()}",
                 pure=False,
             )
@@ -243,3 +255,47 @@ def attach_drift(
         for k, e in enumerate(group):
             i = k + offset
             e["drift"] = drift_summary(comparisons[i], labels[i - 1] if i else None)
+
+
+def model_summaries(entries: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """Per robot model (the fleet's robots of one model are comparable, those of two are not):
+    sessions, robots, calibrated and failed sessions, robots flagged for drift, and the median
+    over its calibrated sessions of the baseline and calibrated held-out errors (mm, deg).
+    A session that failed before its model was known counts under its robot's model (from the
+    robot's other sessions), else under ``model: None``."""
+    import numpy as np
+
+    known = {e.get("robot_id"): e["model"] for e in entries if e.get("model")}
+    entries = [
+        e if e.get("model") else {**e, "model": known.get(e.get("robot_id"))} for e in entries
+    ]
+
+    def median(values: list) -> float | None:
+        values = [v for v in values if v is not None]
+        return float(np.median(values)) if values else None
+
+    out = []
+    models = list(dict.fromkeys(e.get("model") for e in entries))
+    for model in sorted(models, key=lambda m: (m is None, m or "")):
+        group = [e for e in entries if e.get("model") == model]
+        ok = [e for e in group if e["status"] == "ok"]
+        drifted = sorted(
+            {e["robot_id"] for e in group if (e.get("drift") or {}).get("verdict") == "drift"}
+        )
+        summary = {
+            "model": model,
+            "n_sessions": len(group),
+            "robots": sorted({str(e.get("robot_id")) for e in group}),
+            "n_ok": len(ok),
+            "n_failed": len(group) - len(ok),
+            "drift_robots": drifted,
+        }
+        for key in (
+            "baseline_position_rms_mm",
+            "calibrated_position_rms_mm",
+            "baseline_orientation_rms_deg",
+            "calibrated_orientation_rms_deg",
+        ):
+            summary[f"median_{key}"] = median([e.get(key) for e in ok])
+        out.append(summary)
+    return out

@@ -5,7 +5,7 @@ from __future__ import annotations
 from typing import Any
 
 from relcal.fleet.drift import Comparison, display
-from relcal.fleet.registry import Run
+from relcal.fleet.registry import Run, VerificationRun
 
 
 def _time(run: Run) -> str:
@@ -39,11 +39,19 @@ def verdict_text(c: Comparison | None) -> str:
     return f"DRIFT (p={c.p_value:.2g}; {moved})"
 
 
-def history_text(robot_id: str, runs: list[Run], comparisons: list, where: str) -> str:
-    """The runs of one robot over time, the verdict against the previous run, and the
-    parameters (identified error +- std) per run."""
+def history_text(
+    robot_id: str,
+    runs: list[Run],
+    comparisons: list,
+    where: str,
+    verifications: list[VerificationRun] = (),
+) -> str:
+    """The runs of one robot over time, the verdict against the previous run, the parameters
+    (identified error +- std) per run, and the verifications of its calibrations on new
+    sessions."""
     if not runs:
-        return f"{robot_id}: no calibration in {where}"
+        head = f"{robot_id}: no calibration in {where}"
+        return "\n".join([head, *verifications_text(list(verifications))])
     lines = [f"{robot_id} ({runs[-1].model_name}): {len(runs)} calibration(s) in {where}", ""]
     rows = [["run", "time (UTC)", "session", "relcal", "held-out position RMS mm", "vs previous"]]
     for run, c in zip(runs, comparisons, strict=True):
@@ -89,6 +97,7 @@ def history_text(robot_id: str, runs: list[Run], comparisons: list, where: str) 
         lines.append("not identifiable (n/i) in any run: " + ", ".join(never["n/i"]))
     if never["-"]:
         lines.append("not in any run's chosen model (-): " + ", ".join(never["-"]))
+    lines += verifications_text(list(verifications))
     return "\n".join(lines)
 
 
@@ -198,6 +207,7 @@ def comparison_document(c: Comparison) -> dict[str, Any]:
             for p in c.parameters
         ],
         "parameter_unit": "a, b, difference and std in SI: m for lengths, rad for angles",
+        "common_model": c.common_model,  # both refitted on it (their chosen models differed)
         "left_out": list(c.left_out),
         "one_sided": list(c.one_sided),  # of left_out: estimated in one run only
         "notes": list(c.notes),
@@ -218,7 +228,11 @@ def drift_summary(c: Comparison | None, against: str | None) -> dict[str, Any] |
     }
 
 
-def fleet_text(entries: list[dict]) -> str:
+def fleet_text(
+    entries: list[dict], models: list[dict] | None = None, verifications: list[dict] | None = None
+) -> str:
+    """The sessions of a fleet run (status, held-out errors, drift), the failures, a summary per
+    robot model and the latest verification of each robot (when a registry has them)."""
     rows = [["session", "robot", "status", "held-out position RMS mm", "drift vs previous"]]
     for e in entries:
         drift = e.get("drift")
@@ -239,4 +253,103 @@ def fleet_text(entries: list[dict]) -> str:
     for e in entries:
         if e["status"] == "failed":
             lines.append(f"failed {e['session']}: {e['reason']}")
+    for m in models or []:
+        base, after = m["median_baseline_position_rms_mm"], m["median_calibrated_position_rms_mm"]
+        errors = ""
+        if base is not None and after is not None:
+            errors = f"; held-out position RMS {base:.3f} -> {after:.3f} mm (median)"
+        lines.append(
+            f"{m['model'] or '(model unknown)'}: {m['n_sessions']} sessions of "
+            f"{len(m['robots'])} robots, {m['n_ok']} calibrated, {m['n_failed']} failed, drift: "
+            + (", ".join(m["drift_robots"]) or "none")
+            + errors
+        )
+    for v in verifications or []:
+        at = v.get("at_calibration_position_rms_mm")
+        base, after = v.get("baseline_position_rms_mm"), v.get("calibrated_position_rms_mm")
+        errors = f", position RMS {base:.3f} -> {after:.3f} mm" if None not in (base, after) else ""
+        lines.append(
+            f"latest verification of {v['robot_id']} ({v['created_at'][:10]}, session "
+            f"{v.get('session')}): {v['verdict']}{errors}"
+            + (f" (at calibration {at:.3f} mm)" if at is not None else "")
+        )
     return "\n".join(lines)
+
+
+def _verification_errors(v: VerificationRun) -> str:
+    b, a = v.baseline_position_rms_mm, v.calibrated_position_rms_mm
+    ci = (v.intervals or {}).get("calibrated_position_mm")
+    shown = f"{b:.3f} -> {a:.3f}" if b is not None and a is not None else "-"
+    return shown + (f" ({ci[0]:.3f}..{ci[1]:.3f})" if ci else "")
+
+
+def _at_calibration(v: VerificationRun) -> str:
+    ref, a = v.at_calibration_position_rms_mm, v.calibrated_position_rms_mm
+    if ref is None or a is None:
+        return "-"
+    return f"{ref:.3f} (now x{a / max(ref, 1e-300):.2f})"
+
+
+VERDICT_WORDS = {
+    "holds": "holds",
+    "degraded": "DEGRADED",
+    "inconclusive": "inconclusive",
+    "worse": "WORSE",
+}
+
+
+def verifications_text(verifications: list[VerificationRun]) -> list[str]:
+    """The verifications of a robot's calibrations on new sessions: the prediction error of the
+    calibrated model (the nominal baseline's beside it, both with the session's nuisance
+    refitted), the calibration's own held-out error and the verdict."""
+    if not verifications:
+        return []
+    lines = [
+        "",
+        "verifications on new sessions (position RMS mm, kinematics frozen, the session's "
+        "nuisance refitted; baseline -> calibrated (interval); the calibration's own held-out "
+        "error):",
+    ]
+    rows = [["id", "time (UTC)", "calibration", "session", "samples", "on the session"]]
+    rows[0] += ["at calibration", "verdict"]
+    for v in verifications:
+        rows.append(
+            [
+                str(v.id),
+                v.created_at.strftime("%Y-%m-%d %H:%M:%S"),
+                f"run {v.calibration_id}" if v.calibration_id is not None else v.calibration,
+                v.session or "",
+                str(v.n_samples),
+                _verification_errors(v),
+                _at_calibration(v),
+                VERDICT_WORDS.get(v.verdict, v.verdict),
+            ]
+        )
+    return lines + _table(rows, {0, 4})
+
+
+def verification_run_document(v: VerificationRun) -> dict[str, Any]:
+    """A stored verification as JSON (mm and degrees, intervals as [low, high])."""
+    return {
+        "id": v.id,
+        "uid": v.uid,
+        "calibration_id": v.calibration_id,
+        "calibration": v.calibration,
+        "robot_id": v.robot_id,
+        "session": v.session,
+        "dataset": v.dataset_path,
+        "created_at": v.created_at.isoformat(),
+        "relcal_version": v.relcal_version,
+        "kind": v.kind,
+        "n_samples": v.n_samples,
+        "folds": v.folds,
+        "baseline_position_rms_mm": v.baseline_position_rms_mm,
+        "calibrated_position_rms_mm": v.calibrated_position_rms_mm,
+        "baseline_orientation_rms_deg": v.baseline_orientation_rms_deg,
+        "calibrated_orientation_rms_deg": v.calibrated_orientation_rms_deg,
+        "ratio_position": v.ratio_position,
+        "at_calibration_position_rms_mm": v.at_calibration_position_rms_mm,
+        "intervals": v.intervals,
+        "verdict": v.verdict,
+        "details": v.details,
+    }

@@ -17,6 +17,7 @@ from relcal.calibration.measurement import tracker_frames
 from relcal.calibration.outcome import Calibration
 from relcal.calibration.uncertainty import Accuracy
 from relcal.calibration.validate import Validation, pooled, ratio_interval, stats
+from relcal.calibration.verify import FROZEN, Assessment, JointRanges, Verification
 from relcal.data.dataset import Dataset
 from relcal.data.imaging import Measurements
 from relcal.data.importers import Imported
@@ -297,6 +298,7 @@ def results_document(cal: Calibration) -> dict:
             validation_document(cal.validation, cal.dataset.ids) if cal.validation else None
         ),
         "calibrated_model": model_to_dict(cal.model),
+        "joint_ranges": JointRanges.of(cal.dataset.model, cal.dataset.q[cal.train]).to_dict(),
     }
 
 
@@ -589,4 +591,43 @@ def import_document(done: Imported, source_format: str, source: str) -> dict:
         "dataset": str(done.folder),
         "files": [str(f) for f in done.files],
         "n_samples": done.n_samples,
+    }
+
+
+def verification_document(
+    ver: Verification,
+    a: Assessment,
+    calibration: dict,
+    session: dict,
+    nuisance_words: str,
+    ranges_note: str,
+) -> dict:
+    """What ``relcal verify`` found: the calibration and the session, what was refitted and how,
+    both models' errors (mm, deg) with their intervals, the ratio to the baseline and to the
+    calibration's own held-out error, every sample, the joints outside the covered ranges, the
+    warnings and the verdict (with the exit status it gives)."""
+    return {
+        "calibration": calibration,
+        "session": {**session, "kind": ver.kind, "n_evaluated": a.n_samples},
+        "nuisance": {
+            "refitted": nuisance_words,
+            "frozen": FROZEN[ver.kind],
+            "scheme": ver.scheme,
+            "folds": ver.n_folds,
+            "seed": ver.seed,
+            "fitted_to_all_samples": {
+                name: {"values": n.values, "converged": n.converged}
+                for name, n in ver.nuisance.items()
+            },
+        },
+        "baseline": a.baseline,
+        "calibrated": a.calibrated,
+        "ratio_to_baseline": a.ratio,
+        "at_calibration": a.at_calibration,
+        "ratio_to_calibration": a.ratio_to_calibration,
+        "identical_to_nominal": a.identical,
+        "samples": a.samples,
+        "joint_ranges": {"checked": a.ranges_checked, "source": ranges_note, "outside": a.outside},
+        "warnings": list(a.warnings),
+        "verdict": {"code": a.verdict, "reason": a.reason, "exit_status": a.exit_status},
     }

@@ -547,3 +547,109 @@ def compensation_csv(
             ]
         lines.append(",".join(cells))
     return "\n".join(lines) + "\n"
+
+
+# --- verification ---------------------------------------------------------------------------------
+
+
+def _with_interval(summary: dict, digits: str = ".3f") -> str:
+    ci = summary.get("ci95")
+    shown = f"{summary['rms']:{digits}}"
+    return shown + (f" ({ci[0]:{digits}}..{ci[1]:{digits}})" if ci else "")
+
+
+def _range_unit(entry: dict) -> tuple[float, str]:
+    return (1e3, "mm") if entry["unit"] == "m" else (float(np.degrees(1.0)), "deg")
+
+
+def verification_text(doc: dict, per_sample: bool = True) -> str:
+    """The terminal output of ``relcal verify``: what was verified on which session and how, the
+    error of every sample under both models, the RMS errors with their intervals, the ratio to
+    the baseline and to the calibration's held-out error, warnings, and the verdict last."""
+    cal, ses, nui = doc["calibration"], doc["session"], doc["nuisance"]
+    points = ses["kind"] != "pose"
+    what = {"pose": "poses", "position": "points", "coincidence": "coincidence samples"}
+    lines = [
+        f"calibration: {cal['source']}"
+        + (f" ({cal['chosen_model']})" if cal.get("chosen_model") else ""),
+        f"session: {ses['dataset']} (robot {ses['robot_id']}): {ses['n_evaluated']} of "
+        f"{ses['n_samples']} {what[ses['kind']]} evaluated",
+        f"refitted for both models: {nui['refitted']}; frozen: {nui['frozen']}",
+        f"how: {nui['scheme']}",
+    ]
+    rows = doc["samples"]
+    if per_sample and rows:
+        orient = any(r["baseline_deg"] is not None for r in rows)
+        head = ["id", "fold", "baseline mm", "calibrated mm"]
+        if orient:
+            head += ["baseline deg", "calibrated deg"]
+        head.append("outside the covered range" if doc["joint_ranges"]["checked"] else "")
+        names = {o["index"]: o["joint"] for o in doc["joint_ranges"]["outside"]}
+        table = [head]
+        for r in rows:
+            cells = [r["id"], str(r["fold"] + 1), f"{r['baseline_mm']:.3f}"]
+            cells.append(f"{r['calibrated_mm']:.3f}")
+            if orient:
+                cells += [f"{r['baseline_deg']:.4f}", f"{r['calibrated_deg']:.4f}"]
+            cells.append(", ".join(names.get(j, str(j + 1)) for j in r.get("outside_range", [])))
+            table.append(cells)
+        widths = [max(len(t[k]) for t in table) for k in range(len(head))]
+        lines.append("")
+        lines.append(
+            "per sample ("
+            + ("error of the point" if points else "RMS over its pairs in its fold")
+            + "; fold of the cross-fitting):"
+        )
+        for t in table:
+            lines.append(
+                "  "
+                + "  ".join(
+                    c.ljust(w) if k in (0, len(head) - 1) else c.rjust(w)
+                    for k, (c, w) in enumerate(zip(t, widths, strict=True))
+                ).rstrip()
+            )
+    lines.append("")
+    n = ses["n_evaluated"]
+    over = f"{n} points" if points else f"pairs within folds of {n} samples"
+    lines.append(f"overall (RMS over {over}, 95% intervals from a bootstrap over samples):")
+    base, after, ratio = doc["baseline"], doc["calibrated"], doc["ratio_to_baseline"]
+    for key, unit, digits in (("position_mm", "mm", ".3f"), ("orientation_deg", "deg", ".4f")):
+        if key not in ratio:
+            continue
+        r = ratio[key]
+        lines.append(
+            f"  {key.split('_')[0]:<11}  baseline (nominal) {_with_interval(base[key], digits)} "
+            f"{unit}  calibrated {_with_interval(after[key], digits)} {unit}  ratio "
+            f"x{r['after_over_before']:.3f} ({r['ci95'][0]:.3f}..{r['ci95'][1]:.3f})"
+        )
+    at, to = doc.get("at_calibration"), doc.get("ratio_to_calibration")
+    if at and to:
+        for key, unit, digits in (("position_mm", "mm", ".3f"), ("orientation_deg", "deg", ".4f")):
+            if key not in to:
+                continue
+            ref, r = at[key], to[key]
+            count = f", {ref['n_samples']} samples" if ref.get("n_samples") else ""
+            lines.append(
+                f"  at calibration (its own held-out {key.split('_')[0]}{count}): "
+                f"{_with_interval(ref, digits)} {unit}; on this session x{r['ratio']:.2f} "
+                f"(99% interval {r['ci99'][0]:.2f}..{r['ci99'][1]:.2f})"
+            )
+    elif not at:
+        why = "see the note below" if cal.get("notes") else "calibrated with --holdout 0?"
+        lines.append(f"  at calibration: no comparable held-out error ({why})")
+    ranges = doc["joint_ranges"]
+    if not ranges["checked"]:
+        lines.append(f"joint ranges not checked: {ranges['source']}")
+    for o in ranges["outside"]:
+        scale, unit = _range_unit(o)
+        lo, hi = (v * scale for v in o["covered"])
+        lines.append(
+            f"  {o['joint']}: {o['n_samples']} sample(s) outside the covered {lo:.1f}..{hi:.1f} "
+            f"{unit}, up to {o['largest_excess'] * scale:.1f} {unit} beyond"
+        )
+    lines += [f"warning: {w}" for w in doc["warnings"]]
+    lines += [f"note: {w}" for w in doc["calibration"].get("notes", [])]
+    v = doc["verdict"]
+    label = {"holds": "HOLDS", "degraded": "DEGRADED", "inconclusive": "INCONCLUSIVE"}
+    lines.append(f"verdict: {label.get(v['code'], 'WORSE')}: {v['reason']}")
+    return "\n".join(lines)
