@@ -29,7 +29,6 @@ from relcal.calibration.measurement import (
     Problem,
     make_pairs,
     pair_errors,
-    relative_measurements,
     residuals,
 )
 from relcal.calibration.noise import (
@@ -318,7 +317,7 @@ def _blocks(problem: Problem) -> np.ndarray:
 def pair_left_maps(problem: Problem) -> np.ndarray:
     """``-Ad(M_ij^-1)`` ``(P, 6, 6)`` of the measured relative motions: how pose i's error enters
     pair (i, j)'s residual (pose j's enters as itself)."""
-    measured = relative_measurements(problem.poses, problem.pair_indices())
+    measured = tf.relative(problem.poses, problem.pair_indices())
     return -tf.adjoint(tf.invert(measured))
 
 

@@ -34,10 +34,13 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from relcal import geometry as tf
+from relcal.calibration.handeye import align_rotations
 from relcal.errors import RelcalError
+from relcal.geometry import relative
 
 MAX_PAIRS = 2000  # pairs used by the checks (all pairs up to 63 samples)
 RATIO = 3.0  # an alternative reading that fits the rotations this much better is named
+SURE_AXIS = np.radians(150)  # relative rotations below this angle have a sure axis
 
 
 @dataclass(frozen=True)
@@ -84,27 +87,10 @@ def check_pairs(n: int, rng_seed: int = 0) -> np.ndarray:
     return pairs
 
 
-def relative(poses: np.ndarray, pairs: np.ndarray) -> np.ndarray:
-    """``T_i^-1 T_j`` ``(P, 4, 4)`` for each pair."""
-    return tf.invert(poses[pairs[:, 0]]) @ poses[pairs[:, 1]]
-
-
-def align_rotations(commanded: np.ndarray, measured: np.ndarray) -> np.ndarray:
-    """The rotation ``R_X`` ``(3, 3)`` that best maps measured rotation vectors onto commanded
-    ones (``a = R_X b``, Kabsch on pairs turning less than 150 deg, where the axis is sure)."""
-    a = Rotation.from_matrix(commanded[:, :3, :3]).as_rotvec()
-    b = Rotation.from_matrix(measured[:, :3, :3]).as_rotvec()
-    keep = np.linalg.norm(a, axis=1) < np.radians(150)
-    if keep.sum() >= 2:
-        a, b = a[keep], b[keep]
-    u, _, vt = np.linalg.svd(a.T @ b)
-    return u @ np.diag([1.0, 1.0, np.sign(np.linalg.det(u @ vt)) or 1.0]) @ vt
-
-
 def rotation_misfit(commanded: np.ndarray, measured: np.ndarray) -> tuple[float, np.ndarray]:
     """Median angle (rad) of ``R_A^T R_X R_B R_X^T`` over the pairs with the best ``R_X``, and
     that ``R_X``. Independent of the hand-eye transform; near zero for right data."""
-    rx = align_rotations(commanded, measured)
+    rx = align_rotations(commanded, measured, SURE_AXIS)
     rb = np.einsum("ij,pjk,lk->pil", rx, measured[:, :3, :3], rx)
     diff = np.swapaxes(commanded[:, :3, :3], 1, 2) @ rb
     return float(np.median(np.linalg.norm(tf.log_rotation(diff), axis=1))), rx
