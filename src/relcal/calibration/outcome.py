@@ -1,6 +1,5 @@
-"""What a calibration produced (:class:`Calibration`), shared by the pose pipeline
-(:mod:`pipeline`) and the position-only one (:mod:`tracker`), with the rule that finds outlier
-samples."""
+"""What a calibration produced (:class:`Calibration`), the record of the calibration skeleton
+(:mod:`pipeline`) for every measurement kind, with the rule that finds outlier samples."""
 
 from __future__ import annotations
 
@@ -12,7 +11,7 @@ from relcal.calibration.identify import Result, calibrated_handeye
 from relcal.calibration.measurement import Problem
 from relcal.calibration.noise import PoseNoise
 from relcal.calibration.selection import BASELINE_CANDIDATES, Score
-from relcal.calibration.validate import Validation, ratio_interval, stats
+from relcal.calibration.validate import PlacementValidation, Validation
 from relcal.data.dataset import Dataset
 from relcal.data.imaging import Measurements
 from relcal.robot.export import calibrated_model
@@ -25,10 +24,13 @@ ROBUST_SCALE = 3.0  # residual (in noise standard deviations) where the robust l
 class Calibration:
     """Everything a calibration produced.
 
-    ``result`` is the chosen model's fit and ``baseline`` the fit of the hand-eye transform alone
-    (nominal kinematics): the best a user gets without kinematic calibration, and the primary
-    "before" of every comparison. When the data support no kinematic correction the chosen
-    model *is* the baseline (``exported == "baseline"``).
+    ``result`` is the chosen model's fit and ``baseline`` the fit of the measurement frames alone
+    (nominal kinematics with the hand-eye transform, the instrument transform and marker, or the
+    tool point and group points fitted): the best a user gets without kinematic calibration, and
+    the primary "before" of every comparison. When the data support no kinematic correction the
+    chosen model *is* the baseline (``exported == "baseline"``). ``validation``: held-out pairs
+    or points (:class:`Validation`), or held-out placements of coincidence data
+    (:class:`PlacementValidation`).
     """
 
     dataset: Dataset
@@ -36,7 +38,7 @@ class Calibration:
     problem: Problem  # training samples, with the chosen weighting
     result: Result
     baseline: Result
-    validation: Validation | None
+    validation: Validation | PlacementValidation | None
     train: np.ndarray  # sample indices
     test: np.ndarray
     settings: dict
@@ -61,11 +63,11 @@ class Calibration:
 
     @property
     def worse(self) -> bool:
-        """The exported calibrated model's held-out position RMS exceeds the baseline's."""
+        """The exported calibrated model's held-out RMS (position; the spread of coincidences)
+        exceeds the baseline's."""
         if self.validation is None or self.exported == "baseline":
             return False
-        val = self.validation
-        return stats(val.calibrated)["position_mm"]["rms"] > stats(val.before)["position_mm"]["rms"]
+        return self.validation.rms("calibrated") > self.validation.rms("before")
 
     @property
     def hurts(self) -> bool:
@@ -73,9 +75,7 @@ class Calibration:
         the baseline (bootstrap over held-out samples) lies above 1."""
         if not self.worse:
             return False
-        val = self.validation
-        ratio = ratio_interval(val.pairs, val.before, val.calibrated)
-        return ratio["position_mm"]["ci95"][0] > 1.0
+        return self.validation.ratio()["ci95"][0] > 1.0
 
     @property
     def model(self) -> RobotModel:

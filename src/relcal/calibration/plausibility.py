@@ -21,8 +21,9 @@ do not depend on the unknowns of the calibration:
   correction is not a calibration but a wrong input absorbed by the model.
 
 The functions are pure (arrays in, numbers or a message out); :func:`check_inputs` and
-:func:`check_corrections` gather them for :func:`relcal.calibration.pipeline.calibrate`, which
-calls them before identifying and before anything is written.
+:func:`check_corrections` gather them for the measurement kinds
+(:mod:`relcal.calibration.kinds`), whose checks :func:`relcal.calibration.pipeline.calibrate`
+calls before identifying and before anything is written.
 """
 
 from __future__ import annotations
@@ -494,21 +495,39 @@ def check_dataset(dataset, measurements) -> dict:
     return out
 
 
-def check_result(dataset, problem, result) -> None:
+def check_result(dataset, problem, result, what: str | None = None) -> None:
     """:func:`check_corrections` on an identification result (``problem.full_layout`` order).
     Hand-eye corrections count only when the start was estimated from the data: a guess given in
     dataset.yaml may be rough (its plausibility is checked against the data beforehand). The
-    tracker's instrument transform and marker are free by design and never checked."""
+    nuisance frames of the other kinds (a tracker's instrument transform and marker, a
+    coincidence's tool point and group points) are free by design and never checked. With
+    ``what`` (how the samples are called, e.g. ``points``), refused corrections below 3 standard
+    deviations are named as not determined by the data."""
     layout = problem.full_layout
+    free = ("instrument", "marker", "tool_point", "point")
     keep = [
         k
         for k, kind in enumerate(layout.kinds)
-        if kind not in ("instrument", "marker") and (kind != "handeye" or dataset.handeye is None)
+        if kind not in free and (kind != "handeye" or dataset.handeye is None)
     ]
-    check_corrections(
-        [layout.names[k] for k in keep],
-        [layout.kinds[k] for k in keep],
-        result.params[keep],
-        str(dataset.spec_path or dataset.root),
-        Tolerances.from_display(dataset.tolerances),
-    )
+    try:
+        check_corrections(
+            [layout.names[k] for k in keep],
+            [layout.kinds[k] for k in keep],
+            result.params[keep],
+            str(dataset.spec_path or dataset.root),
+            Tolerances.from_display(dataset.tolerances),
+        )
+    except RelcalError as exc:
+        if what is None:
+            raise
+        with np.errstate(divide="ignore", invalid="ignore"):
+            z = np.abs(result.params) / result.std
+        names = layout.names
+        weak = [n for k, n in enumerate(names) if f"{n} corrected by" in str(exc) and z[k] < 3.0]
+        if not weak:
+            raise
+        raise RelcalError(
+            f"{exc}\n{', '.join(weak)}: not determined by these {what} (|error| below 3 standard "
+            "deviations); --select conservative leaves such parameters out"
+        ) from None
