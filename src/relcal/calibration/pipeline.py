@@ -58,9 +58,10 @@ def cross_validate(
     if measurements is None:
         measurements = measure(dataset)
     kind = kind_of(dataset, measurements, options.get("pairing", "all"))
+    parts = kind.folds(k, seed)
     return [
         calibrate(dataset, measurements, seed=seed, holdout_ids=ids, **options)
-        for ids in tqdm(kind.folds(k, seed), disable=not progress, desc="cross-validation", unit="fold")
+        for ids in tqdm(parts, disable=not progress, desc="cross-validation", unit="fold")
     ]
 
 

@@ -222,7 +222,8 @@ class Spread:
             mm = np.abs(values) * 1e3
             return {"rms": float(np.sqrt(np.mean(mm**2))), "max": float(mm.max())}
 
-        return {"spread_mm": summarised(self.spread), "distance_error_mm": summarised(self.distance)}
+        spread, distance = summarised(self.spread), summarised(self.distance)
+        return {"spread_mm": spread, "distance_error_mm": distance}
 
     def per_group(self) -> dict[str, dict[str, float]]:
         """``{group: {"n", "rms_mm", "max_mm"}}`` of the spread."""

@@ -106,9 +106,7 @@ class PointKind(MeasurementKind):
         """Absolute point errors of the held-out samples (at least one)."""
         if len(test) < 1:
             return None
-        everything = replace(
-            training.problem, q=self.dataset.q, poses=self.measurements.poses
-        )
+        everything = replace(training.problem, q=self.dataset.q, poses=self.measurements.poses)
         return held_out(everything, result, test, baseline=baseline)
 
     def settings(self, training: Training) -> dict:
