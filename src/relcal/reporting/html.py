@@ -34,7 +34,7 @@ from relcal import __version__
 from relcal.calibration.identifiability import NUISANCE_KINDS, Identifiability
 from relcal.calibration.measurement import pair_errors
 from relcal.calibration.outcome import Calibration
-from relcal.calibration.validate import stats
+from relcal.calibration.validate import PlacementValidation, Spread, stats
 from relcal.reporting.text import pose_noise_parts
 from relcal.robot.model import NONGEOMETRIC_KINDS
 from relcal.sim.simulate import Simulation
@@ -617,6 +617,26 @@ def _compact_names(names: Sequence[str]) -> str:
 
 def _error_sets(cal: Calibration) -> tuple[np.ndarray, np.ndarray, str, str]:
     """Per-pair errors before and after, a short label and a sentence saying where from."""
+    if isinstance(cal.validation, PlacementValidation):
+        v = cal.validation
+
+        def errors(spread: Spread) -> np.ndarray:  # the spread as a position error
+            out = np.full((len(spread.spread), 6), np.nan)
+            out[:, :3] = 0.0
+            out[:, 0] = spread.spread
+            return out
+
+        return (
+            errors(v.baseline),
+            errors(v.calibrated),
+            "held-out samples",
+            f"Held-out validation: {len(v.samples)} samples of {len(v.placements)} placement(s) "
+            f"({', '.join(v.placements)}) that the identification did not use, each sample's "
+            "predicted tool point against its group's point refitted there (kinematics and tool "
+            "point frozen: a new plate position); before = nominal kinematics with the tool "
+            "point and the group points fitted to the training samples, after = the exported "
+            "model.",
+        )
     if cal.validation is not None and cal.problem.formulation == "tracker":
         v = cal.validation
         return (
@@ -737,18 +757,16 @@ def _summary(cal: Calibration, doc: dict, errors: tuple) -> tuple[str, str, Html
     before, after, label, sentence = errors
     b, a = stats(before), stats(after)
     converged = cal.result.converged
+    interval = (doc.get("validation") or {}).get("ratio_to_baseline")
+    if interval and "spread_mm" in interval:  # held-out placements: the spread is the position
+        interval = {"position_mm": interval["spread_mm"]}
     return _section(
         "summary",
         "Summary",
         _cards(_accuracy_cards(b, a, label), "wide"),
         _cards(_fit_cards(cal, doc)),
         _p(sentence),
-        _stats_table(
-            b,
-            a,
-            (doc.get("validation") or {}).get("ratio_to_baseline"),
-            (doc.get("validation") or {}).get("baseline_handeye_guess"),
-        ),
+        _stats_table(b, a, interval, (doc.get("validation") or {}).get("baseline_handeye_guess")),
         _selection(doc),
         Html(
             "<p>Convergence: "
