@@ -294,6 +294,10 @@ class PlacementValidation:
         """``{"baseline": {...}, "calibrated": {...}}`` of :meth:`Spread.summary`."""
         return {"baseline": self.baseline.summary(), "calibrated": self.calibrated.summary()}
 
+    def improvement(self) -> float:
+        """Spread RMS of the baseline over that of the calibrated model."""
+        return self.rms("before") / max(self.rms("calibrated"), 1e-300)
+
     def rms(self, which: str) -> float:
         """The held-out spread RMS (mm) of ``before`` or ``calibrated``."""
         return getattr(self, which).summary()["spread_mm"]["rms"]
