@@ -18,9 +18,8 @@ from dataclasses import replace
 import numpy as np
 
 from relcal.calibration.identify import Result, SolverOptions, identify, identify_lm
-from relcal.calibration.kinds import MeasurementKind, Training, kind_of
+from relcal.calibration.kinds import MeasurementKind, NoiseModel, Training, kind_of
 from relcal.calibration.measurement import PairStrategy
-from relcal.calibration.noise import PoseNoise
 from relcal.calibration.outcome import Calibration
 from relcal.calibration.selection import (
     BASELINE_CANDIDATES,
@@ -106,9 +105,10 @@ def calibrate(
         measurements = measure(dataset)
     if selection not in SELECTIONS:
         raise RelcalError(f"unknown selection '{selection}': use cv, conservative or all")
-    train, test = kind_of(dataset, measurements, pairing).split(holdout, seed, holdout_ids)
-    dataset = replace(dataset, model=candidate_model(dataset.model, nongeometric))
     kind = kind_of(dataset, measurements, pairing)
+    train, test = kind.split(holdout, seed, holdout_ids)
+    dataset = replace(dataset, model=candidate_model(dataset.model, nongeometric))
+    kind = replace(kind, dataset=dataset)
 
     # Plausibility of the inputs (a wrong unit, joint order, board size, robot): before fitting.
     plausibility = kind.check_inputs(train)
@@ -232,7 +232,7 @@ def _fit(
     method: str,
     loss: str,
     initial: np.ndarray | None = None,
-    noise=None,
+    noise: NoiseModel | None = None,
 ) -> Result:
     """The nonlinear fit of ``columns`` of the training problem weighted as ``weighting`` says,
     the robust loss bending where the kind says (:meth:`MeasurementKind.f_scale`); ``noise``: the
@@ -246,5 +246,6 @@ def _fit(
         sub = replace(training.ident, subset=np.asarray(columns))
         f_scale = kind.f_scale(weighted)
         result = identify_lm(weighted, 200, sub, loss, f_scale, initial=initial)
-    pose_noise = None if noise is None else noise.noise
-    return replace(result, noise=pose_noise.noise) if isinstance(pose_noise, PoseNoise) else result
+    if noise is None or noise.noise is None:
+        return result
+    return replace(result, noise=noise.noise.noise)  # the learned pose noise's levels
