@@ -1,8 +1,10 @@
 """The coincidence kind: a tool point seated again and again at unknown points (a ball in the
 sockets of a plate), with known distances between the points; simulated with planted errors on
-the MUKCa Panda URDF, then the real MUKCa sets held out placement by placement against a plain
-SciPy Levenberg-Marquardt of the same parameters."""
+the MUKCa Panda URDF, then the real MUKCa sets held out placement by placement (the calibration
+skeleton, :func:`relcal.calibration.pipeline.cross_validate` over placements) against a plain
+SciPy Levenberg-Marquardt of the same parameters, and through ``relcal calibrate``."""
 
+import json
 from dataclasses import replace
 
 import numpy as np
@@ -15,19 +17,16 @@ from scipy.optimize import least_squares
 from relcal.calibration.coincidence import (
     coincidence_problem,
     consistent,
-    dataset_problem,
-    fit,
-    held_out,
     initial_guess,
-    leave_one_placement_out,
     make_coincidence,
     placement_of,
-    pooled,
     restricted,
     sample_errors,
 )
 from relcal.calibration.identifiability import analyse_problem
 from relcal.calibration.measurement import residuals
+from relcal.calibration.pipeline import calibrate, cross_validate
+from relcal.calibration.validate import pooled, pooled_spread, spread_of
 from relcal.cli import main
 from relcal.data.dataset import load_dataset
 from relcal.data.importers import import_mukca
@@ -35,11 +34,30 @@ from relcal.errors import RelcalError
 from relcal.geometry import MM
 from relcal.robot.kinematics import apply_errors, fk, make_layout
 from relcal.robot.urdf import load_urdf
-from relcal.sim.coincidence import SOCKETS, simulate_coincidence
+from relcal.sim.coincidence import SOCKETS, dataset_files, robot_entry, simulate_coincidence
 
 MUKCA = DATA / "mukca"
 URDF = {"panda": MUKCA / "urdf" / "panda.urdf", "iiwa14": MUKCA / "urdf" / "iiwa14.urdf"}
 ROBOTS = {"panda_1": "panda", "panda_2": "panda", "kuka_14": "iiwa14"}
+# The setup of the kind's own fit before the skeleton: the geometry, the tool point and the group
+# points, no outlier left out, no non-geometric candidate, the largest candidate.
+PLAIN = {"nongeometric": "none", "reject_outliers": False, "selection": "all"}
+
+
+def placements_out(ds, **options):
+    """Each placement held out in turn through the skeleton; the pooled validation and folds."""
+    n = len(dict.fromkeys(placement_of(g) for g in ds.groups))
+    folds = cross_validate(ds, k=n, **options)
+    return pooled([f.validation for f in folds]), folds
+
+
+def simulated_dataset(folder, truth, std=0.05 * MM):
+    """The dataset folder of simulated coincidences (``relcal simulate --coincidence``)."""
+    folder.mkdir()
+    robot = robot_entry(str(URDF["panda"]), None, "ball_link")
+    for name, text in dataset_files(truth, robot, std).items():
+        (folder / name).write_text(text)
+    return load_dataset(folder)
 
 
 @pytest.fixture(scope="module")
@@ -156,11 +174,12 @@ def test_consistent_samples_sit_on_their_points(panda):
 
 
 @pytest.fixture(scope="module")
-def planted(panda):
-    """Four placements, 30 samples per socket, 0.08 mm seating scatter, the spacing known."""
+def planted(panda, tmp_path_factory):
+    """Four placements, 30 samples per socket, 0.08 mm seating scatter, the spacing known; the
+    dataset and its calibration on every sample."""
     truth = simulate_coincidence(panda, placements=4, per_socket=30, seating=0.08 * MM, seed=7)
-    c = make_coincidence(panda, truth.q, truth.groups, distances_of(truth), np.zeros(3))
-    return truth, fit(coincidence_problem(panda, truth.q, c))
+    ds = simulated_dataset(tmp_path_factory.mktemp("planted") / "d", truth)
+    return truth, ds, calibrate(ds, holdout=0, **PLAIN)
 
 
 def equivalent_truth(problem, ident, truth_params):
@@ -174,9 +193,9 @@ def equivalent_truth(problem, ident, truth_params):
 
 
 def test_planted_errors_are_recovered_within_3_predicted_std(planted):
-    truth, result = planted
-    problem, cal = result.problem, result.calibrated
-    assert cal.converged
+    truth, _, result = planted
+    problem, cal = result.problem, result.result
+    assert cal.converged and result.selection[result.chosen].candidate.name == "geometric"
     ident = cal.identifiability
     target = equivalent_truth(problem, ident, truth_vector(problem, truth))
     cols = ident.subset[ident.subset < problem.layout.size + 3]  # geometry and tool point
@@ -184,12 +203,13 @@ def test_planted_errors_are_recovered_within_3_predicted_std(planted):
     assert np.all(np.isfinite(z))
     assert np.abs(z).max() < 3.0, dict(zip(np.array(cal.names)[cols], np.round(z, 2), strict=True))
     # the noise learned from the residuals is the planted seating scatter
-    assert result.sigma == pytest.approx(0.08 * MM, rel=0.15)
+    assert result.settings["point_sigma_m"] == pytest.approx(0.08 * MM, rel=0.15)
 
 
-def test_held_out_placements_show_the_seating_scatter_after_calibration(panda, planted):
-    truth, _ = planted
-    check = leave_one_placement_out(panda, truth.q, truth.groups, distances_of(truth), np.zeros(3))
+def test_held_out_placements_show_the_seating_scatter_after_calibration(planted):
+    truth, ds, _ = planted
+    check, folds = placements_out(ds, **PLAIN)
+    assert sorted(f.validation.placements for f in folds) == [(f"p{k}",) for k in range(4)]
     cal, base = check.calibrated.summary(), check.baseline.summary()
     seating_3d = 0.08 * np.sqrt(3)  # mm, RMS distance from the socket centre
     assert cal["spread_mm"]["rms"] == pytest.approx(seating_3d, rel=0.2)
@@ -309,10 +329,58 @@ def test_import_mukca_command_and_what_calibrate_says_of_it(tmp_path, capsys):
     assert len(ds.q) == sum(socket_rows("kuka_14").values()) == 180
     assert main(["import", "mukca", str(MUKCA / "data" / "kuka_14"), "--out", str(tmp_path / "x")])
     assert "--urdf FILE is required" in capsys.readouterr().err
-    assert main(["calibrate", str(out), "--out", str(tmp_path / "cal")]) != 0
-    assert "does not take coincidence samples yet" in capsys.readouterr().err
     assert main(["measure", str(out)]) != 0
     assert "nothing to measure" in capsys.readouterr().err
+    # calibrate: a named placement held out, the report and the registry record
+    cal, report, registry = tmp_path / "cal", tmp_path / "r.html", tmp_path / "reg.sqlite"
+    argv = ["calibrate", str(out), "--out", str(cal), "--holdout-ids", "front", "--quiet"]
+    assert main([*argv, "--report", str(report), "--registry", str(registry)]) == 0
+    doc = json.loads((cal / "results.json").read_text())
+    val = doc["validation"]
+    assert val["placements"] == ["front"] and val["n_samples"] == len(doc["held_out_ids"]) == 62
+    for which in ("baseline", "calibrated"):
+        assert set(val[which]) == {"spread_mm", "distance_error_mm"}
+        assert all(set(val[which][k]) == {"rms", "max"} for k in val[which])
+    assert val["calibrated"]["spread_mm"]["rms"] < val["baseline"]["spread_mm"]["rms"]
+    assert doc["settings"]["formulation"] == "coincidence" and doc["handeye"] is None
+    assert set(doc["group_points_xyz_m"]) == {
+        f"{p}/hole_{k}" for p in ("left_back", "raised_left") for k in (0, 1)
+    }
+    assert {p.name for p in cal.iterdir()} >= {"model.yaml", "robot.urdf", "parameters.csv"}
+    assert "Held-out validation" in report.read_text()
+    from relcal.fleet.registry import open_registry
+
+    with open_registry(str(registry)) as reg:
+        (run,) = reg.runs()
+    assert run.errors["calibrated_position_rms_mm"] == val["calibrated"]["spread_mm"]["rms"]
+    # placements, not samples, are held out; K within the placements
+    assert main([*argv[:3], str(tmp_path / "c2"), "--holdout-ids", "0001"]) != 0
+    assert "held out by placement, one of front, left_back, raised_left" in capsys.readouterr().err
+    assert main([*argv[:3], str(tmp_path / "c2"), "--kfold", "4"]) != 0
+    assert "has 3 placements" in capsys.readouterr().err
+
+
+# The held-out placements of the kind's own fit before the skeleton (commit 665f6d6), each left
+# out in turn, mm: baseline and calibrated spread RMS / max, distance error RMS / max.
+BEFORE_SKELETON = {
+    "panda_1": ((9.079, 17.088, 2.686, 3.219), (0.857, 1.974, 0.694, 1.048)),
+    "panda_2": ((8.361, 18.091, 1.818, 2.730), (0.502, 2.758, 0.228, 0.345)),
+    "kuka_14": ((0.750, 1.421, 0.075, 0.094), (0.296, 0.996, 0.098, 0.122)),
+}
+
+
+@pytest.mark.parametrize("name", list(ROBOTS))
+def test_calibrate_command_holds_out_each_placement_as_the_kind_did(mukca_sets, name, tmp_path):
+    ds = mukca_sets[name]
+    k = len(dict.fromkeys(placement_of(g) for g in ds.groups))
+    argv = ["calibrate", str(ds.root), "--out", str(tmp_path / "c"), "--quiet", "--kfold", str(k)]
+    argv += ["--nongeometric", "none", "--keep-outliers", "--select", "all"]
+    assert main([*argv, "--json", str(tmp_path / "r.json")]) == 0
+    pooled_doc = json.loads((tmp_path / "r.json").read_text())["cross_validation"]["pooled"]
+    for which, numbers in zip(("baseline", "calibrated"), BEFORE_SKELETON[name], strict=True):
+        s, d = pooled_doc[which]["spread_mm"], pooled_doc[which]["distance_error_mm"]
+        got = (s["rms"], s["max"], d["rms"], d["max"])
+        assert got == pytest.approx(numbers, abs=1.5e-3), (which, got)
 
 
 # --- real data: each placement held out, against a plain SciPy Levenberg-Marquardt ---------------
@@ -373,10 +441,10 @@ def plain_placements_out(ds, geometric_of):
         )
         # as relcal: the noise from a fit of the geometry weighs the baseline's rows too
         m, t, _, sigma = plain_lm(*args, geometric_of(c, train), c.tool_point, c.points)
-        cal.append(held_out(m, ds.q[test], held, t))
+        cal.append(spread_of(m, ds.q[test], held, t))
         m, t, _, _ = plain_lm(*args, np.zeros(0, int), c.tool_point, c.points, sigma)
-        base.append(held_out(m, ds.q[test], held, t))
-    return pooled(base).summary(), pooled(cal).summary()
+        base.append(spread_of(m, ds.q[test], held, t))
+    return pooled_spread(base).summary(), pooled_spread(cal).summary()
 
 
 def where_groups(groups, samples):
@@ -397,7 +465,7 @@ def mukca_sets(tmp_path_factory):
 @pytest.mark.parametrize("name", list(ROBOTS))
 def test_real_sets_held_out_placements_match_a_plain_lm(mukca_sets, name):
     ds = mukca_sets[name]
-    relcal = leave_one_placement_out(ds.model, ds.q, ds.groups, ds.distances, ds.tool_point)
+    relcal, _ = placements_out(ds, **PLAIN)
 
     def geometric_of(c, train):
         """The same geometric columns relcal estimates on these training samples."""
@@ -429,7 +497,7 @@ def test_real_parameters_outside_the_combinations_are_shown_identified(mukca_set
     fraction of a millimetre off joint 7's axis: neither may mark the other link parameters as
     undetermined (a held parameter moving by 1 deg moves them by a few hundredths of their
     standard deviation)."""
-    result = fit(dataset_problem(mukca_sets["panda_2"])).calibrated
+    result = calibrate(mukca_sets["panda_2"], holdout=0, **PLAIN).result
     ident = result.identifiability
     n_geo = result.problem.layout.size
     involved = np.linalg.norm(ident.null_space, axis=1) > 1e-6
@@ -444,13 +512,11 @@ def test_real_parameters_outside_the_combinations_are_shown_identified(mukca_set
 def test_another_robots_joints_or_a_wrong_distance_are_refused(mukca_sets):
     ds = mukca_sets["panda_1"]
     iiwa = load_urdf(URDF["iiwa14"], None, "ball_link")
-    c = make_coincidence(iiwa, ds.q, ds.groups, ds.distances, np.zeros(3))
-    with pytest.raises(RelcalError, match="mm RMS apart.*joints this robot's"):
-        fit(coincidence_problem(iiwa, ds.q, c), source="panda_1")
-    wrong = [(a, b, 0.1, s) for a, b, _, s in ds.distances]  # another plate's spacing
-    c = make_coincidence(ds.model, ds.q, ds.groups, wrong, ds.tool_point)
+    with pytest.raises(RelcalError, match="dataset.yaml: the nominal robot.*mm RMS apart.*joints"):
+        calibrate(replace(ds, model=iiwa, tool_point=np.zeros(3)), **PLAIN)
+    wrong = tuple((a, b, 0.1, s) for a, b, _, s in ds.distances)  # another plate's spacing
     with pytest.raises(RelcalError, match="100 mm given, 5[0-9].[0-9] mm between the points"):
-        fit(coincidence_problem(ds.model, ds.q, c))
+        calibrate(replace(ds, distances=wrong), **PLAIN)
 
 
 def test_a_problem_restricted_to_some_samples_keeps_their_groups_and_distances(panda, exact):

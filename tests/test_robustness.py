@@ -6,7 +6,7 @@ import json
 import pytest
 from helpers_dataset import synthetic_dataset
 
-from relcal.calibration import pipeline
+from relcal.calibration.kinds import poses
 from relcal.cli import main
 from relcal.io import File, Folder, write_set, write_text
 
@@ -35,7 +35,7 @@ def test_interrupted_calibration_leaves_earlier_outputs_intact(tmp_path, monkeyp
     def interrupted(*args, **kwargs):
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(pipeline, "held_out", interrupted)
+    monkeypatch.setattr(poses, "held_out", interrupted)
     assert main(["calibrate", str(syn.root), "--out", str(out), "--quiet", "--seed", "3"]) == 130
     assert "interrupted" in capsys.readouterr().err
     assert {p.name: p.read_bytes() for p in out.iterdir()} == before

@@ -15,9 +15,10 @@ import relcal
 from relcal import geometry as tf
 from relcal.calibration.identifiability import analyse_problem
 from relcal.calibration.identify import identify_lm
+from relcal.calibration.kinds.poses import pair_left_maps
 from relcal.calibration.measurement import Problem, make_pairs, pair_errors
 from relcal.calibration.noise import _moment_design, estimate_pose_noise, pair_covariances
-from relcal.calibration.pipeline import cross_validate, pair_left_maps
+from relcal.calibration.pipeline import cross_validate
 from relcal.calibration.validate import held_out, pooled, stats
 from relcal.cli import main
 from relcal.data.importers import import_rct_positioner

@@ -221,6 +221,19 @@ def to_xyz_rpy(transform: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return np.asarray(transform, dtype=float)[:3, 3].copy(), np.array([roll, pitch, yaw])
 
 
+def relative(poses: np.ndarray, pairs: np.ndarray) -> np.ndarray:
+    """Relative motions ``T_i^-1 T_j`` ``(P, 4, 4)`` of poses ``(N, 4, 4)`` for index pairs
+    ``(P, 2)``: a relative measurement ``M_ij = C_i^-1 C_j``, or the commanded ``F_i^-1 F_j``."""
+    return invert(poses[pairs[:, 0]]) @ poses[pairs[:, 1]]
+
+
+def kabsch(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """The rotation ``R`` ``(3, 3)`` minimising ``sum_k |a_k - R b_k|^2`` over vectors ``(K, 3)``
+    (an SVD of ``a^T b``, reflections excluded): point sets (centred) or rotation vectors."""
+    u, _, vt = np.linalg.svd(a.T @ b)
+    return u @ np.diag([1.0, 1.0, np.linalg.det(u @ vt)]) @ vt
+
+
 def rotate_twist(rotation: np.ndarray, twist: np.ndarray) -> np.ndarray:
     """Apply ``blockdiag(R, R)`` to twists: ``rotation (..., 3, 3)``, ``twist (..., 6, P)``."""
     out = np.empty_like(twist)

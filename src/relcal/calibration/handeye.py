@@ -16,20 +16,36 @@ from relcal.calibration.measurement import make_pairs
 from relcal.errors import RelcalError
 
 
+def rotation_vectors(transforms: np.ndarray) -> np.ndarray:
+    """Rotation vectors ``(P, 3)`` of the rotations of transforms ``(P, 4, 4)``."""
+    return Rotation.from_matrix(transforms[:, :3, :3]).as_rotvec()
+
+
+def align_rotations(
+    commanded: np.ndarray, measured: np.ndarray, max_angle: float | None = None
+) -> np.ndarray:
+    """The rotation ``R_X`` ``(3, 3)`` that best maps the rotation vectors of measured relative
+    motions onto those of the commanded ones (``a = R_X b`` of ``A X = X B``, Park and Martin;
+    :func:`geometry.kabsch`). With ``max_angle`` (rad) only pairs turning less (where the axis
+    is sure) count, when at least two do."""
+    a, b = rotation_vectors(commanded), rotation_vectors(measured)
+    if max_angle is not None:
+        keep = np.linalg.norm(a, axis=1) < max_angle
+        if keep.sum() >= 2:
+            a, b = a[keep], b[keep]
+    return tf.kabsch(a, b)
+
+
 def solve_handeye(flange: np.ndarray, measured: np.ndarray) -> np.ndarray:
     """``X`` ``(4, 4)`` from flange poses ``F_k`` and measured poses ``C_k`` ``(N, 4, 4)``."""
     pairs = make_pairs(len(flange), "all")
-    a = tf.invert(flange[pairs[:, 0]]) @ flange[pairs[:, 1]]
-    b = tf.invert(measured[pairs[:, 0]]) @ measured[pairs[:, 1]]
-    va = Rotation.from_matrix(a[:, :3, :3]).as_rotvec()
-    vb = Rotation.from_matrix(b[:, :3, :3]).as_rotvec()
-    if len(pairs) < 2 or np.linalg.matrix_rank(va, tol=1e-3) < 2:
+    a, b = tf.relative(flange, pairs), tf.relative(measured, pairs)
+    if len(pairs) < 2 or np.linalg.matrix_rank(rotation_vectors(a), tol=1e-3) < 2:
         raise RelcalError(
             "cannot guess the hand-eye transform: the poses must rotate about at least two "
             "different axes (or give handeye: in dataset.yaml)"
         )
-    u, _, vt = np.linalg.svd(va.T @ vb)
-    rot = u @ np.diag([1.0, 1.0, np.linalg.det(u @ vt)]) @ vt
+    rot = align_rotations(a, b)
     lhs = (a[:, :3, :3] - np.eye(3)).reshape(-1, 3)
     rhs = (np.einsum("ij,pj->pi", rot, b[:, :3, 3]) - a[:, :3, 3]).reshape(-1)
     trans = np.linalg.lstsq(lhs, rhs, rcond=None)[0]
@@ -58,9 +74,7 @@ def solve_instrument(
     n = len(points)
     for _ in range(iterations):
         model = rot_f @ m + t_f
-        mc, pc = model.mean(axis=0), points.mean(axis=0)
-        u, _, vt = np.linalg.svd((points - pc).T @ (model - mc))
-        rot = u @ np.diag([1.0, 1.0, np.linalg.det(u @ vt)]) @ vt
+        rot = tf.kabsch(points - points.mean(axis=0), model - model.mean(axis=0))
         lhs = np.concatenate([rot @ rot_f, np.broadcast_to(np.eye(3), (n, 3, 3))], axis=2)
         rhs = points - t_f @ rot.T
         sol = np.linalg.lstsq(lhs.reshape(-1, 6), rhs.reshape(-1), rcond=None)[0]

@@ -138,7 +138,7 @@ class Problem:
     def measured_motions(self) -> np.ndarray:
         """The measured relative transforms ``C_i^-1 C_j`` ``(P, 4, 4)`` of the pairs (formed
         once: every evaluation of the residuals needs them)."""
-        return relative_measurements(self.poses, self.pair_indices())
+        return tf.relative(self.poses, self.pair_indices())
 
     def n_residuals(self) -> int:
         if self.formulation == "coincidence":  # 3 rows per sample, 1 per known distance
@@ -175,11 +175,6 @@ def camera_problem(
         pairs=make_pairs(len(q), pairing),
         handeye=x,
     )
-
-
-def relative_measurements(poses: np.ndarray, pairs: np.ndarray) -> np.ndarray:
-    """Measured relative transforms ``C_i^-1 C_j`` ``(P, 4, 4)``."""
-    return tf.invert(poses[pairs[:, 0]]) @ poses[pairs[:, 1]]
 
 
 def split_params(problem: Problem, params: np.ndarray) -> tuple[RobotModel, np.ndarray]:

@@ -1,6 +1,5 @@
-"""What a calibration produced (:class:`Calibration`), shared by the pose pipeline
-(:mod:`pipeline`) and the position-only one (:mod:`tracker`), with the rule that finds outlier
-samples."""
+"""What a calibration produced (:class:`Calibration`), the record of the calibration skeleton
+(:mod:`pipeline`) for every measurement kind, with the rule that finds outlier samples."""
 
 from __future__ import annotations
 
@@ -14,7 +13,7 @@ from relcal.calibration.identify import Result, calibrated_handeye
 from relcal.calibration.measurement import Problem, pair_errors
 from relcal.calibration.noise import PoseNoise
 from relcal.calibration.selection import BASELINE_CANDIDATES, Score
-from relcal.calibration.validate import Validation, ratio_interval, stats
+from relcal.calibration.validate import PlacementValidation, Validation
 from relcal.data.dataset import Dataset
 from relcal.data.imaging import Measurements
 from relcal.robot.export import calibrated_model
@@ -29,13 +28,15 @@ class Comparison:
     exported model), ``(P, 6)`` per pair (position m, rotation rad) or per point (tracker).
 
     ``source`` says where they come from: ``held-out pairs`` (pairs among held-out samples),
-    ``held-out points`` (position-only data), or ``training pairs`` when nothing was held out
-    (optimistic: the fit saw them). ``count`` is the number of pairs or points.
+    ``held-out points`` (position-only data), ``held-out placements`` (coincidence samples of
+    placements left out: each sample's spread from its group's refitted point, as a position
+    error), or ``training pairs`` when nothing was held out (optimistic: the fit saw them).
+    ``count`` is the number of pairs, points or samples.
     """
 
     before: np.ndarray
     after: np.ndarray
-    source: Literal["held-out pairs", "held-out points", "training pairs"]
+    source: Literal["held-out pairs", "held-out points", "held-out placements", "training pairs"]
     count: int
 
 
@@ -43,10 +44,13 @@ class Comparison:
 class Calibration:
     """Everything a calibration produced.
 
-    ``result`` is the chosen model's fit and ``baseline`` the fit of the hand-eye transform alone
-    (nominal kinematics): the best a user gets without kinematic calibration, and the primary
-    "before" of every comparison. When the data support no kinematic correction the chosen
-    model *is* the baseline (``exported == "baseline"``).
+    ``result`` is the chosen model's fit and ``baseline`` the fit of the measurement frames alone
+    (nominal kinematics with the hand-eye transform, the instrument transform and marker, or the
+    tool point and group points fitted): the best a user gets without kinematic calibration, and
+    the primary "before" of every comparison. When the data support no kinematic correction the
+    chosen model *is* the baseline (``exported == "baseline"``). ``validation``: held-out pairs
+    or points (:class:`Validation`), or held-out placements of coincidence data
+    (:class:`PlacementValidation`).
     """
 
     dataset: Dataset
@@ -54,7 +58,7 @@ class Calibration:
     problem: Problem  # training samples, with the chosen weighting
     result: Result
     baseline: Result
-    validation: Validation | None
+    validation: Validation | PlacementValidation | None
     train: np.ndarray  # sample indices
     test: np.ndarray
     settings: dict
@@ -101,11 +105,11 @@ class Calibration:
 
     @property
     def worse(self) -> bool:
-        """The exported calibrated model's held-out position RMS exceeds the baseline's."""
+        """The exported calibrated model's held-out RMS (position; the spread of coincidences)
+        exceeds the baseline's."""
         if self.validation is None or self.exported == "baseline":
             return False
-        val = self.validation
-        return stats(val.calibrated)["position_mm"]["rms"] > stats(val.before)["position_mm"]["rms"]
+        return self.validation.rms("calibrated") > self.validation.rms("before")
 
     @property
     def hurts(self) -> bool:
@@ -113,9 +117,7 @@ class Calibration:
         the baseline (bootstrap over held-out samples) lies above 1."""
         if not self.worse:
             return False
-        val = self.validation
-        ratio = ratio_interval(val.pairs, val.before, val.calibrated)
-        return ratio["position_mm"]["ci95"][0] > 1.0
+        return self.validation.ratio()["ci95"][0] > 1.0
 
     @property
     def model(self) -> RobotModel:
@@ -133,6 +135,16 @@ class Calibration:
         """Baseline against exported model: on the held-out samples when there are some,
         otherwise the training residuals (unweighted)."""
         val = self.validation
+        if isinstance(val, PlacementValidation):
+
+            def as_errors(spread: np.ndarray) -> np.ndarray:
+                out = np.full((len(spread), 6), np.nan)
+                out[:, :3] = 0.0
+                out[:, 0] = spread
+                return out
+
+            before, after = as_errors(val.baseline.spread), as_errors(val.calibrated.spread)
+            return Comparison(before, after, "held-out placements", len(val.samples))
         if val is not None:
             source = (
                 "held-out points" if self.problem.formulation == "tracker" else "held-out pairs"

@@ -21,8 +21,9 @@ do not depend on the unknowns of the calibration:
   correction is not a calibration but a wrong input absorbed by the model.
 
 The functions are pure (arrays in, numbers or a message out); :func:`check_inputs` and
-:func:`check_corrections` gather them for :func:`relcal.calibration.pipeline.calibrate`, which
-calls them before identifying and before anything is written.
+:func:`check_corrections` gather them for the measurement kinds
+(:mod:`relcal.calibration.kinds`), whose checks :func:`relcal.calibration.pipeline.calibrate`
+calls before identifying and before anything is written.
 """
 
 from __future__ import annotations
@@ -34,10 +35,13 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from relcal import geometry as tf
+from relcal.calibration.handeye import align_rotations
 from relcal.errors import RelcalError
+from relcal.geometry import relative
 
 MAX_PAIRS = 2000  # pairs used by the checks (all pairs up to 63 samples)
 RATIO = 3.0  # an alternative reading that fits the rotations this much better is named
+SURE_AXIS = np.radians(150)  # relative rotations below this angle have a sure axis
 
 
 @dataclass(frozen=True)
@@ -84,27 +88,10 @@ def check_pairs(n: int, rng_seed: int = 0) -> np.ndarray:
     return pairs
 
 
-def relative(poses: np.ndarray, pairs: np.ndarray) -> np.ndarray:
-    """``T_i^-1 T_j`` ``(P, 4, 4)`` for each pair."""
-    return tf.invert(poses[pairs[:, 0]]) @ poses[pairs[:, 1]]
-
-
-def align_rotations(commanded: np.ndarray, measured: np.ndarray) -> np.ndarray:
-    """The rotation ``R_X`` ``(3, 3)`` that best maps measured rotation vectors onto commanded
-    ones (``a = R_X b``, Kabsch on pairs turning less than 150 deg, where the axis is sure)."""
-    a = Rotation.from_matrix(commanded[:, :3, :3]).as_rotvec()
-    b = Rotation.from_matrix(measured[:, :3, :3]).as_rotvec()
-    keep = np.linalg.norm(a, axis=1) < np.radians(150)
-    if keep.sum() >= 2:
-        a, b = a[keep], b[keep]
-    u, _, vt = np.linalg.svd(a.T @ b)
-    return u @ np.diag([1.0, 1.0, np.sign(np.linalg.det(u @ vt)) or 1.0]) @ vt
-
-
 def rotation_misfit(commanded: np.ndarray, measured: np.ndarray) -> tuple[float, np.ndarray]:
     """Median angle (rad) of ``R_A^T R_X R_B R_X^T`` over the pairs with the best ``R_X``, and
     that ``R_X``. Independent of the hand-eye transform; near zero for right data."""
-    rx = align_rotations(commanded, measured)
+    rx = align_rotations(commanded, measured, SURE_AXIS)
     rb = np.einsum("ij,pjk,lk->pil", rx, measured[:, :3, :3], rx)
     diff = np.swapaxes(commanded[:, :3, :3], 1, 2) @ rb
     return float(np.median(np.linalg.norm(tf.log_rotation(diff), axis=1))), rx
@@ -510,21 +497,39 @@ def check_dataset(dataset, measurements) -> dict:
     return out
 
 
-def check_result(dataset, problem, result) -> None:
+def check_result(dataset, problem, result, what: str | None = None) -> None:
     """:func:`check_corrections` on an identification result (``problem.full_layout`` order).
     Hand-eye corrections count only when the start was estimated from the data: a guess given in
     dataset.yaml may be rough (its plausibility is checked against the data beforehand). The
-    tracker's instrument transform and marker are free by design and never checked."""
+    nuisance frames of the other kinds (a tracker's instrument transform and marker, a
+    coincidence's tool point and group points) are free by design and never checked. With
+    ``what`` (how the samples are called, e.g. ``points``), refused corrections below 3 standard
+    deviations are named as not determined by the data."""
     layout = problem.full_layout
+    free = ("instrument", "marker", "tool_point", "point")
     keep = [
         k
         for k, kind in enumerate(layout.kinds)
-        if kind not in ("instrument", "marker") and (kind != "handeye" or dataset.handeye is None)
+        if kind not in free and (kind != "handeye" or dataset.handeye is None)
     ]
-    check_corrections(
-        [layout.names[k] for k in keep],
-        [layout.kinds[k] for k in keep],
-        result.params[keep],
-        str(dataset.spec_path or dataset.root),
-        Tolerances.from_display(dataset.tolerances),
-    )
+    try:
+        check_corrections(
+            [layout.names[k] for k in keep],
+            [layout.kinds[k] for k in keep],
+            result.params[keep],
+            str(dataset.spec_path or dataset.root),
+            Tolerances.from_display(dataset.tolerances),
+        )
+    except RelcalError as exc:
+        if what is None:
+            raise
+        with np.errstate(divide="ignore", invalid="ignore"):
+            z = np.abs(result.params) / result.std
+        names = layout.names
+        weak = [n for k, n in enumerate(names) if f"{n} corrected by" in str(exc) and z[k] < 3.0]
+        if not weak:
+            raise
+        raise RelcalError(
+            f"{exc}\n{', '.join(weak)}: not determined by these {what} (|error| below 3 standard "
+            "deviations); --select conservative leaves such parameters out"
+        ) from None

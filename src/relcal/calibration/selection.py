@@ -1,14 +1,17 @@
 """Model selection: which parameters (and which row weighting) the data support, chosen by
 cross-validated held-out error on the training samples.
 
-Candidates range from the measurement frames alone (the hand-eye transform, or a tracker's
-instrument transform and marker: the baseline a user gets without kinematic calibration) through
-the identifiable geometry to each family of non-geometric terms. Every candidate and weighting is
-scored by K-fold cross-validation over *samples* (a held-out fold's pairs are the pairs among its
-samples; pairs share samples, so splitting pairs would leak; a tracker's points are one per
-sample). The folds are refitted on the model linearised at a full fit, ``r(p) ~ b - J p``: the
-errors are millimetres and tenths of a degree, so the second-order terms are micrometres, and each
-fold costs one small normal-equation solve instead of a nonlinear fit.
+Candidates range from the measurement frames alone (the hand-eye transform, a tracker's
+instrument transform and marker, or a coincidence's tool point and group points: the baseline a
+user gets without kinematic calibration) through the identifiable geometry to each family of
+non-geometric terms. Every candidate and weighting is scored by K-fold cross-validation over
+*samples* (a held-out fold's pairs are the pairs among its samples; pairs share samples, so
+splitting pairs would leak; a tracker's points are one per sample, a coincidence's too, its known
+distances always on the training side). The folds are refitted on the model linearised at a full
+fit, ``r(p) ~ b - J p``: the errors are millimetres and tenths of a degree, so the second-order
+terms are micrometres, and each fold costs one small normal-equation solve instead of a nonlinear
+fit. A measurement kind linearises once at the geometric fit for every candidate
+(:func:`score_candidates`), or each candidate at its own fit (:func:`score_each`).
 
 The choice is conservative: the simplest candidate whose cross-validated error is within one
 standard error of the best (paired over samples) wins, so a term is added only when it helps
@@ -23,20 +26,29 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from relcal.calibration.measurement import Problem, residuals
+from relcal.calibration.noise import Noise
+from relcal.calibration.uncertainty import parameter_covariance
 from relcal.robot.model import RobotModel, nongeometric_options, with_nongeometric
 
 GEOMETRIC_KINDS = ("theta_off", "a", "d", "alpha", "beta", "base", "tool", "origin")
-FRAME_KINDS = ("handeye", "instrument", "marker")  # estimated with the robot, never exported
+# Estimated with the robot, never exported: the hand-eye, a tracker's instrument transform and
+# marker, a coincidence's tool point and group points.
+FRAME_KINDS = ("handeye", "instrument", "marker", "tool_point", "point")
 PLAIN_ROTATION_WEIGHT = 0.1  # m/rad: rotation rows count like a 0.1 m lever arm
-# Candidates without kinematic correction: the hand-eye transform alone, or (position-only data)
-# the instrument transform and the marker alone.
-BASELINE_CANDIDATES = ("hand-eye only", "instrument and marker only")
+# Candidates without kinematic correction, by formulation: the hand-eye transform alone,
+# (position-only data) the instrument transform and the marker alone, (coincidences) the tool
+# point and the group points alone.
+BASELINES = {
+    "tracker": "instrument and marker only",
+    "coincidence": "tool point and group points only",
+}
+BASELINE_CANDIDATES = ("hand-eye only", *BASELINES.values())
 
 
 def family(kind: str) -> str:
-    """The family of a parameter kind: ``frames`` (the hand-eye, or a tracker's instrument
-    transform and marker), ``geometric`` or a non-geometric family (``harmonic_c`` and
-    ``harmonic_s`` are one family ``harmonic``)."""
+    """The family of a parameter kind: ``frames`` (the hand-eye, a tracker's instrument
+    transform and marker, a coincidence's tool point and group points), ``geometric`` or a
+    non-geometric family (``harmonic_c`` and ``harmonic_s`` are one family ``harmonic``)."""
     if kind in FRAME_KINDS:
         return "frames"
     if kind in GEOMETRIC_KINDS:
@@ -47,7 +59,7 @@ def family(kind: str) -> str:
 def baseline_name(problem: Problem) -> str:
     """The name of the candidate without kinematic correction (one of
     :data:`BASELINE_CANDIDATES`)."""
-    return BASELINE_CANDIDATES[1 if problem.formulation == "tracker" else 0]
+    return BASELINES.get(problem.formulation, BASELINE_CANDIDATES[0])
 
 
 def geometric_columns(problem: Problem, subset: np.ndarray) -> np.ndarray:
@@ -105,24 +117,30 @@ def candidates(
 @dataclass(frozen=True)
 class Linearised:
     """Unweighted residuals as a linear function of the parameters: ``r(p) ~ b - J p``, one
-    6-row block per measurement (a pair of samples, or a tracker's point ``(k, k)`` with zero
-    rotation rows)."""
+    6-row block per measurement (a pair of samples, or a point of sample k ``(k, k)`` with zero
+    rotation rows; a coincidence's known distance is one row of a block that belongs to no
+    sample and is never held out, ``always``)."""
 
     b: np.ndarray  # (P, 6) translation m, rotation rad
     jac: np.ndarray  # (P, 6, Q)
     pairs: np.ndarray  # (P, 2) sample positions ((k, k) for a point of sample k)
     n_samples: int
+    always: np.ndarray | None = None  # (P,) bool: blocks always on the training side
 
 
 def linearise(problem: Problem, params: np.ndarray) -> Linearised:
-    """The frame-invariant pose problem, or the tracker's point problem, linearised at
-    ``params`` (its weights ignored)."""
+    """The frame-invariant pose problem, a tracker's or a coincidence's point problem (with its
+    known distances), linearised at ``params`` (its weights ignored)."""
     n = len(problem.q)
-    if problem.formulation == "tracker":  # 3 rows per sample, no orientation measured
+    if problem.formulation in ("tracker", "coincidence"):  # 3 rows per sample, no orientation
         r, a = residuals(replace(problem, weights=None, pair_weights=None), params)
-        b, jac = np.zeros((n, 6)), np.zeros((n, 6, a.shape[-1]))
-        b[:, :3], jac[:, :3] = r.reshape(n, 3), a.reshape(n, 3, -1)
-        return Linearised(b + jac @ params, jac, np.repeat(np.arange(n)[:, None], 2, axis=1), n)
+        extra = len(r) - 3 * n  # one row per known distance
+        b, jac = np.zeros((n + extra, 6)), np.zeros((n + extra, 6, a.shape[-1]))
+        b[:n, :3], jac[:n, :3] = r[: 3 * n].reshape(n, 3), a[: 3 * n].reshape(n, 3, -1)
+        b[n:, 0], jac[n:, 0] = r[3 * n :], a[3 * n :]
+        pairs = np.repeat(np.r_[np.arange(n), np.zeros(extra, int)][:, None], 2, axis=1)
+        always = np.r_[np.zeros(n, bool), np.ones(extra, bool)] if extra else None
+        return Linearised(b + jac @ params, jac, pairs, n, always)
     plain = replace(problem, weights=None, pair_weights=None, measure="pose")
     pairs = plain.pair_indices()
     r, a = residuals(plain, params)
@@ -197,6 +215,8 @@ def score_candidates(
     for f in range(k):
         inside = in_fold[lin.pairs] == f
         train, test = ~inside.any(axis=1), inside.all(axis=1)
+        if lin.always is not None:
+            train, test = train | lin.always, test & ~lin.always
         test_pairs.append(np.flatnonzero(test))
         for weighting, whiten in whiteners.items():
             jw = (whiten[train] @ lin.jac[train]).reshape(-1, lin.jac.shape[-1])
@@ -251,3 +271,89 @@ def choose_all(scores: list[Score]) -> tuple[int, str]:
     largest = [k for k, s in enumerate(scores) if len(s.candidate.columns) == size]
     chosen = min(largest, key=lambda k: np.mean(scores[k].per_sample))
     return chosen, "all identifiable parameters (--select all)"
+
+
+def score_each(
+    problem: Problem, fits: list, cands: list[Candidate], k: int, seed: int
+) -> list[Score]:
+    """K-fold scores of the candidates by :func:`score_candidates`, each candidate's folds
+    refitted on ``problem`` linearised at its own fit to every training sample (``fits``, one
+    :class:`~relcal.calibration.identify.Result` per candidate), in the plain weighting."""
+    out = []
+    for cand, result in zip(cands, fits, strict=True):
+        lin = linearise(problem, result.params)
+        plain = {"plain": plain_whiteners(len(lin.pairs))}
+        out.append(score_candidates(lin, plain, [cand], k, seed)[0])
+    return out
+
+
+def _blocks(problem: Problem) -> np.ndarray:
+    """The problem's row weighting as per-pair blocks ``(P, 6, 6)``."""
+    if problem.pair_weights is not None:
+        return problem.pair_weights
+    w = np.ones(6) if problem.weights is None else problem.weights
+    return np.broadcast_to(np.diag(w), (len(problem.pair_indices()), 6, 6))
+
+
+def significant_columns(
+    problem: Problem,
+    ident,
+    columns: np.ndarray,
+    noise: Noise,
+    params: np.ndarray,
+    z_min: float = 3.0,
+) -> np.ndarray:
+    """``columns`` less the link parameters whose linearised estimate is below ``z_min``
+    standard deviations (hand-eye components always stay), dropped until none is: ``--select
+    conservative`` of the kinds that share one linearisation."""
+    kinds = problem.full_layout.kinds
+    cols = np.asarray(columns)
+    lin = linearise(problem, params)
+    while True:
+        estimate = fit(lin, _blocks(problem), cols)
+        unc = parameter_covariance(problem, noise, replace(ident, subset=cols), params=params)
+        z = np.abs(estimate[unc.subset]) / np.maximum(unc.std[unc.subset], 1e-300)
+        weak = [c for c, zc in zip(unc.subset, z, strict=True) if zc < z_min]
+        weak = [c for c in weak if kinds[c] != "handeye"]
+        if not weak:
+            return cols
+        cols = np.setdiff1d(cols, weak)
+
+
+def significant_fit(problem: Problem, result, columns: np.ndarray, refit, z_min: float = 3.0):
+    """``result`` (the fit of ``columns``) refitted by ``refit(columns)`` without the link
+    parameters whose estimate is below ``z_min`` standard deviations (the frames always stay),
+    until none is: ``--select conservative`` of the kinds that fit every candidate."""
+    kinds = problem.full_layout.kinds
+    cols = np.asarray(columns)
+    while True:
+        z = np.abs(result.params) / np.where(np.isfinite(result.std), result.std, np.inf)
+        weak = [c for c in cols if family(kinds[c]) != "frames" and z[c] < z_min]
+        if not weak:
+            return result
+        cols = np.setdiff1d(cols, weak)
+        result = refit(cols)
+
+
+def bootstrap_std(
+    lin: Linearised, whiten: np.ndarray, columns: np.ndarray, n_boot: int = 100, seed: int = 0
+) -> np.ndarray:
+    """Standard deviations ``(Q,)`` of the linearised estimate over ``n_boot`` resamplings of the
+    training *samples* (a pair counts as often as both its samples are drawn); NaN outside
+    ``columns``. An independent check of the predicted standard deviations."""
+    rng = np.random.default_rng(seed)
+    k = len(columns)
+    jw = whiten @ lin.jac[:, :, columns]  # (P, 6, k)
+    bw = np.einsum("pij,pj->pi", whiten, lin.b)
+    gram = np.einsum("pra,prb->pab", jw, jw).reshape(len(jw), k * k)  # each pair's share
+    rhs = np.einsum("pra,pr->pa", jw, bw)
+    i, j = lin.pairs.T
+    draws = rng.integers(0, lin.n_samples, (n_boot, lin.n_samples))
+    counts = np.zeros((n_boot, lin.n_samples))
+    np.add.at(counts, (np.arange(n_boot)[:, None], draws), 1.0)
+    weights = counts[:, i] * counts[:, j]  # (B, P): a pair counts as often as both its samples
+    normals, rhss = (weights @ gram).reshape(n_boot, k, k), weights @ rhs
+    draws = [solve_normal(n, r) for n, r in zip(normals, rhss, strict=True)]
+    out = np.full(lin.jac.shape[-1], np.nan)
+    out[columns] = np.std(draws, axis=0, ddof=1)
+    return out

@@ -35,7 +35,6 @@ from relcal.calibration.measurement import (
     PairStrategy,
     Problem,
     make_pairs,
-    relative_measurements,
     residuals,
     split_params,
 )
@@ -139,7 +138,7 @@ def noise_blocks(
         poses = pairs[:, ::-1]  # (j, i): pose j enters with +I, pose i with the left block
         i, j = pairs.T
         if problem.formulation == "invariant" and measured:
-            left = -tf.adjoint(tf.invert(relative_measurements(problem.poses, pairs)))
+            left = -tf.adjoint(tf.invert(tf.relative(problem.poses, pairs)))
         elif problem.formulation == "invariant":
             model, handeye = split_params(problem, params)
             tip = fk(model, problem.q)

@@ -1,7 +1,12 @@
-"""Validation on held-out samples: relative pose errors before and after calibration.
+"""Validation on held-out samples: errors before and after calibration.
 
-Errors are those of the problem's own formulation, evaluated on pairs of held-out samples with the
-nominal parameters (before) and the identified ones (after).
+For poses and points (:class:`Validation`) the errors are those of the problem's own formulation,
+evaluated on pairs of held-out samples (relative poses) or on each held-out sample (absolute
+points) with the nominal parameters and the frame guesses, the baseline fit and the identified
+one. For coincidences (:class:`PlacementValidation`) whole placements are held out: a new plate
+position is the honest test; the kinematics and the tool point are frozen and the held-out
+placement's group points refitted (:func:`spread_of`), and the errors are the spread of the
+predicted points of each group and the error of the known distances.
 """
 
 from __future__ import annotations
@@ -10,8 +15,10 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from relcal.calibration.coincidence import Coincidence, split_params, tool_points
 from relcal.calibration.identify import Result
 from relcal.calibration.measurement import PairStrategy, Problem, make_pairs, pair_errors
+from relcal.robot.model import RobotModel
 
 _KINDS = (("position_mm", slice(0, 3), 1e3), ("orientation_deg", slice(3, 6), 180 / np.pi))
 
@@ -146,9 +153,25 @@ class Validation:
         b, a = stats(self.before), stats(self.after)
         return b["position_mm"]["rms"] / max(a["position_mm"]["rms"], 1e-300)
 
+    def rms(self, which: str) -> float:
+        """The held-out position RMS (mm) of ``before`` or ``calibrated``: what the verdict on
+        a calibration compares."""
+        return stats(getattr(self, which))["position_mm"]["rms"]
 
-def pooled(validations: list[Validation]) -> Validation:
+    def ratio(self) -> dict[str, float | list[float]]:
+        """``{"after_over_before", "ci95"}`` of the position RMS (:func:`ratio_interval`)."""
+        return ratio_interval(self.pairs, self.before, self.calibrated)["position_mm"]
+
+
+def pooled(validations: list):
     """Several validations (e.g. the folds of a cross-validation) as one."""
+    if validations and isinstance(validations[0], PlacementValidation):
+        return PlacementValidation(
+            tuple(p for v in validations for p in v.placements),
+            pooled_spread([v.baseline for v in validations]),
+            pooled_spread([v.calibrated for v in validations]),
+            np.concatenate([v.samples for v in validations]),
+        )
     has_baseline = all(v.baseline is not None for v in validations)
     return Validation(
         pairs=np.concatenate([v.pairs for v in validations]),
@@ -214,3 +237,146 @@ def error_norms(errors: np.ndarray) -> dict[str, np.ndarray]:
     if len(rotation) and not np.all(np.isnan(rotation)):
         out["orientation"] = rotation
     return out
+
+
+# --- coincidences: held-out placements -----------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Spread:
+    """Coincidence errors on samples the fit did not use, the group points refitted there (a new
+    placement's points are unknown: a nuisance of the new session) with the kinematics and the
+    tool point frozen.
+
+    ``spread`` ``(N,)``: distance (m) of each sample's predicted point from its group's mean
+    point; ``distance`` ``(D,)``: ``|p_a - p_b| - d_ab`` (m) between the refitted points of each
+    known distance among the held-out groups.
+    """
+
+    spread: np.ndarray
+    distance: np.ndarray
+    groups: np.ndarray  # (N,) group of each sample (into names)
+    names: tuple[str, ...]
+
+    def summary(self) -> dict[str, dict[str, float] | None]:
+        """``{"spread_mm": {"rms", "max"}, "distance_error_mm": {"rms", "max"} or None}``."""
+
+        def summarised(values: np.ndarray) -> dict[str, float] | None:
+            if len(values) == 0:
+                return None
+            mm = np.abs(values) * 1e3
+            return {"rms": float(np.sqrt(np.mean(mm**2))), "max": float(mm.max())}
+
+        spread, distance = summarised(self.spread), summarised(self.distance)
+        return {"spread_mm": spread, "distance_error_mm": distance}
+
+    def per_group(self) -> dict[str, dict[str, float]]:
+        """``{group: {"n", "rms_mm", "max_mm"}}`` of the spread."""
+        out = {}
+        for g, name in enumerate(self.names):
+            mm = self.spread[self.groups == g] * 1e3
+            if len(mm):
+                out[name] = {
+                    "n": int(len(mm)),
+                    "rms_mm": float(np.sqrt(np.mean(mm**2))),
+                    "max_mm": float(mm.max()),
+                }
+        return out
+
+
+def spread_of(
+    model: RobotModel, q: np.ndarray, coincidence: Coincidence, tool_point: np.ndarray
+) -> Spread:
+    """The spread of the predicted points per group and the error of the known distances on
+    samples ``q`` of ``coincidence``'s groups, predicted by ``model`` with ``tool_point``; each
+    group's point refitted as the mean of its samples' predicted points (the least-squares
+    point of the coincidence rows alone: the distance is what is checked, not imposed)."""
+    y = tool_points(model, q, tool_point)
+    index = coincidence.index
+    points = np.zeros((coincidence.n_groups, 3))
+    np.add.at(points, index, y)
+    points /= np.maximum(np.bincount(index, minlength=coincidence.n_groups), 1)[:, None]
+    spread = np.linalg.norm(y - points[index], axis=1)
+    pairs = coincidence.pairs
+    distance = (
+        np.linalg.norm(points[pairs[:, 0]] - points[pairs[:, 1]], axis=1) - coincidence.lengths
+    )
+    return Spread(spread, distance, index, coincidence.names)
+
+
+def pooled_spread(parts: list[Spread]) -> Spread:
+    """Several held-out evaluations (the placements left out in turn) as one."""
+    names: list[str] = []
+    groups = []
+    for part in parts:
+        groups.append(part.groups + len(names))
+        names += list(part.names)
+    return Spread(
+        np.concatenate([p.spread for p in parts]),
+        np.concatenate([p.distance for p in parts]),
+        np.concatenate(groups) if groups else np.zeros(0, int),
+        tuple(names),
+    )
+
+
+@dataclass(frozen=True)
+class PlacementValidation:
+    """Held-out placements: the baseline (nominal geometry, the tool point and the group points
+    fitted to the training samples) and the calibrated model evaluated on them with their group
+    points refitted (:func:`spread_of`). ``samples``: the held-out sample indices, in the order
+    of the spreads."""
+
+    placements: tuple[str, ...]
+    baseline: Spread
+    calibrated: Spread
+    samples: np.ndarray
+
+    @property
+    def before(self) -> Spread:
+        return self.baseline
+
+    def summary(self) -> dict:
+        """``{"baseline": {...}, "calibrated": {...}}`` of :meth:`Spread.summary`."""
+        return {"baseline": self.baseline.summary(), "calibrated": self.calibrated.summary()}
+
+    def improvement(self) -> float:
+        """Spread RMS of the baseline over that of the calibrated model."""
+        return self.rms("before") / max(self.rms("calibrated"), 1e-300)
+
+    def rms(self, which: str) -> float:
+        """The held-out spread RMS (mm) of ``before`` or ``calibrated``."""
+        return getattr(self, which).summary()["spread_mm"]["rms"]
+
+    def ratio(self) -> dict[str, float | list[float]]:
+        """``{"after_over_before", "ci95"}`` of the spread RMS, the interval from a bootstrap
+        over the held-out samples (:func:`ratio_interval`)."""
+        pairs = np.stack([self.samples, self.samples], axis=1)
+
+        def as_errors(spread: Spread) -> np.ndarray:
+            out = np.full((len(spread.spread), 6), np.nan)
+            out[:, :3] = 0.0
+            out[:, 0] = spread.spread
+            return out
+
+        ratio = ratio_interval(pairs, as_errors(self.baseline), as_errors(self.calibrated))
+        return ratio["position_mm"]
+
+
+def held_out_placements(
+    problem: Problem,
+    params: np.ndarray,
+    baseline: np.ndarray,
+    q: np.ndarray,
+    coincidence: Coincidence,
+    samples: np.ndarray,
+) -> PlacementValidation:
+    """The coincidence validation of the fits ``params`` and ``baseline`` of ``problem`` (the
+    training samples) on held-out samples at joints ``q`` of the groups of ``coincidence``
+    (dataset indices ``samples``): the kinematics and the tool point frozen, the held-out group
+    points refitted."""
+    out = []
+    for p in (baseline, params):
+        model, tool, _ = split_params(problem, p)
+        out.append(spread_of(model, q, coincidence, tool))
+    places = coincidence.placement_names()
+    return PlacementValidation(places, out[0], out[1], np.asarray(samples, dtype=int))

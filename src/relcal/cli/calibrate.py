@@ -24,23 +24,15 @@ examples:
 """
 
 
-def _not_coincidence(dataset, command: str) -> None:
-    """Coincidence samples (joints and groups) neither need measuring nor run through the pose
-    and point pipeline."""
+def _not_coincidence(dataset) -> None:
+    """Coincidence samples (joints and groups) need no measuring."""
     from relcal.errors import RelcalError
 
-    if dataset.measured != "coincidence":
-        return
-    if command == "measure":
+    if dataset.measured == "coincidence":
         raise RelcalError(
             f"{dataset.spec_path}: coincidence samples (a group per sample) have nothing to "
             "measure: their joints and groups are the data"
         )
-    raise RelcalError(
-        f"{dataset.spec_path}: relcal calibrate does not take coincidence samples yet; hold "
-        "placements out with relcal.calibration.coincidence.leave_one_placement_out (see "
-        "docs/howto/coincidence.md)"
-    )
 
 
 def run_measure(args: argparse.Namespace) -> int:
@@ -50,7 +42,7 @@ def run_measure(args: argparse.Namespace) -> int:
     from relcal.reporting.outputs import write_measurements
 
     dataset = load_dataset(args.dataset)
-    _not_coincidence(dataset, "measure")
+    _not_coincidence(dataset)
     out = Path(args.out or Path(args.dataset) / "measured")
     check(_destinations(out, args.json))  # refuse before the work, not after it
     m = measure(dataset, workers=args.workers, progress=not args.quiet, max_rms=args.max_rms)
@@ -116,17 +108,23 @@ def run_calibrate(args: argparse.Namespace) -> int:
     from relcal.reporting.text import calibration_summary
 
     dataset = load_dataset(args.dataset)
-    _not_coincidence(dataset, "calibrate")
+    by_placement = dataset.measured == "coincidence"  # held out by placement, not by sample
     out = Path(args.out or Path(args.dataset) / "calibration")
     holdout_ids = _ids(args.holdout_ids) if args.holdout_ids else None
     check(_destinations(out, args.json, args.report))  # refuse before the work, not after it
-    check_kfold(dataset, args.kfold)
-    if holdout_ids is None:
-        check_holdout(dataset, args.holdout)
+    if not by_placement:
+        check_kfold(dataset, args.kfold)
+        if holdout_ids is None:
+            check_holdout(dataset, args.holdout)
     m = measure(dataset, workers=args.workers, progress=not args.quiet, max_rms=args.max_rms)
-    check_kfold(dataset, args.kfold, int(m.ok.sum()))
-    if holdout_ids is None:
-        check_holdout(dataset, args.holdout, int(m.ok.sum()))
+    if by_placement and args.kfold:
+        from relcal.calibration.kinds import kind_of
+
+        kind_of(dataset, m).folds(args.kfold, args.seed)  # K within the placements
+    elif not by_placement:
+        check_kfold(dataset, args.kfold, int(m.ok.sum()))
+        if holdout_ids is None:
+            check_holdout(dataset, args.holdout, int(m.ok.sum()))
     options = {
         "pairing": args.pairs,
         "method": args.method,
@@ -141,15 +139,15 @@ def run_calibrate(args: argparse.Namespace) -> int:
     )
     doc = results_document(cal)
     if cal.hurts:
-        val = doc["validation"]
+        val = cal.validation
+        what = "spread" if by_placement else "position"
         print(calibration_summary(doc), file=sys.stderr)
         print(
             f"relcal: error: the chosen model ({doc['model_selection']['chosen']}) is worse than "
-            "the baseline on the held-out samples (position RMS "
-            f"{val['calibrated']['position_mm']['rms']:.3f} mm against "
-            f"{val['baseline']['position_mm']['rms']:.3f} mm, the whole 95% interval of the "
-            "ratio above 1): the calibration would hurt, so nothing was written. Collect more "
-            "varied poses, or check with --kfold.",
+            f"the baseline on the held-out samples ({what} RMS {val.rms('calibrated'):.3f} mm "
+            f"against {val.rms('before'):.3f} mm, the whole 95% interval of the ratio above 1): "
+            "the calibration would hurt, so nothing was written. Collect more varied poses, or "
+            "check with --kfold.",
             file=sys.stderr,
         )
         return 1
@@ -250,7 +248,11 @@ def register(sub: argparse._SubParsersAction) -> None:
         description="Measure, pair, identify (frame-invariant formulation, hand-eye estimated, "
         "identifiable subset only) and validate on held-out samples. Position-only samples (x, y, "
         "z of a tracker or marker) are fitted as absolute points with the instrument transform "
-        "and the marker position estimated, and validated against that refitted baseline.",
+        "and the marker position estimated, and validated against that refitted baseline. "
+        "Coincidence samples (a group per sample: a ball seated in the sockets of a plate) are "
+        "fitted with the tool point and the group points estimated, and validated on whole "
+        "placements held out (--holdout picks placements, --holdout-ids names them, --kfold "
+        "folds over them), their group points refitted.",
         epilog=EPILOG,
         formatter_class=fmt,
     )
@@ -259,17 +261,21 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--holdout",
         type=holdout_fraction,
         default=0.25,
-        help="held-out share, 0 <= H < 1 (default 0.25; 0: no validation)",
+        help="held-out share, 0 <= H < 1 (default 0.25; 0: no validation); of the placements "
+        "for coincidence samples",
     )
     cp.add_argument("--seed", type=int, default=0, help="seed of the held-out split")
     cp.add_argument(
-        "--holdout-ids", help="validation samples by id: 'a,b,c' or '@file' (one id per line)"
+        "--holdout-ids",
+        help="validation samples by id (placements by name for coincidence samples): 'a,b,c' "
+        "or '@file' (one id per line)",
     )
     cp.add_argument(
         "--kfold",
         type=int_at_least(2),
         metavar="K",
-        help="also run K-fold cross-validation (results.json); 2 <= K <= samples / 2",
+        help="also run K-fold cross-validation (results.json); 2 <= K <= samples / 2 (for "
+        "coincidence samples, K <= placements: K = placements leaves each one out in turn)",
     )
     cp.add_argument("--pairs", choices=("consecutive", "star", "all"), default="all")
     cp.add_argument("--method", choices=("lm", "published"), default="lm")

@@ -22,11 +22,14 @@ BASELINE = "baseline"  # held-out errors of the hand-eye-only fit (``validation.
 
 def held_out_errors(doc: dict) -> dict[str, float | None]:
     """Baseline and calibrated held-out RMS errors (mm, deg) of a results document; None where
-    it has no held-out set."""
+    it has no held-out set. For coincidence data (held-out placements) the position error is the
+    spread of the predicted tool points around their groups' points (``spread_mm``)."""
     val = doc.get("validation") or {}
     base, after = val.get(BASELINE) or {}, val.get("calibrated") or {}
 
     def rms(summary: dict, key: str) -> float | None:
+        if key == "position_mm" and key not in summary:
+            key = "spread_mm"
         value = (summary.get(key) or {}).get("rms")
         return None if value is None else float(value)
 

@@ -120,15 +120,15 @@ def _calibrate(
         cal = calibrate(dataset, m, **options)
         doc = results_document(cal)
     if cal.hurts:  # as `relcal calibrate`: a model worse than the baseline is not written
-        val = doc["validation"]
+        val = cal.validation
+        what = "spread" if dataset.measured == "coincidence" else "position"
         return {
             "robot_id": robot_id or dataset.robot_id,
             "model": dataset.model.name,
             "status": "rejected",
             "reason": f"the chosen model ({doc['model_selection']['chosen']}) is worse than the "
-            f"baseline on the held-out samples (position RMS "
-            f"{val['calibrated']['position_mm']['rms']:.3f} mm against "
-            f"{val['baseline']['position_mm']['rms']:.3f} mm); nothing written",
+            f"baseline on the held-out samples ({what} RMS {val.rms('calibrated'):.3f} mm "
+            f"against {val.rms('before'):.3f} mm); nothing written",
             **held_out_errors(doc),
         }
     write_calibration(cal, out, doc)  # the files of `relcal calibrate`, as one set

@@ -35,7 +35,17 @@ def _error_sets(cal: Calibration) -> tuple[np.ndarray, np.ndarray, str, str]:
     """Per-pair errors before and after (:attr:`relcal.Calibration.comparison`), a short label
     and a sentence saying where they come from."""
     c = cal.comparison
-    if c.source == "held-out points":
+    if c.source == "held-out placements":
+        v = cal.validation
+        sentence = (
+            f"Held-out validation: {c.count} samples of {len(v.placements)} placement(s) "
+            f"({', '.join(v.placements)}) that the identification did not use, each sample's "
+            "predicted tool point against its group's point refitted there (kinematics and tool "
+            "point frozen: a new plate position); before = nominal kinematics with the tool "
+            "point and the group points fitted to the training samples, after = the exported "
+            "model."
+        )
+    elif c.source == "held-out points":
         sentence = (
             f"Held-out validation: absolute position errors of {c.count} points that the "
             "identification did not use; before = nominal model with the instrument transform and "
@@ -145,18 +155,16 @@ def _summary(cal: Calibration, doc: dict, errors: tuple) -> tuple[str, str, Html
     before, after, label, sentence = errors
     b, a = stats(before), stats(after)
     converged = cal.result.converged
+    interval = (doc.get("validation") or {}).get("ratio_to_baseline")
+    if interval and "spread_mm" in interval:  # held-out placements: the spread is the position
+        interval = {"position_mm": interval["spread_mm"]}
     return hk.section(
         "summary",
         "Summary",
         hk.cards(_accuracy_cards(b, a, label), "wide"),
         hk.cards(_fit_cards(cal, doc)),
         hk.paragraph(sentence),
-        _stats_table(
-            b,
-            a,
-            (doc.get("validation") or {}).get("ratio_to_baseline"),
-            (doc.get("validation") or {}).get("baseline_handeye_guess"),
-        ),
+        _stats_table(b, a, interval, (doc.get("validation") or {}).get("baseline_handeye_guess")),
         _selection(doc),
         Html(
             "<p>Convergence: "

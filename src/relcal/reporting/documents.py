@@ -16,7 +16,13 @@ from relcal.calibration.identifiability import INDEX_NAMES, NUISANCE_KINDS, Indi
 from relcal.calibration.measurement import tracker_frames
 from relcal.calibration.outcome import Calibration
 from relcal.calibration.uncertainty import Accuracy
-from relcal.calibration.validate import Validation, pooled, ratio_interval, stats
+from relcal.calibration.validate import (
+    PlacementValidation,
+    Validation,
+    pooled,
+    ratio_interval,
+    stats,
+)
 from relcal.calibration.verify import FROZEN, Assessment, JointRanges, Verification
 from relcal.data.dataset import Dataset
 from relcal.data.imaging import Measurements
@@ -150,7 +156,7 @@ def selection_document(cal: Calibration) -> dict:
                 "n_params": len(s.candidate.columns),
                 "cv_position_rms_mm": s.position_rms * 1e3,
                 "cv_orientation_rms_deg": float(np.degrees(s.orientation_rms))
-                if cal.problem.formulation != "tracker"
+                if cal.problem.formulation not in POINT_FORMULATIONS
                 else None,
                 "chosen": k == cal.chosen,
             }
@@ -183,10 +189,53 @@ def noise_document(cal: Calibration) -> dict | None:
     }
 
 
-def validation_document(val: Validation, ids: list[str] | None = None) -> dict:
+POINT_FORMULATIONS = ("tracker", "coincidence")  # a point per sample, no orientation
+
+
+def placement_document(val: PlacementValidation, ids: list[str] | None = None) -> dict:
+    """Held-out placements of coincidence data: the spread of the predicted points per group
+    and the error of the known distances (mm, RMS and max) of the baseline and the calibrated
+    model, the spread's RMS ratio to the baseline with its interval; with the sample ``ids``,
+    also the spread of every sample and per group."""
+    doc: dict = {
+        "held_out": "placements",
+        "placements": list(val.placements),
+        "n_samples": len(val.samples),
+        "n_groups": len(val.calibrated.names),
+        "baseline": val.baseline.summary(),
+        "calibrated": val.calibrated.summary(),
+        "ratio_to_baseline": {"spread_mm": val.ratio()},
+    }
+    if ids is None:
+        return doc
+    doc["groups"] = {"baseline": val.baseline.per_group(), "calibrated": val.calibrated.per_group()}
+    names = val.calibrated.names
+    doc["samples"] = [
+        {
+            "id": ids[k],
+            "group": names[g],
+            "baseline_spread_mm": float(b) * 1e3,
+            "calibrated_spread_mm": float(a) * 1e3,
+        }
+        for k, g, b, a in zip(
+            val.samples,
+            val.calibrated.groups,
+            val.baseline.spread,
+            val.calibrated.spread,
+            strict=True,
+        )
+    ]
+    return doc
+
+
+def validation_document(
+    val: Validation | PlacementValidation, ids: list[str] | None = None
+) -> dict:
     """Held-out errors: statistics (mm, deg) of each model and the RMS ratio to the baseline with
     its interval, keys naming what is compared; with the sample ``ids``, also the error of every
-    pair under each model."""
+    pair under each model. Held-out placements: :func:`placement_document`."""
+    if isinstance(val, PlacementValidation):
+        return placement_document(val, ids)
     doc: dict = {
         "n_pairs": len(val.pairs),
         "n_samples": len(np.unique(val.pairs)),
@@ -232,8 +281,20 @@ def cross_validation_document(folds: Sequence[Calibration]) -> dict:
     }
 
 
-def _tracker_frames(cal: Calibration) -> dict:
-    """The estimated instrument-from-base transform and marker position (tracker formulation)."""
+def _nuisance_frames(cal: Calibration) -> dict:
+    """The estimated instrument-from-base transform and marker position (tracker formulation),
+    or the tool point and the group points (coincidence)."""
+    if cal.problem.formulation == "coincidence":
+        from relcal.calibration.coincidence import split_params
+
+        _, tool, points = split_params(cal.problem, cal.result.params)
+        names = cal.problem.coincidence.names
+        return {
+            "tool_point_xyz_m": [float(v) for v in tool],
+            "group_points_xyz_m": {
+                n: [float(v) for v in p] for n, p in zip(names, points, strict=True)
+            },
+        }
     if cal.problem.formulation != "tracker":
         return {}
     instrument, marker = tracker_frames(cal.problem, cal.result.params)
@@ -288,12 +349,12 @@ def results_document(cal: Calibration) -> dict:
         "noise_model": noise_document(cal),
         "exported": cal.exported,
         "handeye": None
-        if cal.problem.formulation == "tracker"
+        if cal.problem.formulation in POINT_FORMULATIONS
         else {
             "xyz_m": [float(v) for v in xyz],
             "rpy_deg": [float(np.degrees(v)) for v in rpy],
         },
-        **_tracker_frames(cal),
+        **_nuisance_frames(cal),
         "validation": (
             validation_document(cal.validation, cal.dataset.ids) if cal.validation else None
         ),

@@ -419,6 +419,27 @@ def _ratio_text(ratio: dict) -> str:
     return f"x{ratio['after_over_before']:.3g}, 95% interval {lo:.3g}..{hi:.3g}"
 
 
+def placement_lines(val: dict, what: str) -> list[str]:
+    """Held-out placements of coincidence data (:func:`documents.placement_document`): the
+    spread of the predicted points and the distance error, baseline against calibrated."""
+    lines = [
+        f"{what} ({val['n_samples']} samples of {val['n_groups']} groups; their points refitted, "
+        "kinematics and tool point frozen), RMS / max mm:"
+    ]
+    for key, label in (("spread_mm", "spread of the points"), ("distance_error_mm", "distance")):
+        b, a = val["baseline"][key], val["calibrated"][key]
+        if b is None or a is None:
+            continue
+        line = (
+            f"  {label:<20} baseline (nominal, tool point and points fitted) {b['rms']:.3f} / "
+            f"{b['max']:.3f}, calibrated {a['rms']:.3f} / {a['max']:.3f}"
+        )
+        if key == "spread_mm":
+            line += f" ({_ratio_text(val['ratio_to_baseline']['spread_mm'])} of the baseline)"
+        lines.append(line)
+    return lines
+
+
 def calibration_summary(doc: dict) -> str:
     """The terminal summary: the chosen model and why, held-out errors against the baselines,
     the parameters with their standard deviations, and what the data cannot determine."""
@@ -427,8 +448,12 @@ def calibration_summary(doc: dict) -> str:
         f"{doc['robot']}: {doc['n_used']} of {doc['n_samples']} samples used, "
         f"{len(doc['held_out_ids'])} held out",
     ]
-    points = doc["settings"].get("formulation") == "tracker"
-    frames = "the instrument transform and marker" if points else "the hand-eye transform"
+    formulation = doc["settings"].get("formulation")
+    points = formulation in ("tracker", "coincidence")
+    frames = {
+        "tracker": "the instrument transform and marker",
+        "coincidence": "the tool point and the group points",
+    }.get(formulation, "the hand-eye transform")
     sel = doc.get("model_selection")
     if sel and sel.get("candidates"):
         lines.append(
@@ -457,7 +482,9 @@ def calibration_summary(doc: dict) -> str:
         f"{ident['initial_residual_rms']:.3g} -> {ident['residual_rms']:.3g} (weighted rows)"
     )
     val = doc["validation"]
-    if val:
+    if val and val.get("held_out") == "placements":
+        lines += placement_lines(val, "held-out placements " + ", ".join(val["placements"]))
+    elif val:
         base = "baseline" if "baseline" in val else "baseline_handeye_guess"
         for key, unit in (("position_mm", "mm"), ("orientation_deg", "deg")):
             if key not in val["calibrated"]:
@@ -508,7 +535,10 @@ def calibration_summary(doc: dict) -> str:
             + ", ".join(doc["outliers"])
         )
     cv = doc.get("cross_validation")
-    if cv:
+    if cv and cv["pooled"].get("held_out") == "placements":
+        lines += placement_lines(cv["pooled"], f"{cv['k']}-fold cross-validation over placements")
+        lines.append("  chosen per fold: " + ", ".join(cv["chosen"]))
+    elif cv:
         pooled = cv["pooled"]
         base = "baseline" if "baseline" in pooled else "baseline_handeye_guess"
         b, a = pooled[base]["position_mm"], pooled["calibrated"]["position_mm"]

@@ -1,0 +1,207 @@
+"""Measurement kinds: what one kind of data supplies to the one calibration skeleton.
+
+:func:`relcal.calibration.pipeline.calibrate` is the skeleton (split, plausibility of the inputs,
+outliers, noise, candidate models, cross-validated selection, the fits of the chosen model and of
+the baseline, plausibility of the corrections, validation, settings, the
+:class:`~relcal.calibration.outcome.Calibration` record). A :class:`MeasurementKind` supplies what
+differs between kinds of data, and nothing else:
+
+- its :class:`~relcal.calibration.measurement.Problem` on a set of samples (the residual and its
+  exact Jacobian with respect to the kinematics and to its own nuisance parameters live in
+  :func:`relcal.calibration.measurement.residuals`, by ``formulation``), with the nuisance
+  parameters' initial guess (:meth:`MeasurementKind.training`);
+- its row weighting and noise model (:meth:`~MeasurementKind.weighted`,
+  :meth:`~MeasurementKind.learn_noise`, :meth:`~MeasurementKind.f_scale`);
+- the input of the outlier rule (:meth:`~MeasurementKind.outliers`);
+- how it splits samples for validation (:meth:`~MeasurementKind.split`,
+  :meth:`~MeasurementKind.folds`) and how it validates (:meth:`~MeasurementKind.validate`);
+- how model selection linearises (:attr:`~MeasurementKind.shared_linearisation`);
+- its plausibility checks (:meth:`~MeasurementKind.check_inputs`,
+  :meth:`~MeasurementKind.check_result`); its identifiability reasons are named by
+  :func:`relcal.calibration.identifiability.explainer` for its formulation.
+
+The kinds: :class:`~relcal.calibration.kinds.poses.PoseKind` (relative camera or mocap poses),
+:class:`~relcal.calibration.kinds.points.PointKind` (absolute points of a tracker or a marker) and
+:class:`~relcal.calibration.kinds.coincidence.CoincidenceKind` (a tool point seated again and again
+at unknown points, with known distances). :func:`kind_of` picks one for a dataset.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import ClassVar
+
+import numpy as np
+
+from relcal.calibration.identifiability import Identifiability
+from relcal.calibration.identify import Result
+from relcal.calibration.measurement import PairStrategy, Problem
+from relcal.calibration.noise import PoseNoise
+from relcal.calibration.validate import folds, split
+from relcal.data.dataset import Dataset
+from relcal.data.imaging import Measurements
+from relcal.errors import RelcalError
+
+
+@dataclass(frozen=True)
+class Training:
+    """The training samples as a kind prepares them for the skeleton.
+
+    ``problem``: the identification problem on ``samples`` (dataset indices), its nuisance
+    parameters guessed from them; for kinds whose noise is learned before the fits (points,
+    coincidence) already weighted by it (``sigma``, m). ``ident``: identifiability at the
+    nominal model; ``geometric``: the frames and geometry of ``ident.subset`` (no non-geometric
+    term), what the first fits estimate.
+    """
+
+    samples: np.ndarray
+    problem: Problem
+    ident: Identifiability
+    geometric: np.ndarray
+    sigma: float | None = None
+
+
+@dataclass(frozen=True)
+class NoiseModel:
+    """What a kind learned of its noise from the residuals of the full fit: the pose noise
+    (poses), the row whitening of each weighting (None: the plain weighting of the linearised
+    blocks), and what goes into the settings of the record."""
+
+    noise: PoseNoise | None = None
+    whiteners: dict[str, np.ndarray] | None = None
+    settings: dict = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class MeasurementKind:
+    """What one kind of measurement supplies to the skeleton (see the module docstring).
+
+    This base class splits by sample (held-out samples drawn at random, or named by id) and
+    leaves the rest to its subclasses. Class attributes describe the kind:
+    """
+
+    dataset: Dataset
+    measurements: Measurements
+    pairing: PairStrategy = "all"
+
+    formulation: ClassVar[str]  # of measurement.residuals
+    measure: ClassVar[str]  # "pose" or "position"
+    baseline: ClassVar[str]  # name of the candidate without kinematic correction
+    detection_loss: ClassVar[str]  # loss of the fit whose residuals find the outlier samples
+    # Model selection: one linearisation at the geometric fit shared by every candidate (a
+    # bootstrap of the chosen model's standard deviations comes with it), or each candidate
+    # fitted to every training sample and linearised at its own fit.
+    shared_linearisation: ClassVar[bool]
+    # The fit of the geometry after outlier rejection starts from nominal (else from the fit
+    # that found the outliers).
+    refit_from_nominal: ClassVar[bool]
+    pairing_setting: ClassVar[bool] = True  # the pairing is a setting of this kind
+
+    # --- splitting ---------------------------------------------------------------------------
+
+    def usable(self) -> np.ndarray:
+        """Indices of the usable samples (measured, not rejected)."""
+        return np.flatnonzero(self.measurements.ok)
+
+    def split(
+        self, holdout: float, seed: int, holdout_ids: Sequence[str] | None
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Training and held-out sample indices among the usable samples: the samples named by
+        ``holdout_ids``, or a random share ``holdout`` of them (seeded)."""
+        usable = self.usable()
+        if len(usable) < 4:
+            raise RelcalError(
+                f"{self.dataset.spec_path}: only {len(usable)} usable samples; at least 4 are "
+                "needed (and many more for a useful calibration)"
+            )
+        if holdout_ids is not None:
+            test = self.sample_indices(holdout_ids)
+            return np.setdiff1d(usable, test), np.intersect1d(usable, test)
+        if holdout > 0:
+            train_idx, test_idx = split(len(usable), holdout, seed)
+            return usable[train_idx], usable[test_idx]
+        return usable, np.zeros(0, dtype=int)
+
+    def folds(self, k: int, seed: int) -> list[list[str]]:
+        """The held-out ids (:meth:`split`'s ``holdout_ids``) of each of ``k`` folds."""
+        usable = self.usable()
+        return [[self.dataset.ids[i] for i in usable[f]] for f in folds(len(usable), k, seed)]
+
+    def sample_indices(self, ids: Sequence[str]) -> np.ndarray:
+        """Sorted indices of the samples named ``ids``."""
+        where = {sid: k for k, sid in enumerate(self.dataset.ids)}
+        unknown = [sid for sid in ids if sid not in where]
+        if unknown:
+            raise RelcalError(
+                f"held-out sample id(s) {', '.join(unknown[:5])} are not in "
+                f"{self.dataset.spec_path.parent}"
+            )
+        return np.array(sorted(where[sid] for sid in ids), dtype=int)
+
+    # --- the kind's problem, noise and outlier input --------------------------------------------
+
+    def training(self, train: np.ndarray, previous: Training | None = None) -> Training:
+        """The training problem on ``train``; ``previous``: the one before outliers were left
+        out (a kind may keep its guesses and its identifiability analysis)."""
+        raise NotImplementedError
+
+    def weighted(
+        self, training: Training, weighting: str, whiteners: dict[str, np.ndarray] | None = None
+    ) -> Problem:
+        """The training problem with its rows weighted as ``weighting`` says."""
+        return training.problem
+
+    def f_scale(self, weighted: Problem) -> float:
+        """The weighted residual where a robust loss bends."""
+        raise NotImplementedError
+
+    def outliers(self, training: Training, detection: Result) -> np.ndarray:
+        """Positions (in ``training.samples``) of the samples that fit badly at ``detection``."""
+        raise NotImplementedError
+
+    def learn_noise(self, training: Training, full: Result, lin) -> NoiseModel:
+        """The noise learned from the residuals of ``full`` (the geometric fit; ``lin``: its
+        linearisation when :attr:`shared_linearisation`)."""
+        return NoiseModel()
+
+    def weightings(self, requested: Sequence[str]) -> tuple[str, ...]:
+        """The row weightings each candidate is tried with."""
+        return tuple(requested)
+
+    # --- plausibility and validation ------------------------------------------------------------
+
+    def check_inputs(self, train: np.ndarray) -> dict | None:
+        """Refuse data that cannot be this robot's measurements (naming the likely cause) before
+        anything is fitted; what the checks measured, for the settings (None: nothing)."""
+        return None
+
+    def check_result(self, training: Training, result: Result) -> None:
+        """Refuse corrections too large to be a calibration."""
+        raise NotImplementedError
+
+    def validate(self, training: Training, result: Result, baseline: Result, test: np.ndarray):
+        """Held-out errors of ``result`` and ``baseline`` on the samples ``test`` (None when
+        there are too few)."""
+        raise NotImplementedError
+
+    def settings(self, training: Training) -> dict:
+        """What the record's settings say of this kind beyond the skeleton's."""
+        return {}
+
+
+def kind_of(
+    dataset: Dataset, measurements: Measurements, pairing: PairStrategy = "all"
+) -> MeasurementKind:
+    """The measurement kind of ``dataset``: coincidence groups, position-only points, or poses."""
+    if dataset.measured == "coincidence":
+        from relcal.calibration.kinds.coincidence import CoincidenceKind
+
+        return CoincidenceKind(dataset, measurements, pairing)
+    if dataset.measured == "position":
+        from relcal.calibration.kinds.points import PointKind
+
+        return PointKind(dataset, measurements, pairing)
+    from relcal.calibration.kinds.poses import PoseKind
+
+    return PoseKind(dataset, measurements, pairing)

@@ -1,0 +1,138 @@
+"""Relative poses (a camera looking at a board, a motion-capture rigid body): the frame-invariant
+formulation ``M_ij = C_i^-1 C_j`` against ``X^-1 F_i^-1 F_j X``, with the hand-eye transform ``X``
+estimated with the geometry.
+
+What the kind supplies to the skeleton: the hand-eye guess (``handeye:`` in dataset.yaml, else
+:func:`~relcal.calibration.handeye.solve_handeye` on the training samples, kept once outliers are
+left out), the plausibility checks of relative rotations and translation scale before fitting
+(:func:`~relcal.calibration.plausibility.check_dataset`), outliers found from each sample's pair
+errors in units of their robust noise, a 6x6 pose noise learned from the pair residuals
+(:func:`~relcal.calibration.noise.estimate_pose_noise`) with two row weightings (``plain``:
+translation in m, rotation x 0.1 m/rad; ``noise model``: each pair whitened by its learned
+covariance), one linearisation at the geometric fit shared by every candidate of model
+selection, and validation on the pairs among held-out samples.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from relcal import geometry as tf
+from relcal.calibration.handeye import solve_handeye
+from relcal.calibration.identifiability import check_pose_set
+from relcal.calibration.identify import Result
+from relcal.calibration.kinds import MeasurementKind, NoiseModel, Training
+from relcal.calibration.measurement import Problem, make_pairs, pair_errors, residuals
+from relcal.calibration.noise import (
+    estimate_pose_noise,
+    pair_whiteners,
+    robust_sigma,
+)
+from relcal.calibration.outcome import ROBUST_SCALE, outlier_samples
+from relcal.calibration.plausibility import check_dataset, check_result
+from relcal.calibration.selection import (
+    geometric_columns,
+    plain_whiteners,
+)
+from relcal.calibration.validate import held_out
+from relcal.robot.kinematics import fk, make_layout
+
+
+@dataclass(frozen=True)
+class PoseKind(MeasurementKind):
+    """Relative camera (or mocap) poses; see the module docstring."""
+
+    formulation = "invariant"
+    measure = "pose"
+    baseline = "hand-eye only"
+    detection_loss = "linear"
+    shared_linearisation = True
+    refit_from_nominal = False
+
+    def problem_on(self, samples: np.ndarray, handeye: np.ndarray) -> Problem:
+        """The frame-invariant problem of ``samples`` (paired as the kind's ``pairing``)."""
+        ds = self.dataset
+        return Problem(
+            ds.model,
+            make_layout(ds.model),
+            ds.q[samples],
+            self.measurements.poses[samples],
+            "invariant",
+            "pose",
+            make_pairs(len(samples), self.pairing),
+            handeye,
+        )
+
+    def check_inputs(self, train: np.ndarray) -> dict:
+        return check_dataset(self.dataset, self.measurements)  # a wrong unit, order or board
+
+    def training(self, train: np.ndarray, previous: Training | None = None) -> Training:
+        if previous is not None:  # the hand-eye guess and the analysis of the first training set
+            problem = self.problem_on(train, previous.problem.handeye)
+            return replace(previous, samples=train, problem=problem)
+        ds = self.dataset
+        handeye = ds.handeye
+        if handeye is None:
+            handeye = solve_handeye(fk(ds.model, ds.q[train]), self.measurements.poses[train])
+        problem = self.problem_on(train, handeye)
+        ident = check_pose_set(problem, str(ds.spec_path))
+        return Training(train, problem, ident, geometric_columns(problem, ident.subset))
+
+    def weighted(
+        self, training: Training, weighting: str, whiteners: dict[str, np.ndarray] | None = None
+    ) -> Problem:
+        return weighted_problem(training.problem, weighting, whiteners)
+
+    def f_scale(self, weighted: Problem) -> float:
+        """:data:`ROBUST_SCALE` robust standard deviations of the weighted rows at nominal."""
+        r0 = residuals(weighted, np.zeros(weighted.full_layout.size), jacobian=False)
+        scale = 1.4826 * np.median(np.abs(r0 - np.median(r0)))
+        return ROBUST_SCALE * max(scale, 1e-12)
+
+    def outliers(self, training: Training, detection: Result) -> np.ndarray:
+        """A robust per-sample median of its pairs' errors (a few bad samples do not hide among
+        their pairs), the errors in units of their robust noise levels."""
+        problem = training.problem
+        errors = pair_errors(problem, detection.params)
+        return outlier_samples(errors / robust_sigma(errors), problem.pairs)
+
+    def learn_noise(self, training: Training, full: Result, lin) -> NoiseModel:
+        """The full 6x6 pose noise from the pair residuals of the geometric fit, and the row
+        whitening of both weightings."""
+        problem = training.problem
+        left = pair_left_maps(problem)
+        fitted = (lin.pairs, lin.jac[:, :, training.geometric], np.diag(plain_whiteners(1)[0]))
+        noise = estimate_pose_noise(pair_errors(problem, full.params), left, fitted)
+        whiteners = {
+            "plain": plain_whiteners(len(left)),
+            "noise model": pair_whiteners(noise.covariance, left),
+        }
+        return NoiseModel(noise, whiteners)
+
+    def check_result(self, training: Training, result: Result) -> None:
+        check_result(self.dataset, training.problem, result)
+
+    def validate(self, training: Training, result: Result, baseline: Result, test: np.ndarray):
+        """Relative pose errors of the pairs among the held-out samples (at least two)."""
+        if len(test) < 2:
+            return None
+        everything = self.problem_on(np.arange(len(self.dataset.ids)), training.problem.handeye)
+        return held_out(everything, result, test, baseline=baseline)
+
+
+def weighted_problem(
+    problem: Problem, weighting: str, whiteners: dict[str, np.ndarray] | None = None
+) -> Problem:
+    """``problem`` with the rows weighted as ``weighting`` says (the plain weighting is diagonal:
+    row factors, no per-pair blocks)."""
+    if weighting == "plain":
+        return replace(problem, weights=np.diag(plain_whiteners(1)[0]), pair_weights=None)
+    return replace(problem, weights=None, pair_weights=whiteners[weighting])
+
+
+def pair_left_maps(problem: Problem) -> np.ndarray:
+    """``-Ad(M_ij^-1)`` ``(P, 6, 6)`` of the measured relative motions: how pose i's error enters
+    pair (i, j)'s residual (pose j's enters as itself)."""
+    return -tf.adjoint(tf.invert(problem.measured_motions))

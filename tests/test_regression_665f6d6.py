@@ -1,0 +1,286 @@
+"""The calibration skeleton gives the numbers the two copies it replaced gave.
+
+``regression_665f6d6.json`` holds what ``relcal.calibration.pipeline.calibrate`` returned at commit
+665f6d6 (before the pose pipeline and the point pipeline of ``calibration/tracker.py`` became one
+skeleton with the measurement kind as a strategy): on every real set of ``../shared/data``
+(positioner, ChArUco and circle-grid images, TIAGo Pro poses and positions) and on synthetic pose
+and point sets, under the options that exercise each branch (outliers, losses, weightings, model
+selection rules, the published solver, k-fold cross-validation). Per run: the chosen candidate and
+why, outliers, held-out errors of the baseline and of the calibrated model, every candidate's
+cross-validated score, the parameters with their standard deviations, the baseline's parameters,
+the learned noise and the settings; a refused run records its message.
+
+Recorded with ``python tests/test_regression_665f6d6.py`` (run at that commit); the test asserts
+the same numbers to 1e-9 relative, except where the skeleton fixed a number (:data:`FIXED`).
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from conftest import DATA  # noqa: E402
+
+RECORD = Path(__file__).resolve().parent / "regression_665f6d6.json"
+RTOL = 1e-9
+# Absolute floor per quantity, far below anything shown: parameters and their std (SI units),
+# costs and RMS values (their own units). Values that are round-off around zero compare to it.
+ATOL = 1e-13
+
+TIAGO = (
+    "robot: {{urdf: {d}/tiago_pro.urdf, root: base_footprint,"
+    " tip: gripper_right_pal_atc_base_link}}\n"
+    "joint_unit: rad\ncolumns: {{x: x1, y: y1, z: z1{angles}}}\nsamples: {d}/{f}\n"
+)
+PLAIN = {"nongeometric": "none", "reject_outliers": False}
+CONSERVATIVE = {"selection": "conservative"}
+
+# (name, dataset builder key, options) of every run; the builders are below.
+RUNS = [
+    ("positioner plain", "positioner", PLAIN),
+    ("positioner default", "positioner", {}),
+    ("positioner both weightings", "positioner", {"weightings": ("plain", "noise model")}),
+    ("tiago poses plain", "tiago poses", PLAIN),
+    ("tiago poses default", "tiago poses", {}),
+    ("tiago poses conservative", "tiago poses", {"selection": "conservative"}),
+    ("tiago positions plain conservative", "tiago positions", {**PLAIN, **CONSERVATIVE}),
+    ("tiago positions conservative", "tiago positions", {"selection": "conservative"}),
+    ("tiago positions default", "tiago positions", {}),
+    ("tiago positions huber", "tiago positions", {"selection": "conservative", "loss": "huber"}),
+    ("charuco plain", "charuco", PLAIN),
+    ("charuco default", "charuco", {}),
+    ("circle grid plain", "circle grid", PLAIN),
+    ("circle grid default", "circle grid", {}),
+    ("synthetic poses default", "synthetic poses", {}),
+    ("synthetic poses huber", "synthetic poses", {"loss": "huber"}),
+    ("synthetic poses all", "synthetic poses", {"selection": "all"}),
+    ("synthetic poses conservative", "synthetic poses", {"selection": "conservative"}),
+    ("synthetic poses both", "synthetic poses", {"weightings": ("plain", "noise model")}),
+    ("synthetic poses published", "synthetic poses", {**PLAIN, "method": "published"}),
+    ("positioner published", "positioner", {**PLAIN, "method": "published"}),
+    ("large errors poses published", "large poses", {**PLAIN, "method": "published"}),
+    ("synthetic poses consecutive", "synthetic poses", {"pairing": "consecutive"}),
+    ("synthetic poses ids", "synthetic poses", {"holdout_ids": [f"s{k:03d}" for k in range(8)]}),
+    ("synthetic poses nongeometric", "synthetic nongeometric", {}),
+    ("large errors poses", "large poses", {}),
+    ("large errors points", "large points", {}),
+    ("large errors points plain", "large points", PLAIN),
+    ("synthetic points default", "synthetic points", {}),
+    ("synthetic points all", "synthetic points", {"selection": "all"}),
+    ("synthetic points conservative", "synthetic points", {"selection": "conservative"}),
+    ("synthetic points huber", "synthetic points", {"loss": "huber"}),
+    ("synthetic points published", "synthetic points", {**PLAIN, "method": "published"}),
+    ("synthetic points cauchy kept", "synthetic points", {**PLAIN, "loss": "cauchy"}),
+]  # fmt: skip
+CROSS = [  # k-fold cross-validation
+    ("synthetic poses kfold", "synthetic poses", {"k": 3}),
+    ("synthetic points kfold", "synthetic points", {"k": 3}),
+]
+
+
+def build(key: str, root: Path):
+    """The dataset and its measurements of a builder key, in ``root``."""
+    from helpers_dataset import synthetic_dataset
+
+    from relcal.cli import main
+    from relcal.data.dataset import load_dataset
+    from relcal.data.imaging import measure
+
+    folder = root / key.replace(" ", "_")
+    if key == "positioner":
+        source = DATA / "rct_positioner" / "positioner_kinematic_measurements.yaml"
+        assert main(["import", "rct-positioner", str(source), "--out", str(folder), "--quiet"]) == 0
+    elif key.startswith("tiago"):
+        folder.mkdir(parents=True)
+        f = "mocap_pose_20260805.csv" if key == "tiago poses" else "mocap_position_20260702.csv"
+        angles = ", roll: phix1, pitch: phiy1, yaw: phiz1" if key == "tiago poses" else ""
+        (folder / "dataset.yaml").write_text(TIAGO.format(d=DATA / "tiago_pro", f=f, angles=angles))
+    elif key in ("charuco", "circle grid"):
+        name = "rct_charuco_eye_to_hand" if key == "charuco" else "rct_circle_grid_eye_in_hand"
+        argv = ["import", "rct-images", str(DATA / name), "--out", str(folder), "--quiet"]
+        assert main(argv) == 0
+    elif key == "synthetic poses":
+        synthetic_dataset(folder, n=40, outliers=2, seed=3)
+    elif key == "synthetic nongeometric":
+        synthetic_dataset(folder, n=60, seed=5, nongeometric=("scale",))
+    elif key in ("large poses", "large points"):
+        from test_optimum import _large_error_dataset
+
+        _large_error_dataset(folder, 0, position_only=key == "large points")
+    elif key == "synthetic points":
+        from test_tracker_selection import point_dataset
+
+        point_dataset(folder, 60, 11, ("scale",))
+    else:
+        raise KeyError(key)
+    dataset = load_dataset(folder)
+    return dataset, measure(dataset, progress=False, max_rms=1.5)
+
+
+def _floats(values) -> list:
+    return [None if not np.isfinite(v) else float(v) for v in np.asarray(values, float).ravel()]
+
+
+def fingerprint(cal) -> dict:
+    """The numbers of a calibration that the refactor must keep."""
+    from relcal.reporting.documents import validation_document
+
+    out = {
+        "chosen": cal.selection[cal.chosen].candidate.name if cal.selection else None,
+        "weighting": cal.selection[cal.chosen].candidate.weighting if cal.selection else None,
+        "reason": cal.reason,
+        "exported": cal.exported,
+        "outliers": list(cal.outliers),
+        "n_train": len(cal.train),
+        "n_test": len(cal.test),
+        "names": list(cal.problem.full_layout.names),
+        "params": _floats(cal.result.params),
+        "std": _floats(cal.std),
+        "converged": bool(cal.result.converged),
+        "residual_norm": float(cal.result.residual_norm),
+        "baseline_params": _floats(cal.baseline.params),
+        "baseline_residual_norm": float(cal.baseline.residual_norm),
+        "scores": [
+            {
+                "name": s.candidate.name,
+                "weighting": s.candidate.weighting,
+                "columns": [int(c) for c in s.candidate.columns],
+                "mse": float(np.mean(s.per_sample)),
+                "position_rms": s.position_rms,
+            }
+            for s in cal.selection
+        ],
+        "bootstrap_std": None if cal.bootstrap_std is None else _floats(cal.bootstrap_std),
+        "noise_std": None if cal.noise is None else _floats(cal.noise.std),
+        "noise_covariance": None if cal.noise is None else _floats(cal.noise.covariance),
+        "settings": {k: v for k, v in cal.settings.items() if k != "plausibility"},
+        "plausibility": cal.settings.get("plausibility"),
+        "model_nongeometric": [list(f) for f in cal.model.nongeometric],
+    }
+    if cal.validation is not None:
+        doc = validation_document(cal.validation)
+        out["validation"] = {
+            which: {
+                key: {stat: doc[which][key][stat] for stat in ("rms", "max", "mean")}
+                for key in doc[which]
+            }
+            for which in ("baseline", "baseline_handeye_guess", "calibrated")
+            if which in doc
+        }
+        out["ratio"] = doc["ratio_to_baseline"]
+    return out
+
+
+def run(name: str, key: str, options: dict, datasets: dict, root: Path) -> dict:
+    from relcal.calibration.pipeline import calibrate, cross_validate
+    from relcal.errors import RelcalError
+
+    if key not in datasets:
+        datasets[key] = build(key, root)
+    dataset, measurements = datasets[key]
+    try:
+        if "k" in options:
+            folds = cross_validate(dataset, measurements, k=options["k"])
+            return {"folds": [fingerprint(f) for f in folds]}
+        return fingerprint(calibrate(dataset, measurements, **options))
+    except RelcalError as exc:
+        return {"refused": str(exc).replace(str(root), "ROOT")}
+
+
+def compare(got, want, where: str = "") -> None:
+    """``got`` equals ``want``: numbers to :data:`RTOL`, everything else exactly."""
+    if isinstance(want, dict):
+        assert isinstance(got, dict) and set(got) == set(want), (where, set(got) ^ set(want))
+        for k in want:
+            compare(got[k], want[k], f"{where}.{k}")
+    elif isinstance(want, list):
+        assert isinstance(got, list) and len(got) == len(want), (where, got, want)
+        if want and all(isinstance(v, (int, float)) or v is None for v in want + got):
+            a = np.array([np.nan if v is None else v for v in got], float)
+            b = np.array([np.nan if v is None else v for v in want], float)
+            np.testing.assert_allclose(a, b, rtol=RTOL, atol=ATOL, equal_nan=True, err_msg=where)
+        else:
+            for k, (g, w) in enumerate(zip(got, want, strict=True)):
+                compare(g, w, f"{where}[{k}]")
+    elif isinstance(want, float) and not isinstance(want, bool):
+        np.testing.assert_allclose(got, want, rtol=RTOL, atol=ATOL, err_msg=where)
+    else:
+        assert got == want, (where, got, want)
+
+
+def _json(value):
+    return json.loads(json.dumps(value))
+
+
+# Runs whose numbers the skeleton fixed: the keys that changed, and why. Everything else of them
+# is asserted as recorded, and :func:`check_fixed` asserts the fix.
+FIXED = {
+    "synthetic points published": (
+        {"baseline_params", "baseline_residual_norm", "scores", "validation", "ratio"},
+        "the point pipeline fitted every candidate with --method published, which estimates every "
+        "column: its 'baseline' (instrument and marker only) was the full geometric model, so "
+        "the held-out baseline equalled the calibrated model (ratio 1.0). The skeleton fits the "
+        "baseline by Levenberg-Marquardt on its own columns, as the pose path always did.",
+    ),
+}
+
+
+def check_fixed(name: str, got: dict, want: dict) -> None:
+    """Everything of a :data:`FIXED` run but the keys it names as recorded, and the fix."""
+    changed, _ = FIXED[name]
+    compare(
+        {k: v for k, v in got.items() if k not in changed},
+        {k: v for k, v in want.items() if k not in changed},
+        name,
+    )
+    # the baseline: nominal geometry, only the instrument transform and the marker fitted
+    frames = [k for k, n in enumerate(got["names"]) if n.split(".")[0] in ("instrument", "marker")]
+    assert not np.any(np.delete(got["baseline_params"], frames))
+    val = got["validation"]
+    assert val["baseline"]["position_mm"]["rms"] > 10 * val["calibrated"]["position_mm"]["rms"]
+    assert got["ratio"]["position_mm"]["ci95"][1] < 0.1
+    # the chosen model's scores and numbers are those recorded
+    assert got["scores"][1] == want["scores"][1]
+
+
+REAL = {"positioner", "tiago poses", "tiago positions", "charuco", "circle grid"}
+
+
+@pytest.fixture(scope="module")
+def recorded():
+    return json.loads(RECORD.read_text())
+
+
+@pytest.fixture(scope="module")
+def datasets():
+    return {}
+
+
+@pytest.mark.parametrize(("name", "key", "options"), RUNS + CROSS, ids=[r[0] for r in RUNS + CROSS])
+def test_same_numbers_as_665f6d6(name, key, options, recorded, datasets, tmp_path_factory):
+    if key in REAL and not DATA.is_dir():
+        pytest.skip("real data not available")
+    root = tmp_path_factory.getbasetemp() / "regression"
+    root.mkdir(exist_ok=True)
+    got = _json(run(name, key, options, datasets, root))
+    if name in FIXED:
+        check_fixed(name, got, recorded[name])
+    else:
+        compare(got, recorded[name], name)
+
+
+if __name__ == "__main__":  # record (at commit 665f6d6)
+    import tempfile
+
+    out, cache = {}, {}
+    with tempfile.TemporaryDirectory() as tmp:
+        for name, key, options in RUNS + CROSS:
+            print(name, flush=True)
+            out[name] = _json(run(name, key, options, cache, Path(tmp)))
+    RECORD.write_text(json.dumps(out, indent=1) + "\n")
