@@ -76,8 +76,7 @@ class Calibration:
             val = self.validation
             if val is None:
                 return "no held-out samples"
-            before = stats(val.before)["position_mm"]["rms"]
-            after = stats(val.calibrated)["position_mm"]["rms"]
+            before, after = val.rms("before"), val.rms("calibrated")
             return f"held-out position RMS {before:.4g} -> {after:.4g} mm"
 
         chosen = self.selection[self.chosen].candidate.name if self.selection else ""
@@ -136,14 +135,7 @@ class Calibration:
         otherwise the training residuals (unweighted)."""
         val = self.validation
         if isinstance(val, PlacementValidation):
-
-            def as_errors(spread: np.ndarray) -> np.ndarray:
-                out = np.full((len(spread), 6), np.nan)
-                out[:, :3] = 0.0
-                out[:, 0] = spread
-                return out
-
-            before, after = as_errors(val.baseline.spread), as_errors(val.calibrated.spread)
+            before, after = val.baseline.as_errors(), val.calibrated.as_errors()
             return Comparison(before, after, "held-out placements", len(val.samples))
         if val is not None:
             source = (

@@ -270,6 +270,14 @@ class Spread:
         spread, distance = summarised(self.spread), summarised(self.distance)
         return {"spread_mm": spread, "distance_error_mm": distance}
 
+    def as_errors(self) -> np.ndarray:
+        """The spread as per-sample position errors ``(N, 6)`` (m; rotation NaN), for what
+        summarises pair or point errors."""
+        out = np.full((len(self.spread), 6), np.nan)
+        out[:, :3] = 0.0
+        out[:, 0] = self.spread
+        return out
+
     def per_group(self) -> dict[str, dict[str, float]]:
         """``{group: {"n", "rms_mm", "max_mm"}}`` of the spread."""
         out = {}
@@ -352,13 +360,7 @@ class PlacementValidation:
         over the held-out samples (:func:`ratio_interval`)."""
         pairs = np.stack([self.samples, self.samples], axis=1)
 
-        def as_errors(spread: Spread) -> np.ndarray:
-            out = np.full((len(spread.spread), 6), np.nan)
-            out[:, :3] = 0.0
-            out[:, 0] = spread.spread
-            return out
-
-        ratio = ratio_interval(pairs, as_errors(self.baseline), as_errors(self.calibrated))
+        ratio = ratio_interval(pairs, self.baseline.as_errors(), self.calibrated.as_errors())
         return ratio["position_mm"]
 
 
