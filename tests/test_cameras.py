@@ -135,7 +135,7 @@ def test_realsense_playback(tmp_path):
         48,
     )
     np.testing.assert_allclose(intr.distortion, [0.1, -0.05, 0.001, 0.002, 0.01], rtol=1e-6)
-    frames = [camera.grab(2.0) for _ in range(6)]
+    frames = [camera.grab(20.0) for _ in range(6)]
     assert [f.sequence for f in frames] == list(range(6))
     assert [level(f.image) for f in frames] == [30 * k for k in range(6)]
     assert frames[0].image.shape == (48, 64, 3) and "hardware_clock" in frames[0].meta["domain"]
