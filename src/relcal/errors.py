@@ -4,3 +4,29 @@ expected. The command line prints it without a traceback and exits with status 2
 
 class RelcalError(Exception):
     """Bad input or a problem relcal cannot solve, explained for a person."""
+
+
+_BIDI = dict.fromkeys([*range(0x202A, 0x202F), *range(0x2066, 0x206A), 0x200E, 0x200F, 0x061C])
+
+
+def printable(text: object, limit: int | None = None) -> str:
+    """Text that came from a file or a user, safe to show on a terminal or in a message:
+    control characters (terminal escape sequences, carriage returns) and bidirectional
+    overrides written as escapes, at most ``limit`` characters (with an ellipsis)."""
+    out = []
+    for ch in str(text):
+        code = ord(ch)
+        if (code < 32 and ch not in "\t\n") or 0x7F <= code < 0xA0 or code in _BIDI:
+            out.append(ch.encode("unicode_escape").decode("ascii"))
+        else:
+            out.append(ch)
+    shown = "".join(out)
+    if limit is not None and len(shown) > limit:
+        shown = shown[: max(limit - 3, 0)] + "..."
+    return shown
+
+
+def excerpt(text: object, limit: int = 40) -> str:
+    """A short quoted excerpt of file text for a message (``'ninety'``), never more than
+    ``limit`` characters of it, control characters escaped."""
+    return "'" + printable(str(text).replace("\n", " "), limit) + "'"

@@ -66,9 +66,11 @@ from relcal.calibration.validate import (
     held_out,
     split,
 )
+from relcal.checks import check_calibrate
 from relcal.data.dataset import Dataset
 from relcal.data.imaging import Measurements, measure
 from relcal.errors import RelcalError
+from relcal.limits import check_calibration_memory
 from relcal.robot.kinematics import fk, make_layout
 
 DETECTION_LOSS = "linear"  # of the fit whose residuals find the outlier samples
@@ -143,6 +145,10 @@ def calibrate(
     small on the parameters of parallel axes, measured by Monte Carlo, so it is not the
     default).
     """
+    check_calibrate(
+        dataset, measurements, holdout, seed, pairing, method, loss, holdout_ids, select_folds,
+        selection,
+    )  # fmt: skip
     unknown = sorted(set(weightings) - set(WEIGHTINGS))
     if unknown or not weightings:
         raise RelcalError(f"weightings {list(weightings)}: use {' and/or '.join(WEIGHTINGS)}")
@@ -167,6 +173,9 @@ def calibrate(
             nongeometric=nongeometric,
         )
     dataset = replace(dataset, model=candidate_model(dataset.model, nongeometric))
+    check_calibration_memory(  # all pairs are quadratic: refused before they are formed
+        len(dataset.ids), pairing, make_layout(dataset.model).size + 6, str(dataset.root)
+    )
     plausibility = check_dataset(dataset, measurements)  # a wrong unit, order or board size
     poses = measurements.poses
     handeye = dataset.handeye

@@ -4,7 +4,8 @@ Exit codes (:data:`EXIT_CODES`): 0 success; 1 the run finished but a check faile
 that did not converge: nothing written; an unreached target: marked in the outputs); 2 bad input,
 a bad option or a refused or unwritable output (the message names the file or option), nothing
 written; 3 internal error (a bug: please report it; ``RELCAL_DEBUG=1`` shows the traceback); 130
-interrupted (SIGINT), 143 terminated (SIGTERM), both with the previous outputs left whole.
+interrupted (SIGINT), 143 terminated (SIGTERM): the outputs are the previous ones, or the new
+ones with their registry record, each whole, and the message says which.
 """
 
 from __future__ import annotations
@@ -61,19 +62,37 @@ def main(argv: Sequence[str] | None = None) -> int:
     in_main = _main_thread()
     if in_main:
         signal.signal(signal.SIGTERM, _terminate)
+    from relcal.outputset import forget_written
+
+    forget_written()
     try:
         return _run(argv)
     except SystemExit as exc:  # argparse: --help (0) or a bad option (2, message printed)
         return exc.code if isinstance(exc.code, int) else 2
     except Terminated:
-        print("relcal: terminated; earlier outputs left as they were", file=sys.stderr)
+        print(f"relcal: terminated; {_what_was_written()}", file=sys.stderr)
         return 143
     except KeyboardInterrupt:
-        print("relcal: interrupted; earlier outputs left as they were", file=sys.stderr)
+        print(f"relcal: interrupted; {_what_was_written()}", file=sys.stderr)
         return 130
     finally:
         if in_main:
             signal.signal(signal.SIGTERM, previous)
+
+
+def _what_was_written() -> str:
+    """The truth about the outputs after an interrupt: what this run installed (each whole,
+    with its record), or that nothing was written."""
+    from relcal.outputset import written
+
+    done = written()
+    if not done:
+        return "nothing written (earlier outputs left as they were)"
+    return (
+        "already written, each whole: "
+        + "; ".join(done)
+        + " (the rest of the run, if any, was not done)"
+    )
 
 
 def _main_thread() -> bool:
@@ -95,9 +114,15 @@ def _run(argv: Sequence[str] | None) -> int:
     except RelcalError as exc:
         print(f"relcal: error: {exc}", file=sys.stderr)
         return 2
+    except BrokenPipeError:  # the reader of our output went away (``relcal history | head``)
+        try:
+            sys.stdout = open(os.devnull, "w")  # noqa: SIM115 - nothing more to print
+        except OSError:
+            pass
+        return 141
     except OSError as exc:
-        where = f" {exc.filename}" if exc.filename else ""
-        print(f"relcal: error:{where}: {exc.strerror or exc}; nothing written", file=sys.stderr)
+        where = f" {exc.filename}:" if exc.filename else ""
+        print(f"relcal: error:{where} {exc.strerror or exc}; nothing written", file=sys.stderr)
         return 2
     except (KeyboardInterrupt, SystemExit):
         raise

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+from contextlib import nullcontext
 from pathlib import Path
 
 from relcal.cli.common import (
@@ -84,21 +85,32 @@ def check_holdout(dataset, holdout: float, usable: int | None = None) -> None:
 
 
 def run_calibrate(args: argparse.Namespace) -> int:
-    import sys
-
-    from relcal.calibration.pipeline import calibrate
     from relcal.data.dataset import load_dataset
-    from relcal.data.imaging import measure
-    from relcal.fleet.records import record_calibration
+    from relcal.fleet.registry import open_for_writing
     from relcal.outputset import check
-    from relcal.reporting.documents import cross_validation_document, results_document
-    from relcal.reporting.outputs import write_calibration
-    from relcal.reporting.text import calibration_summary
 
     dataset = load_dataset(args.dataset)
     out = Path(args.out or Path(args.dataset) / "calibration")
     holdout_ids = _ids(args.holdout_ids) if args.holdout_ids else None
-    check(_destinations(out, args.json, args.report))  # refuse before the work, not after it
+    destinations = _destinations(out, args.json, args.report)
+    check(destinations)  # refuse before the work, not after it
+    # the registry opened, migrated and checked before any computation (the inputs are known
+    # by now: an input is never turned into a database, nor is an output)
+    registry = open_for_writing(args.registry, outputs=destinations)
+    with registry if registry is not None else nullcontext():
+        return _calibrate(args, dataset, out, holdout_ids, registry)
+
+
+def _calibrate(args, dataset, out, holdout_ids, registry) -> int:
+    import sys
+
+    from relcal.calibration.pipeline import calibrate
+    from relcal.data.imaging import measure
+    from relcal.fleet.records import calibration_record
+    from relcal.reporting.documents import cross_validation_document, results_document
+    from relcal.reporting.outputs import write_calibration
+    from relcal.reporting.text import calibration_summary
+
     check_kfold(dataset, args.kfold)
     if holdout_ids is None:
         check_holdout(dataset, args.holdout)
@@ -147,8 +159,9 @@ def run_calibrate(args: argparse.Namespace) -> int:
             file=sys.stderr,
         )
         return 1
-    written = write_calibration(cal, out, doc, args.json, args.report)
-    run_id = record_calibration(args.registry, cal, doc, out)
+    journal = None if registry is None else registry.pending(calibration_record(cal, doc, out))
+    written = write_calibration(cal, out, doc, args.json, args.report, journal=journal)
+    run_id = None if journal is None else journal.run_id
     if not args.quiet:
         print(calibration_summary(doc))
         if cal.worse:
