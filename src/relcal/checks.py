@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from relcal.errors import RelcalError, excerpt
+from relcal.errors import ArgumentError, excerpt
 
 
 def describe(value: Any) -> str:
@@ -47,7 +47,7 @@ def _regular(value: Any) -> bool:
 def check_instance(value: Any, cls: type | tuple[type, ...], name: str, expected: str) -> Any:
     """``value`` must be an instance of ``cls``; ``expected`` says what, with how to get one."""
     if not isinstance(value, cls):
-        raise RelcalError(f"{name}: expected {expected}, got {describe(value)}")
+        raise ArgumentError(f"{name}: expected {expected}, got {describe(value)}")
     return value
 
 
@@ -55,8 +55,9 @@ def check_choice(value: Any, name: str, choices: Iterable[str]) -> str:
     """``value`` must be one of ``choices`` (strings)."""
     choices = tuple(choices)
     if not isinstance(value, str) or value not in choices:
-        raise RelcalError(
-            f"{name}: expected one of {', '.join(repr(c) for c in choices)}, got {describe(value)}"
+        raise ArgumentError(
+            f"{name}: unknown {describe(value)}; expected one of "
+            + ", ".join(repr(c) for c in choices)
         )
     return value
 
@@ -74,18 +75,18 @@ def check_number(
     """A finite number (``integer``: a whole one) within ``[low, high]`` (ends open if asked)."""
     kind = "a whole number" if integer else "a number"
     if isinstance(value, bool) or not isinstance(value, int | float | np.integer | np.floating):
-        raise RelcalError(f"{name}: expected {kind}, got {describe(value)}")
+        raise ArgumentError(f"{name}: expected {kind}, got {describe(value)}")
     if integer and not float(value).is_integer():
-        raise RelcalError(f"{name}: expected {kind}, got {value!r}")
+        raise ArgumentError(f"{name}: expected {kind}, got {value!r}")
     if not np.isfinite(value):
-        raise RelcalError(f"{name}: expected a finite number, got {value!r}")
+        raise ArgumentError(f"{name}: expected a finite number, got {value!r}")
     below = low is not None and (value <= low if low_open else value < low)
     above = high is not None and (value >= high if high_open else value > high)
     if below or above:
         lo = "" if low is None else f"{'(' if low_open else '['}{low:g}"
         hi = "" if high is None else f"{high:g}{')' if high_open else ']'}"
         span = f"in {lo or '(-inf'}, {hi or 'inf)'}"
-        raise RelcalError(f"{name}: expected {kind} {span}, got {value!r}")
+        raise ArgumentError(f"{name}: expected {kind} {span}, got {value!r}")
     return int(value) if integer else float(value)
 
 
@@ -100,25 +101,30 @@ def check_array(
 ) -> np.ndarray:
     """``value`` as an array of ``shape`` (``None``: any length on that axis), every entry
     finite unless ``finite=False``; ``hint`` names the likely cause of a wrong shape."""
-    want = "(" + ", ".join("N" if s is None else str(s) for s in shape) + ")"
+    want = (
+        "("
+        + ", ".join("N" if s is None else str(s) for s in shape)
+        + ("," if len(shape) == 1 else "")
+        + ")"
+    )
     try:
         arr = np.asarray(value, dtype=dtype)
     except (TypeError, ValueError):
-        raise RelcalError(
+        raise ArgumentError(
             f"{name}: expected numbers of shape {want}, got {describe(value)}"
             + (f"; {hint}" if hint else "")
         ) from None
     if arr.ndim != len(shape) or any(
         s is not None and n != s for n, s in zip(arr.shape, shape, strict=False)
     ):
-        raise RelcalError(
+        raise ArgumentError(
             f"{name}: expected shape {want}, got {describe(value)}" + (f"; {hint}" if hint else "")
         )
     if finite and arr.size and not np.isfinite(arr).all():
         ok = np.isfinite(arr).reshape(arr.shape[0], -1).all(axis=1) if arr.ndim else np.array([0])
         bad = np.flatnonzero(~ok)
         what = "entries" if arr.ndim <= 1 else "rows" if arr.ndim == 2 else "items"
-        raise RelcalError(
+        raise ArgumentError(
             f"{name}: {bad.size} of {len(ok)} {what} are not finite (NaN or infinite), the first "
             f"{name}[{int(bad[0])}]; missing or failed measurements? leave those samples out"
         )
@@ -132,7 +138,13 @@ def check_transform(value: Any, name: str) -> np.ndarray:
 
 def check_joints(q: Any, n_joints: int, name: str = "q", model: str = "") -> np.ndarray:
     """Joint values ``(N, n_joints)`` (a single ``(n_joints,)`` configuration is one row)."""
-    arr = np.asarray(q, dtype=float) if _regular(q) else q
+    if isinstance(q, np.ndarray) and q.dtype == float and q.ndim == 2 and q.shape[1] == n_joints:
+        if np.isfinite(q).all():  # the common case, fast: fk is a hot path
+            return q
+    try:
+        arr = np.asarray(q, dtype=float)
+    except (TypeError, ValueError):
+        arr = q
     if isinstance(arr, np.ndarray) and arr.ndim == 1:
         arr = arr[None, :]
     of = f" of the {n_joints}-joint robot{f' {model!r}' if model else ''}"
@@ -150,13 +162,13 @@ def check_pairs(pairs: Any, n_poses: int, name: str = "pairs") -> np.ndarray:
         pairs, name, (None, 2), hint="one row (i, j) per pair, e.g. make_pairs(N, 'all')"
     )
     if arr.size and not np.all(arr == np.round(arr)):
-        raise RelcalError(f"{name}: expected whole-number indices, got fractions")
+        raise ArgumentError(f"{name}: expected whole-number indices, got fractions")
     idx = arr.astype(int)
     if idx.size:
         bad = np.flatnonzero((idx < 0).any(axis=1) | (idx >= n_poses).any(axis=1))
         if bad.size:
             k = int(bad[0])
-            raise RelcalError(
+            raise ArgumentError(
                 f"{name}[{k}] = ({idx[k, 0]}, {idx[k, 1]}): an index out of range for {n_poses} "
                 f"poses (0 to {n_poses - 1}); {bad.size} pair(s) are; pairs made for another set "
                 "of poses?"
@@ -164,7 +176,7 @@ def check_pairs(pairs: Any, n_poses: int, name: str = "pairs") -> np.ndarray:
         same = np.flatnonzero(idx[:, 0] == idx[:, 1])
         if same.size:
             k = int(same[0])
-            raise RelcalError(
+            raise ArgumentError(
                 f"{name}[{k}] = ({idx[k, 0]}, {idx[k, 1]}): a pose paired with itself carries no "
                 "relative motion"
             )
@@ -189,12 +201,9 @@ def check_problem(problem) -> dict[str, Any]:
     """The checked and converted fields of a :class:`relcal.calibration.measurement.Problem`
     (called by its ``__post_init__``)."""
     from relcal.robot.kinematics import Layout
-    from relcal.robot.model import RobotModel
 
     p = "Problem"
-    check_instance(
-        problem.model, RobotModel, f"{p}.model", "a RobotModel (relcal.get_robot('a465'))"
-    )
+    check_model(problem.model, f"{p}.model")
     check_instance(problem.layout, Layout, f"{p}.layout", "a Layout (relcal.make_layout(model))")
     check_choice(problem.formulation, f"{p}.formulation", FORMULATIONS)
     check_choice(problem.measure, f"{p}.measure", MEASURES)
@@ -212,7 +221,7 @@ def check_problem(problem) -> dict[str, Any]:
         out["pairs"] = check_pairs(problem.pairs, n, f"{p}.pairs")
     pairs = len(out["pairs"]) if problem.pairs is not None else max(n - 1, 0)
     if problem.formulation in ("published", "invariant") and pairs == 0:
-        raise RelcalError(
+        raise ArgumentError(
             f"{p}: no pairs of poses ({n} poses); relative measurements need 2 or more"
         )
     out["handeye"] = check_transform(problem.handeye, f"{p}.handeye")
@@ -235,6 +244,9 @@ def check_problem(problem) -> dict[str, Any]:
 
 def check_errors(errors: Any, layout, name: str = "errors") -> np.ndarray:
     """A parameter vector of ``layout`` (``apply_errors``): one finite value per entry."""
+    from relcal.robot.kinematics import Layout
+
+    check_instance(layout, Layout, "layout", "a Layout (relcal.make_layout(model))")
     size = layout.size
     names = ", ".join(layout.names[:4]) + (", ..." if size > 4 else "")
     return check_array(
@@ -251,7 +263,7 @@ def check_dataset(dataset: Any, name: str = "dataset") -> Any:
     from relcal.data.dataset import Dataset
 
     if isinstance(dataset, str | Path):
-        raise RelcalError(
+        raise ArgumentError(
             f"{name}: expected a Dataset, got {describe(dataset)}: load the folder first, "
             f"relcal.load_dataset({str(dataset)!r})"
         )
@@ -279,7 +291,7 @@ def check_calibrate(
             measurements, Measurements, "measurements", "Measurements (relcal.measure(dataset))"
         )
         if len(measurements.ok) != len(dataset.ids):
-            raise RelcalError(
+            raise ArgumentError(
                 f"measurements: {len(measurements.ok)} samples, the dataset has "
                 f"{len(dataset.ids)}: measured from another dataset?"
             )
@@ -292,8 +304,20 @@ def check_calibrate(
     check_number(select_folds, "select_folds", 2, integer=True)
     if holdout_ids is not None:
         if isinstance(holdout_ids, str) or not all(isinstance(i, str) for i in holdout_ids):
-            raise RelcalError(
+            raise ArgumentError(
                 f"holdout_ids: expected a list of sample ids (strings), got "
                 f"{describe(holdout_ids)}"
                 + ("; a single id is ['s1'], not 's1'" if isinstance(holdout_ids, str) else "")
             )
+
+
+def check_model(model: Any, name: str = "model") -> Any:
+    """A :class:`relcal.robot.model.RobotModel`."""
+    from relcal.robot.model import RobotModel
+
+    if isinstance(model, str | Path):
+        raise ArgumentError(
+            f"{name}: expected a RobotModel, got {describe(model)}: load it first, "
+            f"relcal.get_robot({str(model)!r})"
+        )
+    return check_instance(model, RobotModel, name, "a RobotModel (relcal.get_robot('a465'))")

@@ -6,6 +6,11 @@ class RelcalError(Exception):
     """Bad input or a problem relcal cannot solve, explained for a person."""
 
 
+class ArgumentError(RelcalError, ValueError):
+    """A Python API argument of the wrong type, shape or value (:mod:`relcal.checks`): a
+    :class:`RelcalError` naming the argument, and a ``ValueError`` as Python code expects."""
+
+
 _BIDI = dict.fromkeys([*range(0x202A, 0x202F), *range(0x2066, 0x206A), 0x200E, 0x200F, 0x061C])
 
 

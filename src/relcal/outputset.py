@@ -349,9 +349,7 @@ def _temporaries(item: Folder | File) -> list[Path]:
 
     path = Path(os.path.abspath(item.path))
     name = re.escape(path.name)
-    pattern = re.compile(
-        rf"\.{name}\.tmp-(?:\d+-)?{_RANDOM}(?:-older)?|\.{name}\.{_RANDOM}\.tmp"
-    )
+    pattern = re.compile(rf"\.{name}\.tmp-(?:\d+-)?{_RANDOM}(?:-older)?|\.{name}\.{_RANDOM}\.tmp")
     try:
         entries = list(os.scandir(path.parent))
     except OSError:

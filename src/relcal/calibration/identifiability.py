@@ -323,6 +323,11 @@ def analyse_problem(
     ``handeye="known"`` the hand-eye columns of the frame-invariant formulation are left out (the
     transform is taken as given).
     """
+    from relcal.checks import check_choice, check_instance, check_number
+
+    check_instance(problem, Problem, "problem", "a Problem")
+    check_number(rcond, "rcond", 0, 1, low_open=True, high_open=True)
+    check_choice(handeye, "handeye", ("estimated", "known"))
     if jac is None:
         _, jac = residuals(problem, np.zeros(problem.full_layout.size))
     layout = problem.full_layout

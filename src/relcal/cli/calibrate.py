@@ -15,6 +15,7 @@ from relcal.cli.common import (
     positive_float,
     positive_int,
     registry_arg,
+    seed,
 )
 
 EPILOG = """\
@@ -94,6 +95,13 @@ def run_calibrate(args: argparse.Namespace) -> int:
     holdout_ids = _ids(args.holdout_ids) if args.holdout_ids else None
     destinations = _destinations(out, args.json, args.report)
     check(destinations)  # refuse before the work, not after it
+    if dataset.measured != "position":  # all pairs are quadratic: refused before measuring
+        from relcal.calibration.selection import candidate_model
+        from relcal.limits import check_calibration_memory
+        from relcal.robot.kinematics import make_layout
+
+        n_params = make_layout(candidate_model(dataset.model, args.nongeometric)).size + 6
+        check_calibration_memory(len(dataset.ids), args.pairs, n_params, str(dataset.root))
     # the registry opened, migrated and checked before any computation (the inputs are known
     # by now: an input is never turned into a database, nor is an output)
     registry = open_for_writing(args.registry, outputs=destinations)
@@ -253,7 +261,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         default=0.25,
         help="held-out share, 0 <= H < 1 (default 0.25; 0: no validation)",
     )
-    cp.add_argument("--seed", type=int, default=0, help="seed of the held-out split")
+    cp.add_argument("--seed", type=seed, default=0, help="seed of the held-out split")
     cp.add_argument(
         "--holdout-ids", help="validation samples by id: 'a,b,c' or '@file' (one id per line)"
     )

@@ -13,6 +13,7 @@ from relcal.cli.common import (
     output_folder,
     positive_int,
     registry_arg,
+    seed,
 )
 from relcal.fleet import ALPHA as DRIFT_ALPHA
 
@@ -172,7 +173,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     cp.add_argument(
         "--holdout", type=holdout_fraction, default=0.25, help="held-out share (default 0.25)"
     )
-    cp.add_argument("--seed", type=int, default=0, help="seed of the held-out split")
+    cp.add_argument("--seed", type=seed, default=0, help="seed of the held-out split")
     cp.add_argument("--pairs", choices=("consecutive", "star", "all"), default="all")
     cp.add_argument("--method", choices=("lm", "published"), default="lm")
     cp.add_argument("--loss", choices=("linear", "huber", "cauchy", "soft_l1"), default="linear")

@@ -143,6 +143,9 @@ def _resolve(root: Path, value: str | dict | None, loader, what: str, spec: Path
 
 def load_dataset(folder: str | Path) -> Dataset:
     """Read and check ``folder/dataset.yaml`` and its samples table."""
+    from relcal.checks import check_instance
+
+    check_instance(folder, str | Path, "folder", "a dataset folder path (str or Path)")
     root = Path(folder)
     spec_path = root / "dataset.yaml"
     if not root.is_dir():
