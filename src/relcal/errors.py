@@ -35,3 +35,18 @@ def excerpt(text: object, limit: int = 40) -> str:
     """A short quoted excerpt of file text for a message (``'ninety'``), never more than
     ``limit`` characters of it, control characters escaped."""
     return "'" + printable(str(text).replace("\n", " "), limit) + "'"
+
+
+# terminal-safe translation: C0 controls but tab, newline and carriage return (progress bars),
+# DEL, C1 controls and bidirectional overrides shown as escapes
+_TERMINAL = {
+    code: chr(code).encode("unicode_escape").decode("ascii")
+    for code in [*range(32), *range(0x7F, 0xA0), *_BIDI]
+    if chr(code) not in "\t\n\r"
+}
+
+
+def terminal_safe(text: str) -> str:
+    """``text`` with terminal control characters (escape sequences, bells, bidirectional
+    overrides) written as visible escapes; tabs, newlines and carriage returns kept."""
+    return text.translate(_TERMINAL)

@@ -154,34 +154,56 @@ def pair_count(n_samples: int, pairing: str) -> int:
     return max(n_samples - 1, 0)
 
 
-# Measured peak of `calibrate` on synthetic A465 sets with all pairs (42 + 6 parameters):
-# 163 MB at 100 samples, 345 MB at 300, 922 MB at 500 (6.3 KB per pair of the whole dataset:
-# residuals, Jacobians and their weighted copies, 3 x 8 bytes per row and parameter).
+# Measured peaks of a calibration and its results on synthetic A465 sets (42 + 6 parameters):
+# - all pairs: 163 MB at 100 samples, 345 MB at 300, 922 MB at 500: 6.3 KB per pair of the whole
+#   dataset (residuals, Jacobians and their weighted copies, 3 x 8 bytes per row and parameter);
+# - any pairing: the covariance whitens the noise of a chain through the training samples with a
+#   dense SVD of (6 n)^2 numbers: 1.55 GB at 1000 samples (750 training), about 8 such matrices.
+# The peak is the larger of the two (they come at different steps).
 PAIR_BYTES_PER_PARAMETER = 6 * 8 * 3
+CHAIN_COPIES = 8
 BASE_BYTES = 150 * 2**20
 
 
-def calibration_memory(n_samples: int, pairing: str, n_params: int) -> float:
-    """Estimated peak memory (bytes) of a calibration of ``n_samples`` samples with ``n_params``
-    parameters (geometry, non-geometric candidates and hand-eye) under ``pairing``."""
-    return BASE_BYTES + pair_count(n_samples, pairing) * n_params * PAIR_BYTES_PER_PARAMETER
+def calibration_memory(
+    n_samples: int, pairing: str, n_params: int, n_train: int | None = None
+) -> float:
+    """Estimated peak memory (bytes) of a calibration of ``n_samples`` samples (``n_train`` of
+    them training, default all) with ``n_params`` parameters (geometry, non-geometric candidates
+    and hand-eye) under ``pairing``."""
+    n_train = n_samples if n_train is None else n_train
+    pairs = pair_count(n_samples, pairing) * n_params * PAIR_BYTES_PER_PARAMETER
+    chain = CHAIN_COPIES * (6.0 * n_train) ** 2 * 8
+    return BASE_BYTES + max(pairs, chain)
 
 
-def check_calibration_memory(n_samples: int, pairing: str, n_params: int, where: str) -> None:
-    """Refuse a calibration whose pairs would not fit in the memory limit, before allocating
-    them, naming the sample count, the estimate and the remedy."""
-    need = calibration_memory(n_samples, pairing, n_params)
+def check_calibration_memory(
+    n_samples: int, pairing: str, n_params: int, where: str, n_train: int | None = None
+) -> None:
+    """Refuse a calibration whose pairs or covariance would not fit in the memory limit,
+    before allocating them, naming the sample count, the estimate and the remedy."""
+    need = calibration_memory(n_samples, pairing, n_params, n_train)
     pairs = pair_count(n_samples, pairing)
-    cheaper = calibration_memory(n_samples, "consecutive", n_params)
-    remedy = (
-        "use --pairs consecutive or --pairs star (pairing='consecutive' or 'star' in Python; "
-        f"{n_samples - 1:,} pairs, about {_size(cheaper)})"
-        if pairing == "all" and cheaper <= memory_limit()
-        else "use fewer samples"
+    limit = memory_limit()
+    n_train = n_samples if n_train is None else n_train
+    cheaper = calibration_memory(n_samples, "consecutive", n_params, n_train)
+    largest = ((max(limit - BASE_BYTES, 0) / (CHAIN_COPIES * 8)) ** 0.5) / 6  # training samples
+    fewer = (
+        f"calibrate at most about {int(largest * n_samples / max(n_train, 1)):,} samples (the "
+        "covariance of the estimate grows with the square of the training samples)"
     )
+    if pairing == "all":
+        remedy = (
+            "use --pairs consecutive or --pairs star (pairing='consecutive' or 'star' in Python; "
+            f"{max(n_samples - 1, 0):,} pairs, about {_size(cheaper)})"
+        )
+        if cheaper > limit:
+            remedy += f", which is still above the limit: {fewer}"
+    else:
+        remedy = fewer
     check_memory(
         need,
         f"{where}: {n_samples:,} samples with --pairs {pairing} ({pairs:,} pairs, {n_params} "
         "parameters)",
-        remedy + ", or raise RELCAL_MAX_MEMORY_MB if the machine has the memory",
+        remedy + "; or raise RELCAL_MAX_MEMORY_MB if the machine has the memory",
     )

@@ -80,8 +80,11 @@ def _sample_indices(dataset: Dataset, ids: Sequence[str]) -> np.ndarray:
     where = {sid: k for k, sid in enumerate(dataset.ids)}
     unknown = [sid for sid in ids if sid not in where]
     if unknown:
+        where = (dataset.spec_path.parent if dataset.spec_path else dataset.root).resolve()
+        numbered = dataset.ids == tuple(str(k + 1) for k in range(len(dataset.ids)))
+        how = " (no id column: the samples are numbered 1 to N by row)" if numbered else ""
         raise RelcalError(
-            f"held-out sample id(s) {', '.join(unknown[:5])} are not in {dataset.spec_path.parent}"
+            f"held-out sample id(s) {', '.join(map(str, unknown[:5]))} are not in {where}{how}"
         )
     return np.array(sorted(where[sid] for sid in ids), dtype=int)
 
@@ -174,7 +177,11 @@ def calibrate(
         )
     dataset = replace(dataset, model=candidate_model(dataset.model, nongeometric))
     check_calibration_memory(  # all pairs are quadratic: refused before they are formed
-        len(dataset.ids), pairing, make_layout(dataset.model).size + 6, str(dataset.root)
+        len(dataset.ids),
+        pairing,
+        make_layout(dataset.model).size + 6,
+        str(dataset.root),
+        len(train),
     )
     plausibility = check_dataset(dataset, measurements)  # a wrong unit, order or board size
     poses = measurements.poses

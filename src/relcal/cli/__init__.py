@@ -22,7 +22,7 @@ import signal  # noqa: E402
 import sys  # noqa: E402
 from collections.abc import Callable, Sequence  # noqa: E402
 
-from relcal.errors import RelcalError  # noqa: E402
+from relcal.errors import RelcalError, printable  # noqa: E402
 
 EXIT_CODES = {
     0: "ok",
@@ -56,8 +56,35 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+class _TerminalSafe:
+    """A text stream whose writes are made terminal-safe (:func:`relcal.errors.terminal_safe`):
+    text that came from files (ids, names, messages) cannot drive the terminal."""
+
+    def __init__(self, stream) -> None:
+        self._stream = stream
+
+    def write(self, text: str) -> int:
+        from relcal.errors import terminal_safe
+
+        self._stream.write(terminal_safe(text))
+        return len(text)
+
+    def __getattr__(self, name: str):
+        return getattr(self._stream, name)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
-    """Run one command; the one place where errors become messages and exit codes."""
+    """Run one command; the one place where errors become messages and exit codes. Everything
+    it prints is terminal-safe (control characters from files shown as escapes)."""
+    streams = sys.stdout, sys.stderr
+    sys.stdout, sys.stderr = _TerminalSafe(sys.stdout), _TerminalSafe(sys.stderr)
+    try:
+        return _main(argv)
+    finally:
+        sys.stdout, sys.stderr = streams
+
+
+def _main(argv: Sequence[str] | None) -> int:
     previous = signal.getsignal(signal.SIGTERM)
     in_main = _main_thread()
     if in_main:
@@ -112,7 +139,7 @@ def _run(argv: Sequence[str] | None) -> int:
         with tracking(), np.errstate(all="ignore"):
             return func(args)
     except RelcalError as exc:
-        print(f"relcal: error: {exc}", file=sys.stderr)
+        print(f"relcal: error: {printable(exc)}", file=sys.stderr)
         return 2
     except BrokenPipeError:  # the reader of our output went away (``relcal history | head``)
         try:

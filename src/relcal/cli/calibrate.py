@@ -85,6 +85,39 @@ def check_holdout(dataset, holdout: float, usable: int | None = None) -> None:
         )
 
 
+def id_origin(dataset) -> str:
+    """How a dataset's samples got their ids, for messages."""
+    ids = dataset.ids
+    where = dataset.spec_path.parent.resolve() if dataset.spec_path else dataset.root
+    if ids == tuple(str(k + 1) for k in range(len(ids))):
+        return (
+            f"{where} has {len(ids)} samples, numbered 1 to {len(ids)} in the order of their rows "
+            "(the samples table has no id column)"
+        )
+    shown = ", ".join(ids[:3]) + (f", ... {ids[-1]}" if len(ids) > 3 else "")
+    return f"{where} has {len(ids)} samples, ids {shown}"
+
+
+def check_holdout_ids(dataset, ids: list[str]) -> None:
+    """Every id of ``--holdout-ids`` names a sample, and enough are left to calibrate."""
+    from relcal.errors import RelcalError, excerpt
+
+    if not ids:
+        raise RelcalError("--holdout-ids: no ids given ('a,b,c' or '@file', one id per line)")
+    known = set(dataset.ids)
+    unknown = [i for i in ids if i not in known]
+    if unknown:
+        names = ", ".join(excerpt(i, 30) for i in unknown[:5])
+        more = f" and {len(unknown) - 5} more" if len(unknown) > 5 else ""
+        raise RelcalError(f"--holdout-ids: no sample {names}{more}: {id_origin(dataset)}")
+    left = len(known - set(ids))
+    if left < 4:
+        raise RelcalError(
+            f"--holdout-ids: {len(set(ids))} of {len(known)} samples held out, leaving {left} to "
+            "calibrate (at least 4 are needed); hold out fewer"
+        )
+
+
 def run_calibrate(args: argparse.Namespace) -> int:
     from relcal.data.dataset import load_dataset
     from relcal.fleet.registry import open_for_writing
@@ -101,7 +134,9 @@ def run_calibrate(args: argparse.Namespace) -> int:
         from relcal.robot.kinematics import make_layout
 
         n_params = make_layout(candidate_model(dataset.model, args.nongeometric)).size + 6
-        check_calibration_memory(len(dataset.ids), args.pairs, n_params, str(dataset.root))
+        n = len(dataset.ids)
+        held = len(set(holdout_ids)) if holdout_ids else round(args.holdout * n)
+        check_calibration_memory(n, args.pairs, n_params, str(dataset.root), n - held)
     # the registry opened, migrated and checked before any computation (the inputs are known
     # by now: an input is never turned into a database, nor is an output)
     registry = open_for_writing(args.registry, outputs=destinations)
@@ -122,6 +157,8 @@ def _calibrate(args, dataset, out, holdout_ids, registry) -> int:
     check_kfold(dataset, args.kfold)
     if holdout_ids is None:
         check_holdout(dataset, args.holdout)
+    else:
+        check_holdout_ids(dataset, holdout_ids)
     m = measure(dataset, workers=args.workers, progress=not args.quiet, max_rms=args.max_rms)
     check_kfold(dataset, args.kfold, int(m.ok.sum()))
     if holdout_ids is None:
@@ -191,12 +228,16 @@ def _ids(text: str) -> list[str]:
     if text.startswith("@"):
         from relcal.errors import RelcalError
         from relcal.io import note_input
+        from relcal.limits import check_input_size
 
         note_input(text[1:])
+        check_input_size(text[1:], "text")
         try:
-            lines = Path(text[1:]).read_text().splitlines()
+            lines = Path(text[1:]).read_text(encoding="utf-8-sig").splitlines()
+        except UnicodeDecodeError:
+            raise RelcalError(f"--holdout-ids {text}: not a text file (one id per line)") from None
         except OSError as exc:
-            raise RelcalError(f"--holdout-ids {text}: cannot read: {exc}") from None
+            raise RelcalError(f"--holdout-ids {text}: cannot read: {exc.strerror or exc}") from None
         return [line.strip() for line in lines if line.strip()]
     return [t.strip() for t in text.split(",") if t.strip()]
 

@@ -21,7 +21,8 @@
       angle_deg: 2             #   of a joint offset or twist
     robot_id: cell4-arm2       # optional: which physical robot (history); default folder name
 
-``samples.csv`` has a header: ``id`` (optional: without it a sample's id is its line number), one
+``samples.csv`` has a header: ``id`` (optional: without it the samples are numbered 1, 2, ... in
+the order of their rows, blank lines not counted), one
 column per joint, named ``q1`` .. ``qn`` or by the model's joint names (``torso_lift_joint``, ...,
 matched by name in any order), then what was measured, one of:
 
@@ -45,10 +46,10 @@ import pydantic
 from scipy.spatial.transform import Rotation
 
 from relcal import geometry as tf
-from relcal.errors import RelcalError
+from relcal.errors import RelcalError, excerpt, printable
 from relcal.io import load_yaml, note_input, read_table, validate
 from relcal.robot.loading import get_robot
-from relcal.robot.model import RobotModel, auto_hayati, model_from_dict
+from relcal.robot.model import RobotModel, auto_hayati, library_names, model_from_dict
 
 POSE_COLUMNS = ("x", "y", "z", "qx", "qy", "qz", "qw")
 RPY_COLUMNS = ("x", "y", "z", "roll", "pitch", "yaw")
@@ -151,6 +152,11 @@ def load_dataset(folder: str | Path) -> Dataset:
     if not root.is_dir():
         raise RelcalError(f"{root}: not a dataset folder (expected a folder with dataset.yaml)")
     data, node = load_yaml(spec_path)
+    if data is None:
+        raise RelcalError(
+            f"{spec_path}: empty; expected at least 'robot: NAME' (a built-in robot or a model "
+            "file) and, if the samples are not in samples.csv, 'samples: FILE'"
+        )
     spec = validate(_DatasetSpec, data, spec_path, node)
 
     model = _robot(root, spec.robot, spec_path, node)
@@ -206,11 +212,24 @@ def _robot(root: Path, value: str | dict, spec_path: Path, node) -> RobotModel:
         sub = node.value if node is not None else None
         robot_node = next((v for k, v in sub or [] if getattr(k, "value", None) == "robot"), None)
         spec = validate(_UrdfRobot, value, f"{spec_path}: robot", robot_node)
+        if Path(spec.urdf).suffix.lower() not in (".urdf", ".xml"):
+            raise RelcalError(
+                f"{spec_path}: robot: urdf: {excerpt(spec.urdf, 80)}: not a URDF file name "
+                "(.urdf or .xml); relcal reads no other file as a robot"
+            )
         return load_urdf(root / spec.urdf, spec.root, spec.tip, spec.parametrisation)
     if isinstance(value, dict):
         return model_from_dict(value, f"{spec_path}: robot")
-    path = root / value
-    return get_robot(path if path.suffix.lower() in (".yaml", ".yml", ".urdf") else value)
+    suffix = Path(value).suffix.lower()
+    if suffix in (".yaml", ".yml", ".urdf", ".xacro"):
+        return get_robot(root / value)  # a model file, relative to the dataset folder
+    if value.lower() in library_names():
+        return get_robot(value.lower())
+    raise RelcalError(
+        f"{spec_path}: robot: {excerpt(value, 80)}: neither a built-in robot "
+        f"({', '.join(library_names())}) nor a model file (.yaml, .yml or .urdf, relative to "
+        "the dataset folder); relcal reads no other file as a robot"
+    )
 
 
 def _board(root: Path, value, spec_path: Path, load_board):
@@ -269,9 +288,14 @@ def _rename(path: Path, header: list[str], columns: dict[str, str], model: Robot
         raise RelcalError(
             f"{path} line 1: header: dataset.yaml columns: maps to "
             f"{', '.join(repr(m) for m in missing)}, which the header lacks (it has "
-            f"{', '.join(header)})"
+            f"{_header_text(header)})"
         )
     return [inverse.get(h, h) for h in header]
+
+
+def _header_text(header: list[str]) -> str:
+    """A header's names for a message: escaped, and not more than a line of them."""
+    return printable(", ".join(header), 200)
 
 
 def _joint_columns(path: Path, header: list[str], model: RobotModel) -> list[str]:
@@ -319,7 +343,7 @@ def _measured_columns(path: Path, header: list[str]) -> tuple[Measured, tuple[st
         raise RelcalError(
             f"{path} line 1: header: expected an 'image' column, or a pose "
             f"{', '.join(POSE_COLUMNS)} or {', '.join(RPY_COLUMNS)}, or a position x, y, z "
-            f"(exactly one of these; the header has {', '.join(header)}); map other names in "
+            f"(exactly one of these; the header has {_header_text(header)}); map other names in "
             "dataset.yaml, e.g. columns: {x: x1, y: y1, z: z1}"
         )
     return found[0]
@@ -344,16 +368,20 @@ def read_sample_table(
     has_id = "id" in col
     ids, q, images, values, seen = [], [], [], [], {}
     lines = []
-    for row in data:
+    for number, row in enumerate(data, start=1):
         line_no = row.line
         lines.append(line_no)
         if len(row) != len(header):
             raise RelcalError(
                 f"{path} line {line_no}: {len(row)} fields, expected {len(header)} as in the header"
             )
-        sid = row[col["id"]].strip() if has_id else str(line_no)
+        sid = row[col["id"]].strip() if has_id else str(number)  # no id column: rows 1..N
+        if has_id and not sid:
+            raise RelcalError(f"{path} line {line_no}: id: empty; give every sample an id")
         if sid in seen:
-            raise RelcalError(f"{path} line {line_no}: id '{sid}' duplicates line {seen[sid]}")
+            raise RelcalError(
+                f"{path} line {line_no}: id {excerpt(sid)} duplicates line {seen[sid]}"
+            )
         seen[sid] = line_no
         ids.append(sid)
         q.append([parse_number(path, line_no, c, row[col[c]]) for c in joints])
@@ -364,6 +392,7 @@ def read_sample_table(
             images.append(path.parent / name)
         else:
             values.append([parse_number(path, line_no, c, row[col[c]]) for c in meas_cols])
+    _no_repeated_samples(path, ids, lines, q, images if measured == "image" else values)
     q_arr = _joint_values(path, np.array(q, dtype=float), model, joint_unit)
     pose_arr = None
     if measured == "image":
@@ -387,6 +416,29 @@ def read_sample_table(
     )
 
 
+def _no_repeated_samples(path: Path, ids, lines, q, measured) -> None:
+    """Refuse rows that repeat another row's joints and measurement exactly: a sample recorded
+    (or copied) twice, which weighs twice in the fit, and whose held-out copy of a training
+    sample would flatter the validation."""
+    first: dict[tuple, int] = {}
+    repeats = []
+    for k, (joints, meas) in enumerate(zip(q, measured, strict=True)):
+        key = (tuple(joints), str(meas) if isinstance(meas, Path) else tuple(meas))
+        if key in first:
+            repeats.append((k, first[key]))
+        else:
+            first[key] = k
+    if repeats:
+        k, j = repeats[0]
+        raise RelcalError(
+            f"{path} line {lines[k]}: sample {excerpt(ids[k])} repeats line {lines[j]} (sample "
+            f"{excerpt(ids[j])}): the same joints and measurement; {len(repeats)} of {len(ids)} "
+            "rows repeat an earlier one (a sample recorded or copied twice counts twice, and a "
+            "held-out copy of a training sample would flatter the validation): remove the "
+            "repeated rows"
+        )
+
+
 def parse_number(path: Path, line_no: int, column: str, text: str) -> float:
     """A finite float from a CSV cell; errors name the file, the line and the column."""
     try:
@@ -394,7 +446,7 @@ def parse_number(path: Path, line_no: int, column: str, text: str) -> float:
     except ValueError:
         hint = " (a decimal comma? write 0.5, not 0,5)" if "," in text else ""
         raise RelcalError(
-            f"{path} line {line_no}: {column}: expected a number, got '{text.strip()}'{hint}"
+            f"{path} line {line_no}: {column}: expected a number, got {excerpt(text.strip())}{hint}"
         ) from None
     if not np.isfinite(value):
         raise RelcalError(f"{path} line {line_no}: {column}: expected a finite number, got {text}")
