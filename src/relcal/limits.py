@@ -108,8 +108,8 @@ def check_yaml_nodes(path: str | Path, root) -> None:
             if size[key] - len(size) > bound:
                 raise RelcalError(
                     f"{path}: YAML aliases (*name) expand this document beyond "
-                    f"{len(size) + bound:,} values (it has {len(size):,} of its own): refused "
-                    "(a 'billion laughs' file?); write the values out, or raise "
+                    f"{len(size) + bound:,} values from {len(size):,} written out: refused (a "
+                    "'billion laughs' file?); write the values out, or raise "
                     "RELCAL_MAX_YAML_ALIAS_NODES"
                 )
             continue

@@ -212,10 +212,21 @@ def calibrate(
     geometric = geometric_columns(problem, ident.subset)
     full = _fit(problem, ident, geometric, "plain", method, DETECTION_LOSS)
     outliers = outlier_samples(_normalised(pair_errors(problem, full.params)), problem.pairs)
+    # gross outliers bend the fit and can hide others: look again without the ones found, until
+    # no more are (a few rounds at most)
+    kept, dropped = np.arange(len(train)), np.zeros(0, dtype=int)
+    for _ in range(4):
+        if not outliers.size or len(kept) - len(outliers) < 4:
+            break
+        dropped, kept = np.concatenate([dropped, kept[outliers]]), np.delete(kept, outliers)
+        problem = problem_on(train[kept])
+        full = _fit(problem, ident, geometric, "plain", method, DETECTION_LOSS, initial=full.params)
+        outliers = outlier_samples(_normalised(pair_errors(problem, full.params)), problem.pairs)
+    outliers = np.sort(dropped)
     outlier_ids = tuple(dataset.ids[train[i]] for i in outliers)
     if reject_outliers and outliers.size:
         train = np.delete(train, outliers)
-        problem = problem_on(train)
+    problem = problem_on(train)
     if (reject_outliers and outliers.size) or loss != DETECTION_LOSS:
         full = _fit(problem, ident, geometric, "plain", method, loss, initial=full.params)
 
@@ -254,7 +265,9 @@ def calibrate(
     validation = None
     if len(test) >= 2:
         everything = problem_on(np.arange(len(dataset.ids)))
-        validation = held_out(everything, result, test, baseline=baseline)
+        validation = held_out(
+            everything, result, test, baseline=baseline, train=train if reject_outliers else None
+        )
     settings = {
         "holdout_fraction": holdout,
         "seed": seed,

@@ -205,7 +205,9 @@ def calibrate_points(
     validation = None
     if len(test) >= 1:
         everything = replace(problem, q=dataset.q, poses=measurements.poses)
-        validation = held_out(everything, result, test, baseline=baseline)
+        validation = held_out(
+            everything, result, test, baseline=baseline, train=train if reject_outliers else None
+        )
     settings = {
         "holdout_fraction": holdout,
         "seed": seed,

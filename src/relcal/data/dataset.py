@@ -48,6 +48,7 @@ from scipy.spatial.transform import Rotation
 from relcal import geometry as tf
 from relcal.errors import RelcalError, excerpt, printable
 from relcal.io import load_yaml, note_input, read_table, validate
+from relcal.limits import check_input_size
 from relcal.robot.loading import get_robot
 from relcal.robot.model import RobotModel, auto_hayati, library_names, model_from_dict
 
@@ -74,6 +75,7 @@ class _Tolerances(pydantic.BaseModel):
     rotation_deg: pydantic.PositiveFloat | None = None
     scale_percent: pydantic.PositiveFloat | None = None
     joint_limit_deg: pydantic.PositiveFloat | None = None
+    translation_mm: pydantic.PositiveFloat | None = None
 
 
 class _UrdfRobot(pydantic.BaseModel):
@@ -131,6 +133,8 @@ class Dataset:
     tolerances: dict[str, float] | None = None  # plausibility thresholds (mm, deg, percent)
     measured: Measured = "image"  # or "pose"; "position": poses hold points (rotation unused)
     robot_id: str | None = None  # ``robot_id`` of dataset.yaml (the folder name when absent)
+    joint_unit: str | None = None  # as declared in dataset.yaml (the diagnoses name it)
+    pose_angle_unit: str | None = None  # as declared, when the poses came as roll, pitch, yaw
 
 
 def _resolve(root: Path, value: str | dict | None, loader, what: str, spec: Path):
@@ -200,6 +204,8 @@ def load_dataset(folder: str | Path) -> Dataset:
         tolerances,
         table.measured,
         robot_id=spec.robot_id or root.resolve().name,
+        joint_unit=spec.joint_unit,
+        pose_angle_unit=spec.pose_angle_unit if table.rpy else None,
     )
 
 
@@ -260,6 +266,7 @@ class SampleTable:
     images: tuple[Path, ...] | None
     poses: np.ndarray | None
     measured: Measured
+    rpy: bool = False  # the poses came as roll, pitch, yaw
 
 
 def read_samples(
@@ -404,6 +411,7 @@ def read_sample_table(
             if not image.is_file():
                 raise RelcalError(f"{path} line {line_no}: image: file not found: {image}")
             note_input(image)
+            check_input_size(image, "image")
     elif meas_cols == POSE_COLUMNS:
         pose_arr = _poses(path, np.array(values), lines)
     elif meas_cols == RPY_COLUMNS:
@@ -412,7 +420,12 @@ def read_sample_table(
         pose_arr = np.broadcast_to(np.eye(4), (len(values), 4, 4)).copy()
         pose_arr[:, :3, 3] = values
     return SampleTable(
-        tuple(ids), q_arr, tuple(images) if measured == "image" else None, pose_arr, measured
+        tuple(ids),
+        q_arr,
+        tuple(images) if measured == "image" else None,
+        pose_arr,
+        measured,
+        meas_cols == RPY_COLUMNS,
     )
 
 
@@ -461,12 +474,12 @@ def _joint_values(path: Path, q: np.ndarray, model: RobotModel, unit: str) -> np
         if unit == "rad" and peak > 2 * np.pi + 0.1:
             raise RelcalError(
                 f"{path}: joint angles reach {peak:.1f}, which looks like degrees, but "
-                "dataset.yaml declares joint_unit: rad"
+                "dataset.yaml declares joint_unit: rad (fix: joint_unit: deg)"
             )
         if unit == "deg" and len(q) >= 5 and peak < np.pi + 0.05 and np.abs(q).mean() > 1e-3:
             raise RelcalError(
                 f"{path}: no joint angle exceeds {peak:.2f}, which looks like radians, but "
-                "dataset.yaml declares joint_unit: deg"
+                "dataset.yaml declares joint_unit: deg (fix: joint_unit: rad)"
             )
     return joints_from_unit(model, q, unit)
 
@@ -544,7 +557,13 @@ def _rpy_poses(path: Path, values: np.ndarray, unit: str) -> np.ndarray:
     if unit == "rad" and len(rpy) and np.abs(rpy).max() > 2 * np.pi + 0.1:
         raise RelcalError(
             f"{path}: roll, pitch, yaw reach {np.abs(rpy).max():.1f}, which looks like degrees, "
-            "but dataset.yaml declares pose_angle_unit: rad (the default)"
+            "but dataset.yaml declares pose_angle_unit: rad (the default; fix: "
+            "pose_angle_unit: deg)"
+        )
+    if unit == "deg" and len(rpy) >= 5 and np.abs(rpy).max() < np.pi + 0.05:
+        raise RelcalError(
+            f"{path}: roll, pitch, yaw never exceed {np.abs(rpy).max():.2f}, which looks like "
+            "radians, but dataset.yaml declares pose_angle_unit: deg (fix: pose_angle_unit: rad)"
         )
     if unit == "deg":
         rpy = np.radians(rpy)

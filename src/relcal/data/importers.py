@@ -192,6 +192,10 @@ def import_rct_images(
         images.append(image)
     poses = np.array(poses)
     spec, q = pose_chain_joints(poses, poses[0])
+    from relcal.limits import check_input_size
+
+    for image in images:
+        check_input_size(image, "image")
     first = cv2.imread(str(images[0]), cv2.IMREAD_UNCHANGED)
     if first is None:
         raise RelcalError(f"{images[0]}: not an image OpenCV can read")
