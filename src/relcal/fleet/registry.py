@@ -347,9 +347,9 @@ def _check_database(conn: sa.Connection, name: str) -> None:
     if conn.dialect.name == "sqlite":
         result = conn.execute(sa.text("PRAGMA quick_check")).scalars().all()
         if result != ["ok"]:
+            first = str(result[0]).strip().splitlines()[0] if result else "no answer"
             raise RelcalError(
-                f"corrupt SQLite database ({'; '.join(map(str, result[:3]))}); restore it from a "
-                "backup or give a new file"
+                f"corrupt SQLite database ({first}); restore it from a backup or give a new file"
             )
     tables = set(sa.inspect(conn).get_table_names())
     revision = MigrationContext.configure(conn).get_current_revision()
