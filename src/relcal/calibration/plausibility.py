@@ -236,7 +236,8 @@ def position_problems(poses: np.ndarray, ids: Sequence[str]) -> list[str]:
     if median > 20.0:
         return [
             f"poses look like millimetres: the median distance is {median:.4g} m (a camera and "
-            f"board within a cell are metres apart); give x, y, z in metres"
+            f"board within a cell are metres apart); give x, y, z in metres (fix: x, y, z "
+            "divided by 1000)"
         ]
     bad = np.flatnonzero(dist > max(1e3, 100 * median))
     if bad.size:
@@ -739,14 +740,21 @@ def scale_message(ratio: float, board, poses_given: bool) -> str:
     """Name the likely cause of measured translations ``ratio`` times the modelled ones."""
     head = f"measured translations are {ratio:.4g}x the modelled ones"
     if 300 < ratio < 3000:
-        return f"poses look like millimetres ({head}); give x, y, z in metres"
+        return (
+            f"poses look like millimetres ({head}); give x, y, z in metres (fix: x, y, z divided "
+            "by 1000)"
+        )
     if 0.0003 < ratio < 0.003:
-        return f"the robot model looks like millimetres ({head}); give lengths in metres"
+        return (
+            f"the robot model looks like millimetres ({head}); give lengths in metres (fix: the "
+            "model's lengths divided by 1000)"
+        )
     if board is not None and not poses_given:
         what = "square" if board.type in ("chessboard", "charuco") else "spacing"
         return (
             f"board {what} looks {ratio:.3g}x the true size ({head}): {what} "
-            f"{board.spacing:.6g} m in the board file, the data say {board.spacing / ratio:.4g} m"
+            f"{board.spacing:.6g} m in the board file, the data say {board.spacing / ratio:.4g} m "
+            f"(fix: measure the printed board; {what} {board.spacing / ratio:.4g} m if it agrees)"
         )
     return f"{head}: a wrong length unit or scale of the poses, or a wrong robot model"
 

@@ -447,8 +447,8 @@ def _no_repeated_samples(path: Path, ids, lines, q, measured) -> None:
             f"{path} line {lines[k]}: sample {excerpt(ids[k])} repeats line {lines[j]} (sample "
             f"{excerpt(ids[j])}): the same joints and measurement; {len(repeats)} of {len(ids)} "
             "rows repeat an earlier one (a sample recorded or copied twice counts twice, and a "
-            "held-out copy of a training sample would flatter the validation): remove the "
-            "repeated rows"
+            "held-out copy of a training sample would flatter the validation; fix: remove the "
+            "repeated rows)"
         )
 
 
