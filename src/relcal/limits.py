@@ -68,10 +68,14 @@ def check_input_size(path: str | Path, kind: str) -> None:
     cap = input_cap(kind)
     if size > cap:
         raise RelcalError(
-            f"{path}: {size / MB:,.1f} MB, above the {cap / MB:,.0f} MB limit for {kind} input "
+            f"{path}: {_megabytes(size)}, above the {_megabytes(cap)} limit for {kind} input "
             f"files (not read); a wrong file? If it is right, raise the limit with "
             f"RELCAL_MAX_{kind.upper()}_MB"
         )
+
+
+def _megabytes(n: float) -> str:
+    return f"{n / MB:,.1f} MB" if n >= MB else f"{n / 1000:,.1f} kB"
 
 
 def check_yaml_nodes(path: str | Path, root) -> None:
