@@ -353,3 +353,37 @@ def test_ids_without_an_id_column_are_row_numbers(right, tmp_path, capsys):
     assert main([*argv, "--holdout-ids", "61"]) == 2
     err = capsys.readouterr().err
     assert str(root.resolve()) in err and "numbered 1 to 60" in err and "no id column" in err
+
+
+RCT_OBSERVATION = """\
+'{k}':
+  camera_joints: []
+  pose: {{qw: {qw}, qx: 0.0, qy: 0.0, qz: 0.0, x: 0.1, y: 0.{k}, z: 0.9}}
+  target_joints: {joints}
+"""
+
+
+@pytest.mark.parametrize(
+    ("qw", "joints", "expect"),
+    [
+        (0.0, "[0.1, 0.2]", ("observation '3'", "unit quaternion", "norm is 0")),
+        (2.0, "[0.1, 0.2]", ("observation '3'", "unit quaternion", "norm is 2")),
+        (1.0, "[0.1, 0.2, 0.3]", ("observation '3'", "target_joints: 3 values", "has 2")),
+    ],
+)
+def test_importers_name_the_observation_at_fault(tmp_path, capsys, qw, joints, expect):
+    """A wrong observation in robot_cal_tools' file is named there, not later in the written
+    samples.csv (or as an internal error of a zero quaternion)."""
+    text = "".join(
+        RCT_OBSERVATION.format(k=k, qw=qw if k == 3 else 1.0, joints=joints if k == 3 else "[0, 0]")
+        for k in range(1, 6)
+    )
+    (tmp_path / "m.yaml").write_text(text)
+    assert (
+        main(["import", "rct-positioner", str(tmp_path / "m.yaml"), "--out", str(tmp_path / "o")])
+        == 2
+    )
+    err = capsys.readouterr().err
+    for part in expect:
+        assert part in err, err
+    assert not (tmp_path / "o").exists()

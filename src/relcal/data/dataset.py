@@ -18,7 +18,8 @@
     samples: samples.csv
     tolerances:                # optional plausibility thresholds (defaults shown)
       length_mm: 10            #   largest identified correction of a link length
-      angle_deg: 2             #   of a joint offset or twist
+      angle_deg: 5             #   of a joint offset or twist
+      translation_mm: 100      #   median relative-translation misfit of the data (see plausibility)
     robot_id: cell4-arm2       # optional: which physical robot (history); default folder name
 
 ``samples.csv`` has a header: ``id`` (optional: without it the samples are numbered 1, 2, ... in
