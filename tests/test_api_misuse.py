@@ -135,11 +135,17 @@ MISUSE.update(
             lambda a: problem(a, poses=np.full((8, 4, 4), np.nan))(),
             ("poses", "8 of 8", "not finite"),
         ),
-        "problem-one-nan-pose": (
+        "identify-a-nan-pose-in-a-pair": (
+            lambda a: relcal.identify(
+                problem(a, poses=np.where(np.arange(8)[:, None, None] == 5, np.nan, a["poses"]))()
+            ),
+            ("poses[5]", "not finite"),
+        ),
+        "problem-a-partly-nan-pose": (
             lambda a: problem(
-                a, poses=np.where(np.arange(8)[:, None, None] == 5, np.nan, a["poses"])
+                a, poses=np.where(np.arange(16).reshape(4, 4) == 3, np.nan, a["poses"])
             )(),  # noqa: E501
-            ("poses[5]",),
+            ("poses", "8 of 8", "not finite"),
         ),
         "problem-pair-out-of-range": (
             lambda a: problem(a, pairs=np.array([[0, 1], [2, 8]]))(),

@@ -211,12 +211,24 @@ def check_problem(problem) -> dict[str, Any]:
     out: dict[str, Any] = {}
     q = out["q"] = check_joints(problem.q, model.n_joints, f"{p}.q", model.name)
     n = len(q)
-    out["poses"] = check_array(
+    poses = out["poses"] = check_array(
         problem.poses,
         f"{p}.poses",
         (n, 4, 4),
+        finite=False,
         hint=f"one 4x4 measured pose per row of q ({n})",
     )
+    # a pose that is wholly NaN is a sample without a measurement (a rejected frame): allowed
+    # in a problem as long as no measurement uses it (:func:`check_measured`); a partly finite
+    # pose, or no finite pose at all, is wrong data
+    finite = np.isfinite(poses).reshape(n, -1)
+    partial = np.flatnonzero(finite.any(axis=1) & ~finite.all(axis=1))
+    if partial.size or (n and not finite.any()):
+        bad = np.flatnonzero(~finite.all(axis=1))
+        raise ArgumentError(
+            f"{p}.poses: {bad.size} of {n} items are not finite (NaN or infinite), the first "
+            f"{p}.poses[{int(bad[0])}]; missing or failed measurements? leave those samples out"
+        )
     if problem.pairs is not None:
         out["pairs"] = check_pairs(problem.pairs, n, f"{p}.pairs")
     pairs = len(out["pairs"]) if problem.pairs is not None else max(n - 1, 0)
@@ -321,3 +333,21 @@ def check_model(model: Any, name: str = "model") -> Any:
             f"relcal.get_robot({str(model)!r})"
         )
     return check_instance(model, RobotModel, name, "a RobotModel (relcal.get_robot('a465'))")
+
+
+def check_measured(problem) -> None:
+    """Every pose a measurement of ``problem`` uses is finite (``identify``): a sample without a
+    measurement (a wholly NaN pose) may sit in a problem, not in its pairs."""
+    n = len(problem.q)
+    if problem.formulation in ("absolute", "tracker"):
+        used = np.arange(n)
+    else:
+        used = np.unique(problem.pair_indices())
+    finite = np.isfinite(problem.poses[used]).reshape(len(used), -1).all(axis=1)
+    if not finite.all():
+        bad = used[~finite]
+        raise ArgumentError(
+            f"Problem.poses: {bad.size} of the {len(used)} poses the measurements use are not "
+            f"finite, the first Problem.poses[{int(bad[0])}]; leave samples without a "
+            "measurement out of the pairs"
+        )

@@ -546,9 +546,10 @@ def identify(
 ) -> Result:
     """Identify the parameters of ``problem`` as ``options`` say (default: Levenberg-Marquardt,
     linear loss). ``identifiability``: the analysis at the nominal model, if the caller has it."""
-    from relcal.checks import check_instance
+    from relcal.checks import check_instance, check_measured
 
     check_instance(problem, Problem, "problem", "a Problem (relcal.Problem(model, layout, ...))")
+    check_measured(problem)
     if options is not None:
         check_instance(options, SolverOptions, "options", "SolverOptions(method=..., loss=...)")
     o = options or SolverOptions()

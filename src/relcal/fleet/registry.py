@@ -353,8 +353,13 @@ def _check_database(conn: sa.Connection, name: str) -> None:
             )
     tables = set(sa.inspect(conn).get_table_names())
     revision = MigrationContext.configure(conn).get_current_revision()
-    if revision is None and tables - {"alembic_version"}:
-        shown = ", ".join(sorted(tables)[:5])
+    # a SQLite file is one program's; a server database may hold other programs' tables beside
+    # relcal's, but not a calibrations table relcal did not make
+    foreign = (
+        tables - {"alembic_version"} if conn.dialect.name == "sqlite" else tables & {"calibrations"}
+    )
+    if revision is None and foreign:
+        shown = ", ".join(sorted(foreign)[:5])
         raise RelcalError(
             f"a database of another program (tables {shown}), not a relcal registry; give a new "
             "file or an existing registry"
