@@ -1,7 +1,8 @@
 """Fleet rows of ``make bench``: 40 synthetic sessions calibrated on a local Dask cluster.
 
-- one session's cost in this process (``calibrate_session``: load, calibrate, write outputs, the
-  registry record), as sessions per minute;
+- one session's cost in this process (``calibrate_session``: load, calibrate, the outputs'
+  files; ``install_session``: the set installed, as the fleet's client does), as sessions per
+  minute;
 - the fleet of 40 sessions on 1 local worker process against that serial loop (what Dask costs);
 - the fleet on 2 worker processes against 1 (goal 1.7x on 2 cores);
 - Dask's overhead per task: the round trip of a no-op task on the 2-worker cluster, against one
@@ -67,7 +68,7 @@ def fleet_seconds(sessions, workers: int, out: Path) -> tuple[float, float | Non
 def run() -> list[dict]:
     from montecarlo import parallel_capacity  # the cores busy processes get, checked the same way
 
-    from relcal.fleet.runner import calibrate_session
+    from relcal.fleet.runner import calibrate_session, install_session
 
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
@@ -79,6 +80,7 @@ def run() -> list[dict]:
             for s in sessions:
                 out = str(tmp / f"serial{repeat}" / s.name)
                 entry = calibrate_session(str(s.path), s.name, out)
+                install_session(entry)
                 assert entry["status"] == "ok", entry
             serial = min(serial, time.perf_counter() - started)
         one, _ = fleet_seconds(sessions, 1, tmp / "one")

@@ -14,7 +14,7 @@ def test_pairing_strategies():
     assert make_pairs(5).tolist() == [[0, 1], [1, 2], [2, 3], [3, 4]]
     assert make_pairs(4, "star", reference=2).tolist() == [[2, 0], [2, 1], [2, 3]]
     assert len(make_pairs(6, "all")) == 15
-    with pytest.raises(ValueError, match="unknown pairing"):
+    with pytest.raises(ValueError, match="pairing: unknown str .ring."):
         make_pairs(3, "ring")
 
 

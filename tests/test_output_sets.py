@@ -17,6 +17,7 @@ from helpers_dataset import synthetic_dataset
 from relcal import outputset
 from relcal.calibration import pipeline
 from relcal.cli import main
+from relcal.errors import RelcalError
 from relcal.io import File, Folder, write_set
 from relcal.outputset import MARKER
 from relcal.reporting.outputs import RUN_ID_PREFIX
@@ -144,38 +145,165 @@ def _set_files(run: str) -> dict[str, str]:
     }
 
 
-def test_a_crash_at_any_step_of_the_write_leaves_one_whole_set(tmp_path, monkeypatch):
-    """Each file-system step of a write (file written, fsync, rename) fails in turn: the folder
-    holds the old set or the new one, whole, every time."""
-    out = tmp_path / "cal"
-    write_set(Folder(out, _set_files("old"), run_id="old"))
-    steps = {"n": 0, "fail_at": -1}
+STEPS = ("_write_bytes", "_fsync_path", "_exchange", "_flock")
 
-    def failing(fn):
+
+def _count_steps(monkeypatch, on_step, names=STEPS[:-1]) -> dict:
+    """Route every file-system step of a write (file written, fsync, exchange, rename; not the
+    locks, whose failures only mean no lock) through ``on_step(n)``, ``n`` counting from 1."""
+    steps = {"n": 0}
+
+    def counted(fn):
         def wrapped(*args, **kwargs):
             steps["n"] += 1
-            if steps["n"] == steps["fail_at"]:
-                raise KeyboardInterrupt  # a crash right here
+            on_step(steps["n"])
             return fn(*args, **kwargs)
 
         return wrapped
 
-    for name in ("_write_bytes", "_fsync_path", "_exchange"):
-        monkeypatch.setattr(outputset, name, failing(getattr(outputset, name)))
-    monkeypatch.setattr(outputset.os, "rename", failing(os.rename))
+    for name in names:
+        monkeypatch.setattr(outputset, name, counted(getattr(outputset, name)))
+    monkeypatch.setattr(outputset.os, "rename", counted(os.rename))
+    monkeypatch.setattr(outputset.os, "replace", counted(os.replace))
+    return steps
+
+
+def test_a_failure_at_any_step_of_the_write_leaves_the_old_sets(tmp_path, monkeypatch):
+    """Each file-system step of a write (file written, fsync, exchange, rename) fails in turn:
+    the folder and its .prev hold the old sets, whole, every time, and nothing is left over."""
+    out = tmp_path / "cal"
+    write_set(Folder(out, _set_files("older"), run_id="older"))
+    write_set(Folder(out, _set_files("old"), run_id="old"))
+    fail = {"at": -1}
+
+    def on_step(n):
+        if n == fail["at"]:
+            raise OSError(5, "planted failure")
+
+    steps = _count_steps(monkeypatch, on_step)
     write_set(Folder(out, _set_files("probe"), run_id="probe"))  # count the steps once
-    total, steps["n"] = steps["n"], 0
-    seen = set()
+    total = steps["n"]
+    write_set(Folder(out, _set_files("old"), run_id="old"))
+    write_set(Folder(out, _set_files("old"), run_id="old"))  # .prev is "old" too now
+    assert total >= 10
     for k in range(1, total + 1):
-        steps["n"], steps["fail_at"] = 0, k
-        run = f"r{k}"
+        steps["n"], fail["at"] = 0, k
         try:
-            write_set(Folder(out, _set_files(run), run_id=run))
-        except KeyboardInterrupt:
-            pass
-        got = whole_set(out)
-        seen.add("new" if got == run else "old")
-    assert total >= 10 and seen == {"old", "new"}
+            write_set(Folder(out, _set_files(f"r{k}"), run_id=f"r{k}"))
+        except RelcalError as exc:
+            assert "nothing written" in str(exc)
+        else:  # a step after the commit point (the oldest set's removal): the new set
+            assert whole_set(out) == f"r{k}"
+            write_set(Folder(out, _set_files("old"), run_id="old"))
+            write_set(Folder(out, _set_files("old"), run_id="old"))
+            continue
+        assert whole_set(out) == "old" and whole_set(tmp_path / "cal.prev") == "old", k
+        assert sorted(p.name for p in tmp_path.iterdir()) == ["cal", "cal.prev"], k
+
+
+KILLER = """
+import json, os, signal, sys
+sys.path.insert(0, sys.argv[1])
+from pathlib import Path
+from relcal import outputset
+from relcal.outputset import Folder, write_set
+from test_output_sets import STEPS, _set_files
+
+out, kill_at = Path(sys.argv[2]), int(sys.argv[3])
+steps = {"n": 0}
+
+
+def counted(fn):
+    def wrapped(*args, **kwargs):
+        steps["n"] += 1
+        if steps["n"] == kill_at:
+            os.kill(os.getpid(), signal.SIGKILL)  # a crash right here
+        return fn(*args, **kwargs)
+
+    return wrapped
+
+
+for name in STEPS:
+    setattr(outputset, name, counted(getattr(outputset, name)))
+os.rename, os.replace = counted(os.rename), counted(os.replace)
+write_set(Folder(out, _set_files("new"), run_id="new"))
+print(steps["n"])
+"""
+
+
+def test_a_sigkill_at_any_step_leaves_whole_sets_and_the_next_run_cleans_up(tmp_path):
+    """A run killed with SIGKILL at each file-system step of its write in turn: the folder holds
+    the old set or the new one, whole, ``.prev`` a whole set (the previous one, or the one before
+    when the kill came between the two exchanges), and the next run removes what the killed one
+    left (and nothing else, not even a file named like a temporary)."""
+    import subprocess
+
+    def run_killer(out, at):
+        return subprocess.run(
+            [sys.executable, "-c", KILLER, str(Path(__file__).parent), str(out), str(at)],
+            capture_output=True,
+            text=True,
+            timeout=60,
+            env={**os.environ, "PYTHONPATH": os.pathsep.join(sys.path)},
+        )
+
+    probe = tmp_path / "probe" / "cal"
+    write_set(Folder(probe, _set_files("older"), run_id="older"))
+    write_set(Folder(probe, _set_files("old"), run_id="old"))
+    done = run_killer(probe, 0)
+    assert done.returncode == 0, done.stderr
+    total = int(done.stdout)
+    assert total >= 10
+    outcomes = set()
+    for k in range(1, total + 1):
+        base = tmp_path / f"k{k}"
+        out = base / "cal"
+        write_set(Folder(out, _set_files("older"), run_id="older"))
+        write_set(Folder(out, _set_files("old"), run_id="old"))
+        done = run_killer(out, k)
+        assert done.returncode == -signal.SIGKILL, (k, done.stderr)
+        now, prev = whole_set(out), whole_set(base / "cal.prev")
+        # ("new", "older"): killed between the two exchanges, the old set in a temporary
+        assert (now, prev) in (("old", "older"), ("new", "old"), ("new", "older")), (k, now)
+        outcomes.add(now)
+        foreign = base / ".cal.tmp-notes.txt"  # a user's file that only looks like ours
+        foreign.write_text("mine\n")
+        write_set(Folder(out, _set_files("next"), run_id="next"))
+        assert whole_set(out) == "next" and whole_set(base / "cal.prev") == now
+        left = sorted(p.name for p in base.iterdir())
+        assert left == [".cal.tmp-notes.txt", "cal", "cal.prev"], (k, left)
+    assert outcomes == {"old", "new"}
+
+
+def test_a_live_runs_temporaries_are_never_removed(tmp_path):
+    """The staging folder of a run still writing (its lock held) survives another run's
+    cleanup; once its process is gone, the next run removes it."""
+    import subprocess
+
+    out = tmp_path / "cal"
+    write_set(Folder(out, _set_files("old"), run_id="old"))
+    holder = subprocess.Popen(
+        [
+            sys.executable,
+            "-c",
+            "import fcntl, os, sys, tempfile, time\n"
+            f"d = tempfile.mkdtemp(dir={str(tmp_path)!r}, prefix='.cal.tmp-')\n"
+            "fd = os.open(d, os.O_RDONLY); fcntl.flock(fd, fcntl.LOCK_EX)\n"
+            "print(d, flush=True); time.sleep(60)\n",
+        ],
+        stdout=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        staging = Path(holder.stdout.readline().strip())
+        write_set(Folder(out, _set_files("new"), run_id="new"))
+        assert staging.is_dir()  # held by a live process: not stale
+    finally:
+        holder.kill()
+        holder.wait()
+    write_set(Folder(out, _set_files("newer"), run_id="newer"))
+    assert not staging.exists()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["cal", "cal.prev"]
 
 
 DRIVER = """
@@ -183,6 +311,7 @@ import json, os, signal, sys, time
 sys.path.insert(0, sys.argv[1])
 import numpy as np
 from relcal.cli import main
+from relcal.errors import RelcalError
 from test_output_sets import whole_set
 
 dataset, out, log = sys.argv[2:5]
@@ -262,9 +391,9 @@ def test_a_signal_during_the_renames_is_delivered_after_them(tmp_path, monkeypat
     write_set(Folder(out, _set_files("old"), run_id="old"))
     real = outputset._commit_folder
 
-    def interrupted_commit(tmp, item):
+    def interrupted_commit(tmp, item, undo, trash):
         signal.raise_signal(signal.SIGINT)  # arrives in the middle of the commit
-        real(tmp, item)
+        real(tmp, item, undo, trash)
 
     monkeypatch.setattr(outputset, "_commit_folder", interrupted_commit)
     with pytest.raises(KeyboardInterrupt):

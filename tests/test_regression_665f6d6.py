@@ -231,6 +231,38 @@ FIXED = {
 }
 
 
+# Deliberate changes since the recording, applied to the recorded values before they are compared
+# (issue 20, hardening): a samples table without an id column numbers its samples 1..N by row
+# (the recording used file line numbers, the first data row being 2: the TIAGo Pro files have no
+# id column); the plausibility check's translation scale is a trimmed fit that leaves out samples
+# whose pairs misfit far more than the rest (one wrong row no longer passes for a wrong unit), a
+# diagnostic of the inputs that no calibration number depends on.
+ROW_NUMBERED = ("tiago poses", "tiago positions")
+
+
+def deliberate(name: str, want: dict) -> dict:
+    """The recorded ``want`` of run ``name`` with the deliberate changes applied."""
+    want = json.loads(json.dumps(want))
+    if name.startswith(ROW_NUMBERED) and "outliers" in want:
+        want["outliers"] = [str(int(sid) - 1) for sid in want["outliers"]]
+    return want
+
+
+def without_scale(doc: dict) -> dict:
+    """``doc`` (a run, or a cross-validation of runs) without what the plausibility check
+    derives from its translation scale: the scale, its standard deviation and the board spacing
+    the data imply (see :func:`deliberate`)."""
+    if "folds" in doc:
+        return {**doc, "folds": [without_scale(f) for f in doc["folds"]]}
+    doc = dict(doc)
+    if isinstance(doc.get("plausibility"), dict):
+        derived = ("translation_scale", "board_spacing_from_data_m")
+        doc["plausibility"] = {
+            k: v for k, v in doc["plausibility"].items() if not k.startswith(derived)
+        }
+    return doc
+
+
 def check_fixed(name: str, got: dict, want: dict) -> None:
     """Everything of a :data:`FIXED` run but the keys it names as recorded, and the fix."""
     changed, _ = FIXED[name]
@@ -268,11 +300,12 @@ def test_same_numbers_as_665f6d6(name, key, options, recorded, datasets, tmp_pat
         pytest.skip("real data not available")
     root = tmp_path_factory.getbasetemp() / "regression"
     root.mkdir(exist_ok=True)
-    got = _json(run(name, key, options, datasets, root))
+    got = without_scale(_json(run(name, key, options, datasets, root)))
+    want = without_scale(deliberate(name, recorded[name]))
     if name in FIXED:
-        check_fixed(name, got, recorded[name])
+        check_fixed(name, got, want)
     else:
-        compare(got, recorded[name], name)
+        compare(got, want, name)
 
 
 if __name__ == "__main__":  # record (at commit 665f6d6)

@@ -57,7 +57,7 @@ def test_roll_pitch_yaw_named_joints_no_id_crlf(tmp_path, unit, rng):
     root = _write(tmp_path / "d", spec, header, rows, newline="\r\n")
     ds = load_dataset(root)
     assert ds.measured == "pose"
-    assert ds.ids == tuple(str(k + 2) for k in range(6))  # line numbers
+    assert ds.ids == tuple(str(k + 1) for k in range(6))  # row numbers
     np.testing.assert_allclose(ds.q, q, atol=1e-12)
     np.testing.assert_allclose(ds.poses, poses, atol=1e-12)
     for k in range(2):

@@ -72,5 +72,5 @@ def test_errors_file_reproduces_a_given_table(tmp_path, a465):
 
 def test_bad_noise_option_is_a_clear_error(capsys):
     assert main(["simulate", "--noise", "abc"]) == 2
-    assert "--noise 'abc': expected POS_MM,ORI_DEG" in capsys.readouterr().err
+    assert "--noise: 'abc': expected POS_MM,ORI_DEG" in capsys.readouterr().err
     assert Noise.parse("0.1,0.01,0.001").joints == pytest.approx(np.radians(0.001))

@@ -12,7 +12,8 @@ from typing import Any, TypeVar
 import pydantic
 import yaml
 
-from relcal.errors import RelcalError
+from relcal.errors import RelcalError, excerpt, printable
+from relcal.limits import check_input_size, check_yaml_nodes
 from relcal.outputset import File, Folder, note_input, write_set
 
 __all__ = ["File", "Folder", "note_input", "write_set"]
@@ -45,44 +46,72 @@ def _format_loc(loc: tuple[Any, ...]) -> str:
 class TableRow(list):
     """The cells of one CSV row, with ``line``: its 1-based line number in the file."""
 
-    line: int = 0
+    __slots__ = ("line",)
+
+    def __init__(self, cells=(), line: int = 0) -> None:
+        super().__init__(cells)
+        self.line = line
+
+
+DELIMITERS = {",": "commas", ";": "semicolons", "\t": "tabs", "|": "vertical bars"}
+
+
+def _delimiter(path: Path, header: str) -> str:
+    """The delimiter of a table from its header line: the most frequent of comma, semicolon,
+    tab and vertical bar (a comma on a tie: decimal commas come with semicolons)."""
+    counts = {d: header.count(d) for d in DELIMITERS}
+    best = max(counts, key=lambda d: (counts[d], d == ","))
+    if counts[best] == 0 and len(header.split()) > 1:
+        raise RelcalError(
+            f"{path} line 1: header: one field {excerpt(header)}: columns separated by spaces? "
+            "relcal reads tables separated by commas, semicolons or tabs"
+        )
+    return best
 
 
 def read_table(path: str | Path, what: str) -> tuple[list[str], list[TableRow]]:
     """The stripped header and the data rows of a CSV file (blank lines dropped; each row keeps
     its line number in ``row.line``).
 
-    A UTF-8 byte-order mark is skipped; a semicolon-delimited file (a header without commas) is
-    read with semicolons. ``what`` names one data row in messages (``"sample"``, ``"target"``); a
-    file without a header and at least one data row is an error naming the file.
+    A UTF-8 byte-order mark is skipped; the delimiter is the header's: commas, semicolons
+    (with decimal commas named in messages), tabs or vertical bars. ``what`` names one data row
+    in messages (``"sample"``, ``"target"``); a file without a header and at least one data row
+    is an error naming the file. The file's size is capped before reading (:mod:`relcal.limits`).
     """
     path = Path(path)
     note_input(path)
+    if path.is_dir():
+        raise RelcalError(f"{path}: is a directory, expected a CSV file")
+    check_input_size(path, "csv")
+    rows: list[TableRow] = []
+    line_num = 0
     try:
         with open(path, newline="", encoding="utf-8-sig") as handle:
-            text = handle.read()
+            first = ""
+            for raw in handle:
+                if raw.strip() and not raw.lstrip().startswith("#"):
+                    first = raw
+                    break
+            handle.seek(0)
+            delimiter = _delimiter(path, first) if first else ","
+            reader = csv.reader(handle, delimiter=delimiter)
+            start = 1
+            for cells in reader:
+                line_num = reader.line_num
+                comment = not rows and cells and cells[0].lstrip().startswith("#")
+                if cells and any(c.strip() for c in cells) and not comment:
+                    rows.append(TableRow(cells, start))  # (comments: a plan file's first line)
+                start = reader.line_num + 1
     except FileNotFoundError:
         raise RelcalError(f"{path}: file not found") from None
-    except IsADirectoryError:
-        raise RelcalError(f"{path}: is a directory, expected a CSV file") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise RelcalError(f"{path}: cannot read: {exc}") from None
-    first = next((line for line in text.splitlines() if line.strip()), "")
-    delimiter = ";" if ";" in first and "," not in first else ","
-    rows: list[TableRow] = []
-    try:
-        reader = csv.reader(text.splitlines(keepends=True), delimiter=delimiter)
-        start = 1
-        for cells in reader:
-            row = TableRow(cells)
-            row.line = start
-            start = reader.line_num + 1
-            if not rows and cells and cells[0].lstrip().startswith("#"):
-                continue  # a comment before the header (a plan file's first line)
-            if cells and any(c.strip() for c in cells):
-                rows.append(row)
+    except UnicodeDecodeError:
+        raise RelcalError(
+            f"{path}: not a text file (not UTF-8 near line {line_num + 1}); expected a CSV table"
+        ) from None
     except csv.Error as exc:
-        raise RelcalError(f"{path} line {reader.line_num}: cannot read: {exc}") from None
+        raise RelcalError(f"{path} line {line_num + 1}: cannot read: {exc}") from None
+    except OSError as exc:
+        raise RelcalError(f"{path}: cannot read: {exc.strerror or exc}") from None
     if not rows:
         raise RelcalError(f"{path}: empty; expected a header line and one line per {what}")
     if len(rows) < 2:
@@ -110,24 +139,36 @@ def yaml_text(data: Any) -> str:
 
 
 def load_yaml(path: str | Path) -> tuple[Any, yaml.Node | None]:
-    """Parse a YAML file; return the data and its node tree (for line numbers)."""
+    """Parse a YAML file; return the data and its node tree (for line numbers).
+
+    The one YAML reader of relcal: the file's size is capped before reading and its aliases'
+    expansion before anything walks it (:mod:`relcal.limits`)."""
     path = Path(path)
     note_input(path)
+    if path.is_dir():
+        raise RelcalError(f"{path}: is a folder, expected a YAML file")
+    check_input_size(path, "yaml")
     try:
-        text = path.read_text()
+        text = path.read_text(encoding="utf-8-sig")
     except FileNotFoundError:
         raise RelcalError(f"{path}: file not found") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise RelcalError(f"{path}: cannot read: {exc}") from None
+    except UnicodeDecodeError:
+        raise RelcalError(f"{path}: not a text file (not UTF-8); expected YAML") from None
+    except OSError as exc:
+        raise RelcalError(f"{path}: cannot read: {exc.strerror or exc}") from None
     loader = _Loader(text)
-    try:  # parsed once: the node tree, then the data constructed from it
+    try:  # parsed once: the node tree, bounded, then the data constructed from it
         node = loader.get_single_node()
+        if node is not None:
+            check_yaml_nodes(path, node)
         data = None if node is None else loader.construct_document(node)
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         where = f" line {mark.line + 1}" if mark is not None else ""
         problem = getattr(exc, "problem", None) or str(exc)
-        raise RelcalError(f"{path}{where}: malformed YAML: {problem}") from None
+        raise RelcalError(f"{path}{where}: malformed YAML: {printable(problem)}") from None
+    except RecursionError:
+        raise RelcalError(f"{path}: YAML nested too deeply; not a relcal file") from None
     finally:
         loader.dispose()
     return data, node
@@ -152,11 +193,29 @@ def _message(err: dict) -> str:
     """pydantic's message for a person: no internal class names, no "Value error," prefix."""
     kind, value = err["type"], err.get("input")
     if kind == "model_type" or kind == "dict_type":
-        return f"expected a mapping of fields (key: value), got {type(value).__name__} {value!r}"
+        return f"expected a mapping of fields (key: value), got {_kind(value)}"
     if kind in ("float_type", "int_type") and isinstance(value, str):
-        return f"expected a number, got the text {value!r} (numbers are written without quotes)"
+        return (
+            f"expected a number, got the text {excerpt(value)} (numbers are written without quotes)"
+        )
     msg = re.sub(r"^Value error, ", "", err["msg"])
-    return re.sub(r"\b(?:an? )?instance of _?[A-Z]\w*", "a mapping", msg)
+    return printable(re.sub(r"\b(?:an? )?instance of _?[A-Z]\w*", "a mapping", msg), 300)
+
+
+def _kind(value: Any) -> str:
+    """What a YAML value is, for a message, without showing a long text (a file named in the
+    wrong place must not have its content printed)."""
+    if value is None:
+        return "nothing (an empty document or field)"
+    if isinstance(value, str):
+        return (
+            f"the text {excerpt(value)}"
+            if len(value) <= 40
+            else f"a text of {len(value)} characters"
+        )
+    if isinstance(value, list):
+        return f"a list of {len(value)} items"
+    return f"{type(value).__name__} {excerpt(value)}"
 
 
 def load_validated(schema: type[M], path: str | Path) -> M:

@@ -3,18 +3,31 @@
 Every file a command writes goes through :func:`write_set`:
 
 - A **folder** (``calibrate --out``, ``measure --out``, an imported or rendered dataset) is built
-  in a temporary sibling folder, every file written and fsynced, then swapped into place in one
-  rename. A folder that an earlier relcal run wrote (it holds ``.relcal-set.json``) is kept as
-  ``<name>.prev/`` (one generation; the older one is deleted); a dataset folder is never replaced
-  (``replace="refuse"``). A non-empty folder relcal did not write is never touched.
+  in a temporary sibling folder (``.NAME.tmp-PID-*``), every file written and fsynced, then
+  swapped into place in one atomic exchange. A folder that an earlier relcal run wrote (it holds
+  ``.relcal-set.json``) is kept as ``<name>.prev/`` (one generation): the old set and the older
+  ``.prev`` change places by atomic exchanges too, so at every moment ``NAME`` and ``NAME.prev``
+  are each a whole set (the oldest one is deleted only once the new set and its record are in
+  place). A dataset folder is never replaced (``replace="refuse"``). A non-empty folder relcal
+  did not write is never touched.
 - A **single file** (``--json``, ``--report``, ``plan --out``) is written to a temporary sibling
-  and renamed over the old one. A device or FIFO (``/dev/stdout``, ``/dev/null``, a pipe) is
-  written into, never replaced by a regular file; a symbolic link keeps pointing where it did.
+  and renamed over the old one (which is kept under a hard link until the run is complete). A
+  device or FIFO (``/dev/stdout``, ``/dev/null``, a pipe) is written into, never replaced by a
+  regular file; a symbolic link keeps pointing where it did.
 - Nothing the run **read** is written over: readers call :func:`note_input`, and a destination
   that is an input, or a folder that holds one, is refused before anything is written.
-- All destinations are checked before the first byte is staged, and all renames happen together
-  with SIGINT and SIGTERM held back, so an interrupted run leaves the old outputs or the new ones,
-  whole; a refused or failed run leaves the disk as it was.
+- A **journal** (a registry record, :class:`Journal`) is written in the same transaction: it is
+  prepared (inserted, not yet committed) before the renames and committed after them; if the
+  commit fails the renames are undone, if a rename fails the record is rolled back.
+- All destinations are checked before the first byte is staged, and all renames and the commit
+  happen with SIGINT and SIGTERM held back, so an interrupted run leaves the old outputs or the
+  new ones (with their record), whole; a refused or failed run leaves the disk as it was.
+- **Leftovers.** Every temporary a run creates is locked (``flock``) by that run while it lives;
+  a SIGKILL releases the lock, and the next run writing to the same place removes the
+  temporaries nobody holds (and only those). Staging and the renames take a lock on the parent
+  folder, so a cleanup never sees a live run between two of its steps.
+- :func:`written` lists what this run has installed, so that a message after an interrupt says
+  truthfully whether the new outputs are in place.
 """
 
 from __future__ import annotations
@@ -32,12 +45,13 @@ from contextlib import contextmanager
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import Literal
+from typing import Literal, Protocol
 
 from relcal.errors import RelcalError
 
 MARKER = ".relcal-set.json"  # written into every output folder: run id and file list
 _INPUTS: set[Path] = set()
+_WRITTEN: list[str] = []  # what this run installed, in words (see :func:`written`)
 
 
 def _real(path: str | Path) -> Path:
@@ -64,6 +78,34 @@ def tracking() -> Iterator[None]:
     finally:
         _INPUTS.clear()
         _INPUTS.update(saved)
+
+
+def written() -> list[str]:
+    """What this run has installed so far, in words (``--out cal/ (run 3f2a...)``, ``registry
+    run 7``): each entry is complete; empty when nothing was written."""
+    return list(_WRITTEN)
+
+
+def forget_written() -> None:
+    """Start a new run's list of :func:`written` outputs (the command line calls it per command)."""
+    _WRITTEN.clear()
+
+
+class Journal(Protocol):
+    """Something written in the same transaction as a set: a registry record.
+
+    ``prepare`` writes it without making it visible (a database transaction begun and the row
+    inserted) and may raise :class:`RelcalError`; ``commit`` makes it visible (raising if it
+    cannot, then the set's renames are undone); ``rollback`` forgets a prepared write;
+    ``describe`` says in words what was written (after ``commit``)."""
+
+    def prepare(self) -> None: ...
+
+    def commit(self) -> None: ...
+
+    def rollback(self) -> None: ...
+
+    def describe(self) -> str: ...
 
 
 def new_run_id() -> str:
@@ -208,6 +250,21 @@ def check(items: Iterable[Folder | File]) -> None:
                 )
 
 
+def check_apart(path: str | Path, what: str, items: Iterable[Folder | File]) -> None:
+    """Refuse ``path`` (another file the run writes, such as its registry) when it is one of the
+    output ``items``, or inside an output folder or its ``.prev`` (replaced as a whole)."""
+    real = _real(path)
+    for item in items:
+        dest = _real(item.path)
+        if real == dest:
+            raise RelcalError(f"{what}: also given as {item.what} {item.path}; give another path")
+        if isinstance(item, Folder) and (dest in real.parents or _prev(dest) in real.parents):
+            raise RelcalError(
+                f"{what}: inside the output folder ({item.what} {item.path}), which is replaced "
+                "as a whole by every run; put it elsewhere"
+            )
+
+
 def _prev(path: Path) -> Path:
     return path.with_name(path.name + ".prev")
 
@@ -234,10 +291,113 @@ def _write_bytes(path: Path, content: str | bytes) -> None:
         os.fsync(handle.fileno())
 
 
-def _stage_folder(item: Folder) -> Path:
+# ------------------------------------------------------------------ locks and stale temporaries
+
+
+def _flock(fd: int, blocking: bool) -> bool:
+    """An exclusive ``flock`` on ``fd``: True when held, False when another process holds it
+    (non-blocking) or locks are not available here (then nothing is ever called stale)."""
+    try:
+        import fcntl
+    except ImportError:  # not POSIX
+        return False
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | (0 if blocking else fcntl.LOCK_NB))
+    except OSError:
+        return False
+    return True
+
+
+@contextmanager
+def _folder_locks(folders: Iterable[Path]) -> Iterator[None]:
+    """Exclusive locks on ``folders`` (sorted, so two runs never wait on each other in a cycle):
+    held while temporaries are created or removed and while a set is renamed into place."""
+    fds = []
+    try:
+        for folder in sorted(set(folders)):
+            try:
+                fd = os.open(folder, os.O_RDONLY | os.O_DIRECTORY)
+            except OSError:
+                continue
+            fds.append(fd)
+            _flock(fd, blocking=True)
+        yield
+    finally:
+        for fd in fds:
+            os.close(fd)
+
+
+def _hold(path: Path) -> int | None:
+    """Open and lock ``path`` (a temporary of this run) for as long as the run lives: a lock
+    that a SIGKILL releases, which is how the next run knows the temporary is stale."""
+    try:
+        fd = os.open(path, os.O_RDONLY)
+    except OSError:
+        return None
+    _flock(fd, blocking=False)
+    return fd
+
+
+_RANDOM = r"[a-z0-9_]{8}"  # tempfile's random part
+
+
+def _temporaries(item: Folder | File) -> list[Path]:
+    """The temporaries a relcal run writing ``item`` may have left beside it, by their exact
+    name patterns: ``.NAME.tmp-PID-XXXXXXXX`` folders (staged sets, old sets on their way out;
+    ``.NAME.tmp-XXXXXXXX`` from relcal before 0.2) and ``.NAME.XXXXXXXX.tmp`` files."""
+    import re
+
     path = Path(os.path.abspath(item.path))
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(dir=path.parent, prefix=f".{path.name}.tmp-"))
+    name = re.escape(path.name)
+    pattern = re.compile(rf"\.{name}\.tmp-(?:\d+-)?{_RANDOM}(?:-older)?|\.{name}\.{_RANDOM}\.tmp")
+    try:
+        entries = list(os.scandir(path.parent))
+    except OSError:
+        return []
+    return sorted(path.parent / e.name for e in entries if pattern.fullmatch(e.name))
+
+
+def _is_stale(path: Path) -> bool:
+    """A temporary that no live process holds (its lock can be taken)."""
+    try:
+        fd = os.open(path, os.O_RDONLY | (os.O_DIRECTORY if path.is_dir() else 0))
+    except OSError:
+        return False
+    try:
+        return _flock(fd, blocking=False)
+    finally:
+        os.close(fd)
+
+
+def remove_stale(*items: Folder | File) -> list[Path]:
+    """Remove the temporaries that killed runs left beside ``items`` (those no live process
+    holds; call with the parent folders locked); the paths removed."""
+    removed = []
+    for item in items:
+        if is_stream(item.path):
+            continue
+        for tmp in _temporaries(item):
+            if tmp.is_symlink() or not _is_stale(tmp):
+                continue
+            if tmp.is_dir():
+                shutil.rmtree(tmp, ignore_errors=True)
+            else:
+                tmp.unlink(missing_ok=True)
+            if not tmp.exists():
+                removed.append(tmp)
+    return removed
+
+
+# --------------------------------------------------------------------------------- staging
+
+
+def _stage_folder(item: Folder, holds: list[int]) -> Path:
+    path = Path(os.path.abspath(item.path))
+    with _folder_locks([path.parent]):  # created and locked before any cleanup can see it
+        tmp = Path(tempfile.mkdtemp(dir=path.parent, prefix=f".{path.name}.tmp-{os.getpid()}-"))
+        fd = _hold(tmp)
+    if fd is not None:
+        holds.append(fd)
     try:
         _fill_folder(tmp, item)
     except BaseException:
@@ -257,10 +417,10 @@ def _fill_folder(tmp: Path, item: Folder) -> None:
             _write_bytes(target, content)
     if item.fill is not None:
         item.fill(tmp)
-    written = sorted(str(p.relative_to(tmp)) for p in tmp.rglob("*") if p.is_file())
+    written_files = sorted(str(p.relative_to(tmp)) for p in tmp.rglob("*") if p.is_file())
     manifest = {
         "run_id": item.run_id or new_run_id(),
-        "files": written,
+        "files": written_files,
         "written_utc": datetime.now(UTC).isoformat(timespec="seconds"),
     }
     _write_bytes(tmp / MARKER, json.dumps(manifest, indent=2) + "\n")
@@ -271,21 +431,32 @@ def _fill_folder(tmp: Path, item: Folder) -> None:
         _fsync_path(d)
 
 
-def _stage_file(item: File) -> Path | None:
+def _temp_file(path: Path) -> Path:
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    os.close(fd)
+    return Path(tmp)
+
+
+def _stage_file(item: File, holds: list[int]) -> Path | None:
     if is_stream(item.path):
         return None  # written at commit time
     path = _real(item.path)  # a symbolic link keeps pointing at the file, which is replaced
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    os.close(fd)
+    with _folder_locks([path.parent]):
+        tmp = _temp_file(path)
+        fd = _hold(tmp)
+    if fd is not None:
+        holds.append(fd)
     try:
-        _write_bytes(Path(tmp), item.content)
+        _write_bytes(tmp, item.content)
         os.chmod(tmp, 0o666 & ~_umask())
     except BaseException:
-        Path(tmp).unlink(missing_ok=True)
+        tmp.unlink(missing_ok=True)
         raise
-    return Path(tmp)
+    return tmp
 
+
+# --------------------------------------------------------------------------------- commit
 
 _RENAME_EXCHANGE = 2
 
@@ -304,33 +475,81 @@ def _exchange(a: Path, b: Path) -> bool:
     return False
 
 
-def _commit_folder(tmp: Path, item: Folder) -> None:
+Undo = list[Callable[[], object]]
+
+
+def _commit_folder(tmp: Path, item: Folder, undo: Undo, trash: list[Path]) -> None:
+    """Put the staged set ``tmp`` in place; the current set becomes ``.prev`` and the older
+    ``.prev`` goes to ``trash`` (deleted once the run is complete). ``undo`` gets, step by step,
+    what puts everything back."""
     path = Path(os.path.abspath(item.path))
+    prev = _prev(path)
     if path.is_dir() and any(path.iterdir()):
-        prev = _prev(path)
-        if prev.exists():
-            shutil.rmtree(prev)
-        if _exchange(tmp, path):  # the new set in place in one step; tmp holds the old one
-            os.rename(tmp, prev)
-        else:
+        if _exchange(tmp, path):  # new set in place; tmp holds the old one
+            undo.append(lambda: _exchange(tmp, path))
+            if prev.exists():
+                if not _exchange(tmp, prev):  # the old set is .prev; tmp holds the older one
+                    raise OSError(f"cannot exchange {tmp} and {prev}")
+                undo.append(lambda: _exchange(tmp, prev))
+                trash.append(tmp)
+            else:
+                os.rename(tmp, prev)
+                undo.append(lambda: os.rename(prev, tmp))
+        else:  # no atomic exchange here: three renames (the folder is missing for a moment)
+            if prev.exists():
+                aside = Path(f"{tmp}-older")
+                os.rename(prev, aside)
+                undo.append(lambda: os.rename(aside, prev))
+                trash.append(aside)
             os.rename(path, prev)
+            undo.append(lambda: os.rename(prev, path))
             os.rename(tmp, path)
+            undo.append(lambda: os.rename(path, tmp))
     else:
         if path.is_dir():
             path.rmdir()
+            undo.append(path.mkdir)
         os.rename(tmp, path)
+        undo.append(lambda: os.rename(path, tmp))
     _fsync_path(path.parent)
 
 
-def _commit_file(tmp: Path | None, item: File) -> None:
-    if tmp is None:
-        data = item.content.encode() if isinstance(item.content, str) else item.content
-        with open(item.path, "wb") as handle:  # a device or pipe: written into
-            handle.write(data)
-        return
+def _write_stream(item: File) -> None:
+    data = item.content.encode() if isinstance(item.content, str) else item.content
+    with open(item.path, "wb") as handle:  # a device or pipe: written into
+        handle.write(data)
+
+
+def _commit_file(tmp: Path, item: File, undo: Undo, trash: list[Path]) -> None:
+    """Rename the staged file over the destination; the old file stays reachable under a hard
+    link (in ``trash``) until the run is complete, so ``undo`` can put it back."""
     path = _real(item.path)
+    backup = None
+    if path.is_file():
+        backup = _temp_file(path)
+        backup.unlink()
+        try:
+            os.link(path, backup)
+        except OSError:  # no hard links here: a copy
+            shutil.copy2(path, backup)
+        trash.append(backup)
     os.replace(tmp, path)
+    if backup is not None:
+        undo.append(lambda: os.replace(backup, path))
+    else:
+        undo.append(path.unlink)
     _fsync_path(path.parent)
+
+
+def _undo(undo: Undo) -> str | None:
+    """Run ``undo`` backwards; None, or what could not be put back."""
+    for step in reversed(undo):
+        try:
+            step()
+        except OSError as exc:
+            return str(exc)
+    undo.clear()
+    return None
 
 
 @contextmanager
@@ -384,34 +603,95 @@ def _naming(item: Folder | File) -> Iterator[None]:
         ) from None
 
 
-def write_set(*items: Folder | File) -> list[Path]:
-    """Write ``items`` as one unit (see the module docstring); return the paths written.
+def _describe(item: Folder | File) -> str:
+    if isinstance(item, Folder):
+        return f"{item.what} {item.path}" + (f" (run {item.run_id})" if item.run_id else "")
+    return f"{item.what} {item.path}"
+
+
+def write_set(*items: Folder | File, journal: Journal | None = None) -> list[Path]:
+    """Write ``items`` as one unit, with ``journal`` (a registry record) in the same
+    transaction (see the module docstring); return the paths written.
 
     Every destination is checked first (:class:`RelcalError` if one is refused, with nothing
-    written), everything is staged in temporary siblings, then all are renamed into place with
-    SIGINT and SIGTERM held back. On any failure the staged files are removed.
+    written), stale temporaries of killed runs beside them are removed, everything is staged in
+    locked temporary siblings, streams are written, the journal is prepared, then all renames
+    and the journal's commit happen with SIGINT and SIGTERM held back. A failed rename rolls the
+    journal back and undoes the renames before it; a failed commit undoes every rename. On any
+    failure the staged files are removed and the disk is as it was.
     """
     check(items)
+    files = [i for i in items if not is_stream(i.path)]
+    created = _missing_parents(files)  # removed again if the write fails
     staged: list[tuple[Folder | File, Path | None]] = []
-    created = _missing_parents(items)  # removed again if the write fails
+    holds: list[int] = []
+    undo: Undo = []
+    trash: list[Path] = []
+    prepared = committed = False
     try:
+        for item in files:
+            with _naming(item):
+                Path(os.path.abspath(item.path)).parent.mkdir(parents=True, exist_ok=True)
+        parents = [Path(os.path.abspath(i.path)).parent for i in files]
+        with _folder_locks(parents):
+            remove_stale(*files)
         for item in items:
             with _naming(item):
                 if isinstance(item, Folder):
-                    staged.append((item, _stage_folder(item)))
+                    staged.append((item, _stage_folder(item, holds)))
                 else:
-                    staged.append((item, _stage_file(item)))
+                    staged.append((item, _stage_file(item, holds)))
         # streams first: a full disk or a closed pipe stops the run before any rename
-        staged.sort(key=lambda pair: pair[1] is not None)
-        with _signals_held():
-            for item, tmp in staged:
+        for item, tmp in staged:
+            if tmp is None:
                 with _naming(item):
-                    if isinstance(item, Folder):
-                        _commit_folder(tmp, item)  # type: ignore[arg-type]
-                    else:
-                        _commit_file(tmp, item)
+                    _write_stream(item)  # type: ignore[arg-type]
+        if journal is not None:
+            journal.prepare()
+            prepared = True
+        with _signals_held(), _folder_locks(parents):
+            try:
+                for item, tmp in staged:
+                    if tmp is None:
+                        continue
+                    with _naming(item):
+                        if isinstance(item, Folder):
+                            _commit_folder(tmp, item, undo, trash)
+                        else:
+                            _commit_file(tmp, item, undo, trash)
+                if journal is not None:
+                    try:
+                        journal.commit()
+                    except RelcalError as exc:
+                        left = ", ".join(str(i.path) for i in files)
+                        raise RelcalError(
+                            f"{exc}; nothing written ({left} left as they were)"
+                        ) from None
+                committed = True
+            except BaseException:
+                failed = _undo(undo)
+                if failed is not None:
+                    raise RelcalError(
+                        "the outputs could not be put back after a failed write ("
+                        f"{failed}); check {', '.join(str(i.path) for i in files)}"
+                    ) from None
+                raise
+            _WRITTEN.extend(_describe(i) for i in items)
+            if journal is not None:
+                _WRITTEN.append(journal.describe())
             staged, created = [], []
     finally:
+        if committed:  # the oldest set and replaced files: no longer needed (even if a held
+            for old in trash:  # signal is being delivered)
+                if old.is_dir():
+                    shutil.rmtree(old, ignore_errors=True)
+                else:
+                    old.unlink(missing_ok=True)
+        if prepared and not committed:
+            try:
+                journal.rollback()  # type: ignore[union-attr]
+            except Exception:  # noqa: BLE001 - the write's own error is the one to report
+                pass
         for _, tmp in staged:
             if tmp is None:
                 continue
@@ -419,6 +699,8 @@ def write_set(*items: Folder | File) -> list[Path]:
                 shutil.rmtree(tmp, ignore_errors=True)
             else:
                 tmp.unlink(missing_ok=True)
+        for fd in holds:
+            os.close(fd)
         for folder in created:
             try:
                 folder.rmdir()

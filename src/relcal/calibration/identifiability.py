@@ -342,6 +342,11 @@ def analyse_problem(
     transform is taken as given). A coincidence problem is judged at its samples nudged onto their
     group points (:func:`relcal.calibration.coincidence.consistent`; ``jac`` is not used).
     """
+    from relcal.checks import check_choice, check_instance, check_number
+
+    check_instance(problem, Problem, "problem", "a Problem")
+    check_number(rcond, "rcond", 0, 1, low_open=True, high_open=True)
+    check_choice(handeye, "handeye", ("estimated", "known"))
     if problem.formulation == "coincidence":
         from relcal.calibration.coincidence import consistent
 

@@ -26,7 +26,7 @@ from relcal.calibration.identifiability import (
 from relcal.calibration.measurement import Problem, pair_errors, residuals
 from relcal.calibration.noise import Noise, robust_sigma
 from relcal.calibration.uncertainty import noise_factor, parameter_covariance, whitener
-from relcal.errors import RelcalError
+from relcal.errors import ArgumentError, RelcalError
 from relcal.robot.kinematics import Layout, apply_errors
 
 Method = Literal["published", "lm"]
@@ -53,11 +53,23 @@ class SolverOptions:
 
     def __post_init__(self) -> None:
         if self.method not in ("published", "lm"):
-            raise ValueError(f"unknown identification method '{self.method}': use published or lm")
+            raise ArgumentError(
+                f"SolverOptions: unknown identification method '{self.method}': use published or lm"
+            )
         if self.loss not in Loss.__args__:
-            raise ValueError(f"unknown loss '{self.loss}': use one of {', '.join(Loss.__args__)}")
-        if not (self.f_scale > 0 and self.max_iterations > 0 and 0 < self.rcond < 1):
-            raise ValueError("f_scale and max_iterations must be positive, rcond in (0, 1)")
+            raise ArgumentError(
+                f"SolverOptions: unknown loss '{self.loss}': use one of {', '.join(Loss.__args__)}"
+            )
+        ok = all(
+            isinstance(v, int | float) and np.isfinite(v)
+            for v in (self.f_scale, self.max_iterations, self.rcond, self.tol)
+        )
+        if not (ok and self.f_scale > 0 and self.max_iterations > 0 and 0 < self.rcond < 1):
+            raise ArgumentError(
+                "SolverOptions: f_scale, max_iterations and tol must be positive numbers, rcond "
+                f"in (0, 1); got f_scale={self.f_scale!r}, max_iterations="
+                f"{self.max_iterations!r}, rcond={self.rcond!r}, tol={self.tol!r}"
+            )
 
 
 @dataclass(frozen=True)
@@ -695,6 +707,12 @@ def identify(
 ) -> Result:
     """Identify the parameters of ``problem`` as ``options`` say (default: Levenberg-Marquardt,
     linear loss). ``identifiability``: the analysis at the nominal model, if the caller has it."""
+    from relcal.checks import check_instance, check_measured
+
+    check_instance(problem, Problem, "problem", "a Problem (relcal.Problem(model, layout, ...))")
+    check_measured(problem)
+    if options is not None:
+        check_instance(options, SolverOptions, "options", "SolverOptions(method=..., loss=...)")
     o = options or SolverOptions()
     if o.method == "published":
         return identify_published(problem, o.rcond, o.tol, o.max_iterations, identifiability)

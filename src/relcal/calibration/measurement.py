@@ -57,7 +57,12 @@ def make_pairs(
 ) -> np.ndarray:
     """Index pairs ``(P, 2)`` of poses: consecutive ``(k, k+1)``, a star around ``reference``, or
     all ``n (n - 1) / 2`` pairs."""
+    from relcal.checks import check_number
+
+    n_poses = check_number(n_poses, "n_poses", 0, integer=True)
     idx = np.arange(n_poses)
+    if strategy == "star" and n_poses and not 0 <= reference < n_poses:
+        check_number(reference, "reference", 0, n_poses - 1, integer=True)
     if strategy == "consecutive":
         return np.stack([idx[:-1], idx[1:]], axis=1)
     if strategy == "star":
@@ -66,7 +71,10 @@ def make_pairs(
     if strategy == "all":
         i, j = np.triu_indices(n_poses, k=1)
         return np.stack([i, j], axis=1)
-    raise ValueError(f"unknown pairing strategy '{strategy}': use consecutive, star or all")
+    from relcal.checks import check_choice
+
+    check_choice(strategy, "pairing", ("consecutive", "star", "all"))
+    raise AssertionError("unreachable")
 
 
 @dataclass(frozen=True)
@@ -109,6 +117,14 @@ class Problem:
             f"{self.formulation} formulation, {self.measure}",
             f"{self.layout.size} parameters" + (f" + {extra} nuisance" if extra else ""),
         )
+
+    def __post_init__(self) -> None:
+        """Arguments checked where the API is entered (:func:`relcal.checks.check_problem`):
+        a wrong shape, a non-finite pose or an unknown formulation is a RelcalError naming it."""
+        from relcal.checks import check_problem
+
+        for name, value in check_problem(self).items():
+            object.__setattr__(self, name, value)
 
     @property
     def full_layout(self) -> Layout:

@@ -35,6 +35,7 @@ from relcal.calibration.selection import (
     significant_columns,
     significant_fit,
 )
+from relcal.checks import check_calibrate
 from relcal.data.dataset import Dataset
 from relcal.data.imaging import Measurements, measure
 from relcal.errors import RelcalError
@@ -98,6 +99,10 @@ def calibrate(
     20 to 40 % small on the parameters of parallel axes, measured by Monte Carlo, so it is not
     the default). ``loss``: of the fits once outliers are out (``lm`` only).
     """
+    check_calibrate(
+        dataset, measurements, holdout, seed, pairing, method, loss, holdout_ids, select_folds,
+        selection,
+    )  # fmt: skip
     unknown = sorted(set(weightings) - set(WEIGHTINGS))
     if unknown or not weightings:
         raise RelcalError(f"weightings {list(weightings)}: use {' and/or '.join(WEIGHTINGS)}")
@@ -116,12 +121,13 @@ def calibrate(
     # Outliers: samples whose measurements fit badly at a fit of the geometry.
     training = kind.training(train)
     detection = _fit(kind, training, training.geometric, "plain", method, kind.detection_loss)
-    outliers = kind.outliers(training, detection)
+    outliers, without = _outliers(kind, training, detection, method)
     outlier_ids = tuple(dataset.ids[train[i]] for i in outliers)
     removed = bool(reject_outliers and outliers.size)
     if removed:
         train = np.delete(train, outliers)
         training = kind.training(train, previous=training)
+        detection = without
     full = detection  # the geometry fitted with ``loss`` on the final training samples
     if removed or loss != kind.detection_loss:
         start = None if kind.refit_from_nominal else detection.params
@@ -205,7 +211,7 @@ def calibrate(
         problem=kind.weighted(training, pick.weighting, noise.whiteners),
         result=result,
         baseline=baseline,
-        validation=kind.validate(training, result, baseline, test),
+        validation=kind.validate(training, result, baseline, test, screen=reject_outliers),
         train=train,
         test=test,
         settings=settings,
@@ -222,6 +228,27 @@ def _method(candidate, method: str) -> str:
     """The solver of a candidate's fit: the baseline (the frames alone) always by
     Levenberg-Marquardt on its columns (the published method estimates every column)."""
     return "lm" if candidate.name in BASELINE_CANDIDATES else method
+
+
+def _outliers(
+    kind: MeasurementKind, training: Training, detection: Result, method: str
+) -> tuple[np.ndarray, Result]:
+    """Positions (in ``training.samples``) of the samples that fit badly at ``detection``, and
+    the detection fit without them. Gross outliers bend the fit and can hide others: the search
+    repeats without the ones found until no more are (a few rounds at most)."""
+    samples = training.samples
+    found = kind.outliers(training, detection)
+    kept, dropped = np.arange(len(samples)), np.zeros(0, dtype=int)
+    for _ in range(4):
+        if not found.size or len(kept) - len(found) < 4:
+            break
+        dropped, kept = np.concatenate([dropped, kept[found]]), np.delete(kept, found)
+        sub = kind.training(samples[kept], previous=training)
+        detection = _fit(
+            kind, sub, sub.geometric, "plain", method, kind.detection_loss, initial=detection.params
+        )
+        found = kind.outliers(sub, detection)
+    return np.sort(dropped), detection
 
 
 def _fit(

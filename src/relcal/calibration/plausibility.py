@@ -48,7 +48,7 @@ SURE_AXIS = np.radians(150)  # relative rotations below this angle have a sure a
 class Tolerances:
     """Thresholds of the plausibility checks (SI units); ``tolerances:`` in dataset.yaml sets
     them as ``length_mm``, ``angle_deg``, ``handeye_mm``, ``handeye_deg``, ``rotation_deg``,
-    ``scale_percent``, ``joint_limit_deg``."""
+    ``scale_percent``, ``joint_limit_deg``, ``translation_mm``."""
 
     length: float = 0.010  # m, largest plausible correction of a link length (a, d)
     angle: float = np.radians(5.0)  # rad, of a joint offset or twist (theta_off, alpha, beta)
@@ -57,6 +57,7 @@ class Tolerances:
     rotation: float = np.radians(10.0)  # rad, median relative-rotation misfit
     scale: float = 0.05  # relative, measured/modelled translation scale minus one
     joint_limit: float = np.radians(5.0)  # rad, reading beyond a joint limit
+    translation: float = 0.1  # m, median relative-translation misfit after the best hand-eye
 
     FIELDS = {
         "length_mm": ("length", 1e-3),
@@ -66,6 +67,7 @@ class Tolerances:
         "rotation_deg": ("rotation", np.pi / 180),
         "scale_percent": ("scale", 1e-2),
         "joint_limit_deg": ("joint_limit", np.pi / 180),
+        "translation_mm": ("translation", 1e-3),
     }
 
     @classmethod
@@ -117,33 +119,50 @@ class Scale:
     residual: float = float("nan")  # RMS of the fit's translation rows, m
 
 
-def translation_scale(commanded: np.ndarray, measured: np.ndarray, rx: np.ndarray) -> Scale:
+def translation_scale(
+    commanded: np.ndarray, measured: np.ndarray, rx: np.ndarray, robust: bool = True
+) -> Scale:
     """Solve ``(R_A - I) t_X - s R_X t_B = -t_A`` for ``t_X`` and ``s`` (least squares over the
-    pairs); the ratio is ``1/s``. Its standard deviation comes from the fit's residual."""
+    pairs); the ratio is ``1/s``. Its standard deviation comes from the fit's residual.
+
+    ``robust``: pairs whose residual is more than 3 times the median are left out and the fit
+    repeated (three rounds), so that one wrong sample (a mistyped joint reading) does not pass
+    for a wrong unit of all of them; ``residual`` is then the median pair residual (m)."""
     m = np.concatenate(
         [
             commanded[:, :3, :3] - np.eye(3),
             -np.einsum("ij,pj->pi", rx, measured[:, :3, 3])[:, :, None],
         ],
         axis=2,
-    ).reshape(-1, 4)
-    rhs = -commanded[:, :3, 3].reshape(-1)
-    col = np.linalg.norm(m, axis=0)
-    col[col == 0] = 1.0
-    sol, *_ = np.linalg.lstsq(m / col, rhs, rcond=None)
-    sol = sol / col
-    resid = m @ sol - rhs
-    dof = max(len(rhs) - 4, 1)
+    )  # (P, 3, 4)
+    rhs = -commanded[:, :3, 3]  # (P, 3)
+    keep = np.ones(len(m), dtype=bool)
+    for _ in range(4 if robust else 1):
+        rows, b = m[keep].reshape(-1, 4), rhs[keep].reshape(-1)
+        col = np.linalg.norm(rows, axis=0)
+        col[col == 0] = 1.0
+        sol, *_ = np.linalg.lstsq(rows / col, b, rcond=None)
+        sol = sol / col
+        norms = np.linalg.norm(np.einsum("pij,j->pi", m, sol) - rhs, axis=1)
+        if not robust:
+            break
+        cut = 3.0 * max(float(np.median(norms)), 1e-9)
+        new = norms <= cut
+        if new.sum() < max(4, len(m) // 2) or np.array_equal(new, keep):
+            break
+        keep = new
+    resid = (rows @ sol - b).reshape(-1)
+    dof = max(len(resid) - 4, 1)
     sigma2 = float(resid @ resid) / dof
-    normal = (m / col).T @ (m / col)
+    normal = (rows / col).T @ (rows / col)
     sv = np.linalg.svd(normal, compute_uv=False)
-    rms = float(np.sqrt(np.mean(resid**2)))
+    typical = float(np.median(norms)) if robust else float(np.sqrt(np.mean(norms**2)))
     if sv[-1] <= 1e-12 * sv[0] or sol[3] == 0:
-        return Scale(float("nan"), float("inf"), False, None, rms)
+        return Scale(float("nan"), float("inf"), False, None, typical)
     s_std = np.sqrt(sigma2 * np.linalg.inv(normal)[3, 3]) / col[3]
     s = float(sol[3])
     rel = float(s_std / abs(s))
-    return Scale(1.0 / s, rel, bool(rel < 0.01 and s > 0), sol[:3], rms)
+    return Scale(1.0 / s, rel, bool(rel < 0.01 and s > 0), sol[:3], typical)
 
 
 def reorder_w_first(poses: np.ndarray) -> np.ndarray:
@@ -182,10 +201,16 @@ def joint_problems(
             if np.isfinite(lower[j]) or np.isfinite(upper[j])
             else f"any physical range (|q| < {absurd * conv:.4g} {unit})"
         )
+        few = len(bad) <= max(2, len(values) // 20)
+        cause = (
+            "a mistyped reading or a wrong row? fix or remove "
+            + ("it" if len(bad) == 1 else "them")
+            if few
+            else "wrong joint order, unit or model?"
+        )
         out.append(
             f"sample {ids[k]}: q{j + 1} ({names[j]}) = {values[k] * conv:.6g} {unit} is outside "
-            f"{limits} ({len(bad)} of {len(values)} readings of this joint are): wrong joint "
-            "order, unit or model?"
+            f"{limits} ({len(bad)} of {len(values)} readings of this joint are): {cause}"
         )
     return out
 
@@ -198,7 +223,8 @@ def position_problems(poses: np.ndarray, ids: Sequence[str]) -> list[str]:
     if median > 20.0:
         return [
             f"poses look like millimetres: the median distance is {median:.4g} m (a camera and "
-            f"board within a cell are metres apart); give x, y, z in metres"
+            f"board within a cell are metres apart); give x, y, z in metres (fix: x, y, z "
+            "divided by 1000)"
         ]
     bad = np.flatnonzero(dist > max(1e3, 100 * median))
     if bad.size:
@@ -269,6 +295,337 @@ def diagnose_rotations(
     )
 
 
+def swap_xyz(poses: np.ndarray, i: int, j: int) -> np.ndarray:
+    """Poses whose position columns ``i`` and ``j`` (0 x, 1 y, 2 z) were swapped, read back."""
+    out = poses.copy()
+    out[:, [i, j], 3] = poses[:, [j, i], 3]
+    return out
+
+
+@dataclass(frozen=True)
+class Reading:
+    """A reading of the joints (``joints``: how to get the true joint values from the given
+    ones) and of the measured poses that might have been meant, and how to say and fix it."""
+
+    label: str
+    joints: Callable[[np.ndarray], np.ndarray] | None = None
+    poses: Callable[[np.ndarray], np.ndarray] | None = None
+
+
+_COLUMNS = "xyz"
+
+
+def joint_readings(
+    model, q: np.ndarray, margin: float, joint_unit: str | None = None
+) -> list[Reading]:
+    """The joint mix-ups worth trying: two columns swapped, one joint's sign reversed, the
+    columns in reverse order, and the other angle unit than the one declared (``joint_unit``;
+    both when it is not known). A reading that would put readings beyond the joint limits is
+    not offered (following it would be refused)."""
+    n = q.shape[1]
+    revolute = ~np.asarray(model.prismatic)
+    names = [f"q{i + 1}" for i in range(n)]
+    out: list[Reading] = []
+
+    def swap(i: int, j: int) -> Callable[[np.ndarray], np.ndarray]:
+        order = list(range(n))
+        order[i], order[j] = j, i
+        return lambda v: v[:, order]
+
+    def negate(i: int) -> Callable[[np.ndarray], np.ndarray]:
+        sign = np.ones(n)
+        sign[i] = -1.0
+        return lambda v: v * sign
+
+    for i in range(n):
+        for j in range(i + 1, n):
+            out.append(
+                Reading(
+                    f"joint columns {names[i]} and {names[j]} look swapped (fix: swap the names "
+                    f"{names[i]} and {names[j]} in the samples file's header)",
+                    swap(i, j),
+                )
+            )
+    for i in range(n):
+        out.append(
+            Reading(
+                f"{names[i]} looks negated, its readings of the opposite sign (fix: negate the "
+                f"{names[i]} column, or reverse joint {i + 1}'s direction in the model)",
+                negate(i),
+            )
+        )
+    if n > 2:
+        out.append(
+            Reading(
+                f"the joint columns look in reverse order ({names[-1]} .. {names[0]}; fix: "
+                "reverse the joint names in the samples file's header)",
+                lambda v: v[:, ::-1],
+            )
+        )
+    if joint_unit in (None, "deg"):
+        out.append(
+            Reading(
+                "joint angles look like radians declared as degrees (fix: joint_unit: rad in "
+                "dataset.yaml)",
+                lambda v: np.where(revolute, v * (180 / np.pi), v),
+            )
+        )
+    if joint_unit in (None, "rad"):
+        out.append(
+            Reading(
+                "joint angles look like degrees declared as radians (fix: joint_unit: deg in "
+                "dataset.yaml)",
+                lambda v: np.where(revolute, v * (np.pi / 180), v),
+            )
+        )
+    plausible = []
+    for reading in out:
+        alt = reading.joints(q)  # type: ignore[misc]
+        if np.array_equal(alt, q):
+            continue  # the same numbers (a joint that never moves): nothing to tell
+        problems = joint_problems(
+            alt, model.lower, model.upper, model.prismatic, model.joint_names, [""] * len(q), margin
+        )
+        if not problems:
+            plausible.append(reading)
+    return plausible
+
+
+def rpy_reread(poses: np.ndarray, factor: float) -> np.ndarray:
+    """Poses given as roll, pitch, yaw whose angle numbers were in another unit: the angles
+    recovered and multiplied by ``factor`` (exact for the small angles of radians read as
+    degrees, up to the Euler angles' own ambiguity otherwise)."""
+    rpy = Rotation.from_matrix(poses[:, :3, :3]).as_euler("xyz") * factor
+    return tf.homogeneous(Rotation.from_euler("xyz", rpy).as_matrix(), poses[:, :3, 3])
+
+
+def pose_readings(
+    mode: str, poses_given: bool, pose_angle_unit: str | None = None
+) -> list[Reading]:
+    """The measured-pose mix-ups worth trying: inverted poses (or the other mode), w-first
+    quaternions, two position columns swapped (for poses given in a table), and roll, pitch,
+    yaw in the other angle unit than ``pose_angle_unit`` declares (for poses given so)."""
+    other = "board in camera" if mode == "eye_in_hand" else "camera in board"
+    wanted = "camera in board" if mode == "eye_in_hand" else "board in camera"
+    swapped = "eye_to_hand" if mode == "eye_in_hand" else "eye_in_hand"
+    if poses_given:
+        inverted = (
+            f"poses look inverted ({other} given, {wanted} expected for {mode}; fix: give "
+            f"{wanted}, or mode: {swapped} if that is the setup)"
+        )
+    else:
+        inverted = f"the camera poses look inverted (mode: {swapped} meant, not {mode}?)"
+    out = [Reading(inverted, poses=tf.invert)]
+    if poses_given:
+        wfirst = (
+            "quaternions look w-first (qx, qy, qz, qw columns expected in x, y, z, w order; "
+            "fix: name the columns qw, qx, qy, qz in the header)"
+        )
+        out.append(Reading(wfirst, poses=reorder_w_first))
+        out.append(
+            Reading(f"{wfirst} and {inverted}", poses=lambda c: tf.invert(reorder_w_first(c)))
+        )
+        if pose_angle_unit == "deg":
+            out.append(
+                Reading(
+                    "roll, pitch, yaw look like radians declared as degrees (fix: "
+                    "pose_angle_unit: rad in dataset.yaml)",
+                    poses=lambda c: rpy_reread(c, 180 / np.pi),
+                )
+            )
+        elif pose_angle_unit == "rad":
+            out.append(
+                Reading(
+                    "roll, pitch, yaw look like degrees declared as radians (fix: "
+                    "pose_angle_unit: deg in dataset.yaml)",
+                    poses=lambda c: rpy_reread(c, np.pi / 180),
+                )
+            )
+        for i, j in ((0, 1), (0, 2), (1, 2)):
+            out.append(
+                Reading(
+                    f"position columns {_COLUMNS[i]} and {_COLUMNS[j]} look swapped (fix: swap "
+                    f"the names {_COLUMNS[i]} and {_COLUMNS[j]} in the samples file's header)",
+                    poses=lambda c, i=i, j=j: swap_xyz(c, i, j),
+                )
+            )
+    return out
+
+
+@dataclass(frozen=True)
+class _Fit:
+    label: str
+    misfit: float  # median relative-rotation misfit, rad
+    translation: float  # median relative-translation misfit after the best hand-eye, m (inf
+    # when the rotations do not fit)
+
+
+def _pair_angles(commanded: np.ndarray, measured: np.ndarray, rx: np.ndarray) -> np.ndarray:
+    """Per pair, the angle (rad) of ``R_A^T R_X R_B R_X^T``."""
+    rb = np.einsum("ij,pjk,lk->pil", rx, measured[:, :3, :3], rx)
+    diff = np.swapaxes(commanded[:, :3, :3], 1, 2) @ rb
+    return np.linalg.norm(tf.log_rotation(diff), axis=1)
+
+
+def _wrong_samples(pairs: np.ndarray, values: np.ndarray, threshold: float = 5.0) -> np.ndarray:
+    """Samples whose pairs misfit far more than the others' (each sample's median over its
+    pairs, a robust z-score above ``threshold``), at most a quarter of them."""
+    n = int(pairs.max()) + 1
+    score = np.full(n, np.nan)
+    for k in np.unique(pairs):
+        score[k] = np.median(values[(pairs == k).any(axis=1)])
+    seen = np.isfinite(score)
+    centre = np.median(score[seen])
+    spread = max(1.4826 * np.median(np.abs(score[seen] - centre)), 1e-12 * max(centre, 1e-12))
+    bad = np.flatnonzero(seen & (score - centre > threshold * spread))
+    if len(bad) > seen.sum() // 4:
+        bad = bad[np.argsort(score[bad])[::-1][: seen.sum() // 4]]
+    return np.sort(bad)
+
+
+@dataclass(frozen=True)
+class _Evaluation:
+    fit: _Fit
+    rx: np.ndarray
+    scale: Scale | None  # on the pairs of the samples kept; None when the rotations misfit
+    wrong: np.ndarray  # samples left out: their pairs misfit far more than the others'
+
+
+def _evaluate(label, flange, measured, pairs, tolerance) -> _Evaluation:
+    """How well one reading fits: rotations (median over the pairs), then translations after
+    the best hand-eye transform; the samples that misfit far more than the rest (a few wrong
+    rows) are left out and the fit repeated, so that they do not pass for a wrong reading of
+    all samples."""
+    a, b = relative(flange, pairs), relative(measured, pairs)
+    rx = align_rotations(a, b)
+    angles = _pair_angles(a, b, rx)
+    wrong = _wrong_samples(pairs, angles) if len(pairs) >= 10 else np.zeros(0, dtype=int)
+    if wrong.size:
+        keep = ~np.isin(pairs, wrong).any(axis=1)
+        if keep.sum() >= 6:
+            a, b, pairs = a[keep], b[keep], pairs[keep]
+            rx = align_rotations(a, b)
+            angles = _pair_angles(a, b, rx)
+        else:
+            wrong = np.zeros(0, dtype=int)
+    misfit = float(np.median(angles))
+    if misfit > tolerance:
+        return _Evaluation(_Fit(label, misfit, np.inf), rx, None, wrong)
+    scale = translation_scale(a, b, rx)
+    if len(pairs) >= 10 and scale.handeye_translation is not None and np.isfinite(scale.ratio):
+        sol = np.concatenate([scale.handeye_translation, [1.0 / scale.ratio]])
+        m = np.concatenate(
+            [a[:, :3, :3] - np.eye(3), -np.einsum("ij,pj->pi", rx, b[:, :3, 3])[:, :, None]],
+            axis=2,
+        )
+        norms = np.linalg.norm(np.einsum("pij,j->pi", m, sol) + a[:, :3, 3], axis=1)
+        more = _wrong_samples(pairs, norms)
+        keep = ~np.isin(pairs, more).any(axis=1)
+        if more.size and keep.sum() >= 6:
+            scale = translation_scale(a[keep], b[keep], rx)
+            wrong = np.union1d(wrong, more)
+    return _Evaluation(_Fit(label, misfit, scale.residual), rx, scale, wrong)
+
+
+def diagnose_readings(
+    q: np.ndarray,
+    poses: np.ndarray,
+    fk: Callable[[np.ndarray], np.ndarray],
+    joints: Sequence[Reading],
+    measured: Sequence[Reading],
+    tolerances: Tolerances,
+    pairs: np.ndarray,
+    given_valid: bool = True,
+) -> tuple[str | None, _Evaluation | None]:
+    """``None`` and the evaluation of the data as given (``R_X``, the scale found, the samples
+    whose pairs misfit far more than the others') when they agree with the model; else a message
+    naming the reading that fits (an alternative of the joints, of the poses, or one of each),
+    or saying by how much nothing does.
+
+    The rotations decide first (their agreement does not depend on the hand-eye transform); the
+    translations (after the best hand-eye transform and scale, median over the pairs, robust to
+    a few wrong samples) decide between readings the rotations cannot tell apart: two parallel
+    joints swapped turn the flange alike and move it differently. A reading is named only when
+    it fits 3 times better than the data as given; ``given_valid`` False (readings beyond the
+    joint limits) lets any reading that fits be named."""
+    tol, tol_t = tolerances.rotation, tolerances.translation
+    flange = fk(q) if given_valid else None
+    evaluation = None
+    if flange is not None:
+        evaluation = _evaluate("", flange, poses, pairs, tol)
+        given = evaluation.fit
+        if given.misfit <= tol / 5 and given.translation <= tol_t / 2:
+            return None, evaluation  # the right data: nothing else to try
+    else:
+        given = _Fit("", np.inf, np.inf)
+    fits: list[_Fit] = []
+    flanges = {None: flange}
+    for jr in [None, *joints]:
+        if jr is not None:
+            flanges[jr] = fk(jr.joints(q))
+        for pr in [None, *measured]:
+            if (jr is None and pr is None) or flanges[jr] is None:
+                continue
+            if jr is not None and pr is not None and "position columns" in pr.label:
+                continue  # one mix-up of the positions at a time
+            label = " and ".join(r.label for r in (jr, pr) if r is not None)
+            read = pr.poses(poses) if pr is not None else poses  # type: ignore[misc]
+            fits.append(_evaluate(label, flanges[jr], read, pairs, tol).fit)
+    fitting = [f for f in fits if f.misfit <= tol]
+    best = min(fitting, key=lambda f: (f.translation, f.misfit), default=None)
+    if best is not None:
+        if given.misfit > tol:
+            better = best.misfit < given.misfit / RATIO
+        else:  # the rotations agree as given: the translations must be 3x better, or the
+            # rotations 3x better with translations as good
+            better = best.translation < given.translation / RATIO or (
+                best.misfit < given.misfit / RATIO and best.translation <= given.translation
+            )
+        if better:
+            alike = [f.label for f in fitting if f.translation <= 1.5 * best.translation + 1e-6]
+            alike = sorted(alike, key=lambda label: label.count(" and "))[:3]
+            return (
+                f"{' or '.join(alike)}: read that way the relative rotations agree with the "
+                f"commanded ones to {np.degrees(best.misfit):.2f} deg and the relative "
+                f"translations to {best.translation * 1e3:.3g} mm (median); as given "
+                + (
+                    "some joint readings are beyond their limits"
+                    if not given_valid
+                    else f"they disagree by {np.degrees(given.misfit):.1f} deg and "
+                    + (
+                        f"{given.translation * 1e3:.3g} mm"
+                        if np.isfinite(given.translation)
+                        else "translations not comparable"
+                    )
+                ),
+                evaluation,
+            )
+    if not given_valid:
+        return None, None  # the caller names the readings beyond the limits
+    if given.misfit > tol:
+        a, b = relative(flange, pairs), relative(poses, pairs)
+        return (
+            f"measured relative rotations disagree with the commanded ones by a median "
+            f"{np.degrees(given.misfit):.1f} deg (their rotation angles alone by "
+            f"{np.degrees(angle_misfit(a, b)):.1f} deg; expected < {np.degrees(tol):.1f} deg for "
+            "any hand-eye transform), and no other reading of the columns (joint order, signs "
+            "and unit; quaternion order; pose direction) fits. Check the robot model, and "
+            "whether these samples belong to this robot",
+            evaluation,
+        )
+    if given.translation > tol_t:
+        return (
+            f"measured relative translations disagree with the commanded ones by a median "
+            f"{given.translation * 1e3:.4g} mm after the best hand-eye transform (expected < "
+            f"{tol_t * 1e3:.3g} mm, translation_mm in dataset.yaml tolerances), while the "
+            f"rotations agree to {np.degrees(given.misfit):.2f} deg, and no other reading of "
+            "the columns fits. Check the x, y, z columns (order, signs), the robot model's "
+            "link lengths, and whether the poses are of the flange-mounted camera",
+            evaluation,
+        )
+    return None, evaluation
+
+
 def check_inputs(
     model,
     q: np.ndarray,
@@ -283,74 +640,49 @@ def check_inputs(
     poses_given: bool = True,
     spec: str | None = None,
     tolerances: Tolerances = Tolerances(),
+    joint_unit: str | None = None,
+    pose_angle_unit: str | None = None,
 ) -> Scale:
     """Raise :class:`RelcalError` naming the likely cause when the samples cannot be what the
     model commands; return the translation scale found (``determined`` False if the motions
-    cannot tell).
+    cannot tell). ``joint_unit`` and ``pose_angle_unit``: as dataset.yaml declares them (None:
+    not known, or no roll-pitch-yaw poses), for the unit mix-ups to name.
 
     ``q`` ``(N, n)`` rad, ``poses`` ``(N, 4, 4)`` the measured ``C_k`` of usable samples, ``fk``
     the nominal forward kinematics, ``where`` the file named in messages about samples and
     ``spec`` the one about the hand-eye guess (dataset.yaml).
+
+    Readings that might have been meant (:func:`joint_readings`, :func:`pose_readings`) are
+    tried when the data as given do not fit, and the one that fits is named with its fix: a
+    suggestion that, followed, gives data that pass.
     """
     spec = spec or where
     problems = joint_problems(
         q, model.lower, model.upper, model.prismatic, model.joint_names, ids, tolerances.joint_limit
     )
-    problems += position_problems(poses, ids)
+    units = position_problems(poses, ids)
+    if units:
+        raise RelcalError(f"{where}: " + "\n".join(units))
     if handeye is not None and np.linalg.norm(handeye[:3, 3]) > 2.0:
         xyz = np.array2string(handeye[:3, 3], precision=4)
         raise RelcalError(
             f"{spec}: handeye: xyz {xyz} m is {np.linalg.norm(handeye[:3, 3]):.4g} m from the "
             "flange: looks like millimetres (give metres)"
         )
+    pairs = check_pairs(len(q))
+    joints = joint_readings(model, q, tolerances.joint_limit, joint_unit)
+    measured = pose_readings(mode, poses_given, pose_angle_unit)
+    few = bool(problems) and all("a mistyped reading" in p for p in problems)
+    message, given = diagnose_readings(
+        q, poses, fk, joints, measured, tolerances, pairs, given_valid=not problems or few
+    )
+    if message and not (problems and few):
+        raise RelcalError(f"{where}: {message}")
     if problems:
         raise RelcalError(f"{where}: " + "\n".join(problems))
-    flange = fk(q)
-    pairs = check_pairs(len(q))
-    revolute = ~np.asarray(model.prismatic)
-    other = "board in camera" if mode == "eye_in_hand" else "camera in board"
-    wanted = "camera in board" if mode == "eye_in_hand" else "board in camera"
-
-    def scaled(factor: float) -> Callable[[], np.ndarray]:
-        return lambda: fk(np.where(revolute, q * factor, q))
-
-    given = lambda: poses  # noqa: E731
-    swapped = "eye_to_hand" if mode == "eye_in_hand" else "eye_in_hand"
-    inverted = (
-        f"poses look inverted ({other} given, {wanted} expected for {mode})"
-        if poses_given
-        else f"the camera poses look inverted (mode: {swapped} meant, not {mode}?)"
-    )
-    alternatives = [
-        Alternative(
-            inverted,
-            lambda: flange,
-            lambda: tf.invert(poses),
-        ),
-        Alternative(
-            "joint angles look like radians declared as degrees (joint_unit)",
-            scaled(180 / np.pi),
-            given,
-        ),
-        Alternative(
-            "joint angles look like degrees declared as radians (joint_unit)",
-            scaled(np.pi / 180),
-            given,
-        ),
-    ]
-    if poses_given:
-        alternatives.insert(
-            0,
-            Alternative(
-                "quaternions look w-first (qx, qy, qz, qw columns expected in x, y, z, w order)",
-                lambda: flange,
-                lambda: reorder_w_first(poses),
-            ),
-        )
-    message, rx = diagnose_rotations(flange, poses, alternatives, tolerances.rotation, pairs)
-    if message:
-        raise RelcalError(f"{where}: {message}")
-    scale = translation_scale(relative(flange, pairs), relative(poses, pairs), rx)
+    rx, scale = given.rx, given.scale  # type: ignore[union-attr]
+    if scale is None or not scale.determined:
+        return scale or Scale(float("nan"), float("inf"), False)
     if not scale.determined:
         return scale
     off = scale.ratio - 1.0
@@ -395,14 +727,21 @@ def scale_message(ratio: float, board, poses_given: bool) -> str:
     """Name the likely cause of measured translations ``ratio`` times the modelled ones."""
     head = f"measured translations are {ratio:.4g}x the modelled ones"
     if 300 < ratio < 3000:
-        return f"poses look like millimetres ({head}); give x, y, z in metres"
+        return (
+            f"poses look like millimetres ({head}); give x, y, z in metres (fix: x, y, z divided "
+            "by 1000)"
+        )
     if 0.0003 < ratio < 0.003:
-        return f"the robot model looks like millimetres ({head}); give lengths in metres"
+        return (
+            f"the robot model looks like millimetres ({head}); give lengths in metres (fix: the "
+            "model's lengths divided by 1000)"
+        )
     if board is not None and not poses_given:
         what = "square" if board.type in ("chessboard", "charuco") else "spacing"
         return (
             f"board {what} looks {ratio:.3g}x the true size ({head}): {what} "
-            f"{board.spacing:.6g} m in the board file, the data say {board.spacing / ratio:.4g} m"
+            f"{board.spacing:.6g} m in the board file, the data say {board.spacing / ratio:.4g} m "
+            f"(fix: measure the printed board; {what} {board.spacing / ratio:.4g} m if it agrees)"
         )
     return f"{head}: a wrong length unit or scale of the poses, or a wrong robot model"
 
@@ -485,6 +824,8 @@ def check_dataset(dataset, measurements) -> dict:
         poses_given=dataset.poses is not None,
         spec=str(spec),
         tolerances=Tolerances.from_display(dataset.tolerances),
+        joint_unit=getattr(dataset, "joint_unit", None),
+        pose_angle_unit=getattr(dataset, "pose_angle_unit", None),
     )
     pairs = check_pairs(len(usable))
     misfit, _ = rotation_misfit(relative(fk(dataset.model, q), pairs), relative(poses, pairs))

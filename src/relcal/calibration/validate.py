@@ -11,7 +11,7 @@ predicted points of each group and the error of the known distances.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -139,6 +139,9 @@ class Validation:
     guess: np.ndarray
     calibrated: np.ndarray
     baseline: np.ndarray | None = None
+    # held-out samples that fit badly under every model (:func:`held_out_outliers`), left out
+    # of the pairs above
+    outliers: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=int))
 
     @property
     def before(self) -> np.ndarray:
@@ -178,6 +181,7 @@ def pooled(validations: list):
         guess=np.concatenate([v.guess for v in validations]),
         calibrated=np.concatenate([v.calibrated for v in validations]),
         baseline=np.concatenate([v.baseline for v in validations]) if has_baseline else None,
+        outliers=np.concatenate([v.outliers for v in validations]).astype(int),
     )
 
 
@@ -192,18 +196,93 @@ def subset(problem: Problem, samples: np.ndarray, pairing: PairStrategy = "all")
     )
 
 
+def _scores(problem: Problem, params: np.ndarray, samples, partners, sigma=None):
+    """Each sample's median error against ``partners`` (pairs ``(k, j)``; per-pose
+    formulations: its own error), in units of ``sigma`` (default: robust levels of these
+    errors); and ``sigma``."""
+    samples, partners = np.asarray(samples), np.asarray(partners)
+    if problem.formulation in ("absolute", "tracker"):
+        errors = pair_errors(problem, params)[samples][:, None, :]
+    else:
+        pairs = np.array([(k, j) for k in samples for j in partners if j != k], dtype=int)
+        per = pair_errors(replace(problem, pairs=pairs), params)
+        errors = np.full((len(samples), len(partners), 6), np.nan)
+        slot = {int(k): i for i, k in enumerate(samples)}
+        where = {int(j): i for i, j in enumerate(partners)}
+        for row, (k, j) in enumerate(pairs):
+            errors[slot[int(k)], where[int(j)]] = per[row]
+    if sigma is None:
+        flat = errors.reshape(-1, 6)
+        flat = flat[np.isfinite(flat[:, :3]).all(axis=1)]
+        sigma = np.ones(6)
+        for cols in (slice(0, 3), slice(3, 6)):
+            values = flat[:, cols].ravel()
+            values = values[np.isfinite(values)]
+            if values.size:
+                sigma[cols] = max(1.4826 * np.median(np.abs(values - np.median(values))), 1e-12)
+    norms = np.sqrt(np.nansum((errors / sigma) ** 2, axis=2))
+    norms[np.isnan(errors).all(axis=2)] = np.nan
+    return np.nanmedian(norms, axis=1), sigma
+
+
+def held_out_outliers(
+    problem: Problem,
+    models: list[np.ndarray],
+    samples: np.ndarray,
+    train: np.ndarray,
+    threshold: float = 10.0,
+    partners: int = 50,
+    seed: int = 0,
+) -> np.ndarray:
+    """The held-out ``samples`` that fit badly under *every* model in ``models`` (parameter
+    vectors: the calibrated one and the baseline), by the rule that finds training outliers at
+    twice its threshold: a sample's median error against training samples, as a robust z-score
+    among the training samples' own, above ``threshold`` (10; a wrong row, an inverted pose or a
+    mistyped joint, scores in the hundreds; a real sample that is merely the worst of a set
+    stays below). A sample the calibrated model merely extrapolates to still fits the baseline,
+    so it is never called an outlier: validation cannot be flattered that way."""
+    samples, train = np.asarray(samples), np.asarray(train)
+    if len(samples) == 0 or len(train) < 4:
+        return np.zeros(0, dtype=int)
+    rng = np.random.default_rng(seed)
+    chosen = train if len(train) <= partners else np.sort(rng.choice(train, partners, False))
+    flagged = np.ones(len(samples), dtype=bool)
+    for params in models:
+        own, sigma = _scores(problem, params, chosen, chosen)
+        theirs, _ = _scores(problem, params, samples, chosen, sigma)
+        own = own[np.isfinite(own)]
+        if own.size < 4:
+            return np.zeros(0, dtype=int)
+        centre = np.median(own)
+        spread = max(1.4826 * np.median(np.abs(own - centre)), 1e-12)
+        flagged &= (theirs - centre) > threshold * spread
+    return samples[flagged]
+
+
 def held_out(
     problem: Problem,
     result: Result,
     samples: np.ndarray,
     pairing: PairStrategy = "all",
     baseline: Result | None = None,
+    train: np.ndarray | None = None,
 ) -> Validation:
     """Errors on pairs among ``samples`` (which the identification did not use), or on each
     sample alone (as pairs ``(k, k)``) for the per-pose formulations, of the nominal model with
-    the frame guesses, the ``baseline`` fit (if given) and ``result``."""
-    test = subset(problem, samples, pairing)
+    the frame guesses, the ``baseline`` fit (if given) and ``result``.
+
+    With the ``train`` samples, held-out samples that fit badly under both the calibrated model
+    and the baseline (:func:`held_out_outliers`) are left out of the pairs and listed in
+    ``outliers``, as outliers among the training samples are left out of the fit (while at
+    least 2 held-out samples remain)."""
     samples = np.asarray(samples)
+    outliers = np.zeros(0, dtype=int)
+    if train is not None:
+        models = [result.params] + ([baseline.params] if baseline is not None else [])
+        outliers = held_out_outliers(problem, models, samples, train)
+        if len(samples) - len(outliers) >= 2:
+            samples = np.setdiff1d(samples, outliers)
+    test = subset(problem, samples, pairing)
     if problem.formulation in ("absolute", "tracker"):
         pairs = np.stack([samples, samples], axis=1)
     else:
@@ -213,6 +292,7 @@ def held_out(
         guess=pair_errors(test, np.zeros_like(result.params)),
         calibrated=pair_errors(test, result.params),
         baseline=None if baseline is None else pair_errors(test, baseline.params),
+        outliers=outliers,
     )
 
 

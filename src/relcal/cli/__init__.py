@@ -4,7 +4,8 @@ Exit codes (:data:`EXIT_CODES`): 0 success; 1 the run finished but a check faile
 that did not converge: nothing written; an unreached target: marked in the outputs); 2 bad input,
 a bad option or a refused or unwritable output (the message names the file or option), nothing
 written; 3 internal error (a bug: please report it; ``RELCAL_DEBUG=1`` shows the traceback); 130
-interrupted (SIGINT), 143 terminated (SIGTERM), both with the previous outputs left whole.
+interrupted (SIGINT), 143 terminated (SIGTERM): the outputs are the previous ones, or the new
+ones with their registry record, each whole, and the message says which.
 """
 
 from __future__ import annotations
@@ -21,7 +22,7 @@ import signal  # noqa: E402
 import sys  # noqa: E402
 from collections.abc import Callable, Sequence  # noqa: E402
 
-from relcal.errors import RelcalError  # noqa: E402
+from relcal.errors import RelcalError, printable  # noqa: E402
 
 EXIT_CODES = {
     0: "ok",
@@ -58,25 +59,70 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+class _TerminalSafe:
+    """A text stream whose writes are made terminal-safe (:func:`relcal.errors.terminal_safe`):
+    text that came from files (ids, names, messages) cannot drive the terminal."""
+
+    def __init__(self, stream) -> None:
+        self._stream = stream
+
+    def write(self, text: str) -> int:
+        from relcal.errors import terminal_safe
+
+        self._stream.write(terminal_safe(text))
+        return len(text)
+
+    def __getattr__(self, name: str):
+        return getattr(self._stream, name)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
-    """Run one command; the one place where errors become messages and exit codes."""
+    """Run one command; the one place where errors become messages and exit codes. Everything
+    it prints is terminal-safe (control characters from files shown as escapes)."""
+    streams = sys.stdout, sys.stderr
+    sys.stdout, sys.stderr = _TerminalSafe(sys.stdout), _TerminalSafe(sys.stderr)
+    try:
+        return _main(argv)
+    finally:
+        sys.stdout, sys.stderr = streams
+
+
+def _main(argv: Sequence[str] | None) -> int:
     previous = signal.getsignal(signal.SIGTERM)
     in_main = _main_thread()
     if in_main:
         signal.signal(signal.SIGTERM, _terminate)
+    from relcal.outputset import forget_written
+
+    forget_written()
     try:
         return _run(argv)
     except SystemExit as exc:  # argparse: --help (0) or a bad option (2, message printed)
         return exc.code if isinstance(exc.code, int) else 2
     except Terminated:
-        print("relcal: terminated; earlier outputs left as they were", file=sys.stderr)
+        print(f"relcal: terminated; {_what_was_written()}", file=sys.stderr)
         return 143
     except KeyboardInterrupt:
-        print("relcal: interrupted; earlier outputs left as they were", file=sys.stderr)
+        print(f"relcal: interrupted; {_what_was_written()}", file=sys.stderr)
         return 130
     finally:
         if in_main:
             signal.signal(signal.SIGTERM, previous)
+
+
+def _what_was_written() -> str:
+    """The truth about the outputs after an interrupt: what this run installed (each whole,
+    with its record), or that nothing was written."""
+    from relcal.outputset import written
+
+    done = written()
+    if not done:
+        return "nothing written (earlier outputs left as they were)"
+    return (
+        "already written, each whole: "
+        + "; ".join(done)
+        + " (the rest of the run, if any, was not done)"
+    )
 
 
 def _main_thread() -> bool:
@@ -96,11 +142,17 @@ def _run(argv: Sequence[str] | None) -> int:
         with tracking(), np.errstate(all="ignore"):
             return func(args)
     except RelcalError as exc:
-        print(f"relcal: error: {exc}", file=sys.stderr)
+        print(f"relcal: error: {printable(exc)}", file=sys.stderr)
         return 2
+    except BrokenPipeError:  # the reader of our output went away (``relcal history | head``)
+        try:
+            sys.stdout = open(os.devnull, "w")  # noqa: SIM115 - nothing more to print
+        except OSError:
+            pass
+        return 141
     except OSError as exc:
-        where = f" {exc.filename}" if exc.filename else ""
-        print(f"relcal: error:{where}: {exc.strerror or exc}; nothing written", file=sys.stderr)
+        where = f" {exc.filename}:" if exc.filename else ""
+        print(f"relcal: error:{where} {exc.strerror or exc}; nothing written", file=sys.stderr)
         return 2
     except (KeyboardInterrupt, SystemExit):
         raise

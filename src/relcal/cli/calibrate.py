@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+from contextlib import nullcontext
 from pathlib import Path
 
 from relcal.cli.common import (
@@ -14,6 +15,7 @@ from relcal.cli.common import (
     positive_float,
     positive_int,
     registry_arg,
+    seed,
 )
 
 EPILOG = """\
@@ -95,27 +97,82 @@ def check_holdout(dataset, holdout: float, usable: int | None = None) -> None:
         )
 
 
+def id_origin(dataset) -> str:
+    """How a dataset's samples got their ids, for messages."""
+    ids = dataset.ids
+    where = dataset.spec_path.parent.resolve() if dataset.spec_path else dataset.root
+    if ids == tuple(str(k + 1) for k in range(len(ids))):
+        return (
+            f"{where} has {len(ids)} samples, numbered 1 to {len(ids)} in the order of their rows "
+            "(the samples table has no id column)"
+        )
+    shown = ", ".join(ids[:3]) + (f", ... {ids[-1]}" if len(ids) > 3 else "")
+    return f"{where} has {len(ids)} samples, ids {shown}"
+
+
+def check_holdout_ids(dataset, ids: list[str]) -> None:
+    """Every id of ``--holdout-ids`` names a sample, and enough are left to calibrate."""
+    from relcal.errors import RelcalError, excerpt
+
+    if not ids:
+        raise RelcalError("--holdout-ids: no ids given ('a,b,c' or '@file', one id per line)")
+    known = set(dataset.ids)
+    unknown = [i for i in ids if i not in known]
+    if unknown:
+        names = ", ".join(excerpt(i, 30) for i in unknown[:5])
+        more = f" and {len(unknown) - 5} more" if len(unknown) > 5 else ""
+        raise RelcalError(f"--holdout-ids: no sample {names}{more}: {id_origin(dataset)}")
+    left = len(known - set(ids))
+    if left < 4:
+        raise RelcalError(
+            f"--holdout-ids: {len(set(ids))} of {len(known)} samples held out, leaving {left} to "
+            "calibrate (at least 4 are needed); hold out fewer"
+        )
+
+
 def run_calibrate(args: argparse.Namespace) -> int:
+    from relcal.data.dataset import load_dataset
+    from relcal.fleet.registry import open_for_writing
+    from relcal.outputset import check
+
+    dataset = load_dataset(args.dataset)
+    out = Path(args.out or Path(args.dataset) / "calibration")
+    holdout_ids = _ids(args.holdout_ids) if args.holdout_ids else None
+    destinations = _destinations(out, args.json, args.report)
+    check(destinations)  # refuse before the work, not after it
+    if dataset.measured == "pose":  # all pairs are quadratic: refused before measuring
+        from relcal.calibration.selection import candidate_model
+        from relcal.limits import check_calibration_memory
+        from relcal.robot.kinematics import make_layout
+
+        n_params = make_layout(candidate_model(dataset.model, args.nongeometric)).size + 6
+        n = len(dataset.ids)
+        held = len(set(holdout_ids)) if holdout_ids else round(args.holdout * n)
+        check_calibration_memory(n, args.pairs, n_params, str(dataset.root), n - held)
+    # the registry opened, migrated and checked before any computation (the inputs are known
+    # by now: an input is never turned into a database, nor is an output)
+    registry = open_for_writing(args.registry, outputs=destinations)
+    with registry if registry is not None else nullcontext():
+        return _calibrate(args, dataset, out, holdout_ids, registry)
+
+
+def _calibrate(args, dataset, out, holdout_ids, registry) -> int:
     import sys
 
     from relcal.calibration.pipeline import calibrate
-    from relcal.data.dataset import load_dataset
     from relcal.data.imaging import measure
-    from relcal.fleet.records import record_calibration
-    from relcal.outputset import check
+    from relcal.fleet.records import calibration_record
     from relcal.reporting.documents import cross_validation_document, results_document
     from relcal.reporting.outputs import write_calibration
     from relcal.reporting.text import calibration_summary
 
-    dataset = load_dataset(args.dataset)
     by_placement = dataset.measured == "coincidence"  # held out by placement, not by sample
-    out = Path(args.out or Path(args.dataset) / "calibration")
-    holdout_ids = _ids(args.holdout_ids) if args.holdout_ids else None
-    check(_destinations(out, args.json, args.report))  # refuse before the work, not after it
     if not by_placement:
         check_kfold(dataset, args.kfold)
         if holdout_ids is None:
             check_holdout(dataset, args.holdout)
+        else:
+            check_holdout_ids(dataset, holdout_ids)
     m = measure(dataset, workers=args.workers, progress=not args.quiet, max_rms=args.max_rms)
     if by_placement and args.kfold:
         from relcal.calibration.kinds import kind_of
@@ -166,8 +223,9 @@ def run_calibrate(args: argparse.Namespace) -> int:
             file=sys.stderr,
         )
         return 1
-    written = write_calibration(cal, out, doc, args.json, args.report)
-    run_id = record_calibration(args.registry, cal, doc, out)
+    journal = None if registry is None else registry.pending(calibration_record(cal, doc, out))
+    written = write_calibration(cal, out, doc, args.json, args.report, journal=journal)
+    run_id = None if journal is None else journal.run_id
     if not args.quiet:
         print(calibration_summary(doc))
         if cal.worse:
@@ -189,12 +247,16 @@ def _ids(text: str) -> list[str]:
     if text.startswith("@"):
         from relcal.errors import RelcalError
         from relcal.io import note_input
+        from relcal.limits import check_input_size
 
         note_input(text[1:])
+        check_input_size(text[1:], "text")
         try:
-            lines = Path(text[1:]).read_text().splitlines()
+            lines = Path(text[1:]).read_text(encoding="utf-8-sig").splitlines()
+        except UnicodeDecodeError:
+            raise RelcalError(f"--holdout-ids {text}: not a text file (one id per line)") from None
         except OSError as exc:
-            raise RelcalError(f"--holdout-ids {text}: cannot read: {exc}") from None
+            raise RelcalError(f"--holdout-ids {text}: cannot read: {exc.strerror or exc}") from None
         return [line.strip() for line in lines if line.strip()]
     return [t.strip() for t in text.split(",") if t.strip()]
 
@@ -264,7 +326,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="held-out share, 0 <= H < 1 (default 0.25; 0: no validation); of the placements "
         "for coincidence samples",
     )
-    cp.add_argument("--seed", type=int, default=0, help="seed of the held-out split")
+    cp.add_argument("--seed", type=seed, default=0, help="seed of the held-out split")
     cp.add_argument(
         "--holdout-ids",
         help="validation samples by id (placements by name for coincidence samples): 'a,b,c' "

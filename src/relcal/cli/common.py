@@ -193,6 +193,72 @@ def length_m(low: float, high: float) -> Callable[[str], float]:
     return parse
 
 
+def seed(text: str) -> int:
+    """A random seed: a whole number from 0 up."""
+    value = _integer(text)
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"'{text}': expected a seed, a whole number of 0 or more")
+    return value
+
+
+def interval(low: float, high: float, unit: str) -> Callable[[str], tuple[float, float]]:
+    """``LOW,HIGH`` with ``low <= LOW < HIGH <= high`` (in ``unit``)."""
+
+    def parse(text: str) -> tuple[float, float]:
+        parts = text.split(",")
+        if len(parts) != 2:
+            raise argparse.ArgumentTypeError(
+                f"'{text}': expected two numbers LOW,HIGH ({unit}), e.g. {low:g},{high:g}"
+            )
+        lo, hi = (_number(p.strip()) for p in parts)
+        if not lo < hi:
+            raise argparse.ArgumentTypeError(
+                f"'{text}': the low end must be below the high end (LOW,HIGH, {unit}); "
+                f"swapped? {parts[1].strip()},{parts[0].strip()}"
+            )
+        if lo < low or hi > high:
+            raise argparse.ArgumentTypeError(
+                f"'{text}': expected LOW,HIGH within {low:g} to {high:g} {unit}"
+            )
+        return lo, hi
+
+    parse.__name__ = "interval"
+    return parse
+
+
+def numbers(counts: tuple[int, ...], what: str, bound: float = 1e6) -> Callable[[str], list]:
+    """Comma-separated finite numbers, as many as one of ``counts``, each within ``bound``."""
+
+    def parse(text: str) -> list[float]:
+        parts = text.split(",")
+        if len(parts) not in counts:
+            want = " or ".join(map(str, counts))
+            raise argparse.ArgumentTypeError(f"'{text}': expected {want} numbers: {what}")
+        values = [_number(p.strip()) for p in parts]
+        if any(abs(v) > bound for v in values):
+            raise argparse.ArgumentTypeError(f"'{text}': {what}: each within +-{bound:g}")
+        return values
+
+    parse.__name__ = "numbers"
+    return parse
+
+
+def noise_levels(text: str) -> str:
+    """``POS_MM,ORI_DEG[,JOINT_DEG]`` non-negative standard deviations, or ``none``."""
+    if text.strip().lower() == "none":
+        return "none"
+    parts = text.split(",")
+    try:
+        values = [float(p) for p in parts]
+    except ValueError:
+        values = []
+    if not 2 <= len(values) <= 3 or any(not math.isfinite(v) or v < 0 for v in values):
+        raise argparse.ArgumentTypeError(
+            f"'{text}': expected POS_MM,ORI_DEG[,JOINT_DEG] as non-negative numbers"
+        )
+    return text
+
+
 def existing_file(text: str) -> str:
     """A path to an existing file (not a folder)."""
     path = Path(text)

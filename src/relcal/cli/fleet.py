@@ -5,7 +5,16 @@ from __future__ import annotations
 import argparse
 from datetime import UTC, datetime
 
-from relcal.cli.common import json_arg, registry_arg
+from relcal.cli.common import (
+    fraction,
+    holdout_fraction,
+    json_arg,
+    output_file,
+    output_folder,
+    positive_int,
+    registry_arg,
+    seed,
+)
 from relcal.fleet import ALPHA as DRIFT_ALPHA
 
 EPILOG = """\
@@ -22,13 +31,32 @@ exit status: 0 every session calibrated, 1 some session failed or did not conver
 
 
 def run_fleet_calibrate(args: argparse.Namespace) -> int:
-    from relcal.fleet.registry import open_registry
-    from relcal.fleet.runner import attach_drift, discover, run_fleet
+    from relcal.fleet.registry import open_for_writing
+    from relcal.fleet.runner import discover, outputs_folder
+    from relcal.outputset import File, Folder, check
+
+    sessions = discover(args.root)
+    reports = [
+        File(path, b"", what)
+        for path, what in ((args.json, "--json"), (args.report, "--report"))
+        if path
+    ]
+    check(reports)  # refused before the work
+    outputs = [Folder(outputs_folder(s, args.out), what="outputs") for s in sessions]
+    # opened, migrated and checked before any computation; never an input or an output
+    registry = open_for_writing(args.registry, outputs=[*outputs, *reports])
+    try:
+        return _fleet(args, sessions, registry)
+    finally:
+        if registry is not None:
+            registry.close()
+
+
+def _fleet(args: argparse.Namespace, sessions, registry) -> int:
+    from relcal.fleet.runner import attach_drift, run_fleet
     from relcal.fleet.text import fleet_text
     from relcal.io import write_json, write_text
 
-    sessions = discover(args.root)
-    registry = open_registry(args.registry)
     options = {
         "holdout": args.holdout,
         "seed": args.seed,
@@ -74,11 +102,9 @@ def run_fleet_calibrate(args: argparse.Namespace) -> int:
         n_ok = sum(e["status"] == "ok" for e in entries)
         print(f"{n_ok} of {len(entries)} sessions calibrated in {elapsed:.1f} s")
         if registry is not None:
-            print(f"recorded in {registry.engine.url.render_as_string(hide_password=True)}")
+            print(f"recorded in {registry.name}")
         if args.report:
             print(f"report: {args.report}")
-    if registry is not None:
-        registry.close()
     return 0 if all(e["status"] == "ok" for e in entries) else 1
 
 
@@ -121,9 +147,7 @@ def fleet_document(args, sessions, entries, elapsed: float, registry) -> dict:
         "n_failed": sum(e["status"] != "ok" for e in entries),
         "workers": None if args.scheduler else args.workers,
         "scheduler": args.scheduler,
-        "registry": None
-        if registry is None
-        else registry.engine.url.render_as_string(hide_password=True),
+        "registry": None if registry is None else registry.name,
         "seconds": elapsed,
         "alpha": args.alpha,
         "models": model_summaries(entries),
@@ -153,14 +177,22 @@ def register(sub: argparse._SubParsersAction) -> None:
         formatter_class=fmt,
     )
     cp.add_argument("root", help="folder of dataset folders")
-    cp.add_argument("--out", help="outputs under OUT/<session> (default SESSION/calibration)")
-    cp.add_argument("--workers", type=int, default=2, help="local worker processes (default 2)")
+    cp.add_argument(
+        "--out",
+        type=output_folder,
+        help="outputs under OUT/<session> (default SESSION/calibration)",
+    )
+    cp.add_argument(
+        "--workers", type=positive_int, default=2, help="local worker processes (default 2)"
+    )
     cp.add_argument(
         "--scheduler", metavar="tcp://HOST:8786", help="use a running Dask cluster instead"
     )
     registry_arg(cp)
-    cp.add_argument("--holdout", type=float, default=0.25, help="held-out share (default 0.25)")
-    cp.add_argument("--seed", type=int, default=0, help="seed of the held-out split")
+    cp.add_argument(
+        "--holdout", type=holdout_fraction, default=0.25, help="held-out share (default 0.25)"
+    )
+    cp.add_argument("--seed", type=seed, default=0, help="seed of the held-out split")
     cp.add_argument("--pairs", choices=("consecutive", "star", "all"), default="all")
     cp.add_argument("--method", choices=("lm", "published"), default="lm")
     cp.add_argument("--loss", choices=("linear", "huber", "cauchy", "soft_l1"), default="linear")
@@ -173,11 +205,13 @@ def register(sub: argparse._SubParsersAction) -> None:
     cp.add_argument("--keep-outliers", action="store_true", help="keep detected outliers")
     cp.add_argument(
         "--alpha",
-        type=float,
+        type=fraction,
         default=DRIFT_ALPHA,
         help=f"drift test level (default {DRIFT_ALPHA})",
     )
-    cp.add_argument("--report", metavar="FILE", help="write the fleet report (HTML) to FILE")
+    cp.add_argument(
+        "--report", metavar="FILE", type=output_file, help="write the fleet report (HTML) to FILE"
+    )
     cp.add_argument("--quiet", action="store_true", help="no progress bar or summary")
     json_arg(cp, "one entry per session (status, held-out errors, outputs, drift)")
     cp.set_defaults(func=run_fleet_calibrate)

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from relcal.cli.common import json_arg, registry_arg
+from relcal.cli.common import fraction, json_arg, positive_int, registry_arg
 from relcal.fleet import ALPHA as DRIFT_ALPHA
 
 EPILOG = """\
@@ -91,7 +91,10 @@ def run_compare(args: argparse.Namespace) -> int:
 def _common(p: argparse.ArgumentParser) -> None:
     registry_arg(p)
     p.add_argument(
-        "--alpha", type=float, default=DRIFT_ALPHA, help=f"drift test level (default {DRIFT_ALPHA})"
+        "--alpha",
+        type=fraction,
+        default=DRIFT_ALPHA,
+        help=f"drift test level (default {DRIFT_ALPHA})",
     )
     p.add_argument(
         "--as-recorded",
@@ -117,7 +120,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         formatter_class=fmt,
     )
     hp.add_argument("robot_id")
-    hp.add_argument("--last", type=int, metavar="N", help="only the N latest runs")
+    hp.add_argument("--last", type=positive_int, metavar="N", help="only the N latest runs")
     _common(hp)
     json_arg(
         hp, "the runs (parameters in SI units) with their drift verdicts, and the verifications"

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from relcal.cli.common import json_arg, output_folder
+from relcal.cli.common import json_arg, nonnegative_float, output_folder, positive_float
 
 EPILOG = """\
 examples:
@@ -171,12 +171,15 @@ def register(sub: argparse._SubParsersAction) -> None:
     ros.add_argument("--robot", help="robot: written into dataset.yaml (name or model file)")
     ros.add_argument(
         "--velocity",
-        type=float,
+        type=positive_float,
         default=0.01,
         help="a stop: every joint slower than this (rad/s, m/s; default 0.01)",
     )
     ros.add_argument(
-        "--settle", type=float, default=0.5, help="... for at least this long (s; default 0.5)"
+        "--settle",
+        type=nonnegative_float,
+        default=0.5,
+        help="... for at least this long (s; default 0.5)",
     )
     mukca = p.add_argument_group("mukca")
     mukca.add_argument("--urdf", metavar="FILE", help="the robot's URDF (referenced, not copied)")

@@ -12,8 +12,10 @@ from relcal.cli.common import (
     int_at_least,
     json_arg,
     load_robot,
+    noise_levels,
     nonnegative_int,
     robot_args,
+    seed,
 )
 
 if TYPE_CHECKING:
@@ -91,6 +93,7 @@ def run(args: argparse.Namespace) -> int:
 def add_noise_arg(parser: argparse.ArgumentParser, default: str = "0.05,0.01,0.001") -> None:
     parser.add_argument(
         "--noise",
+        type=noise_levels,
         default=default,
         help="POS_MM,ORI_DEG[,JOINT_DEG] standard deviations of each measured pose and joint "
         f"reading (default {default}; 'none' skips the uncertainty)",
@@ -119,7 +122,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--n-poses", type=int_at_least(3), default=40, help="simulated poses (default 40)"
     )
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=seed, default=0)
     p.add_argument("--formulation", choices=("invariant", "published"), default="invariant")
     p.add_argument("--measure", choices=("pose", "position"), default="pose")
     p.add_argument(

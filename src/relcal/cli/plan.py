@@ -9,14 +9,17 @@ from typing import TYPE_CHECKING
 from relcal.cli.common import (
     fraction,
     int_at_least,
+    interval,
     json_arg,
     load_robot,
     nonnegative_float,
     nonnegative_int,
+    numbers,
     output_file,
     positive_float,
     positive_int,
     robot_args,
+    seed,
 )
 from relcal.cli.observability import add_noise_arg
 
@@ -162,9 +165,9 @@ def build_cell(args: argparse.Namespace):
     if args.camera:
         cell = replace(cell, camera=parse_camera(args.camera))
     if args.board_center:
-        cell = replace(cell, center=np.array(_floats(args.board_center, (3,), "--board-center")))
+        cell = replace(cell, center=np.array(args.board_center))
     if args.handeye:
-        he = _floats(args.handeye, (3, 6), "--handeye") + [0.0, 0.0, 0.0]
+        he = list(args.handeye) + [0.0, 0.0, 0.0]
         cell = replace(cell, handeye=tf.from_xyz_rpy(np.array(he[:3]), np.radians(he[3:6])))
     return cell
 
@@ -196,7 +199,7 @@ def run(args: argparse.Namespace) -> int:
             )
     check([File(p, b"", what) for p, what in named if p])  # before the work
     cell = build_cell(args)
-    lo, hi = _floats(args.distance, (2,), "--distance")
+    lo, hi = args.distance
     constraints = Constraints(
         margin_px=args.margin,
         distance=(lo, hi),
@@ -282,11 +285,13 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument(
         "--board-center",
+        type=numbers((3,), "X,Y,Z of the board centre, m", 100.0),
         help="X,Y,Z of the pattern centre in the base frame, m; the board lies flat, face up "
         "(default 0.45,0,0, the simulation's cell)",
     )
     p.add_argument(
         "--handeye",
+        type=numbers((3, 6), "X,Y,Z[,ROLL,PITCH,YAW] in m and deg", 360.0),
         help="flange-from-camera guess X,Y,Z[,ROLL,PITCH,YAW] (m, deg; default 0,0.04,0.06, the "
         "simulation's mount)",
     )
@@ -305,7 +310,13 @@ def register(sub: argparse._SubParsersAction) -> None:
         "(trace of the scaled covariance)",
     )
     p.add_argument("--algorithm", choices=("exchange", "greedy"), default="exchange")
-    p.add_argument("--distance", default="0.25,0.45", help="camera to board centre, m")
+    p.add_argument(
+        "--distance",
+        type=interval(0.01, 10.0, "m"),
+        default=(0.25, 0.45),
+        metavar="LOW,HIGH",
+        help="camera to board centre, m (default 0.25,0.45)",
+    )
     p.add_argument(
         "--max-angle", type=positive_float, default=40.0, help="viewing angle limit, deg"
     )
@@ -357,7 +368,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         default=20,
         help="random sets to compare with",
     )
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=seed, default=0)
     where = p.add_mutually_exclusive_group()
     where.add_argument(
         "--workers",

@@ -9,10 +9,12 @@ from relcal.cli.common import (
     int_at_least,
     json_arg,
     load_robot,
+    noise_levels,
     output_file,
     output_folder,
     positive_float,
     robot_args,
+    seed,
 )
 
 EPILOG_SIMULATE = """\
@@ -215,8 +217,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     sim.add_argument(
         "--poses", type=int_at_least(3), default=60, help="number of poses (default 60)"
     )
-    sim.add_argument("--noise", help="POS_MM,ORI_DEG[,JOINT_DEG] standard deviations")
-    sim.add_argument("--seed", type=int, default=0)
+    sim.add_argument(
+        "--noise", type=noise_levels, help="POS_MM,ORI_DEG[,JOINT_DEG] standard deviations"
+    )
+    sim.add_argument("--seed", type=seed, default=0)
     sim.add_argument("--errors", help="YAML file of specified errors (default: random)")
     sim.add_argument(
         "--nongeometric",

@@ -12,6 +12,7 @@ from relcal.cli.common import (
     positive_float,
     positive_int,
     robot_args,
+    seed,
 )
 from relcal.cli.observability import add_noise_arg
 
@@ -123,7 +124,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="number of trials, at least 2 for a standard deviation (default 200)",
     )
     add_noise_arg(p)
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=seed, default=0)
     p.add_argument("--workers", type=positive_int, default=2, help="worker processes (default 2)")
     p.add_argument(
         "--scheduler",

@@ -18,7 +18,8 @@
     samples: samples.csv
     tolerances:                # optional plausibility thresholds (defaults shown)
       length_mm: 10            #   largest identified correction of a link length
-      angle_deg: 2             #   of a joint offset or twist
+      angle_deg: 5             #   of a joint offset or twist
+      translation_mm: 100      #   median relative-translation misfit of the data (see plausibility)
     robot_id: cell4-arm2       # optional: which physical robot (history); default folder name
     measurement: coincidence   # optional: coincidence samples (inferred from a group column)
     tool: {xyz: [0, 0, 0.03]}  # coincidence: guess of the tool point in the tip frame (m)
@@ -27,7 +28,8 @@
     joint_limits:              # optional: the cell's limits, narrower than the robot's, in
       elbow: [-170, 170]       #   joint_unit (prismatic joints in m); plan and capture keep them
 
-``samples.csv`` has a header: ``id`` (optional: without it a sample's id is its line number), one
+``samples.csv`` has a header: ``id`` (optional: without it the samples are numbered 1, 2, ... in
+the order of their rows, blank lines not counted), one
 column per joint, named ``q1`` .. ``qn`` or by the model's joint names (``torso_lift_joint``, ...,
 matched by name in any order), then what was measured, one of:
 
@@ -55,10 +57,17 @@ import pydantic
 from scipy.spatial.transform import Rotation
 
 from relcal import geometry as tf
-from relcal.errors import RelcalError
+from relcal.errors import RelcalError, excerpt, printable
 from relcal.io import load_yaml, note_input, read_table, validate
+from relcal.limits import check_input_size
 from relcal.robot.loading import get_robot
-from relcal.robot.model import RobotModel, auto_hayati, model_from_dict, restrict_limits
+from relcal.robot.model import (
+    RobotModel,
+    auto_hayati,
+    library_names,
+    model_from_dict,
+    restrict_limits,
+)
 
 POSE_COLUMNS = ("x", "y", "z", "qx", "qy", "qz", "qw")
 RPY_COLUMNS = ("x", "y", "z", "roll", "pitch", "yaw")
@@ -84,6 +93,7 @@ class _Tolerances(pydantic.BaseModel):
     rotation_deg: pydantic.PositiveFloat | None = None
     scale_percent: pydantic.PositiveFloat | None = None
     joint_limit_deg: pydantic.PositiveFloat | None = None
+    translation_mm: pydantic.PositiveFloat | None = None
 
 
 class _Distance(pydantic.BaseModel):
@@ -161,6 +171,8 @@ class Dataset:
     tolerances: dict[str, float] | None = None  # plausibility thresholds (mm, deg, percent)
     measured: Measured = "image"  # or "pose"; "position": poses hold points (rotation unused)
     robot_id: str | None = None  # ``robot_id`` of dataset.yaml (the folder name when absent)
+    joint_unit: str | None = None  # as declared in dataset.yaml (the diagnoses name it)
+    pose_angle_unit: str | None = None  # as declared, when the poses came as roll, pitch, yaw
     # Coincidence samples (``measured == "coincidence"``): each sample's group, the tool point
     # guess (tip frame, m; None: solved from the data) and the known distances between groups as
     # ``(group_a, group_b, distance_m, std_m)``.
@@ -411,11 +423,19 @@ def _resolve(root: Path, value: str | dict | None, loader, what: str, spec: Path
 
 def load_dataset(folder: str | Path) -> Dataset:
     """Read and check ``folder/dataset.yaml`` and its samples table."""
+    from relcal.checks import check_instance
+
+    check_instance(folder, str | Path, "folder", "a dataset folder path (str or Path)")
     root = Path(folder)
     spec_path = root / "dataset.yaml"
     if not root.is_dir():
         raise RelcalError(f"{root}: not a dataset folder (expected a folder with dataset.yaml)")
     data, node = load_yaml(spec_path)
+    if data is None:
+        raise RelcalError(
+            f"{spec_path}: empty; expected at least 'robot: NAME' (a built-in robot or a model "
+            "file) and, if the samples are not in samples.csv, 'samples: FILE'"
+        )
     spec = validate(_DatasetSpec, data, spec_path, node)
 
     model = _robot(root, spec.robot, spec_path, node)
@@ -469,6 +489,8 @@ def load_dataset(folder: str | Path) -> Dataset:
         groups=groups,
         tool_point=None if spec.tool is None else np.array(spec.tool.xyz, dtype=float),
         distances=distances,
+        joint_unit=spec.joint_unit,
+        pose_angle_unit=spec.pose_angle_unit if table.rpy else None,
     )
 
 
@@ -522,11 +544,24 @@ def _robot(root: Path, value: str | dict, spec_path: Path, node) -> RobotModel:
         sub = node.value if node is not None else None
         robot_node = next((v for k, v in sub or [] if getattr(k, "value", None) == "robot"), None)
         spec = validate(_UrdfRobot, value, f"{spec_path}: robot", robot_node)
+        if Path(spec.urdf).suffix.lower() not in (".urdf", ".xml"):
+            raise RelcalError(
+                f"{spec_path}: robot: urdf: {excerpt(spec.urdf, 80)}: not a URDF file name "
+                "(.urdf or .xml); relcal reads no other file as a robot"
+            )
         return load_urdf(root / spec.urdf, spec.root, spec.tip, spec.parametrisation)
     if isinstance(value, dict):
         return model_from_dict(value, f"{spec_path}: robot")
-    path = root / value
-    return get_robot(path if path.suffix.lower() in (".yaml", ".yml", ".urdf") else value)
+    suffix = Path(value).suffix.lower()
+    if suffix in (".yaml", ".yml", ".urdf", ".xacro"):
+        return get_robot(root / value)  # a model file, relative to the dataset folder
+    if value.lower() in library_names():
+        return get_robot(value.lower())
+    raise RelcalError(
+        f"{spec_path}: robot: {excerpt(value, 80)}: neither a built-in robot "
+        f"({', '.join(library_names())}) nor a model file (.yaml, .yml or .urdf, relative to "
+        "the dataset folder); relcal reads no other file as a robot"
+    )
 
 
 def _board(root: Path, value, spec_path: Path, load_board):
@@ -558,6 +593,7 @@ class SampleTable:
     poses: np.ndarray | None
     measured: Measured
     groups: tuple[str, ...] | None = None  # coincidence: each sample's group (PLACEMENT/NAME)
+    rpy: bool = False  # the poses came as roll, pitch, yaw
 
 
 def read_samples(
@@ -586,9 +622,14 @@ def _rename(path: Path, header: list[str], columns: dict[str, str], model: Robot
         raise RelcalError(
             f"{path} line 1: header: dataset.yaml columns: maps to "
             f"{', '.join(repr(m) for m in missing)}, which the header lacks (it has "
-            f"{', '.join(header)})"
+            f"{_header_text(header)})"
         )
     return [inverse.get(h, h) for h in header]
+
+
+def _header_text(header: list[str]) -> str:
+    """A header's names for a message: escaped, and not more than a line of them."""
+    return printable(", ".join(header), 200)
 
 
 def _joint_columns(path: Path, header: list[str], model: RobotModel) -> list[str]:
@@ -636,7 +677,7 @@ def _measured_columns(path: Path, header: list[str]) -> tuple[Measured, tuple[st
         raise RelcalError(
             f"{path} line 1: header: expected an 'image' column, or a pose "
             f"{', '.join(POSE_COLUMNS)} or {', '.join(RPY_COLUMNS)}, or a position x, y, z "
-            f"(exactly one of these; the header has {', '.join(header)}); map other names in "
+            f"(exactly one of these; the header has {_header_text(header)}); map other names in "
             "dataset.yaml, e.g. columns: {x: x1, y: y1, z: z1}"
         )
     return found[0]
@@ -663,16 +704,20 @@ def read_sample_table(
     has_id = "id" in col
     ids, q, images, values, seen = [], [], [], [], {}
     lines = []
-    for row in data:
+    for number, row in enumerate(data, start=1):
         line_no = row.line
         lines.append(line_no)
         if len(row) != len(header):
             raise RelcalError(
                 f"{path} line {line_no}: {len(row)} fields, expected {len(header)} as in the header"
             )
-        sid = row[col["id"]].strip() if has_id else str(line_no)
+        sid = row[col["id"]].strip() if has_id else str(number)  # no id column: rows 1..N
+        if has_id and not sid:
+            raise RelcalError(f"{path} line {line_no}: id: empty; give every sample an id")
         if sid in seen:
-            raise RelcalError(f"{path} line {line_no}: id '{sid}' duplicates line {seen[sid]}")
+            raise RelcalError(
+                f"{path} line {line_no}: id {excerpt(sid)} duplicates line {seen[sid]}"
+            )
         seen[sid] = line_no
         ids.append(sid)
         q.append([parse_number(path, line_no, c, row[col[c]]) for c in joints])
@@ -683,6 +728,7 @@ def read_sample_table(
             images.append(path.parent / name)
         else:
             values.append([parse_number(path, line_no, c, row[col[c]]) for c in meas_cols])
+    _no_repeated_samples(path, ids, lines, q, images if measured == "image" else values)
     q_arr = _joint_values(path, np.array(q, dtype=float), model, joint_unit)
     pose_arr = None
     if measured == "image":
@@ -694,6 +740,7 @@ def read_sample_table(
             if not image.is_file():
                 raise RelcalError(f"{path} line {line_no}: image: file not found: {image}")
             note_input(image)
+            check_input_size(image, "image")
     elif meas_cols == POSE_COLUMNS:
         pose_arr = _poses(path, np.array(values), lines)
     elif meas_cols == RPY_COLUMNS:
@@ -702,7 +749,12 @@ def read_sample_table(
         pose_arr = np.broadcast_to(np.eye(4), (len(values), 4, 4)).copy()
         pose_arr[:, :3, 3] = values
     return SampleTable(
-        tuple(ids), q_arr, tuple(images) if measured == "image" else None, pose_arr, measured
+        tuple(ids),
+        q_arr,
+        tuple(images) if measured == "image" else None,
+        pose_arr,
+        measured,
+        meas_cols == RPY_COLUMNS,
     )
 
 
@@ -746,6 +798,29 @@ def _coincidence_table(
     return SampleTable(tuple(ids), q_arr, None, poses, "coincidence", tuple(groups))
 
 
+def _no_repeated_samples(path: Path, ids, lines, q, measured) -> None:
+    """Refuse rows that repeat another row's joints and measurement exactly: a sample recorded
+    (or copied) twice, which weighs twice in the fit, and whose held-out copy of a training
+    sample would flatter the validation."""
+    first: dict[tuple, int] = {}
+    repeats = []
+    for k, (joints, meas) in enumerate(zip(q, measured, strict=True)):
+        key = (tuple(joints), str(meas) if isinstance(meas, Path) else tuple(meas))
+        if key in first:
+            repeats.append((k, first[key]))
+        else:
+            first[key] = k
+    if repeats:
+        k, j = repeats[0]
+        raise RelcalError(
+            f"{path} line {lines[k]}: sample {excerpt(ids[k])} repeats line {lines[j]} (sample "
+            f"{excerpt(ids[j])}): the same joints and measurement; {len(repeats)} of {len(ids)} "
+            "rows repeat an earlier one (a sample recorded or copied twice counts twice, and a "
+            "held-out copy of a training sample would flatter the validation; fix: remove the "
+            "repeated rows)"
+        )
+
+
 def parse_number(path: Path, line_no: int, column: str, text: str) -> float:
     """A finite float from a CSV cell; errors name the file, the line and the column."""
     try:
@@ -753,7 +828,7 @@ def parse_number(path: Path, line_no: int, column: str, text: str) -> float:
     except ValueError:
         hint = " (a decimal comma? write 0.5, not 0,5)" if "," in text else ""
         raise RelcalError(
-            f"{path} line {line_no}: {column}: expected a number, got '{text.strip()}'{hint}"
+            f"{path} line {line_no}: {column}: expected a number, got {excerpt(text.strip())}{hint}"
         ) from None
     if not np.isfinite(value):
         raise RelcalError(f"{path} line {line_no}: {column}: expected a finite number, got {text}")
@@ -768,12 +843,12 @@ def _joint_values(path: Path, q: np.ndarray, model: RobotModel, unit: str) -> np
         if unit == "rad" and peak > 2 * np.pi + 0.1:
             raise RelcalError(
                 f"{path}: joint angles reach {peak:.1f}, which looks like degrees, but "
-                "dataset.yaml declares joint_unit: rad"
+                "dataset.yaml declares joint_unit: rad (fix: joint_unit: deg)"
             )
         if unit == "deg" and len(q) >= 5 and peak < np.pi + 0.05 and np.abs(q).mean() > 1e-3:
             raise RelcalError(
                 f"{path}: no joint angle exceeds {peak:.2f}, which looks like radians, but "
-                "dataset.yaml declares joint_unit: deg"
+                "dataset.yaml declares joint_unit: deg (fix: joint_unit: rad)"
             )
     return joints_from_unit(model, q, unit)
 
@@ -866,7 +941,13 @@ def _rpy_poses(path: Path, values: np.ndarray, unit: str) -> np.ndarray:
     if unit == "rad" and len(rpy) and np.abs(rpy).max() > 2 * np.pi + 0.1:
         raise RelcalError(
             f"{path}: roll, pitch, yaw reach {np.abs(rpy).max():.1f}, which looks like degrees, "
-            "but dataset.yaml declares pose_angle_unit: rad (the default)"
+            "but dataset.yaml declares pose_angle_unit: rad (the default; fix: "
+            "pose_angle_unit: deg)"
+        )
+    if unit == "deg" and len(rpy) >= 5 and np.abs(rpy).max() < np.pi + 0.05:
+        raise RelcalError(
+            f"{path}: roll, pitch, yaw never exceed {np.abs(rpy).max():.2f}, which looks like "
+            "radians, but dataset.yaml declares pose_angle_unit: deg (fix: pose_angle_unit: rad)"
         )
     if unit == "deg":
         rpy = np.radians(rpy)

@@ -32,6 +32,11 @@ def measure(
 ) -> Measurements:
     """Camera poses of every sample: given directly, or from the images (frames whose board
     reprojection RMS is above ``max_rms`` px rejected)."""
+    from relcal.checks import check_dataset, check_number
+
+    check_dataset(dataset)
+    check_number(workers, "workers", 1, integer=True)
+    check_number(max_rms, "max_rms", 0, low_open=True)
     n = len(dataset.ids)
     if dataset.poses is not None:
         return Measurements(

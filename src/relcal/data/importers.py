@@ -8,6 +8,7 @@ from pathlib import Path
 import pydantic
 
 from relcal.data.dataset import POSE_COLUMNS
+from relcal.errors import RelcalError, excerpt
 from relcal.io import Folder, load_validated, write_set, yaml_text
 
 POSITIONER_MODEL = """\
@@ -33,6 +34,15 @@ class _Pose(pydantic.BaseModel):
     qy: pydantic.FiniteFloat
     qz: pydantic.FiniteFloat
     qw: pydantic.FiniteFloat
+
+
+def _unit_quaternion(p: _Pose, where: str) -> None:
+    """A pose's quaternion must be a unit one (a zero or scaled one is a wrong file or field)."""
+    norm = (p.qx**2 + p.qy**2 + p.qz**2 + p.qw**2) ** 0.5
+    if abs(norm - 1) > 1e-3:
+        raise RelcalError(
+            f"{where}: qx, qy, qz, qw: expected a unit quaternion, the norm is {norm:.4g}"
+        )
 
 
 class _Observation(pydantic.BaseModel):
@@ -64,6 +74,13 @@ def import_rct_positioner(source: str | Path, out: str | Path) -> Imported:
     lines = [",".join(["id", "q1", "q2", *POSE_COLUMNS])]
     for key, obs in data.items():
         p = obs.pose
+        where = f"{source}: observation {excerpt(key)}"
+        _unit_quaternion(p, where)
+        if len(obs.target_joints) != 2:
+            raise RelcalError(
+                f"{where}: target_joints: {len(obs.target_joints)} values, the 2-axis positioner "
+                "has 2 (a file of another robot_cal_tools problem?)"
+            )
         values = [*obs.target_joints, p.x, p.y, p.z, p.qx, p.qy, p.qz, p.qw]
         lines.append(",".join([key, *(f"{v:.17g}" for v in values)]))
     spec = {
@@ -135,7 +152,8 @@ def pose_chain_joints(poses, first):
     if not np.all(sol.converged) or np.any(miss > 1e-8):
         bad = int(np.argmax(miss))
         raise RelcalError(
-            f"pose {bad + 1}: not reproduced by the pose chain (miss {miss[bad]:.2g})"
+            f"pose {bad + 1}: not reproduced by the pose chain (miss {miss[bad]:.2g}); a pose "
+            "far outside the others (metres given in millimetres?)"
         )
     return spec, sol.q
 
@@ -187,11 +205,16 @@ def import_rct_images(
             raise RelcalError(f"{source / 'cal_data.yaml'} entry {k + 1}: image not found: {image}")
         note_input(image)
         p = load_validated(_Pose, source / e.pose)
+        _unit_quaternion(p, str(source / e.pose))
         rot = Rotation.from_quat([p.qx, p.qy, p.qz, p.qw]).as_matrix()
         poses.append(tf.homogeneous(rot, np.array([p.x, p.y, p.z])))
         images.append(image)
     poses = np.array(poses)
     spec, q = pose_chain_joints(poses, poses[0])
+    from relcal.limits import check_input_size
+
+    for image in images:
+        check_input_size(image, "image")
     first = cv2.imread(str(images[0]), cv2.IMREAD_UNCHANGED)
     if first is None:
         raise RelcalError(f"{images[0]}: not an image OpenCV can read")

@@ -12,10 +12,11 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import yaml
 
 import relcal
 from relcal.calibration.outcome import Calibration
+from relcal.errors import RelcalError
+from relcal.io import load_yaml
 
 BASELINE = "baseline"  # held-out errors of the hand-eye-only fit (``validation.baseline``)
 
@@ -56,8 +57,8 @@ def input_hashes(root: str | Path, images: tuple[Path, ...] | None = None) -> di
     spec = root / "dataset.yaml"
     out = {"dataset.yaml": _sha256(spec)}
     try:
-        data = yaml.safe_load(spec.read_text()) or {}
-    except (OSError, yaml.YAMLError):
+        data, _ = load_yaml(spec)  # the one YAML loader (sizes and aliases bounded)
+    except RelcalError:
         data = {}
     named = {"samples": "samples.csv", **data} if isinstance(data, dict) else {}
     for key in ("robot", "board", "camera", "samples"):
@@ -155,11 +156,13 @@ def calibration_record(
 def record_calibration(
     where: str | Path | None, cal: Calibration, doc: dict, outputs: str | Path | None = None
 ) -> int | None:
-    """Record a calibration in the registry at ``where`` (or ``$RELCAL_REGISTRY``); its run id,
-    or None when no registry is given."""
-    from relcal.fleet.registry import open_registry
+    """Record a calibration in the registry at ``where`` (or ``$RELCAL_REGISTRY``) on its own,
+    without outputs; its run id, or None when no registry is given. (A command writing outputs
+    records them in one transaction: :func:`relcal.reporting.outputs.write_calibration` with
+    ``registry=``.)"""
+    from relcal.fleet.registry import open_for_writing
 
-    registry = open_registry(where)
+    registry = open_for_writing(where)
     if registry is None:
         return None
     with registry:

@@ -8,7 +8,18 @@ cells at one server. The schema is versioned by the Alembic migrations shipped i
 Concurrent writers are safe: every record is one short ``INSERT`` transaction; SQLite runs in WAL
 mode with a busy timeout (readers never block the writer, writers queue), and a write that still
 finds the database locked is retried with a randomised back-off. Migrations of a SQLite file are
-serialised by a lock file beside it.
+serialised by a lock file beside it (``NAME.lock``, its only companion besides SQLite's own
+``-wal`` and ``-shm``).
+
+**Opening is checking.** :func:`open_for_writing` runs before any computation and refuses, with a
+message naming the registry, a path that is a folder, a device, a file this run reads (an input
+is never turned into a database), a file that is not a SQLite database, a corrupt database, a
+database of another program, a schema newer than this relcal knows, a database or folder that
+cannot be written, or a server that cannot be reached. A SQLite file that does not exist yet is
+only checked (its folder exists and is writable) and created when the first record is written,
+so a run refused later leaves no file behind. A record is written by :meth:`Registry.pending`, a
+:class:`relcal.outputset.Journal`: the row is inserted in a transaction that commits only once
+the outputs are in place (:func:`relcal.outputset.write_set`).
 
 Parameters, standard deviations and covariances are stored in SI units (m, rad) with their names.
 """
@@ -195,15 +206,31 @@ def _locked(exc: BaseException) -> bool:
     )
 
 
+def _reason(exc: BaseException) -> str:
+    """The database's own words for an error (one line), with the usual causes named."""
+    text = str(getattr(exc, "orig", exc)).strip().splitlines()[0] if str(exc) else repr(exc)
+    low = text.lower()
+    if "not a database" in low or "malformed" in low:
+        return f"{text} (the file is corrupt or not a SQLite database)"
+    if (
+        "readonly" in low
+        or "read-only" in low
+        or "permission denied" in low
+        or "unable to open" in low
+    ):
+        return f"{text} (the database or its folder cannot be written)"
+    return text
+
+
 def _retry(action: Callable[[], T], what: str) -> T:
     """``action()``, retried with a randomised exponential back-off while the database is busy."""
     delay = 0.05
     for attempt in range(RETRIES + 1):
         try:
             return action()
-        except (sa.exc.OperationalError, sa.exc.IntegrityError, sa.exc.ProgrammingError) as exc:
+        except sa.exc.DBAPIError as exc:
             if attempt == RETRIES or not _locked(exc):
-                raise RelcalError(f"registry: {what} failed: {getattr(exc, 'orig', exc)}") from None
+                raise RelcalError(f"registry: {what} failed: {_reason(exc)}") from None
             time.sleep(delay * (1 + random.random()))
             delay = min(delay * 2, 2.0)
     raise AssertionError("unreachable")
@@ -253,25 +280,43 @@ def current_revision(engine: sa.Engine) -> str | None:
         return MigrationContext.configure(conn).get_current_revision()
 
 
-def migrate(engine: sa.Engine, revision: str = "head") -> None:
-    """Bring the schema to ``revision`` (default the newest) with the shipped migrations."""
+def known_revisions() -> set[str]:
+    """Every schema revision shipped with this relcal."""
+    from alembic.script import ScriptDirectory
+
+    script = ScriptDirectory.from_config(_alembic_config(None))  # type: ignore[arg-type]
+    return {rev.revision for rev in script.walk_revisions()}
+
+
+def _lock_path(url: sa.URL) -> Path | None:
+    """The lock file that serialises migrations of a SQLite registry (beside it)."""
+    if _is_sqlite(url) and url.database and url.database != ":memory:":
+        return Path(url.database + ".lock")
+    return None
+
+
+def migrate(engine: sa.Engine, revision: str = "head", locked: bool = False) -> None:
+    """Bring the schema to ``revision`` (default the newest) with the shipped migrations
+    (``locked``: the caller holds the migration lock already)."""
     from alembic import command
 
     def upgrade() -> None:
         with engine.begin() as conn:
             command.upgrade(_alembic_config(conn), revision)
 
-    url = engine.url
-    lock = Path(url.database + ".lock") if _is_sqlite(url) and url.database else None
-    with _file_lock(lock):
+    with _file_lock(None if locked else _lock_path(engine.url)):
         _retry(upgrade, "schema migration")
 
 
-def _engine(url: str) -> sa.Engine:
+def _parse_url(url: str) -> sa.URL:
     try:
-        parsed = sa.make_url(url)
+        return sa.make_url(url)
     except sa.exc.ArgumentError as exc:
         raise RelcalError(f"registry {url!r}: not a SQLAlchemy URL or file path ({exc})") from None
+
+
+def _engine(url: str) -> sa.Engine:
+    parsed = _parse_url(url)
     if _is_sqlite(parsed):
         if parsed.database and parsed.database != ":memory:":
             folder = Path(parsed.database).parent
@@ -283,14 +328,13 @@ def _engine(url: str) -> sa.Engine:
         def _pragmas(dbapi_connection, _record) -> None:
             cursor = dbapi_connection.cursor()
             cursor.execute(f"PRAGMA busy_timeout = {int(BUSY_TIMEOUT_S * 1000)}")
-            with contextlib.suppress(Exception):  # another process may be switching it too
-                cursor.execute("PRAGMA journal_mode = WAL")
             cursor.execute("PRAGMA synchronous = NORMAL")
             cursor.close()
 
         return engine
+    connect_args = {"connect_timeout": 10} if parsed.get_backend_name() == "postgresql" else {}
     try:
-        return sa.create_engine(parsed, pool_pre_ping=True)
+        return sa.create_engine(parsed, pool_pre_ping=True, connect_args=connect_args)
     except (ImportError, sa.exc.NoSuchModuleError) as exc:
         raise RelcalError(
             f"registry {parsed.render_as_string(hide_password=True)}: no database driver "
@@ -298,19 +342,244 @@ def _engine(url: str) -> sa.Engine:
         ) from None
 
 
-class Registry:
-    """A calibration registry at a SQLAlchemy URL (see :func:`registry_url`), migrated on open."""
+def _sqlite_path(url: sa.URL) -> Path | None:
+    """The file of a SQLite URL (None for other databases and in-memory SQLite)."""
+    if not _is_sqlite(url) or not url.database or url.database == ":memory:":
+        return None
+    if url.database.startswith("file:"):  # a URI filename: file:PATH?mode=ro
+        return Path(url.database[5:].split("?", 1)[0]).resolve()
+    return Path(url.database).resolve()
 
-    def __init__(self, url: str) -> None:
+
+SQLITE_MAGIC = b"SQLite format 3\x00"
+
+
+def check_sqlite_path(path: Path, write: bool) -> bool:
+    """Refuse a SQLite registry path that cannot be one (see the module docstring), without
+    creating anything; True when the file exists."""
+    from relcal.outputset import inputs, is_stream
+
+    where = f"registry {path}"
+    if path in inputs():
+        raise RelcalError(
+            f"{where}: is a file this run reads (an input); a registry is a database of its own, "
+            "and relcal never turns an input into one: give another path, e.g. history.sqlite"
+        )
+    if path.is_dir():
+        raise RelcalError(f"{where}: is a folder; give a database file path, e.g. {path}/h.sqlite")
+    if path.exists() and (is_stream(path) or not path.is_file()):
+        raise RelcalError(f"{where}: not a regular file (a device or pipe); give a file path")
+    if not path.exists():
+        folder = path.parent
+        if not folder.is_dir():
+            raise RelcalError(f"{where}: folder {folder} does not exist")
+        if write and not os.access(folder, os.W_OK | os.X_OK):
+            raise RelcalError(f"{where}: cannot create it: folder {folder} is not writable")
+        return False
+    try:
+        with open(path, "rb") as handle:
+            head = handle.read(len(SQLITE_MAGIC))
+    except OSError as exc:
+        raise RelcalError(f"{where}: cannot read: {exc.strerror or exc}") from None
+    if head and head != SQLITE_MAGIC:
+        raise RelcalError(
+            f"{where}: not a SQLite database (a file of another kind, {path.stat().st_size} "
+            "bytes); relcal never turns another file into a registry: give a new file name or an "
+            "existing registry"
+        )
+    if write and not os.access(path, os.W_OK):
+        raise RelcalError(f"{where}: read-only (no write permission); records cannot be added")
+    if write and not os.access(path.parent, os.W_OK | os.X_OK):
+        raise RelcalError(
+            f"{where}: its folder {path.parent} is not writable (SQLite needs it for its journal)"
+        )
+    return True
+
+
+def _check_database(conn: sa.Connection, name: str) -> None:
+    """Refuse a corrupt database, one of another program, or a schema newer than this relcal."""
+    from alembic.runtime.migration import MigrationContext
+
+    if conn.dialect.name == "sqlite":
+        result = conn.execute(sa.text("PRAGMA quick_check")).scalars().all()
+        if result != ["ok"]:
+            first = str(result[0]).strip().splitlines()[0] if result else "no answer"
+            raise RelcalError(
+                f"corrupt SQLite database ({first}); restore it from a backup or give a new file"
+            )
+    tables = set(sa.inspect(conn).get_table_names())
+    revision = MigrationContext.configure(conn).get_current_revision()
+    # a SQLite file is one program's; a server database may hold other programs' tables beside
+    # relcal's, but not a calibrations table relcal did not make
+    foreign = (
+        tables - {"alembic_version"} if conn.dialect.name == "sqlite" else tables & {"calibrations"}
+    )
+    if revision is None and foreign:
+        shown = ", ".join(sorted(foreign)[:5])
+        raise RelcalError(
+            f"a database of another program (tables {shown}), not a relcal registry; give a new "
+            "file or an existing registry"
+        )
+    if revision is not None and revision not in known_revisions():
+        raise RelcalError(
+            f"schema revision {revision!r} is newer than this relcal knows (up to "
+            f"{head_revision()!r}): written by a newer relcal; upgrade relcal to use it"
+        )
+
+
+def _probe_write(engine: sa.Engine) -> None:
+    """A write that changes nothing (an insert of no rows, rolled back): the database, its
+    folder and the user's privileges allow records."""
+
+    def probe() -> None:
+        with engine.connect() as conn:
+            with conn.begin() as txn:
+                conn.execute(
+                    calibrations.insert().from_select(
+                        ["uid"], sa.select(sa.literal("probe")).where(sa.false())
+                    )
+                )
+                txn.rollback()
+
+    _retry(probe, "checking that records can be written")
+
+
+class PendingRecord:
+    """One record written as a :class:`relcal.outputset.Journal`: ``prepare`` inserts it in an
+    open transaction, ``commit`` commits, ``rollback`` forgets it. For a SQLite registry that
+    does not exist yet, ``prepare`` creates and migrates it under the migration lock (held until
+    the end), and ``rollback`` removes it again."""
+
+    def __init__(self, registry: Registry, record: dict[str, Any]) -> None:
+        self.registry = registry
+        self.row = _row(record)
+        self.run_id: int | None = None
+        self._conn: sa.Connection | None = None
+        self._txn = None
+        self._lock = None
+        self._created = False
+
+    def prepare(self) -> None:
+        reg = self.registry
+        if reg._create:
+            self._lock = _file_lock(_lock_path(reg.engine.url))
+            self._lock.__enter__()
+            self._created = not reg.path.exists()  # type: ignore[union-attr]
+            reg._open(write=True, locked=True)
+
+        def insert() -> int:
+            conn = reg.engine.connect()
+            txn = conn.begin()
+            try:
+                key = conn.execute(calibrations.insert().values(**self.row)).inserted_primary_key
+            except BaseException:
+                txn.rollback()
+                conn.close()
+                raise
+            self._conn, self._txn = conn, txn
+            return int(key[0])
+
+        self.run_id = _retry(insert, f"recording the calibration of {self.row.get('robot_id')}")
+
+    def commit(self) -> None:
+        try:
+            self._txn.commit()  # type: ignore[union-attr]
+        except sa.exc.DBAPIError as exc:
+            self._close(remove=self._created)
+            raise RelcalError(
+                f"registry {self.registry.name}: recording the calibration failed: {_reason(exc)}"
+            ) from None
+        self._close()
+        self.registry._create = False
+
+    def rollback(self) -> None:
+        try:
+            if self._txn is not None:
+                self._txn.rollback()
+        finally:
+            self._close(remove=self._created)
+
+    def _close(self, remove: bool = False) -> None:
+        """Close the connection; ``remove``: delete the SQLite file this record created (while
+        the migration lock is still held); then release the lock."""
+        if self._conn is not None:
+            self._conn.close()
+            self._conn = self._txn = None
+        if remove and self._lock is not None and self.registry.path is not None:
+            self.registry.engine.dispose()
+            for suffix in ("", "-wal", "-shm", "-journal"):
+                Path(f"{self.registry.path}{suffix}").unlink(missing_ok=True)
+        self._created = False
+        if self._lock is not None:
+            self._lock.__exit__(None, None, None)
+            self._lock = None
+
+    def describe(self) -> str:
+        return f"registry {self.registry.name} run {self.run_id}"
+
+
+def _row(record: dict[str, Any]) -> dict[str, Any]:
+    """The table row of a record (the keys of :class:`Run` but ``id``; ``uid`` and
+    ``created_at`` filled in when missing)."""
+    row = {k: v for k, v in record.items() if k != "errors"}
+    row.update(record.get("errors") or {})
+    row.setdefault("uid", uuid.uuid4().hex)
+    row.setdefault("created_at", datetime.now(UTC))
+    unknown = set(row) - set(calibrations.c.keys())
+    if unknown:
+        raise ValueError(f"unknown registry fields: {sorted(unknown)}")
+    return row
+
+
+class Registry:
+    """A calibration registry at a SQLAlchemy URL (see :func:`registry_url`), checked and
+    migrated on open (see the module docstring).
+
+    ``write``: also check that records can be written (before any computation), and for a SQLite
+    file that does not exist yet, create it only when the first record is written
+    (:meth:`pending`)."""
+
+    def __init__(self, url: str, write: bool = False) -> None:
         self.url = url
         self.engine = _engine(url)
+        self.name = self.engine.url.render_as_string(hide_password=True)
+        self.path = _sqlite_path(self.engine.url)
+        self._create = False  # a SQLite file to create with the first record
+        if self.path is not None:
+            self.name = str(self.path)
+            exists = check_sqlite_path(self.path, write)
+            if not exists and write:
+                self._create = True
+                return
         try:
-            migrate(self.engine)
-        except sa.exc.OperationalError as exc:
-            raise RelcalError(
-                f"registry {self.engine.url.render_as_string(hide_password=True)}: cannot open: "
-                f"{getattr(exc, 'orig', exc)}"
-            ) from None
+            self._open(write)
+        except BaseException:
+            self.engine.dispose()
+            raise
+
+    def _open(self, write: bool, locked: bool = False) -> None:
+        """Check the schema and the database, migrate, and (``write``) probe a write."""
+        try:
+            with self.engine.connect() as conn:
+                _check_database(conn, self.name)
+                if conn.dialect.name == "sqlite":  # WAL (kept in the file) once it is ours
+                    with contextlib.suppress(sa.exc.DBAPIError):  # another process may be too
+                        conn.exec_driver_sql("PRAGMA journal_mode = WAL")
+            migrate(self.engine, locked=locked)
+            if write:
+                _probe_write(self.engine)
+        except RelcalError as exc:
+            text = str(exc).removeprefix("registry: ")
+            raise RelcalError(f"registry {self.name}: {text}") from None
+        except sa.exc.DBAPIError as exc:
+            raise RelcalError(f"registry {self.name}: cannot open: {_reason(exc)}") from None
+        except sa.exc.SQLAlchemyError as exc:
+            raise RelcalError(f"registry {self.name}: cannot open: {exc}") from None
+
+    def pending(self, record: dict[str, Any]) -> PendingRecord:
+        """The record as a :class:`relcal.outputset.Journal`: inserted in a transaction that
+        :func:`relcal.outputset.write_set` commits once the outputs are in place."""
+        return PendingRecord(self, record)
 
     def __repr__(self) -> str:
         return f"Registry({self.engine.url.render_as_string(hide_password=True)!r})"
@@ -327,13 +596,12 @@ class Registry:
     def add(self, record: dict[str, Any]) -> int:
         """Store one record (the keys of :class:`Run` but ``id``; ``uid`` and ``created_at``
         are filled in when missing); its id."""
-        row = {k: v for k, v in record.items() if k != "errors"}
-        row.update(record.get("errors") or {})
-        row.setdefault("uid", uuid.uuid4().hex)
-        row.setdefault("created_at", datetime.now(UTC))
-        unknown = set(row) - set(calibrations.c.keys())
-        if unknown:
-            raise ValueError(f"unknown registry fields: {sorted(unknown)}")
+        if self._create:  # a new SQLite file: created (and migrated) with its first record
+            pending = self.pending(record)
+            pending.prepare()
+            pending.commit()
+            return int(pending.run_id)  # type: ignore[arg-type]
+        row = _row(record)
 
         def insert() -> int:
             with self.engine.begin() as conn:
@@ -344,6 +612,9 @@ class Registry:
         return _retry(insert, f"recording the calibration of {row.get('robot_id')}")
 
     def _select(self, query) -> list[Run]:
+        if self._create:  # not created yet: no runs
+            return []
+
         def read() -> list[Run]:
             with self.engine.connect() as conn:
                 return [_run(r) for r in conn.execute(query).mappings()]
@@ -393,8 +664,15 @@ class Registry:
 
     def robots(self) -> list[str]:
         query = sa.select(calibrations.c.robot_id).distinct().order_by(calibrations.c.robot_id)
-        with self.engine.connect() as conn:
-            return [r[0] for r in conn.execute(query)]
+
+        if self._create:
+            return []
+
+        def read() -> list[str]:
+            with self.engine.connect() as conn:
+                return [r[0] for r in conn.execute(query)]
+
+        return _retry(read, "reading")
 
     def get(self, ref: str | int) -> Run:
         """A run by id (``12``) or by a unique prefix of its uid (at least 6 characters)."""
@@ -453,11 +731,28 @@ def open_registry(where: str | os.PathLike | None = None, create: bool = True) -
     url = registry_url(where)
     if url is None:
         return None
-    parsed = sa.make_url(url) if "://" in url else None
-    if not create and parsed is not None and _is_sqlite(parsed) and parsed.database:
-        if not Path(parsed.database).is_file():
-            raise RelcalError(f"registry {parsed.database}: no such file (nothing recorded yet?)")
+    parsed = _parse_url(url)
+    path = _sqlite_path(parsed)
+    if not create and path is not None and not path.exists():
+        raise RelcalError(f"registry {path}: no such file (nothing recorded yet?)")
     return Registry(url)
+
+
+def open_for_writing(where: str | os.PathLike | None = None, outputs=()) -> Registry | None:
+    """The registry at ``where`` (else ``$RELCAL_REGISTRY``, else None) for a command that will
+    record: opened, migrated and checked now, before any computation (see the module
+    docstring). Call it after the inputs are read (an input is refused as a registry), with the
+    run's ``outputs`` (:class:`relcal.outputset.Folder` and ``File`` items: a registry that is
+    one of them or inside an output folder is refused)."""
+    url = registry_url(where)
+    if url is None:
+        return None
+    path = _sqlite_path(_parse_url(url))
+    if path is not None:
+        from relcal.outputset import check_apart
+
+        check_apart(path, f"registry {path}", outputs)
+    return Registry(url, write=True)
 
 
 def require_registry(where: str | os.PathLike | None) -> Registry:

@@ -1,11 +1,14 @@
 """Many calibrations as tasks on a Dask cluster: one task per dataset folder (session).
 
-A task loads, measures and calibrates one session, writes its outputs as ``relcal calibrate``
-does, and returns a small summary and its registry record; it never raises for a bad dataset (its
-entry says ``failed`` with the reason), so one bad folder cannot stop the fleet. The client
-records the results in the registry as they arrive (one writer, so a remote cluster needs no
-access to the registry). A worker that dies is replaced by its nanny, and the scheduler reruns
-its tasks elsewhere (``distributed.scheduler.allowed-failures`` times, 3 by default).
+A task loads, measures and calibrates one session and returns a small summary, the files of its
+outputs (those of ``relcal calibrate``, a few kilobytes) and its registry record; it never
+raises for a bad dataset (its entry says ``failed`` with the reason), so one bad folder cannot
+stop the fleet. The client installs each session's outputs and records it in the registry in
+one transaction (:func:`relcal.outputset.write_set` with the record as its journal), in session
+order as the tasks finish: an interrupted fleet leaves every session either installed with its
+record or untouched, and the workers write nothing (nor need access to the registry). A worker
+that dies is replaced by its nanny, and the scheduler reruns its tasks elsewhere
+(``distributed.scheduler.allowed-failures`` times, 3 by default).
 """
 
 from __future__ import annotations
@@ -34,12 +37,12 @@ def _robot_id(folder: Path, root: Path) -> str:
     out ``ROOT/ROBOT/SESSION`` (a session two or more levels below the root) the session's
     parent, else the session folder itself (``ROOT/ROBOT``, one session per robot). Unreadable
     files give the same default; the task reports what is wrong with them."""
-    import yaml
+    from relcal.io import load_yaml
 
     default = folder.parent.name if folder.parent != root and folder != root else folder.name
     try:
-        data = yaml.safe_load((folder / "dataset.yaml").read_text())
-    except (OSError, yaml.YAMLError):
+        data, _ = load_yaml(folder / "dataset.yaml")  # the one YAML loader: bounded
+    except RelcalError:
         return default
     value = data.get("robot_id") if isinstance(data, dict) else None
     return str(value) if value not in (None, "") else default
@@ -94,9 +97,12 @@ def calibrate_session(
         entry.update(status="failed", reason=str(exc))
     except Exception as exc:  # a bug or a broken file: still this session's failure alone
         last = traceback.extract_tb(exc.__traceback__)[-1]
+        text = str(exc)
+        text = text if len(text) <= 300 else text[:300] + "..."
         entry.update(
             status="failed",
-            reason=f"{type(exc).__name__}: {exc} (at {Path(last.filename).name}:{last.lineno})",
+            reason=f"internal error: {type(exc).__name__}: {text} "
+            f"(at {Path(last.filename).name}:{last.lineno}; please report it)",
         )
     entry["seconds"] = time.perf_counter() - started
     return entry
@@ -111,10 +117,12 @@ def _calibrate(
     from relcal.data.dataset import load_dataset
     from relcal.data.imaging import measure
     from relcal.fleet.records import calibration_record, held_out_errors
+    from relcal.outputset import Folder, check, inputs, new_run_id
     from relcal.reporting.documents import results_document
-    from relcal.reporting.outputs import write_calibration
+    from relcal.reporting.outputs import calibration_files
 
     dataset = load_dataset(path)
+    check([Folder(out, what="outputs")])  # refused before the work (an input, a foreign folder)
     with np.errstate(all="ignore"):
         m = measure(dataset, workers=1, progress=False)
         cal = calibrate(dataset, m, **options)
@@ -131,7 +139,7 @@ def _calibrate(
             f"against {val.rms('before'):.3f} mm); nothing written",
             **held_out_errors(doc),
         }
-    write_calibration(cal, out, doc)  # the files of `relcal calibrate`, as one set
+    run_id = new_run_id()
     record = calibration_record(cal, doc, outputs=out, session=name, robot_id=robot_id)
     return {
         "robot_id": record["robot_id"],
@@ -141,7 +149,39 @@ def _calibrate(
         "outputs": str(out.resolve()),
         **held_out_errors(doc),
         "record": record,
+        # installed by the client with the record (install_session): the files of `relcal
+        # calibrate`, and what this session read (never written over)
+        "files": calibration_files(cal, doc, run_id),
+        "run": run_id,
+        "inputs": sorted(str(p) for p in inputs()),
     }
+
+
+def install_session(entry: dict[str, Any], registry=None) -> None:
+    """Install a finished session's outputs (``entry["files"]``) into ``entry["outputs"]`` and
+    record it in ``registry`` in one transaction; ``entry`` gets ``run_id``, or becomes
+    ``failed`` with the reason when the outputs or the record cannot be written (then neither
+    is). The files are dropped from the entry either way."""
+    from relcal.outputset import Folder, note_input, tracking, write_set
+
+    files = entry.pop("files", None)
+    inputs = entry.pop("inputs", ())
+    run = entry.pop("run", None)
+    if files is None:
+        return
+    journal = None
+    if registry is not None and entry.get("record") is not None:
+        journal = registry.pending(entry["record"])
+    try:
+        with tracking():  # the session's own inputs, never written over
+            for p in inputs:
+                note_input(p)
+            write_set(Folder(entry["outputs"], files, what="outputs", run_id=run), journal=journal)
+    except RelcalError as exc:
+        entry.update(status="failed", reason=str(exc), record=None)
+        return
+    if journal is not None:
+        entry["run_id"] = journal.run_id
 
 
 def iterate_fleet(
@@ -208,23 +248,24 @@ def run_fleet(
     on_entry: Callable[[dict], None] | None = None,
     client=None,
 ) -> list[dict[str, Any]]:
-    """Calibrate every session on the cluster, record the successful ones in ``registry`` (a
-    :class:`relcal.fleet.registry.Registry`, or None) and return the entries in session order,
-    each with its run id (``run_id``) when recorded; ``on_entry`` is called as each finishes.
+    """Calibrate every session on the cluster, install the outputs of the successful ones and
+    record them in ``registry`` (a :class:`relcal.fleet.registry.Registry`, or None), each in
+    one transaction, and return the entries in session order, each with its run id
+    (``run_id``) when recorded; ``on_entry`` is called as each is installed.
 
-    Records are written in session order (each as soon as it and every session before it have
-    finished), so that a robot's sessions enter its history in the order of their folders."""
+    Sessions are installed and recorded in session order (each as soon as it and every session
+    before it have finished), so that a robot's sessions enter its history in the order of
+    their folders."""
     by_name: dict[str, dict] = {}
     next_up = 0
     for entry in iterate_fleet(sessions, out_root, options, workers, scheduler, client):
         by_name[entry["session"]] = entry
         while next_up < len(sessions) and sessions[next_up].name in by_name:
             done = by_name[sessions[next_up].name]
-            if registry is not None and done.get("record") is not None:
-                done["run_id"] = registry.add(done["record"])
+            install_session(done, registry)  # outputs and record: one transaction
+            if on_entry is not None:
+                on_entry(done)
             next_up += 1
-        if on_entry is not None:
-            on_entry(entry)
     return [by_name[s.name] for s in sessions]
 
 

@@ -241,6 +241,8 @@ def validation_document(
         "n_samples": len(np.unique(val.pairs)),
         "baseline_handeye_guess": stats(val.guess),
     }
+    if ids is not None:  # held-out samples that fit badly under every model, left out
+        doc["outliers"] = [ids[i] for i in val.outliers]
     if val.baseline is not None:
         doc["baseline"] = stats(val.baseline)
     doc["calibrated"] = stats(val.calibrated)
@@ -323,6 +325,9 @@ def results_document(cal: Calibration) -> dict:
         "train_ids": [cal.dataset.ids[i] for i in cal.train],
         "held_out_ids": [cal.dataset.ids[i] for i in cal.test],
         "outliers": list(cal.outliers),
+        "held_out_outliers": (
+            [cal.dataset.ids[i] for i in cal.validation.outliers] if cal.validation else []
+        ),
         "rejected": [
             {"id": cal.dataset.ids[i], "reason": m.reasons[i]} for i in np.flatnonzero(~m.ok)
         ],

@@ -13,7 +13,7 @@ from relcal.calibration.outcome import Calibration
 from relcal.data.dataset import Dataset, joints_in_unit, write_samples
 from relcal.data.imaging import Measurements
 from relcal.io import json_text, yaml_text
-from relcal.outputset import File, Folder, new_run_id, write_set
+from relcal.outputset import File, Folder, Journal, new_run_id, write_set
 from relcal.reporting.documents import measurements_document, results_document
 from relcal.robot.export import parameter_csv, robot_files
 from relcal.robot.model import dump_model
@@ -70,6 +70,8 @@ def write_calibration(
     json_path: str | Path | None = None,
     report_path: str | Path | None = None,
     run_id: str | None = None,
+    journal: Journal | None = None,
+    registry=None,
 ) -> list[Path]:
     """Write a calibration's set into ``out_dir`` (and a copy of ``results.json`` to
     ``json_path``, the HTML report to ``report_path``) as one unit; return the files written.
@@ -78,9 +80,17 @@ def write_calibration(
     adds cross-validation). Raises :class:`relcal.errors.RelcalError` with nothing written when
     a destination is refused. The files read so far in this process count as inputs (never
     written over); wrap a session's runs in :func:`relcal.outputset.tracking` to start afresh.
+    ``registry`` (a :class:`relcal.fleet.registry.Registry`, opened with
+    :func:`~relcal.fleet.registry.open_for_writing` before the work) records the calibration in
+    the same transaction as the set's install (or give any ``journal``).
     """
+    doc = results_document(cal) if doc is None else doc
     items = calibration_outputs(cal, out_dir, doc, json_path, report_path, run_id)
-    write_set(*items)
+    if registry is not None and journal is None:
+        from relcal.fleet.records import calibration_record
+
+        journal = registry.pending(calibration_record(cal, doc, outputs=out_dir))
+    write_set(*items, journal=journal)
     out = [Path(out_dir) / name for name in items[0].files]  # type: ignore[union-attr]
     return out + [Path(i.path) for i in items[1:]]
 

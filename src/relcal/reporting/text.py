@@ -534,6 +534,12 @@ def calibration_summary(doc: dict) -> str:
             "outliers (their pairs fit badly; left out unless --keep-outliers): "
             + ", ".join(doc["outliers"])
         )
+    if doc.get("held_out_outliers"):
+        lines.append(
+            "held-out outliers (they fit badly under the baseline and the calibrated model "
+            "alike: a wrong row? check them; left out of the held-out errors unless "
+            "--keep-outliers): " + ", ".join(doc["held_out_outliers"])
+        )
     cv = doc.get("cross_validation")
     if cv and cv["pooled"].get("held_out") == "placements":
         lines += placement_lines(cv["pooled"], f"{cv['k']}-fold cross-validation over placements")

@@ -30,7 +30,7 @@ from typing import Literal
 import numpy as np
 
 from relcal import geometry as tf
-from relcal.errors import RelcalError
+from relcal.errors import ArgumentError, RelcalError
 from relcal.robot.model import KINDS, NONGEOMETRIC_KINDS, RobotModel
 
 FRAME_COMPONENTS = ("tx", "ty", "tz", "rx", "ry", "rz")
@@ -119,6 +119,9 @@ def make_layout(model: RobotModel, base: bool = False, tool: bool = False) -> La
     """The geometric parameters of ``model`` (the DH parameters, or the URDF origins for URDF
     robots loaded with ``parametrisation: origins``), the non-geometric terms its joints ask for
     (``model.nongeometric``), plus base and tool 6-vectors if asked."""
+    from relcal.checks import check_model
+
+    check_model(model)
     if model.urdf is not None and model.urdf.parametrisation == "origins":
         return origins_layout(model, base, tool)
     n = model.n_joints
@@ -179,7 +182,10 @@ def apply_errors(model: RobotModel, layout: Layout, errors: np.ndarray) -> Robot
     too, along the joint axis (:func:`relcal.robot.urdf.zero_directions`): every origin error is
     then additive, ``apply_errors(apply_errors(m, l, x), l, y) == apply_errors(m, l, x + y)``,
     which :func:`pose_jacobian` differentiates exactly."""
-    errors = np.asarray(errors, dtype=float)
+    from relcal.checks import check_errors, check_model
+
+    check_model(model)
+    errors = check_errors(errors, layout)
     folded: tuple[str, ...] = ()
     if "origin" in layout.kinds:
         folded = _ORIGIN_KINDS
@@ -377,7 +383,7 @@ def _use_fast(backend: Backend, n_conf: int) -> bool:
             )
         return True
     if backend != "auto":
-        raise ValueError(f"unknown FK backend '{backend}': use auto, numpy or numba")
+        raise ArgumentError(f"unknown FK backend '{backend}': use auto, numpy or numba")
     # By batch size alone, not by whether the kernel happens to be loaded: the same call gives
     # the same round-off in every process (worker pools must agree with a serial run).
     return n_conf >= _LOAD_MIN and _fast_available()
@@ -395,9 +401,12 @@ def fk(model: RobotModel, q: np.ndarray, backend: Backend = "numpy") -> np.ndarr
     default never depends on whether it is installed. Non-geometric terms enter both paths
     through :func:`effective_joints`.
     """
-    q = np.asarray(q, dtype=float)
-    if q.ndim == 1:
-        return fk(model, q[None], backend)[0]
+    from relcal.checks import check_joints, check_model
+
+    check_model(model)
+    if np.ndim(q) == 1:  # one configuration: one pose (4, 4)
+        return fk(model, np.asarray(q, dtype=float)[None], backend)[0]
+    q = check_joints(q, model.n_joints, "q", model.name)
     if _use_fast(backend, q.shape[0]):
         try:
             from relcal.robot import fastkin

@@ -20,6 +20,10 @@ def get_robot(
     serial chain ``root`` -> ``tip`` of a URDF file (``.urdf``; root and tip may be omitted when
     the tree has one obvious serial chain; ``parametrisation``: ``minimal`` or ``origins``, see
     :func:`relcal.robot.urdf.load_urdf`)."""
+    from relcal.checks import check_choice, check_instance
+
+    check_instance(name_or_path, str | Path, "name_or_path", "a robot name or a file path")
+    check_choice(parametrisation, "parametrisation", ("minimal", "origins"))
     name = str(name_or_path)
     if Path(name).suffix.lower() in (".urdf", ".xacro"):
         return load_urdf(name, root, tip, parametrisation)

@@ -488,10 +488,17 @@ def model_from_dict(data: object, path: str | Path = "<robot>", node: object = N
 
 
 def load_model(path: str | Path) -> RobotModel:
-    """Load a robot model YAML file."""
+    """Load a robot model YAML file. A YAML file that is not a robot model (no ``joints:``
+    list) is refused without its content in the message: a file named in the wrong place must
+    not be shown."""
     from relcal.io import load_yaml
 
     data, node = load_yaml(path)
+    if not isinstance(data, dict) or not isinstance(data.get("joints"), list):
+        raise RelcalError(
+            f"{path}: not a robot model file (a model YAML is a mapping with name, convention "
+            "and a joints: list; see relcal/robot/library/a465.yaml)"
+        )
     return model_from_dict(data, path, node)
 
 

@@ -450,6 +450,9 @@ def load_urdf(
             f"{path}: a xacro file: expand it to a URDF first (xacro {Path(path).name} > "
             f"{Path(path).stem.removesuffix('.urdf')}.urdf) and give that file"
         )
+    from relcal.limits import check_input_size
+
+    check_input_size(path, "urdf")
     try:
         data = Path(path).read_bytes()
     except FileNotFoundError:

@@ -74,6 +74,14 @@ def simulate(
     """Run the published simulation once. ``errors`` follows ``make_layout(model)`` (random if
     None); the frame-invariant formulation starts from a hand-eye guess about 1 mm / 0.5 deg off
     the truth. One seeded stream draws the scenario (errors, guess, joints) and then the noise."""
+    from relcal.checks import check_choice, check_model, check_number
+
+    check_model(model)
+    check_choice(formulation, "formulation", ("published", "invariant", "absolute"))
+    check_choice(measure, "measure", ("pose", "position"))
+    check_number(n_poses, "n_poses", 3, integer=True)
+    check_choice(method, "method", ("published", "lm"))
+    check_choice(pairing, "pairing", ("consecutive", "star", "all"))
     rng = np.random.default_rng(seed)
     scenario = make_scenario(
         model,

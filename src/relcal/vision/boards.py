@@ -303,6 +303,11 @@ def load_board(path: str | Path) -> Board:
         Naming the file, line and field when the description is incomplete or inconsistent.
     """
     data, node = load_yaml(path)
+    if not isinstance(data, dict) or not ({"type", "target_finder"} & set(data)):
+        raise RelcalError(
+            f"{path}: not a board file (a board YAML is a mapping with type, rows, columns and "
+            "square or spacing, or robot_cal_tools' target_finder)"
+        )
     if isinstance(data, dict) and "target_finder" in data:
         return _board_from_rct(validate(_RctTargetFile, data, path, node).target_finder, path)
     return validate(BoardSpec, data, path, node).to_board()

@@ -222,8 +222,11 @@ def load_camera(path: str | Path, width: int | None = None, height: int | None =
         Naming the file, line and field when the file is not a usable camera description.
     """
     data, node = load_yaml(path)
-    if not isinstance(data, dict):
-        raise RelcalError(f"{path}: expected a mapping with fx, fy, cx, cy (or 'intrinsics:')")
+    if not isinstance(data, dict) or not ({"fx", "intrinsics", "camera_matrix"} & set(data)):
+        raise RelcalError(
+            f"{path}: not a camera file (expected a mapping with fx, fy, cx, cy, or "
+            "'intrinsics:' or ROS's 'camera_matrix:')"
+        )
     if "intrinsics" in data:
         rct = validate(_RctCameraFile, data, path, node)
         k = rct.intrinsics

@@ -133,9 +133,12 @@ class MeasurementKind:
         where = {sid: k for k, sid in enumerate(self.dataset.ids)}
         unknown = [sid for sid in ids if sid not in where]
         if unknown:
+            ds = self.dataset
+            folder = (ds.spec_path.parent if ds.spec_path else ds.root).resolve()
+            numbered = ds.ids == tuple(str(k + 1) for k in range(len(ds.ids)))
+            how = " (no id column: the samples are numbered 1 to N by row)" if numbered else ""
             raise RelcalError(
-                f"held-out sample id(s) {', '.join(unknown[:5])} are not in "
-                f"{self.dataset.spec_path.parent}"
+                f"held-out sample id(s) {', '.join(map(str, unknown[:5]))} are not in {folder}{how}"
             )
         return np.array(sorted(where[sid] for sid in ids), dtype=int)
 
@@ -180,9 +183,17 @@ class MeasurementKind:
         """Refuse corrections too large to be a calibration."""
         raise NotImplementedError
 
-    def validate(self, training: Training, result: Result, baseline: Result, test: np.ndarray):
+    def validate(
+        self,
+        training: Training,
+        result: Result,
+        baseline: Result,
+        test: np.ndarray,
+        screen: bool = False,
+    ):
         """Held-out errors of ``result`` and ``baseline`` on the samples ``test`` (None when
-        there are too few)."""
+        there are too few); with ``screen``, held-out samples that fit badly under both are
+        named and left out, as training outliers are (:func:`validate.held_out_outliers`)."""
         raise NotImplementedError
 
     def settings(self, training: Training) -> dict:

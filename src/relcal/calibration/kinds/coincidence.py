@@ -122,7 +122,14 @@ class CoincidenceKind(PointKind):
         check_plausible(problem, baseline.params, str(self.dataset.spec_path))
         return None
 
-    def validate(self, training: Training, result: Result, baseline: Result, test: np.ndarray):
+    def validate(
+        self,
+        training: Training,
+        result: Result,
+        baseline: Result,
+        test: np.ndarray,
+        screen: bool = False,  # held-out placements are validated whole
+    ):
         """The held-out placements (at least one sample)."""
         if len(test) < 1:
             return None

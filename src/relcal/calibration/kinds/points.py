@@ -102,12 +102,20 @@ class PointKind(MeasurementKind):
         that the data do not determine is named so."""
         check_result(self.dataset, training.problem, result, self.what)
 
-    def validate(self, training: Training, result: Result, baseline: Result, test: np.ndarray):
+    def validate(
+        self,
+        training: Training,
+        result: Result,
+        baseline: Result,
+        test: np.ndarray,
+        screen: bool = False,
+    ):
         """Absolute point errors of the held-out samples (at least one)."""
         if len(test) < 1:
             return None
         everything = replace(training.problem, q=self.dataset.q, poses=self.measurements.poses)
-        return held_out(everything, result, test, baseline=baseline)
+        train = training.samples if screen else None
+        return held_out(everything, result, test, baseline=baseline, train=train)
 
     def settings(self, training: Training) -> dict:
         return {

@@ -37,6 +37,7 @@ from relcal.calibration.selection import (
     plain_whiteners,
 )
 from relcal.calibration.validate import held_out
+from relcal.limits import check_calibration_memory
 from relcal.robot.kinematics import fk, make_layout
 
 
@@ -66,7 +67,11 @@ class PoseKind(MeasurementKind):
         )
 
     def check_inputs(self, train: np.ndarray) -> dict:
-        return check_dataset(self.dataset, self.measurements)  # a wrong unit, order or board
+        ds = self.dataset
+        n_params = make_layout(ds.model).size + 6
+        # all pairs are quadratic: refused before they are formed
+        check_calibration_memory(len(ds.ids), self.pairing, n_params, str(ds.root), len(train))
+        return check_dataset(ds, self.measurements)  # a wrong unit, order or board
 
     def training(self, train: np.ndarray, previous: Training | None = None) -> Training:
         if previous is not None:  # the hand-eye guess and the analysis of the first training set
@@ -114,12 +119,20 @@ class PoseKind(MeasurementKind):
     def check_result(self, training: Training, result: Result) -> None:
         check_result(self.dataset, training.problem, result)
 
-    def validate(self, training: Training, result: Result, baseline: Result, test: np.ndarray):
+    def validate(
+        self,
+        training: Training,
+        result: Result,
+        baseline: Result,
+        test: np.ndarray,
+        screen: bool = False,
+    ):
         """Relative pose errors of the pairs among the held-out samples (at least two)."""
         if len(test) < 2:
             return None
         everything = self.problem_on(np.arange(len(self.dataset.ids)), training.problem.handeye)
-        return held_out(everything, result, test, baseline=baseline)
+        train = training.samples if screen else None
+        return held_out(everything, result, test, baseline=baseline, train=train)
 
 
 def weighted_problem(
