@@ -109,11 +109,12 @@ def test_ten_poses_with_settle_detection(franky_sim):
             assert np.abs(mean - q).max() < 3e-3, np.abs(mean - q)
             stamps = np.array([r.stamp for r in window])
             # on the loop clock, never in the future; how far in the past depends on how late
-            # the state arrives (franky-sim, slower than real time on a busy machine, lags by
-            # tenths of a second; a controller by a few ms; the mapping itself is checked
-            # exactly in test_driver_ur.py)
+            # the state arrives (franky-sim, slower than real time on a busy machine, lagged by
+            # up to 3.5 s in a CI run; a controller by a few ms), so only a clock of another
+            # domain (hours off) is caught here; the mapping itself is checked exactly in
+            # test_driver_ur.py
             lag = clock.now() - stamps[-1]
-            assert (np.diff(stamps) >= 0).all() and 0 <= lag < 2.0, lag
+            assert (np.diff(stamps) >= 0).all() and 0 <= lag < 60.0, lag
         # "move returned" is not "settled": the arm still moved after most moves and the wait
         # for stillness took time.
         assert moving_at_return >= 7, moving_at_return

@@ -411,3 +411,29 @@ def test_a_fleet_interrupted_after_its_first_session_is_consistent(tmp_path):
     assert leftovers == [], leftovers
     if proc.returncode == 130:
         assert "already written" in err, err
+
+
+def test_a_set_written_while_another_is_staged_does_not_wait_on_itself(tmp_path):
+    """A set written inside the staging folder of another set of the same run (the synthetic
+    images of ``relcal simulate --images`` go into the output set as they are rendered): the
+    folder locks and the lock of the run's own temporary are taken again, not waited for. In a
+    child process, so that a deadlock fails the test instead of hanging the suite."""
+    code = (
+        "import sys\n"
+        "from pathlib import Path\n"
+        "from relcal.io import write_text\n"
+        "from relcal.outputset import Folder, write_set\n"
+        "def fill(folder):\n"
+        "    write_text(folder / 'inner.txt', 'inner')\n"
+        "    write_text(folder / 'sub' / 'deeper.txt', 'deeper')\n"
+        "write_set(Folder(Path(sys.argv[1]), {'outer.txt': 'outer'}, fill=fill))\n"
+    )
+    out = tmp_path / "set"
+    done = subprocess.run(
+        [sys.executable, "-c", code, str(out)], capture_output=True, text=True, timeout=120
+    )
+    assert done.returncode == 0, done.stderr
+    assert (out / "outer.txt").read_text() == "outer"
+    assert (out / "inner.txt").read_text() == "inner"
+    assert (out / "sub" / "deeper.txt").read_text() == "deeper"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["set"]  # no temporaries left

@@ -308,21 +308,41 @@ def _flock(fd: int, blocking: bool) -> bool:
     return True
 
 
+_HELD: dict[Path, int] = {}  # folders this process holds locked, and how many times
+_OWN: dict[int, Path] = {}  # temporaries this process holds (:func:`_hold`), by descriptor
+
+
 @contextmanager
 def _folder_locks(folders: Iterable[Path]) -> Iterator[None]:
     """Exclusive locks on ``folders`` (sorted, so two runs never wait on each other in a cycle):
-    held while temporaries are created or removed and while a set is renamed into place."""
-    fds = []
+    held while temporaries are created or removed and while a set is renamed into place.
+    Re-entrant within the process: a set written while another is being staged (the synthetic
+    images of ``relcal simulate --images`` inside its output set) takes the locks it already
+    holds again instead of waiting on itself (``flock`` on a second descriptor would)."""
+    fds, taken = [], []
     try:
         for folder in sorted(set(folders)):
+            key = Path(os.path.realpath(folder))
+            if key in _OWN.values():  # a temporary of this run: held already
+                continue
+            if _HELD.get(key):
+                _HELD[key] += 1
+                taken.append(key)
+                continue
             try:
                 fd = os.open(folder, os.O_RDONLY | os.O_DIRECTORY)
             except OSError:
                 continue
             fds.append(fd)
             _flock(fd, blocking=True)
+            _HELD[key] = 1
+            taken.append(key)
         yield
     finally:
+        for key in taken:
+            _HELD[key] -= 1
+            if not _HELD[key]:
+                del _HELD[key]
         for fd in fds:
             os.close(fd)
 
@@ -335,7 +355,14 @@ def _hold(path: Path) -> int | None:
     except OSError:
         return None
     _flock(fd, blocking=False)
+    _OWN[fd] = Path(os.path.realpath(path))
     return fd
+
+
+def _release(fd: int) -> None:
+    """Close a descriptor of :func:`_hold` (its lock goes with it)."""
+    _OWN.pop(fd, None)
+    os.close(fd)
 
 
 _RANDOM = r"[a-z0-9_]{8}"  # tempfile's random part
@@ -700,7 +727,7 @@ def write_set(*items: Folder | File, journal: Journal | None = None) -> list[Pat
             else:
                 tmp.unlink(missing_ok=True)
         for fd in holds:
-            os.close(fd)
+            _release(fd)
         for folder in created:
             try:
                 folder.rmdir()
