@@ -273,7 +273,7 @@ def test_a_placement_column_prefixes_the_group(tmp_path):
 )  # fmt: skip
 def test_coincidence_datasets_refuse_what_does_not_fit(tmp_path, header, spec, message):
     joints = ",".join(f"q{i}" for i in range(1, 8))
-    cells = {"id": "{k}", "group": "{g}", "x": "0.1", "y": "0.2", "z": "0.3"}
+    cells = {"id": "{k}", "group": "{g}", "x": "0.1{k}", "y": "0.2", "z": "0.3"}  # rows differ
     row = ",".join(cells[h] for h in header.split(","))
     lines = [row.format(k=k, g=g) + "," + Q for k, g in enumerate(["a/h0", "a/h1", "a/h1"])]
     folder = write_dataset(tmp_path / "d", f"{header},{joints}\n" + "\n".join(lines) + "\n", **spec)

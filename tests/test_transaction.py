@@ -134,9 +134,9 @@ def test_a_registry_that_cannot_be_one_is_refused_before_any_work(
     if setup is not None:
         setup(path)
     worked = []
-    from relcal.calibration import pipeline
+    from relcal.calibration.kinds import poses
 
-    monkeypatch.setattr(pipeline, "check_dataset", lambda *a: worked.append(1) or {})
+    monkeypatch.setattr(poses, "check_dataset", lambda *a: worked.append(1) or {})
     before = tree(tmp_path)
     argv = ["calibrate", str(tmp_path / "d"), "--out", str(tmp_path / "out"), "--quiet"]
     argv += ["--registry", str(path), "--json", str(tmp_path / "r.json")]

@@ -193,19 +193,21 @@ def check_vector(value: Any, name: str, size: int, what: str) -> np.ndarray:
     )
 
 
-FORMULATIONS = ("absolute", "published", "invariant", "tracker")
 MEASURES = ("position", "pose")
 
 
 def check_problem(problem) -> dict[str, Any]:
     """The checked and converted fields of a :class:`relcal.calibration.measurement.Problem`
     (called by its ``__post_init__``)."""
+    from typing import get_args
+
+    from relcal.calibration.measurement import Formulation  # the one list of formulations
     from relcal.robot.kinematics import Layout
 
     p = "Problem"
     check_model(problem.model, f"{p}.model")
     check_instance(problem.layout, Layout, f"{p}.layout", "a Layout (relcal.make_layout(model))")
-    check_choice(problem.formulation, f"{p}.formulation", FORMULATIONS)
+    check_choice(problem.formulation, f"{p}.formulation", get_args(Formulation))
     check_choice(problem.measure, f"{p}.measure", MEASURES)
     model = problem.model
     out: dict[str, Any] = {}

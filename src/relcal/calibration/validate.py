@@ -412,12 +412,14 @@ class PlacementValidation:
     """Held-out placements: the baseline (nominal geometry, the tool point and the group points
     fitted to the training samples) and the calibrated model evaluated on them with their group
     points refitted (:func:`spread_of`). ``samples``: the held-out sample indices, in the order
-    of the spreads."""
+    of the spreads. ``outliers``: always none (a held-out placement is validated whole; its
+    points are refitted, so no sample of it is judged against the training samples)."""
 
     placements: tuple[str, ...]
     baseline: Spread
     calibrated: Spread
     samples: np.ndarray
+    outliers: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=int))
 
     @property
     def before(self) -> Spread:
