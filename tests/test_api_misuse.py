@@ -181,10 +181,11 @@ def test_api_misuse_is_a_named_error(api, name):
 
 
 def test_the_right_calls_still_work(api):
-    """The checks refuse nothing right: a problem identifies, fk takes one configuration."""
+    """The checks refuse nothing right: a problem identifies, fk takes one configuration
+    (one 4x4 pose) or several (a stack)."""
     result = relcal.identify(problem(api)(), relcal.SolverOptions())
     assert result.converged
-    assert relcal.fk(api["model"], np.zeros(6)).shape == (1, 4, 4)
+    assert relcal.fk(api["model"], np.zeros(6)).shape == (4, 4)
     assert relcal.fk(api["model"], [[0.0] * 6] * 3).shape == (3, 4, 4)
 
 

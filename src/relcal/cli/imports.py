@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from relcal.cli.common import json_arg, nonnegative_float, output_folder, positive_float
+from relcal.cli.common import json_arg, length_m, nonnegative_float, output_folder, positive_float
 
 EPILOG = """\
 examples:
@@ -192,14 +192,14 @@ def register(sub: argparse._SubParsersAction) -> None:
     mukca.add_argument("--root", metavar="LINK", help="first link of the chain (default the root)")
     mukca.add_argument(
         "--distance",
-        type=float,
+        type=length_m(0.0, 10.0),
         metavar="M",
         help="distance between the two sockets of every placement, m (e.g. 0.050); without it "
         "the scale is not determined",
     )
     mukca.add_argument(
         "--distance-std",
-        type=float,
+        type=length_m(0.0, 0.1),
         default=1e-4,
         metavar="M",
         help="its standard deviation, m (default 0.0001)",

@@ -10,6 +10,7 @@ from relcal.cli.common import (
     json_arg,
     load_robot,
     noise_levels,
+    nonnegative_float,
     output_file,
     output_folder,
     positive_float,
@@ -260,7 +261,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     ball.add_argument(
         "--seating",
-        type=float,
+        type=nonnegative_float,
         default=0.08,
         help="standard deviation of the ball centre within a socket, mm per axis (default 0.08)",
     )

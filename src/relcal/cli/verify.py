@@ -4,7 +4,14 @@ from __future__ import annotations
 
 import argparse
 
-from relcal.cli.common import int_at_least, json_arg, positive_float, positive_int, registry_arg
+from relcal.cli.common import (
+    int_at_least,
+    json_arg,
+    positive_float,
+    positive_int,
+    registry_arg,
+    seed,
+)
 
 DEFAULT_FOLDS = 5  # relcal.calibration.verify.DEFAULT_FOLDS (here: the parser stays light)
 
@@ -156,7 +163,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         help=f"folds of the cross-fitted nuisance refit (default {DEFAULT_FOLDS}; at most half "
         "the samples for poses)",
     )
-    p.add_argument("--seed", type=int, default=0, help="seed of the folds and the bootstrap")
+    p.add_argument("--seed", type=seed, default=0, help="seed of the folds and the bootstrap")
     p.add_argument(
         "--robot-id",
         metavar="ID",
