@@ -53,13 +53,14 @@ mujoco-gl:
 	  export DEBIAN_FRONTEND=noninteractive; \
 	  apt-get update -qq && apt-get install -y -qq libegl1 libegl-mesa0 libgl1-mesa-dri libgles2 >/dev/null; }
 
-# One BLAS thread: relcal's matrices are small, and threads only add overhead (see relcal.cli).
+# One BLAS thread: relcal's matrices are small, and threads only add overhead (see relcal.cli);
+# two test processes instead (pytest-xdist), one per core of the CI machine.
 # The suite includes the documentation: tests/test_docs_site.py builds the site (warnings as
 # errors) and opens it in Chromium; tests/test_docs_commands.py runs the commands of the pages.
 test: $(DEV) chromium postgresql mujoco-gl
 	$(VENV)/bin/ruff check $(LINTED)
 	$(VENV)/bin/ruff format --check $(LINTED)
-	OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1 $(PY) -m pytest
+	OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1 $(PY) -m pytest -n 2
 
 bench: $(DEV)
 	$(PY) -m pip install -q -e '.[dev,bench]'

@@ -228,7 +228,13 @@ BASE = {
 BAD = ["nan", "-1", "0", "1e400", "abc", "0.4,0.25", "", "-0"]
 
 
-@pytest.mark.parametrize(("path", "option", "kind"), _options(), ids=lambda v: str(v))
+def _id(value) -> str:
+    """A stable test id (a converter's name, not its address): pytest-xdist's workers must
+    collect the same ids."""
+    return getattr(value, "__name__", None) or str(value)
+
+
+@pytest.mark.parametrize(("path", "option", "kind"), _options(), ids=_id)
 def test_every_option_refuses_bad_values_at_parse_time(path, option, kind, small, tmp_path, capsys):
     base = [a.format(ds=small, tmp=tmp_path) for a in BASE.get(path, list(path))]
     parser = build_parser()

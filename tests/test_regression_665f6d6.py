@@ -11,7 +11,7 @@ cross-validated score, the parameters with their standard deviations, the baseli
 the learned noise and the settings; a refused run records its message.
 
 Recorded with ``python tests/test_regression_665f6d6.py`` (run at that commit); the test asserts
-the same numbers to 1e-9 relative, except where the skeleton fixed a number (:data:`FIXED`).
+the same numbers to 1e-6 relative, except where the skeleton fixed a number (:data:`FIXED`).
 """
 
 from __future__ import annotations
@@ -28,10 +28,17 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from conftest import DATA  # noqa: E402
 
 RECORD = Path(__file__).resolve().parent / "regression_665f6d6.json"
-RTOL = 1e-9
+# Relative tolerance: far below any digit shown, above the round-off that differs between CPUs
+# (OpenBLAS picks its kernels by instruction set): iterative fits and the bootstrap carry such
+# differences up to about 1e-7 (seen: bootstrap std 6.5e-8 apart on another machine).
+RTOL = 1e-6
 # Absolute floor per quantity, far below anything shown: parameters and their std (SI units),
 # costs and RMS values (their own units). Values that are round-off around zero compare to it.
 ATOL = 1e-13
+# Parameters (m, rad) and their std: 10 nm / 10 nrad, where a robust loss's solver stops (a
+# baseline marker position 1.2 nm apart between two CPUs under the Cauchy loss).
+ATOL_PARAMETERS = 1e-8
+PARAMETER_KEYS = ("params", "baseline_params", "std", "bootstrap_std")
 
 TIAGO = (
     "robot: {{urdf: {d}/tiago_pro.urdf, root: base_footprint,"
@@ -193,6 +200,10 @@ def run(name: str, key: str, options: dict, datasets: dict, root: Path) -> dict:
         return {"refused": str(exc).replace(str(root), "ROOT")}
 
 
+def _atol(where: str) -> float:
+    return ATOL_PARAMETERS if where.rsplit(".", 1)[-1] in PARAMETER_KEYS else ATOL
+
+
 def compare(got, want, where: str = "") -> None:
     """``got`` equals ``want``: numbers to :data:`RTOL`, everything else exactly."""
     if isinstance(want, dict):
@@ -204,7 +215,9 @@ def compare(got, want, where: str = "") -> None:
         if want and all(isinstance(v, (int, float)) or v is None for v in want + got):
             a = np.array([np.nan if v is None else v for v in got], float)
             b = np.array([np.nan if v is None else v for v in want], float)
-            np.testing.assert_allclose(a, b, rtol=RTOL, atol=ATOL, equal_nan=True, err_msg=where)
+            np.testing.assert_allclose(
+                a, b, rtol=RTOL, atol=_atol(where), equal_nan=True, err_msg=where
+            )
         else:
             for k, (g, w) in enumerate(zip(got, want, strict=True)):
                 compare(g, w, f"{where}[{k}]")
@@ -278,7 +291,7 @@ def check_fixed(name: str, got: dict, want: dict) -> None:
     assert val["baseline"]["position_mm"]["rms"] > 10 * val["calibrated"]["position_mm"]["rms"]
     assert got["ratio"]["position_mm"]["ci95"][1] < 0.1
     # the chosen model's scores and numbers are those recorded
-    assert got["scores"][1] == want["scores"][1]
+    compare(got["scores"][1], want["scores"][1], f"{name}.scores[1]")
 
 
 REAL = {"positioner", "tiago poses", "tiago positions", "charuco", "circle grid"}
