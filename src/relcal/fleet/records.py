@@ -107,6 +107,9 @@ def calibration_record(
     layout = cal.problem.full_layout
     units = layout.units()  # m, rad, 1 (a joint scale), rad/(N m) or m/N (compliances)
     std = cal.std  # of the covariance recorded: `std` and `calibration_std` (older records) agree
+    # results.json's word for each: estimated, combination (a value of a combination whose other
+    # members are held), unidentifiable, not in the chosen model, ...
+    status = {p["name"]: p.get("status") for p in doc.get("parameters") or []}
     parameters = []
     for k, name in enumerate(layout.names):
         estimated = bool(np.isfinite(std[k]))
@@ -120,6 +123,7 @@ def calibration_record(
                 "calibration_std": value,
                 "identifiable": bool(cal.result.identifiable[k]),
                 "estimated": estimated,
+                "status": status.get(name),
             }
         )
     root = Path(cal.dataset.root).resolve()

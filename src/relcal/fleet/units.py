@@ -69,19 +69,35 @@ def record_joints(record: dict) -> list[str] | None:
 
 
 def unit_parameters(record: dict) -> dict[str, tuple[UnitParameter, str]]:
-    """The robot's own estimated corrections of a registry record (identifiable, with a value and
-    a standard deviation; the session's nuisance frames and points left out), by name, each with
-    the unit it is shown in."""
+    """The robot's own estimated corrections of a registry record (a value and a standard
+    deviation; the session's nuisance frames and points left out), by name, each with the unit it
+    is shown in.
+
+    Those ``results.json`` calls ``estimated`` (the record's ``status``; records without it:
+    the identifiable ones): a parameter that only carries the value of a combination whose other
+    members are held at nominal (``combination``) is left out, its value is not its own."""
     out = {}
     for p in record.get("parameters") or []:
         name = p["name"]
-        if name.startswith(NUISANCE_PREFIXES) or not p.get("identifiable"):
+        if name.startswith(NUISANCE_PREFIXES):
             continue
         if p.get("value") is None or p.get("std") is None:
+            continue
+        if p.get("status", "estimated" if p.get("identifiable") else None) != "estimated":
             continue
         value, unit = display(p["value"], p["unit"])
         out[name] = (UnitParameter(value, display(p["std"], p["unit"])[0]), unit)
     return out
+
+
+def held_parameters(record: dict) -> frozenset[str]:
+    """The robot parameters a record leaves at nominal (not identifiable, or not in the chosen
+    model); nuisance frames and points left out."""
+    return frozenset(
+        p["name"]
+        for p in record.get("parameters") or []
+        if p.get("value") is None and not p["name"].startswith(NUISANCE_PREFIXES)
+    )
 
 
 def median_with_std(values: np.ndarray, stds: np.ndarray) -> tuple[float, float]:
@@ -226,16 +242,23 @@ def _notes(robots: list[str], values: dict, units: dict, rows: list[dict]) -> li
             + "): a correction absorbs part of what another unit's extra terms explain; compare "
             "on one model (fleet calibrate --nongeometric none)"
         )
+    held = {r: held_parameters(units[r]) for r in robots}
+    if len(set(held.values())) > 1:
+        common = frozenset.intersection(*held.values())
+        notes.append(
+            "the units hold different parameters at nominal ("
+            + "; ".join(
+                f"{r}: {', '.join(sorted(held[r] - common))}" for r in robots if held[r] - common
+            )
+            + "): the corrections near those absorb different things"
+        )
     compared = {row["name"] for row in rows}
     one_sided = sorted({n for r in robots for n in values[r]} - compared)
     if one_sided:
         notes.append("estimated in one unit only (not compared): " + ", ".join(one_sided))
-    held = [row["label"] for row in rows if len(row["units"]) < len(robots)]
-    if held:
-        notes.append(
-            "estimated in some units only (held at nominal in the others, whose other "
-            "corrections absorb it): " + ", ".join(held)
-        )
+    partly = [row["label"] for row in rows if len(row["units"]) < len(robots)]
+    if partly:
+        notes.append("estimated in some units only (compared among those): " + ", ".join(partly))
     return notes
 
 
