@@ -272,11 +272,11 @@ def panda_2_halves(tmp_path_factory):
     placements = sorted(p.name for p in (MUKCA / "data" / "panda_2").iterdir() if p.is_dir())
     later = ["back_right", "front_left", "mid_right"]
     for name, chosen in (("a", [p for p in placements if p not in later]), ("b", later)):
-        raw = root / "raw" / name / "panda_2"
-        raw.mkdir(parents=True)
-        for p in chosen:
-            (raw / p).symlink_to(MUKCA / "data" / "panda_2" / p)
-        import_mukca(raw, root / name, PANDA, distance=0.05)
+        import_mukca(MUKCA / "data" / "panda_2", root / name, PANDA, distance=0.05,
+                     placements=chosen)  # fmt: skip
+    assert load_dataset(root / "b").groups[0] == "back_right/hole_0"
+    with pytest.raises(RelcalError, match="placements nope: not among its placement folders"):
+        import_mukca(MUKCA / "data" / "panda_2", root / "c", PANDA, placements=["high", "nope"])
     return root
 
 
