@@ -70,7 +70,7 @@ def history_text(
     header = ["name", "unit"] + [f"run {r.id}" for r in runs]
     table = [header]
     never: dict[str, list[str]] = {"n/i": [], "-": []}
-    points = 0
+    points = combined = 0
     for name in runs[-1].names:
         if name.startswith("point["):  # a coincidence group's point: the session's own
             points += 1
@@ -87,7 +87,9 @@ def history_text(
                 continue
             value, unit = display(p["value"], p["unit"])
             std = display(p["std"], p["unit"])[0] if p["std"] is not None else float("nan")
-            cells.append(f"{value:+.4f} +- {std:.4f}")
+            combination = p.get("status") == "combination"
+            combined += combination
+            cells.append(f"{value:+.4f} +- {std:.4f}" + (" c" if combination else ""))
         shown = {c for c in cells if c}
         if shown <= {"n/i", "-"}:
             never["n/i" if shown == {"n/i"} else "-"].append(name)
@@ -98,6 +100,11 @@ def history_text(
         lines.append("not identifiable (n/i) in any run: " + ", ".join(never["n/i"]))
     if never["-"]:
         lines.append("not in any run's chosen model (-): " + ", ".join(never["-"]))
+    if combined:
+        lines.append(
+            "c: the value of a combination whose other members are held at nominal, not the "
+            "parameter's own (results.json: combination)"
+        )
     if points:
         lines.append(
             f"not shown: the {points // 3} group points of run {runs[-1].id} (where its sockets "
