@@ -328,3 +328,12 @@ def test_verify_and_history_of_a_coincidence_calibration(panda_2_halves, capsys)
     assert "tool_point.z" in text and "n/i" not in text.split("tool_point.z")[1].split("\n")[0]
     assert "point[" not in text and "group points" in text
     assert "holds" in text  # the verification beside the calibration
+    # the record's noise rows: 3 per training sample and one per distance of the 4 training
+    # placements (2 of the 6 held out), not 6 per sample as for relative poses
+    from relcal.fleet.registry import open_registry
+
+    with open_registry(reg) as registry:
+        (run,) = registry.runs("panda_2")
+    assert run.covariance["noise_rows"] == 3 * len(doc["train_ids"]) + 4
+    assert run.parameter("theta_off[4]")["status"] == "estimated"
+    assert run.parameter("a[7]")["status"] == "combination"

@@ -89,6 +89,16 @@ def covariance(cal: Calibration) -> tuple[list[str], np.ndarray]:
     return names, cal.result.covariance[np.ix_(columns, columns)]
 
 
+def noise_rows(cal: Calibration) -> int:
+    """Independent noise components of the training data: 6 per training sample but one
+    (relative poses), or for coincidence samples 3 per training sample (its point) and one per
+    known distance."""
+    coincidence = cal.problem.coincidence if cal.problem.formulation == "coincidence" else None
+    if coincidence is not None:
+        return 3 * len(coincidence.index) + len(coincidence.lengths)
+    return 6 * (len(cal.train) - 1)
+
+
 def chosen_model(cal: Calibration) -> str | None:
     """The name of the candidate model that model selection chose (None without selection)."""
     return cal.selection[cal.chosen].candidate.name if cal.selection else None
@@ -146,10 +156,10 @@ def calibration_record(
         "covariance": {
             "names": names,
             "matrix": cov.tolist(),
-            # independent relative-pose noise components left after the fit (6 per training
-            # sample but one, less the estimated parameters): what the noise level rests on
-            "residual_dof": 6 * (len(cal.train) - 1) - len(names),
-            "noise_rows": 6 * (len(cal.train) - 1),
+            # independent noise components left after the fit, less the estimated parameters:
+            # what the noise level rests on
+            "residual_dof": noise_rows(cal) - len(names),
+            "noise_rows": noise_rows(cal),
         },
         "errors": held_out_errors(doc),
         "validation": {k: v for k, v in (doc.get("validation") or {}).items() if k != "pairs"}

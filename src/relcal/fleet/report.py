@@ -178,7 +178,11 @@ def _robots(entries: list[dict]) -> tuple:
     return hk.section(
         "robots",
         "Robots",
-        hk.paragraph("Held-out relative errors (RMS over the held-out pairs of each session)."),
+        hk.paragraph(
+            "Held-out errors: relative poses, RMS over the held-out pairs of each session; "
+            "coincidence sessions (a ball in sockets), RMS distance of the held-out placements' "
+            "samples from their sockets' refitted points (mm only)."
+        ),
         hk.table(head, rows, "num"),
     )
 
