@@ -311,6 +311,9 @@ def test_verify_and_history_of_a_coincidence_calibration(panda_2_halves, capsys)
     assert main([*argv, "--registry", str(reg), "--report", str(panda_2_halves / "r.html")]) == 0
     doc = json.loads((cal / "results.json").read_text())
     assert doc["tool_point_in_model"] and len(doc["baseline_tool_point_xyz_m"]) == 3
+    report = (panda_2_halves / "r.html").read_text()
+    held = doc["validation"]["placements"]  # the report names the placements held out
+    assert "Held-out validation" in report and f"placement(s) ({', '.join(held)})" in report
     out = panda_2_halves / "verify.json"
     code = main(["verify", str(cal), str(panda_2_halves / "b"), "--registry", str(reg),
                  "--json", str(out), "--quiet"])  # fmt: skip
