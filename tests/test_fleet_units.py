@@ -325,6 +325,15 @@ def test_verify_and_history_of_a_coincidence_calibration(panda_2_halves, capsys)
     print(f"verify on 3 other placements: baseline {base:.3f} mm, calibrated {now:.3f} mm")
     at = got["at_calibration"]["position_mm"]["rms"]
     assert at == pytest.approx(doc["validation"]["calibrated"]["spread_mm"]["rms"])
+    # the registry run, its output folder gone: rebuilt from the record, the same prediction
+    cal.rename(panda_2_halves / "cal-moved")
+    code = main(["verify", "1", str(panda_2_halves / "b"), "--registry", str(reg), "--json",
+                 str(out), "--quiet"])  # fmt: skip
+    cal_moved = json.loads(out.read_text())
+    (panda_2_halves / "cal-moved").rename(cal)
+    assert code == 0 and "rebuilt from the record" in cal_moved["calibration"]["source"]
+    assert cal_moved["calibrated"]["position_mm"]["rms"] == pytest.approx(now, rel=1e-9)
+    assert cal_moved["baseline"]["position_mm"]["rms"] == pytest.approx(base, rel=1e-9)
     capsys.readouterr()
     assert main(["history", "panda_2", "--registry", str(reg)]) == 0
     text = capsys.readouterr().out

@@ -104,6 +104,15 @@ def chosen_model(cal: Calibration) -> str | None:
     return cal.selection[cal.chosen].candidate.name if cal.selection else None
 
 
+def _tool_points(doc: dict) -> dict:
+    """A coincidence calibration's tool points, its own and its baseline's (tip frame, m), with
+    which `relcal verify` checks the model rebuilt from the record (whose tool they are not in)."""
+    tool, base = doc.get("tool_point_xyz_m"), doc.get("baseline_tool_point_xyz_m")
+    if tool is None or base is None:
+        return {}
+    return {"tool_points_xyz_m": {"calibrated": tool, "baseline": base}}
+
+
 def calibration_record(
     cal: Calibration,
     doc: dict,
@@ -148,6 +157,7 @@ def calibration_record(
             **cal.settings,
             "chosen_model": chosen_model(cal),
             "joint_ranges": doc.get("joint_ranges"),  # what `relcal verify` checks a session by
+            **_tool_points(doc),
         },
         "input_hashes": input_hashes(root, cal.dataset.images),
         "converged": bool(cal.result.converged),
