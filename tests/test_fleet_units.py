@@ -27,6 +27,7 @@ from relcal.fleet.units import (
     median_with_std,
     z_threshold,
 )
+from relcal.geometry import to_xyz_rpy
 from relcal.reporting.documents import results_document
 from relcal.reporting.outputs import calibration_files
 from relcal.robot.export import urdf_origins
@@ -302,7 +303,9 @@ def test_exported_model_and_urdf_put_the_ball_where_the_calibration_does(panda_2
     origins = urdf_origins(load_urdf(out / "robot.urdf", tip="ball_link"))
     for k in range(1, 8):
         kin = franka[f"joint{k}"]["kinematic"]
-        assert np.allclose([kin["x"], kin["y"], kin["z"]], origins[f"panda_joint{k}"][:3, 3])
+        xyz, rpy = to_xyz_rpy(origins[f"panda_joint{k}"])
+        assert np.allclose([kin["x"], kin["y"], kin["z"]], xyz, atol=1e-12)
+        assert np.allclose([kin["roll"], kin["pitch"], kin["yaw"]], rpy, atol=1e-12)
 
 
 def test_verify_and_history_of_a_coincidence_calibration(panda_2_halves, capsys):
