@@ -145,6 +145,8 @@ def test_a_unit_off_is_named_with_its_joint_and_the_sentence_reads_in_degrees():
     assert got["off"][0]["joint"] == "j3"
     assert {r["name"] for r in got["parameters"]} == {"theta_off[3]", "a[2]"}  # no point
     assert got["n_tests"] == 10
+    strict = compare_model_units(units, z=100.0)  # --units-z: the threshold given
+    assert strict["z_threshold"] == 100.0 and strict["off"] == []
     mixed = {**units, "u4": _record({"a[2]": (0.0, 1e-5)}, chosen="geometric + scale")}
     notes = " ".join(compare_model_units(mixed)["notes"])
     assert "chose different models" in notes and "theta_off[j3]" in notes

@@ -115,8 +115,23 @@ def median_with_std(values: np.ndarray, stds: np.ndarray) -> tuple[float, float]
 
 
 def leave_one_out_z(values: np.ndarray, stds: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """For each of ``values`` ``(n,)`` (n >= 2) its difference from the median of the others, and
-    that difference in combined standard deviations (``stds`` ``(n,)``, same unit)."""
+    """Each value's difference from the median of the others, in its unit and in combined
+    standard deviations.
+
+    Parameters
+    ----------
+    values : ndarray, shape (n,)
+        One correction per unit (n >= 2), any one unit (mm, deg, ...).
+    stds : ndarray, shape (n,)
+        Their standard deviations, same unit.
+
+    Returns
+    -------
+    difference, z : ndarray, shape (n,)
+        ``values[i]`` minus the median of the others (:func:`median_with_std`), and that
+        difference over ``sqrt(stds[i]**2 + std_of_that_median**2)`` (infinite when both
+        standard deviations are zero and the values differ).
+    """
     values, stds = np.asarray(values, dtype=float), np.asarray(stds, dtype=float)
     n = len(values)
     if n < 2 or stds.shape != values.shape:
@@ -154,12 +169,31 @@ def _latest_units(entries: list[dict]) -> dict[str, dict]:
 def compare_model_units(
     units: dict[str, dict], alpha: float = 0.01, z: float | None = None
 ) -> dict[str, Any]:
-    """Compare the units of one robot model: ``units`` maps each robot id to its registry record
-    (its latest calibration). Returns the comparison as JSON: every parameter estimated in two or
-    more units with each unit's correction and std (mm, deg), its difference from the median of
-    the other units and z; ``off``, the (unit, parameter) whose ``|z|`` exceeds ``z_threshold``,
-    largest first, each with a sentence naming the unit and the joint; and notes on what makes
-    the units' corrections less comparable (different chosen models, parameters held in some)."""
+    """Compare the units of one robot model parameter by parameter.
+
+    Parameters
+    ----------
+    units : dict of str to dict
+        Each unit's (robot id's) registry record (:func:`relcal.fleet.records.calibration_record`),
+        of its latest calibration; two or more.
+    alpha : float
+        Level of the test over the whole model (Bonferroni over every unit and parameter
+        compared, :func:`z_threshold`).
+    z : float, optional
+        The threshold of ``|z|`` instead (``relcal fleet calibrate --units-z``).
+
+    Returns
+    -------
+    dict
+        As JSON: ``robots``, ``sessions`` and ``chosen_models`` per unit; ``parameters``, one
+        entry per parameter estimated in two or more units (``name``, ``label`` with the joint
+        name, ``joint``, ``unit`` (mm, deg, ppm ...), and per unit ``value``, ``std``,
+        ``difference`` from the median of the other units and ``z``); ``z_threshold``,
+        ``n_tests``, ``alpha``; ``off``, each (unit, parameter) whose ``|z|`` exceeds the
+        threshold, largest first, with a sentence naming the unit and the joint (``text``); and
+        ``notes`` on what makes the corrections less comparable (two units only, different chosen
+        models, different parameters held at nominal).
+    """
     robots = sorted(units)
     if len(robots) < 2:
         raise RelcalError("compare_model_units: two or more units of one model")
