@@ -111,7 +111,7 @@ ERROR_COLUMNS = (
 class Run:
     """One stored calibration. ``parameters``: one mapping per parameter with ``name``, ``unit``
     (SI: ``m``, ``rad``, ``1`` for a joint scale, ``rad/(N m)`` or ``m/N`` for a compliance;
-    records before 2026-12 wrote ``m`` for all but angles), ``value`` (identified error relative
+    older records wrote ``m`` for all but angles), ``value`` (identified error relative
     to nominal, or None when not estimated), ``std`` (or None), ``identifiable``, ``estimated``
     (in the solved subset) and ``status`` (results.json's: ``estimated``, ``combination``, ...;
     newer records).
