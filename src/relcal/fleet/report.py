@@ -334,8 +334,10 @@ def _units(doc: dict) -> list[tuple]:
                     f"other units ({m['n_tests']} comparisons, alpha {m['alpha']:g})."
                 ),
                 hk.table(["parameter", "unit", *robots], rows, "num"),
-                hk.paragraph("Units off: " + ("; ".join(off) if off else "none")),
-                hk.bullet_list(m["notes"], "no note"),
+                hk.paragraph("Units off, largest first:"),
+                hk.bullet_list(off, "none"),
+                hk.paragraph("Notes:") if m["notes"] else "",
+                hk.bullet_list(m["notes"], "") if m["notes"] else "",
             )
         )
     return sections
