@@ -345,12 +345,22 @@ def test_verify_and_history_of_a_coincidence_calibration(panda_2_halves, capsys)
     assert "tool_point.z" in text and "n/i" not in text.split("tool_point.z")[1].split("\n")[0]
     assert "point[" not in text and "group points" in text
     assert "holds" in text  # the verification beside the calibration
+    # the later placements calibrated as a second session of the unit: compare names the tool
+    # point among the robot's parameters and folds the sockets (each session's own) into a count
+    argv = ["calibrate", str(panda_2_halves / "b"), "--out", str(panda_2_halves / "cal-b"),
+            "--quiet", "--registry", str(reg), *SAME_MODEL]  # fmt: skip
+    assert main(argv) == 0
+    capsys.readouterr()
+    main(["compare", "1", "2", "--registry", str(reg)])
+    text = capsys.readouterr().out
+    assert "tool_point.x" in text and "point[" not in text
+    assert "not compared: the group points (12, each session's own)" in text  # 8 + 4 trained
     # the record's noise rows: 3 per training sample and one per distance of the 4 training
     # placements (2 of the 6 held out), not 6 per sample as for relative poses
     from relcal.fleet.registry import open_registry
 
     with open_registry(reg) as registry:
-        (run,) = registry.runs("panda_2")
+        run = registry.runs("panda_2")[0]
     assert run.covariance["noise_rows"] == 3 * len(doc["train_ids"]) + 4
     assert run.parameter("theta_off[4]")["status"] == "estimated"
     assert run.parameter("a[7]")["status"] == "combination"

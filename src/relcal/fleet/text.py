@@ -162,11 +162,15 @@ def comparison_text(c: Comparison) -> str:
             parts.append(f"{min(angles):.5f} to {max(angles):.5f} deg")
         lines += ["", "repeatability (std of the difference of two sessions): " + ", ".join(parts)]
     rest = [n for n in c.left_out if n not in set(c.one_sided)]
+    points = [n for n in rest if n.startswith("point[")]  # each session's own sockets
+    rest = [n for n in rest if not n.startswith("point[")]
     if rest:
         lines.append(
             "not compared (not estimated or not identifiable in both, or hand-eye): "
             + ", ".join(rest)
         )
+    if points:
+        lines.append(f"not compared: the group points ({len(points) // 3}, each session's own)")
     lines += [f"note: {n}" for n in c.notes]
     return "\n".join(lines)
 
