@@ -196,6 +196,14 @@ def split_params(problem: Problem, params: np.ndarray):
     return model, tool, points
 
 
+def with_tool_point(model: RobotModel, tool_point: np.ndarray) -> RobotModel:
+    """``model`` whose tool transform is moved by ``tool_point`` ``(3,)`` (m, in the tip frame),
+    orientation unchanged: ``fk(with_tool_point(m, t), q)[:, :3, 3] == tool_points(m, q, t)``."""
+    moved = np.eye(4)
+    moved[:3, 3] = np.asarray(tool_point, dtype=float)
+    return replace(model, tool=model.tool @ moved)
+
+
 def tool_points(model: RobotModel, q: np.ndarray, tool_point: np.ndarray) -> np.ndarray:
     """The tool point in the base frame ``F(q_k) t`` ``(N, 3)``."""
     tip = fk(model, np.asarray(q, dtype=float))

@@ -121,9 +121,16 @@ class Calibration:
     @property
     def model(self) -> RobotModel:
         """The exported robot model (the identified errors applied; only the non-geometric
-        terms of the chosen model switched on)."""
+        terms of the chosen model switched on). Coincidence data: the tool transform ends at
+        the estimated tool point (:func:`relcal.calibration.coincidence.with_tool_point`), so
+        the model alone (model.yaml, the URDF's tip) predicts the ball centre it was fitted
+        with, whatever the tool point absorbed."""
         layout = self.problem.layout
         model = calibrated_model(self.problem.model, layout, self.result.params)
+        if self.problem.formulation == "coincidence":
+            from relcal.calibration.coincidence import split_params, with_tool_point
+
+            model = with_tool_point(model, split_params(self.problem, self.result.params)[1])
         if not self.selection:
             return model
         columns = self.selection[self.chosen].candidate.columns

@@ -190,11 +190,14 @@ class Reference:
 
     @classmethod
     def from_results(cls, doc: dict) -> Reference | None:
-        """From ``validation.pairs`` of a results document (None without held-out samples)."""
+        """From ``validation.pairs`` of a results document, or for coincidence samples (held-out
+        placements) from ``validation.samples``: each held-out sample's distance to its group's
+        point (the points refitted on the held-out samples, kinematics and tool point frozen).
+        None without held-out samples."""
         val = doc.get("validation") or {}
         rows = val.get("pairs") or []
         if not rows:
-            return None
+            return cls._from_samples(val.get("samples") or [])
         ids = {}
         pairs = np.array([[ids.setdefault(i, len(ids)) for i in r["ids"]] for r in rows], int)
         errors = np.full((len(rows), 6), np.nan)
@@ -207,6 +210,19 @@ class Reference:
             errors[:, 3] = np.radians(deg)
             errors[:, 4:] = 0.0
         return cls(pairs, errors)
+
+    @classmethod
+    def _from_samples(cls, rows: list[dict]) -> Reference | None:
+        """Per held-out sample ``calibrated_spread_mm`` (coincidence validation) as a reference
+        of per-sample position errors (pairs ``(k, k)``); None without such samples."""
+        spread = [r.get("calibrated_spread_mm") for r in rows if isinstance(r, dict)]
+        if not spread or any(v is None for v in spread):
+            return None
+        k = np.arange(len(spread))
+        errors = np.zeros((len(spread), 6))
+        errors[:, 0] = np.asarray(spread, dtype=float) / 1e3
+        errors[:, 3:] = np.nan  # no orientation is measured
+        return cls(np.stack([k, k], axis=1), errors)
 
 
 # --- the session's errors, nuisance cross-fitted -------------------------------------------------
@@ -478,8 +494,11 @@ def verify(
         "baseline": _nuisance_all(kind, nominal, q, poses, index, tools[1]),
         "calibrated": _nuisance_all(kind, calibrated, q, poses, index, tools[0]),
     }
-    same_tool = kind != "coincidence" or np.allclose(tools[0], tools[1], atol=1e-12)
-    identical = bool(same_tool and np.allclose(fk(calibrated, q), fk(nominal, q), atol=1e-12))
+    if kind == "coincidence":  # the predicted tool points (a tool point may sit in a model)
+        got = _tool_points(calibrated, q, tools[0]), _tool_points(nominal, q, tools[1])
+        identical = bool(np.allclose(*got, atol=1e-12))
+    else:
+        identical = bool(np.allclose(fk(calibrated, q), fk(nominal, q), atol=1e-12))
     return Verification(
         kind=kind,
         ids=tuple(ids),
@@ -776,6 +795,8 @@ class CalibrationFiles:
         base = self.results.get("baseline_tool_point_xyz_m")
         if tool is None or base is None:
             return None
+        if self.results.get("tool_point_in_model"):  # model.yaml's tool ends at the tool point
+            tool = np.zeros(3)
         return np.asarray(tool, dtype=float), np.asarray(base, dtype=float)
 
 

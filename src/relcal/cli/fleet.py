@@ -5,12 +5,14 @@ from __future__ import annotations
 import argparse
 from datetime import UTC, datetime
 
+from relcal.cli.calibrate import nongeometric_terms
 from relcal.cli.common import (
     fraction,
     holdout_fraction,
     json_arg,
     output_file,
     output_folder,
+    positive_float,
     positive_int,
     registry_arg,
     seed,
@@ -21,6 +23,7 @@ EPILOG = """\
 examples:
   relcal fleet calibrate plant/ --workers 2 --registry history.sqlite --json fleet.json
   relcal fleet calibrate plant/ --scheduler tcp://10.0.0.5:8786 --report fleet.html
+  relcal fleet calibrate units/ --nongeometric none --report units.html   # units of one model
   (a remote cluster: `dask scheduler` on one machine, `dask worker tcp://HOST:8786 --nthreads 1`
   on each worker machine, with relcal installed and the dataset folders at the same path; set
   DASK_DISTRIBUTED__WORKER__PROFILE__ENABLED=False for the workers: their profiler slows
@@ -55,6 +58,7 @@ def run_fleet_calibrate(args: argparse.Namespace) -> int:
 def _fleet(args: argparse.Namespace, sessions, registry) -> int:
     from relcal.fleet.runner import attach_drift, run_fleet
     from relcal.fleet.text import fleet_text
+    from relcal.fleet.units import compare_units
     from relcal.io import write_json, write_text
 
     options = {
@@ -65,6 +69,7 @@ def _fleet(args: argparse.Namespace, sessions, registry) -> int:
         "loss": args.loss,
         "reject_outliers": not args.keep_outliers,
         "selection": args.select,
+        "nongeometric": args.nongeometric,
     }
     started = datetime.now(UTC)
     bar = None
@@ -89,6 +94,7 @@ def _fleet(args: argparse.Namespace, sessions, registry) -> int:
     attach_drift(entries, registry, started, args.alpha)
     elapsed = (datetime.now(UTC) - started).total_seconds()
     doc = fleet_document(args, sessions, entries, elapsed, registry)
+    doc["units"] = compare_units(entries, args.alpha, args.units_z)
     if registry is not None:
         doc["verifications"] = latest_verifications(registry, entries)
     if args.json:
@@ -98,7 +104,7 @@ def _fleet(args: argparse.Namespace, sessions, registry) -> int:
 
         write_text(args.report, fleet_report(doc, entries))
     if not args.quiet:
-        print(fleet_text(entries, doc["models"], doc.get("verifications")))
+        print(fleet_text(entries, doc["models"], doc.get("verifications"), doc["units"]))
         n_ok = sum(e["status"] == "ok" for e in entries)
         print(f"{n_ok} of {len(entries)} sessions calibrated in {elapsed:.1f} s")
         if registry is not None:
@@ -172,7 +178,10 @@ def register(sub: argparse._SubParsersAction) -> None:
         "`robot_id` of dataset.yaml, else the robot's folder: ROOT/ROBOT/SESSION or "
         "ROOT/ROBOT), calibrated as `relcal calibrate` "
         "does, as one Dask task each; a bad dataset fails alone with its reason. Each session "
-        "is compared with the robot's previous calibration (drift or agree).",
+        "is compared with the robot's previous calibration (drift or agree), and the units of "
+        "one robot model with each other: per parameter each unit's correction against the "
+        "median of the other units, in combined standard deviations (units off named with the "
+        "joint).",
         epilog=EPILOG,
         formatter_class=fmt,
     )
@@ -203,6 +212,22 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="model selection, as `relcal calibrate --select` (default cv)",
     )
     cp.add_argument("--keep-outliers", action="store_true", help="keep detected outliers")
+    cp.add_argument(
+        "--nongeometric",
+        default="auto",
+        type=nongeometric_terms,
+        metavar="auto|none|TERMS",
+        help="non-geometric candidates, as `relcal calibrate --nongeometric` (default auto; "
+        "none: every unit on the geometry alone, so that their corrections compare)",
+    )
+    cp.add_argument(
+        "--units-z",
+        type=positive_float,
+        metavar="K",
+        help="name a unit off in a parameter when its correction lies more than K combined "
+        "standard deviations from the median of the other units of its model (default: the "
+        "normal quantile of --alpha, Bonferroni over the units and parameters compared)",
+    )
     cp.add_argument(
         "--alpha",
         type=fraction,

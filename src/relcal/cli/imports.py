@@ -69,6 +69,7 @@ def run(args: argparse.Namespace) -> int:
             root=args.root,
             distance=args.distance,
             distance_std=args.distance_std,
+            placements=args.placements,
         )
     elif folder:
         from relcal.data.importers import import_rct_images
@@ -115,6 +116,14 @@ def _rosbag(args: argparse.Namespace):
         robot=args.robot,
         options=StopOptions(velocity=args.velocity, settle=args.settle),
     )
+
+
+def name_list(text: str) -> list[str]:
+    """``A,B,...``: names, none empty."""
+    names = [n.strip() for n in text.split(",")]
+    if not all(names):
+        raise argparse.ArgumentTypeError(f"'{text}': expected names separated by commas")
+    return names
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -203,6 +212,13 @@ def register(sub: argparse._SubParsersAction) -> None:
         default=1e-4,
         metavar="M",
         help="its standard deviation, m (default 0.0001)",
+    )
+    mukca.add_argument(
+        "--placements",
+        type=name_list,
+        metavar="A,B,...",
+        help="the placement folders to import (default all): e.g. some to calibrate with, the "
+        "others as a later session to verify on",
     )
     json_arg(p, "the list of files written and the number of samples")
     p.add_argument("--quiet", action="store_true", help="print nothing but errors")

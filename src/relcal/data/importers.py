@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -299,6 +300,7 @@ def import_mukca(
     root: str | None = None,
     distance: float | None = None,
     distance_std: float = 1e-4,
+    placements: Sequence[str] | None = None,
 ) -> Imported:
     """Write a coincidence dataset folder from one robot's folder of the MUKCa layout
     (``ROBOT/PLACEMENT/hole_0.csv``, ``hole_1.csv``: joint angles in rad, no header).
@@ -308,7 +310,9 @@ def import_mukca(
     more rows than the joint files, and nothing here pairs rows across files. The URDF is
     referenced by its absolute path (chain ``root`` .. ``tip``, whose origin is the ball centre
     guess); ``distance`` (m) between the two sockets of every placement, with ``distance_std``,
-    goes into ``distances:``. The folder ``out`` must be new or empty.
+    goes into ``distances:``. ``placements``: the placement folders to import (default all),
+    e.g. some to calibrate with and the others, as a later session, to verify on. The folder
+    ``out`` must be new or empty.
     """
     from relcal.errors import RelcalError
     from relcal.robot.urdf import load_urdf
@@ -317,19 +321,28 @@ def import_mukca(
     if not source.is_dir():
         raise RelcalError(f"{source}: not a folder (expected ROBOT/PLACEMENT/hole_*.csv)")
     model = load_urdf(urdf, root, tip)
-    placements = []
+    found = []
     for folder in sorted(p for p in source.iterdir() if p.is_dir()):
         files = sorted(f for f in folder.glob(MUKCA_SOCKET) if not f.stem.endswith("_pose"))
         if files:
-            placements.append((folder.name, files))
-    if not placements:
+            found.append((folder.name, files))
+    if not found:
         raise RelcalError(
             f"{source}: no placement folders with hole_*.csv (expected the MUKCa layout "
             "ROBOT/PLACEMENT/hole_0.csv; give the robot's folder, e.g. data/panda_1)"
         )
+    if placements is not None:
+        names = [name for name, _ in found]
+        unknown = [p for p in placements if p not in names]
+        if unknown or not placements:
+            raise RelcalError(
+                f"{source}: placements {', '.join(unknown) or '(none given)'}: not among its "
+                f"placement folders ({', '.join(names)})"
+            )
+        found = [(name, files) for name, files in found if name in set(placements)]
     ids, groups, blocks = [], [], []
     distances = []
-    for place, files in placements:
+    for place, files in found:
         for f in files:
             q = _mukca_joints(f, model.n_joints)
             group = f"{place}/{f.stem}"

@@ -380,8 +380,12 @@ def _chi_square(d: np.ndarray, cov: np.ndarray) -> tuple[float, int]:
 
 
 def display(value: float, unit: str) -> tuple[float, str]:
-    """An SI value in the unit people read: mm for lengths, degrees for angles."""
-    return (value * 1e3, "mm") if unit == "m" else (float(np.degrees(value)), "deg")
+    """An SI value in the unit people read: mm for lengths, degrees for angles, ppm for a joint
+    scale (unit ``1``), urad/Nm and um/N for compliances."""
+    from relcal.robot.kinematics import DISPLAY_UNITS
+
+    factor, shown = DISPLAY_UNITS.get(unit, (float(np.degrees(1.0)), "deg"))
+    return float(value * factor), shown
 
 
 def consecutive(

@@ -89,9 +89,28 @@ def covariance(cal: Calibration) -> tuple[list[str], np.ndarray]:
     return names, cal.result.covariance[np.ix_(columns, columns)]
 
 
+def noise_rows(cal: Calibration) -> int:
+    """Independent noise components of the training data: 6 per training sample but one
+    (relative poses), or for coincidence samples 3 per training sample (its point) and one per
+    known distance."""
+    coincidence = cal.problem.coincidence if cal.problem.formulation == "coincidence" else None
+    if coincidence is not None:
+        return 3 * len(coincidence.index) + len(coincidence.lengths)
+    return 6 * (len(cal.train) - 1)
+
+
 def chosen_model(cal: Calibration) -> str | None:
     """The name of the candidate model that model selection chose (None without selection)."""
     return cal.selection[cal.chosen].candidate.name if cal.selection else None
+
+
+def _tool_points(doc: dict) -> dict:
+    """A coincidence calibration's tool points, its own and its baseline's (tip frame, m), with
+    which `relcal verify` checks the model rebuilt from the record (whose tool they are not in)."""
+    tool, base = doc.get("tool_point_xyz_m"), doc.get("baseline_tool_point_xyz_m")
+    if tool is None or base is None:
+        return {}
+    return {"tool_points_xyz_m": {"calibrated": tool, "baseline": base}}
 
 
 def calibration_record(
@@ -105,8 +124,11 @@ def calibration_record(
     ``robot_id`` (default: the dataset's) is the robot it is recorded under."""
     names, cov = covariance(cal)
     layout = cal.problem.full_layout
-    angle = layout.is_angle()
+    units = layout.units()  # m, rad, 1 (a joint scale), rad/(N m) or m/N (compliances)
     std = cal.std  # of the covariance recorded: `std` and `calibration_std` (older records) agree
+    # results.json's word for each: estimated, combination (a value of a combination whose other
+    # members are held), unidentifiable, not in the chosen model, ...
+    status = {p["name"]: p.get("status") for p in doc.get("parameters") or []}
     parameters = []
     for k, name in enumerate(layout.names):
         estimated = bool(np.isfinite(std[k]))
@@ -114,12 +136,13 @@ def calibration_record(
         parameters.append(
             {
                 "name": name,
-                "unit": "rad" if angle[k] else "m",
+                "unit": units[k],
                 "value": float(cal.result.params[k]) if estimated else None,
                 "std": value,
                 "calibration_std": value,
                 "identifiable": bool(cal.result.identifiable[k]),
                 "estimated": estimated,
+                "status": status.get(name),
             }
         )
     root = Path(cal.dataset.root).resolve()
@@ -134,6 +157,7 @@ def calibration_record(
             **cal.settings,
             "chosen_model": chosen_model(cal),
             "joint_ranges": doc.get("joint_ranges"),  # what `relcal verify` checks a session by
+            **_tool_points(doc),
         },
         "input_hashes": input_hashes(root, cal.dataset.images),
         "converged": bool(cal.result.converged),
@@ -142,10 +166,10 @@ def calibration_record(
         "covariance": {
             "names": names,
             "matrix": cov.tolist(),
-            # independent relative-pose noise components left after the fit (6 per training
-            # sample but one, less the estimated parameters): what the noise level rests on
-            "residual_dof": 6 * (len(cal.train) - 1) - len(names),
-            "noise_rows": 6 * (len(cal.train) - 1),
+            # independent noise components left after the fit, less the estimated parameters:
+            # what the noise level rests on
+            "residual_dof": noise_rows(cal) - len(names),
+            "noise_rows": noise_rows(cal),
         },
         "errors": held_out_errors(doc),
         "validation": {k: v for k, v in (doc.get("validation") or {}).items() if k != "pairs"}

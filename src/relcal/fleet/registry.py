@@ -110,8 +110,11 @@ ERROR_COLUMNS = (
 @dataclass(frozen=True)
 class Run:
     """One stored calibration. ``parameters``: one mapping per parameter with ``name``, ``unit``
-    (``m`` or ``rad``), ``value`` (identified error relative to nominal, or None when not
-    estimated), ``std`` (or None), ``identifiable`` and ``estimated`` (in the solved subset).
+    (SI: ``m``, ``rad``, ``1`` for a joint scale, ``rad/(N m)`` or ``m/N`` for a compliance;
+    older records wrote ``m`` for all but angles), ``value`` (identified error relative
+    to nominal, or None when not estimated), ``std`` (or None), ``identifiable``, ``estimated``
+    (in the solved subset) and ``status`` (results.json's: ``estimated``, ``combination``, ...;
+    newer records).
     ``covariance``: ``{"names": [...], "matrix": [[...]]}`` over the estimated subset, SI."""
 
     id: int

@@ -3,10 +3,12 @@ inline CSS, plots as PNG ``data:`` URIs, no script, nothing fetched).
 
 Sections: ``summary`` (cards, and one row per robot model), ``robots`` (one row per session:
 status, baseline and calibrated held-out errors, drift against the previous calibration),
-``failed`` (the reasons), ``verifications`` (the latest ``relcal verify`` of each robot), and one
-``parameters-<model>`` section per robot model with the identified errors of every robot, one
-small plot per parameter (image ``plot-parameters-<model>``): robots whose value lies far from
-the others of their model (robust z above 3.5) are drawn in red and listed.
+``failed`` (the reasons), ``verifications`` (the latest ``relcal verify`` of each robot), one
+``units-<model>`` section per model of two or more units (their corrections side by side, the
+units off named with the joint), and one ``parameters-<model>`` section per robot model with
+the identified errors of every robot, one small plot per parameter (image
+``plot-parameters-<model>``): robots whose value lies far from the others of their model (robust
+z above 3.5) are drawn in red and listed.
 """
 
 from __future__ import annotations
@@ -176,7 +178,11 @@ def _robots(entries: list[dict]) -> tuple:
     return hk.section(
         "robots",
         "Robots",
-        hk.paragraph("Held-out relative errors (RMS over the held-out pairs of each session)."),
+        hk.paragraph(
+            "Held-out errors: relative poses, RMS over the held-out pairs of each session; "
+            "coincidence sessions (a ball in sockets), RMS distance of the held-out placements' "
+            "samples from their sockets' refitted points (mm only)."
+        ),
         hk.table(head, rows, "num"),
     )
 
@@ -291,10 +297,58 @@ def _parameters(entries: list[dict]) -> list[tuple]:
     return sections
 
 
+def _units(doc: dict) -> list[tuple]:
+    """One ``units-<model>`` section per robot model with two or more units
+    (:func:`relcal.fleet.units.compare_units`): every parameter's correction +- std per unit,
+    the cells of a unit named off in red with z, and the list of units off."""
+    sections = []
+    for m in doc.get("units") or []:
+        robots = m["robots"]
+        if len(robots) < 2:
+            continue
+        rows = []
+        for row in m["parameters"]:
+            cells: list[object] = [row["label"], row["unit"]]
+            for r in robots:
+                u = row["units"].get(r)
+                if u is None:
+                    cells.append("–")
+                    continue
+                text = f"{u['value']:+.4f} ± {u['std']:.4f}"
+                if abs(u["z"]) > m["z_threshold"]:
+                    cells.append(hk.badge(False, no=f"{text} (z {u['z']:+.1f})"))
+                else:
+                    cells.append(text)
+            rows.append(cells)
+        off = [o["text"] for o in m["off"]]
+        sections.append(
+            hk.section(
+                f"units-{_slug(m['model'])}",
+                f"Units compared: {m['model']}",
+                hk.paragraph(
+                    f"The latest calibration of each of the {len(robots)} units ("
+                    + ", ".join(robots)
+                    + "): every correction with one standard deviation. A unit is off in a "
+                    "parameter (red) when its correction lies more than "
+                    f"{m['z_threshold']:.2f} combined standard deviations from the median of the "
+                    f"other units ({m['n_tests']} comparisons, alpha {m['alpha']:g})."
+                ),
+                hk.table(["parameter", "unit", *robots], rows, "num"),
+                hk.paragraph("Units off, largest first:"),
+                hk.bullet_list(off, "none"),
+                hk.paragraph("Notes:") if m["notes"] else "",
+                hk.bullet_list(m["notes"], "") if m["notes"] else "",
+            )
+        )
+    return sections
+
+
 def fleet_report(doc: dict, entries: list[dict]) -> str:
-    """The page of a fleet run: ``doc`` as ``relcal fleet calibrate --json`` writes it, and the
-    entries of :func:`relcal.fleet.runner.run_fleet` (with their registry records)."""
+    """The page of a fleet run: ``doc`` as ``relcal fleet calibrate --json`` writes it (with the
+    comparison of the units of each model under ``units``), and the entries of
+    :func:`relcal.fleet.runner.run_fleet` (with their registry records)."""
     sections = [_summary(doc, entries), _robots(entries), _failed(entries), _verifications(doc)]
+    sections += _units(doc)
     sections += _parameters(entries)
     meta = [("root", str(doc.get("root", ""))), ("sessions", str(len(entries)))]
     if doc.get("registry"):

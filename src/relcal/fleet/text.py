@@ -70,7 +70,11 @@ def history_text(
     header = ["name", "unit"] + [f"run {r.id}" for r in runs]
     table = [header]
     never: dict[str, list[str]] = {"n/i": [], "-": []}
+    points = combined = 0
     for name in runs[-1].names:
+        if name.startswith("point["):  # a coincidence group's point: the session's own
+            points += 1
+            continue
         cells, unit = [], ""
         for run in runs:
             try:
@@ -78,15 +82,14 @@ def history_text(
             except KeyError:
                 cells.append("")
                 continue
-            if not p["identifiable"]:
-                cells.append("n/i")
-                continue
-            if p["value"] is None:  # identifiable, left out by model selection
-                cells.append("-")
+            if p["value"] is None:  # not identifiable, or left out by model selection
+                cells.append("-" if p["identifiable"] else "n/i")
                 continue
             value, unit = display(p["value"], p["unit"])
             std = display(p["std"], p["unit"])[0] if p["std"] is not None else float("nan")
-            cells.append(f"{value:+.4f} +- {std:.4f}")
+            combination = p.get("status") == "combination"
+            combined += combination
+            cells.append(f"{value:+.4f} +- {std:.4f}" + (" c" if combination else ""))
         shown = {c for c in cells if c}
         if shown <= {"n/i", "-"}:
             never["n/i" if shown == {"n/i"} else "-"].append(name)
@@ -97,6 +100,16 @@ def history_text(
         lines.append("not identifiable (n/i) in any run: " + ", ".join(never["n/i"]))
     if never["-"]:
         lines.append("not in any run's chosen model (-): " + ", ".join(never["-"]))
+    if combined:
+        lines.append(
+            "c: the value of a combination whose other members are held at nominal, not the "
+            "parameter's own (results.json: combination)"
+        )
+    if points:
+        lines.append(
+            f"not shown: the {points // 3} group points of run {runs[-1].id} (where its sockets "
+            "were: each session's own)"
+        )
     lines += verifications_text(list(verifications))
     return "\n".join(lines)
 
@@ -149,11 +162,15 @@ def comparison_text(c: Comparison) -> str:
             parts.append(f"{min(angles):.5f} to {max(angles):.5f} deg")
         lines += ["", "repeatability (std of the difference of two sessions): " + ", ".join(parts)]
     rest = [n for n in c.left_out if n not in set(c.one_sided)]
+    points = [n for n in rest if n.startswith("point[")]  # each session's own sockets
+    rest = [n for n in rest if not n.startswith("point[")]
     if rest:
         lines.append(
             "not compared (not estimated or not identifiable in both, or hand-eye): "
             + ", ".join(rest)
         )
+    if points:
+        lines.append(f"not compared: the group points ({len(points) // 3}, each session's own)")
     lines += [f"note: {n}" for n in c.notes]
     return "\n".join(lines)
 
@@ -228,11 +245,47 @@ def drift_summary(c: Comparison | None, against: str | None) -> dict[str, Any] |
     }
 
 
+def units_text(units: list[dict]) -> list[str]:
+    """The comparison of the units of each robot model (:func:`relcal.fleet.units.compare_units`):
+    per parameter each unit's correction +- std, then the units named off (unit, parameter with
+    its joint, difference from the median of the other units, in combined std), and notes."""
+    lines: list[str] = []
+    for m in units:
+        if len(m["robots"]) < 2:
+            continue
+        robots = m["robots"]
+        lines += [
+            "",
+            f"units of {m['model']}: {', '.join(robots)} (latest calibration of each; correction "
+            "+- one std, mm or deg)",
+        ]
+        rows = [["parameter", "unit", *robots]]
+        for row in m["parameters"]:
+            cells = []
+            for r in robots:
+                u = row["units"].get(r)
+                cells.append("" if u is None else f"{u['value']:+.4f} +- {u['std']:.4f}")
+            rows.append([row["label"], row["unit"], *cells])
+        lines += ["  " + line for line in _table(rows, set(range(2, len(robots) + 2)))]
+        head = (
+            f"off (more than {m['z_threshold']:.2f} combined std from the median of the other "
+            f"units; {m['n_tests']} comparisons, alpha {m['alpha']:g}):"
+        )
+        lines.append(head + (" none" if not m["off"] else ""))
+        lines += [f"  {o['text']}" for o in m["off"]]
+        lines += [f"note: {n}" for n in m["notes"]]
+    return lines
+
+
 def fleet_text(
-    entries: list[dict], models: list[dict] | None = None, verifications: list[dict] | None = None
+    entries: list[dict],
+    models: list[dict] | None = None,
+    verifications: list[dict] | None = None,
+    units: list[dict] | None = None,
 ) -> str:
     """The sessions of a fleet run (status, held-out errors, drift), the failures, a summary per
-    robot model and the latest verification of each robot (when a registry has them)."""
+    robot model, the latest verification of each robot (when a registry has them) and the
+    comparison of the units of each model (``units``, :func:`relcal.fleet.units.compare_units`)."""
     rows = [["session", "robot", "status", "held-out position RMS mm", "drift vs previous"]]
     for e in entries:
         drift = e.get("drift")
@@ -273,6 +326,7 @@ def fleet_text(
             f"{v.get('session')}): {v['verdict']}{errors}"
             + (f" (at calibration {at:.3f} mm)" if at is not None else "")
         )
+    lines += units_text(units or [])
     return "\n".join(lines)
 
 

@@ -90,7 +90,10 @@ class Source:
 
 
 def _held_out(results: dict) -> float | None:
-    value = ((results.get("validation") or {}).get("calibrated") or {}).get("position_mm") or {}
+    """The calibrated held-out position RMS (mm) of a results document (for coincidence data the
+    spread of the held-out placements' samples, as the record's column holds)."""
+    summary = (results.get("validation") or {}).get("calibrated") or {}
+    value = summary.get("position_mm") or summary.get("spread_mm") or {}
     rms = value.get("rms")
     return None if rms is None else float(rms)
 
@@ -132,11 +135,22 @@ def _from_files(files: CalibrationFiles, run: Run | None, label: str) -> Source:
     )
 
 
+def record_tool_points(run: Run) -> tuple[np.ndarray, np.ndarray] | None:
+    """(calibrated, baseline) tool points (tip frame, m) of a coincidence calibration's record
+    (its settings' ``tool_points_xyz_m``), for the model :func:`model_from_record` rebuilds;
+    None for other records."""
+    found = (run.settings or {}).get("tool_points_xyz_m")
+    if not found:
+        return None
+    return np.asarray(found["calibrated"], dtype=float), np.asarray(found["baseline"], dtype=float)
+
+
 def model_from_record(run: Run, nominal: RobotModel) -> RobotModel:
     """The calibrated model of a registry record: ``nominal`` (the session's robot) with the
     record's Hayati joints, the non-geometric families it estimated switched on, and its
     identified errors applied (hand-eye, instrument and marker values, which belong to the
-    calibration's session, left out)."""
+    calibration's session, and a coincidence calibration's tool point and group points left out:
+    :func:`record_tool_points`)."""
     from relcal.calibration.outcome import exported_model
     from relcal.robot.export import calibrated_model
     from relcal.robot.kinematics import make_layout
@@ -161,7 +175,7 @@ def model_from_record(run: Run, nominal: RobotModel) -> RobotModel:
         model = with_nongeometric(model, tuple(families))
     layout = make_layout(model)
     params = np.zeros(layout.size)
-    frames = ("handeye.", "instrument.", "marker.")
+    frames = ("handeye.", "instrument.", "marker.", "tool_point.", "point[")
     unknown = [n for n in values if n not in layout.names and not n.startswith(frames)]
     if unknown:
         raise RelcalError(
@@ -220,6 +234,7 @@ def resolve(
         reference=reference,
         ranges=ranges,
         ranges_note=note,
+        tool_points=record_tool_points(run),
         notes=(
             "the calibration's held-out error at calibration is taken from the registry record, "
             "without its samples: its interval is not included",

@@ -290,9 +290,13 @@ def _nuisance_frames(cal: Calibration) -> dict:
         from relcal.calibration.coincidence import split_params
 
         _, tool, points = split_params(cal.problem, cal.result.params)
+        base_tool = split_params(cal.problem, cal.baseline.params)[1]
         names = cal.problem.coincidence.names
         return {
             "tool_point_xyz_m": [float(v) for v in tool],
+            # the nominal kinematics' own tool point: what `relcal verify` checks its baseline by
+            "baseline_tool_point_xyz_m": [float(v) for v in base_tool],
+            "tool_point_in_model": True,  # model.yaml's and the URDF's tool end at tool_point
             "group_points_xyz_m": {
                 n: [float(v) for v in p] for n, p in zip(names, points, strict=True)
             },
