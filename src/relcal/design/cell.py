@@ -50,6 +50,17 @@ class Cell:
     printed face up (:func:`board_frame`). ``handeye`` is the flange-from-camera ``X`` of the
     mount drawing: the guess that planning and identification start from, and the truth of a
     simulation (:mod:`relcal.sim.scenario`).
+
+    Parameters
+    ----------
+    board : Board
+        The calibration board (default: relcal's default ChArUco board).
+    center : (3,) ndarray of float
+        The pattern centre in the robot's base frame, m.
+    camera : Camera
+        The camera's intrinsics.
+    handeye : (4, 4) ndarray of float
+        Flange-from-camera transform ``X`` (m).
     """
 
     board: Board = field(default_factory=default_board)

@@ -122,6 +122,62 @@ def plan(
     With ``client`` (a ``distributed.Client``) the candidate batches and the scoring of the
     candidates at every greedy and exchange step run as tasks on its cluster; the plan is the
     same as in this process (each candidate batch has its own random stream from ``seed``).
+
+    Parameters
+    ----------
+    model : RobotModel
+        The nominal robot.
+    cell : Cell
+        The board, where it is, the camera and its mount.
+    k : int
+        Number of poses to plan.
+    constraints : Constraints, optional
+        What makes a configuration usable (board in view, distance, view angle, joint margins,
+        collisions); the defaults of :class:`relcal.design.feasibility.Constraints`.
+    criterion : {"worst", "A", "O1", "O2", "O3", "O4", "O5"}
+        What the selection optimises: the worst predicted standard deviation, or an
+        observability index.
+    algorithm : {"exchange", "greedy"}
+        Greedy selection alone, or followed by exchanges.
+    n_candidates : int
+        Feasible candidate configurations to select from.
+    noise : Noise
+        Measurement noise the predicted standard deviations are computed with (m, rad).
+    formulation : {"invariant", "published", "absolute", "tracker"}
+        The identification formulation the plan is for.
+    measure : {"pose", "position"}
+        Position and orientation, or position only.
+    random_sets : int
+        Random feasible sets of ``k`` candidates compared with the plan.
+    n_validation : int
+        Other feasible poses on which predicted accuracy is computed.
+    seed : int
+        Seed of the candidates and the random sets.
+    client : distributed.Client, optional
+        A Dask client to run the candidate batches and the scoring on.
+
+    Returns
+    -------
+    PlanResult
+        The planned configurations ``q`` ``(k, n_joints)`` in travel order (rad, m), their
+        predicted quality and that of the random sets.
+
+    Raises
+    ------
+    RelcalError
+        Fewer feasible candidates than ``k + n_validation``.
+    ValueError
+        An unknown algorithm.
+
+    Examples
+    --------
+    >>> import relcal
+    >>> result = relcal.plan(
+    ...     relcal.get_robot("a465"), relcal.Cell(), k=12, n_candidates=300, random_sets=3,
+    ...     n_validation=10,
+    ... )
+    >>> result.q.shape
+    (12, 6)
     """
     import time
 
