@@ -28,7 +28,7 @@ from relcal.robot.urdf import MOVABLE
 
 
 def calibrated_model(model: RobotModel, layout: Layout, params: np.ndarray) -> RobotModel:
-    """The nominal model with the identified errors applied, named ``... (calibrated)``.
+    """The nominal model with the identified errors applied, its name marked as calibrated.
 
     Parameters
     ----------

@@ -503,7 +503,7 @@ def _use_fast(backend: Backend, n_conf: int) -> bool:
 
 
 def fk(model: RobotModel, q: np.ndarray, backend: Backend = "numpy") -> np.ndarray:
-    """Flange/tool poses in the base frame, ``F(q) = base A_1(q_1) ... A_n(q_n) tool``.
+    """Flange/tool poses in the base frame, ``F(q)``: base, joint and tool transforms chained.
 
     ``backend="numpy"`` (the default) is the reference implementation; ``"numba"`` the compiled
     kernel of :mod:`relcal.robot.fastkin` (same result to round-off, about 40 times faster on large
