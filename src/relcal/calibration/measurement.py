@@ -32,6 +32,7 @@ from typing import TYPE_CHECKING, Literal
 import numpy as np
 
 from relcal import geometry as tf
+from relcal._renamed import UNSET
 from relcal.robot.kinematics import (
     Layout,
     apply_errors,
@@ -53,7 +54,11 @@ PairStrategy = Literal["consecutive", "star", "all"]
 
 
 def make_pairs(
-    n_poses: int, strategy: PairStrategy = "consecutive", reference: int = 0
+    n_poses: int,
+    pairing: PairStrategy = "consecutive",
+    reference: int = 0,
+    *,
+    strategy: PairStrategy = UNSET,
 ) -> np.ndarray:
     """Index pairs of poses that form relative measurements.
 
@@ -61,10 +66,13 @@ def make_pairs(
     ----------
     n_poses : int
         Number of poses ``n`` (0 or more).
-    strategy : {"consecutive", "star", "all"}
-        Consecutive ``(k, k+1)``, a star around ``reference``, or all ``n (n - 1) / 2`` pairs.
+    pairing : {"consecutive", "star", "all"}
+        Consecutive ``(k, k+1)``, a star around ``reference``, or all ``n (n - 1) / 2`` pairs
+        (the command line's ``--pairing``).
     reference : int
         The centre of the star, ``0 <= reference < n_poses``.
+    strategy : {"consecutive", "star", "all"}
+        Deprecated name of ``pairing`` (a DeprecationWarning; removed in relcal 0.2).
 
     Returns
     -------
@@ -74,7 +82,7 @@ def make_pairs(
     Raises
     ------
     ArgumentError
-        ``n_poses`` negative or not whole, ``reference`` out of range, an unknown strategy.
+        ``n_poses`` negative or not whole, ``reference`` out of range, an unknown pairing.
 
     Examples
     --------
@@ -84,8 +92,10 @@ def make_pairs(
     >>> relcal.make_pairs(4, "all").shape
     (6, 2)
     """
+    from relcal._renamed import renamed
     from relcal.checks import check_number
 
+    strategy = renamed("make_pairs", "strategy", strategy, "pairing", pairing, "consecutive")
     n_poses = check_number(n_poses, "n_poses", 0, integer=True)
     idx = np.arange(n_poses)
     if strategy == "star" and n_poses and not 0 <= reference < n_poses:

@@ -17,6 +17,7 @@ from dataclasses import replace
 
 import numpy as np
 
+from relcal._renamed import UNSET, renamed
 from relcal.calibration.identify import Result, SolverOptions, identify, identify_lm
 from relcal.calibration.kinds import MeasurementKind, NoiseModel, Training, kind_of
 from relcal.calibration.measurement import PairStrategy
@@ -73,17 +74,19 @@ def calibrate(
     pairing: PairStrategy = "all",
     method: str = "lm",
     loss: str = "linear",
-    reject_outliers: bool = True,
+    reject_outliers: bool = UNSET,
     holdout_ids: Sequence[str] | None = None,
     select_folds: int = 5,
     selection: str = "cv",
     nongeometric: str | Sequence[str] = "auto",
     weightings: Sequence[str] = ("plain",),
+    *,
+    keep_outliers: bool = False,
 ) -> Calibration:
     """Choose, fit and validate a model on the training samples; validate on the held-out ones.
 
     Steps: a fit of the identifiable geometry flags training samples that fit badly (left out of
-    what follows with ``reject_outliers``); the noise is learned from the residuals; candidate
+    what follows unless ``keep_outliers``); the noise is learned from the residuals; candidate
     models (the measurement frames only, geometry, non-geometric families) under the row
     weightings are scored by ``select_folds``-fold cross-validation over training samples and
     the simplest one within two standard errors of the best is fitted (``selection="all"``
@@ -108,7 +111,8 @@ def calibrate(
     loss : {"linear", "huber", "cauchy", "soft_l1"}
         Loss of the fits once outliers are out (``lm`` only).
     reject_outliers : bool
-        Leave training samples that fit badly out of the fit.
+        Deprecated (a DeprecationWarning; removed in relcal 0.2): ``reject_outliers=False`` is
+        ``keep_outliers=True``. Not given by default.
     holdout_ids : sequence of str, optional
         The validation samples by id (placements by name for coincidence data), instead of a
         random share ``holdout``.
@@ -128,6 +132,9 @@ def calibrate(
         ``noise model`` (each pair whitened by its learned 6x6 covariance; its predicted
         standard deviations can be 20 to 40 % small on the parameters of parallel axes,
         measured by Monte Carlo, so it is not the default).
+    keep_outliers : bool
+        Keep the training samples that fit badly in the fit (the command line's
+        ``--keep-outliers``); by default they are left out. Keyword only.
 
     Returns
     -------
@@ -140,7 +147,7 @@ def calibrate(
     ArgumentError
         An argument of the wrong type or out of range: a path instead of a :class:`Dataset`,
         measurements of another dataset, ``holdout_ids="s1"`` instead of a list, an unknown
-        choice.
+        choice, or ``reject_outliers`` and ``keep_outliers`` that disagree.
     RelcalError
         Data that are wrong (units, conventions, another robot; named with the likely cause), an
         unknown weighting, too few usable samples, or a calibration above the memory limit.
@@ -156,6 +163,11 @@ def calibrate(
     >>> bool(after < before)  # held-out position RMS, mm
     True
     """
+    keep_outliers = renamed(
+        "calibrate", "reject_outliers", reject_outliers, "keep_outliers", keep_outliers, False,
+        lambda reject: not reject,
+    )  # fmt: skip
+    reject_outliers = not keep_outliers  # the settings key of results.json and the registry
     check_calibrate(
         dataset, measurements, holdout, seed, pairing, method, loss, holdout_ids, select_folds,
         selection,

@@ -22,6 +22,7 @@ from typing import Literal
 
 import numpy as np
 
+from relcal._renamed import UNSET
 from relcal.calibration.measurement import Formulation, Measure
 from relcal.calibration.noise import Noise
 from relcal.design.cell import Cell
@@ -102,7 +103,7 @@ class PlanResult:
 def plan(
     model: RobotModel,
     cell: Cell,
-    k: int = 30,
+    n_poses: int = 30,
     constraints: Constraints | None = None,
     criterion: Criterion = "worst",
     algorithm: Algorithm = "exchange",
@@ -114,10 +115,13 @@ def plan(
     n_validation: int = 50,
     seed: int = 0,
     client=None,
+    *,
+    k: int = UNSET,
 ) -> PlanResult:
-    """Plan ``k`` poses: candidates, selection, and the comparison with ``random_sets`` random
-    feasible sets of ``k`` candidates (predicted standard deviations and accuracy on
-    ``n_validation`` other feasible poses).
+    """Plan ``n_poses`` poses: candidates, selection, and the comparison with random sets.
+
+    The plan is compared with ``random_sets`` random feasible sets of as many candidates
+    (predicted standard deviations and accuracy on ``n_validation`` other feasible poses).
 
     With ``client`` (a ``distributed.Client``) the candidate batches and the scoring of the
     candidates at every greedy and exchange step run as tasks on its cluster; the plan is the
@@ -129,7 +133,7 @@ def plan(
         The nominal robot.
     cell : Cell
         The board, where it is, the camera and its mount.
-    k : int
+    n_poses : int
         Number of poses to plan.
     constraints : Constraints, optional
         What makes a configuration usable (board in view, distance, view angle, joint margins,
@@ -148,24 +152,26 @@ def plan(
     measure : {"pose", "position"}
         Position and orientation, or position only.
     random_sets : int
-        Random feasible sets of ``k`` candidates compared with the plan.
+        Random feasible sets of ``n_poses`` candidates compared with the plan.
     n_validation : int
         Other feasible poses on which predicted accuracy is computed.
     seed : int
         Seed of the candidates and the random sets.
     client : distributed.Client, optional
         A Dask client to run the candidate batches and the scoring on.
+    k : int
+        Deprecated name of ``n_poses`` (a DeprecationWarning; removed in relcal 0.2).
 
     Returns
     -------
     PlanResult
-        The planned configurations ``q`` ``(k, n_joints)`` in travel order (rad, m), their
+        The planned configurations ``q`` ``(n_poses, n_joints)`` in travel order (rad, m), their
         predicted quality and that of the random sets.
 
     Raises
     ------
     RelcalError
-        Fewer feasible candidates than ``k + n_validation``.
+        Fewer feasible candidates than ``n_poses + n_validation``.
     ValueError
         An unknown algorithm.
 
@@ -173,7 +179,7 @@ def plan(
     --------
     >>> import relcal
     >>> result = relcal.plan(
-    ...     relcal.get_robot("a465"), relcal.Cell(), k=12, n_candidates=300, random_sets=3,
+    ...     relcal.get_robot("a465"), relcal.Cell(), n_poses=12, n_candidates=300, random_sets=3,
     ...     n_validation=10,
     ... )
     >>> result.q.shape
@@ -181,6 +187,9 @@ def plan(
     """
     import time
 
+    from relcal._renamed import renamed
+
+    k = renamed("plan", "k", k, "n_poses", n_poses, 30)
     constraints = constraints or Constraints()
     start = time.perf_counter()
     pool_seed, sets_seed = np.random.SeedSequence(seed).spawn(2)
