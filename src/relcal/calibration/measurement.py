@@ -134,7 +134,7 @@ class Problem:
     poses : (N, 4, 4) array_like of float
         Measured poses (m): tool poses in a base-aligned frame (``absolute``, ``published``),
         camera poses in the board frame (``invariant``), tracker points in the translation
-        column (``tracker``), or tool points of coincidence samples.
+        column (``tracker``); identity placeholders for ``coincidence`` (unused).
     formulation : {"invariant", "published", "absolute", "tracker", "coincidence"}
         How measurements are compared with the model: relative motions ``C_i^-1 C_j`` with the
         hand-eye estimated, the published base-frame differences (Lu & Hayes), absolute poses,

@@ -261,7 +261,7 @@ def import_rosbag(
     Parameters
     ----------
     bag : str or Path
-        The rosbag (ROS 1 ``.bag`` or a ROS 2 folder).
+        The rosbag: a ROS 1 ``.bag``, a ROS 2 bag folder, or an ``.mcap``/``.db3`` file.
     out : str or Path
         The dataset folder to write.
     joints : str
@@ -284,8 +284,9 @@ def import_rosbag(
     Raises
     ------
     RelcalError
-        Neither or both of ``image`` and ``pose``, a topic that is not in the bag, or a bag in
-        which the robot never stops.
+        Neither or both of ``image`` and ``pose``, a bag that is not found, the ``rosbags``
+        package missing (the ``ros`` extra), a topic that is not in the bag, or a bag in which
+        the robot never stops.
     """
     bag, out = Path(bag), Path(out)
     if (image is None) == (pose is None):
