@@ -67,8 +67,10 @@ class Calibration:
         The fit of the measurement frames alone (nominal kinematics).
     validation : Validation, PlacementValidation or None
         Held-out errors before and after; None without held-out samples.
-    train, test : (N_train,) and (N_test,) ndarray of int
-        Indices of the training and held-out samples in ``dataset``.
+    train : (N_train,) ndarray of int
+        Indices in ``dataset`` of the training samples fitted (outliers left out unless kept).
+    test : (N_test,) ndarray of int
+        Indices in ``dataset`` of the held-out samples.
     settings : dict
         The options of the run (pairing, method, loss, ...), as written to ``results.json``.
     outliers : tuple of str
