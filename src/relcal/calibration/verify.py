@@ -847,7 +847,9 @@ def verify_session(
     Raises
     ------
     RelcalError
-        A calibration folder that cannot be read, or a session of another robot.
+        Not a calibration folder (no ``model.yaml`` or ``results.json``, or unreadable), a
+        session of a robot with other joints, or too few usable samples (below 4; 3 for
+        coincidence data) to refit the session's nuisance transforms.
 
     Examples
     --------
