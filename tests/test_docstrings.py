@@ -189,6 +189,7 @@ def bad_calls():
         ("SolverOptions", lambda: relcal.SolverOptions(rcond=2.0)),
         ("Noise.parse", lambda: relcal.Noise.parse("0.05")),
         ("calibrated_urdf", lambda: relcal.calibrated_urdf(model)),
+        ("verify_session", lambda: relcal.verify_session(ROOT / "src", None)),
         ("Problem", lambda: relcal.Problem(model, layout, np.zeros((4, 6)), np.zeros((4, 3)))),
     ]
 
