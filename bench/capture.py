@@ -35,7 +35,7 @@ def _plan(model):
     from relcal.design.cell import Cell
     from relcal.design.plan import plan
 
-    return plan(model, Cell(), k=N_POSES, n_candidates=400, random_sets=0, seed=0).q
+    return plan(model, Cell(), n_poses=N_POSES, n_candidates=400, random_sets=0, seed=0).q
 
 
 def _loop(model, q) -> dict:

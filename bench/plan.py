@@ -76,13 +76,13 @@ def measure(n_candidates: int = N_CANDIDATES, repeat: int = REPEAT) -> dict:
     model, cell = _setup()
     times = {"plan_one": np.inf, "plan_dask": np.inf, "sel_one": np.inf, "sel_dask": np.inf}
     with local_cluster(WORKERS) as cluster, Client(cluster) as client:
-        plan(model, cell, k=5, n_candidates=300, random_sets=1, client=client)  # warm up
+        plan(model, cell, n_poses=5, n_candidates=300, random_sets=1, client=client)  # warm up
         for _ in range(repeat):  # interleaved, the least of each: bursts of load pass
             started = time.perf_counter()
-            one = plan(model, cell, k=K, n_candidates=n_candidates)
+            one = plan(model, cell, n_poses=K, n_candidates=n_candidates)
             times["plan_one"] = min(times["plan_one"], time.perf_counter() - started)
             started = time.perf_counter()
-            there = plan(model, cell, k=K, n_candidates=n_candidates, client=client)
+            there = plan(model, cell, n_poses=K, n_candidates=n_candidates, client=client)
             times["plan_dask"] = min(times["plan_dask"], time.perf_counter() - started)
             assert np.array_equal(one.q, there.q), "the cluster's plan differs"
         pool, _ = candidates(model, cell, Constraints(), n_candidates, seed=0, client=client)

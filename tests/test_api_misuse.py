@@ -271,7 +271,7 @@ def test_a_3000_sample_csv_with_all_pairs_is_refused_before_allocating(big, tmp_
     assert main(["calibrate", str(big), "--out", str(tmp_path / "o"), "--quiet"]) == 2
     err = capsys.readouterr().err
     assert time.perf_counter() - started < 60
-    assert "3,000 samples" in err and "GiB" in err and "--pairs consecutive" in err, err
+    assert "3,000 samples" in err and "GiB" in err and "--pairing consecutive" in err, err
     assert "RELCAL_MAX_MEMORY_MB" in err and not (tmp_path / "o").exists()
     with pytest.raises(RelcalError, match="3,000 samples"):  # the Python API too
         relcal.calibrate(relcal.load_dataset(big), pairing="all")

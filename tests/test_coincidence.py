@@ -41,7 +41,7 @@ URDF = {"panda": MUKCA / "urdf" / "panda.urdf", "iiwa14": MUKCA / "urdf" / "iiwa
 ROBOTS = {"panda_1": "panda", "panda_2": "panda", "kuka_14": "iiwa14"}
 # The setup of the kind's own fit before the skeleton: the geometry, the tool point and the group
 # points, no outlier left out, no non-geometric candidate, the largest candidate.
-PLAIN = {"nongeometric": "none", "reject_outliers": False, "selection": "all"}
+PLAIN = {"nongeometric": "none", "keep_outliers": True, "selection": "all"}
 
 
 def placements_out(ds, **options):

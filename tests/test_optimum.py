@@ -159,7 +159,7 @@ def _large_error_dataset(root, seed, position_only=False):
 @pytest.mark.parametrize("seed", [0, 1])
 def test_large_errors_reach_the_plain_optimum(tmp_path, seed, position_only):
     dataset = _large_error_dataset(tmp_path / "d", seed, position_only)
-    for options in ({"nongeometric": "none", "reject_outliers": False}, {}):
+    for options in ({"nongeometric": "none", "keep_outliers": True}, {}):
         assert_at_the_optimum(calibrate(dataset, **options))
 
 
@@ -199,7 +199,7 @@ def test_real_sets_reach_the_plain_optimum(tmp_path, which):
     from relcal.data.imaging import measure
 
     measurements = measure(dataset, progress=False, max_rms=1.5)
-    options = [{"nongeometric": "none", "reject_outliers": False}]
+    options = [{"nongeometric": "none", "keep_outliers": True}]
     if which == "tiago positions":  # the marker's last axes are refused unless dropped
         options[0]["selection"] = "conservative"
     # The default runs of these two are refused today (weakly determined terms): the

@@ -46,9 +46,7 @@ def test_planted_outliers_are_reported_and_do_not_spoil_the_result(tmp_path):
     geometric = {"holdout": 0.0, "nongeometric": "none"}  # the truth is geometric
     ref = calibrate(ds_clean, measure(ds_clean), **geometric)
     robust = calibrate(ds_dirty, measure(ds_dirty), loss="huber", **geometric)
-    plain = calibrate(
-        ds_dirty, measure(ds_dirty), loss="linear", reject_outliers=False, **geometric
-    )
+    plain = calibrate(ds_dirty, measure(ds_dirty), loss="linear", keep_outliers=True, **geometric)
     assert sorted(robust.outliers) == dirty.ids
     e_ref, e_robust = parameter_error(ref, clean.truth), parameter_error(robust, dirty.truth)
     assert e_robust < 2 * e_ref, (e_ref, e_robust)

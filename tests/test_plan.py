@@ -148,7 +148,7 @@ def test_exchange_improves_on_greedy_which_beats_random(hayati, pool):
 
 def test_planned_poses_beat_random_feasible_sets_and_the_study_confirms_it(hayati, tmp_path):
     cell = Cell(**CELL)
-    res = plan(hayati, cell, k=30, n_candidates=1500, random_sets=20, seed=0)
+    res = plan(hayati, cell, n_poses=30, n_candidates=1500, random_sets=20, seed=0)
     assert len(res.q) == 30 and len(res.random) == 20
     assert check(hayati, cell, res.q, Constraints())["board in view"].all()
     assert res.improvement >= 2.0, res.improvement  # worst-parameter std vs median random set
@@ -247,7 +247,7 @@ def test_plan_on_the_cluster_chooses_the_same_poses(hayati, cluster, monkeypatch
     monkeypatch.setattr(scoring, "BLOCK", 64)  # several blocks per shard
     monkeypatch.setattr(feasibility, "TASK_SECONDS", 1e-6)  # one IK batch per task
     cell = Cell(**CELL)
-    options = dict(k=10, n_candidates=400, random_sets=3, seed=3)
+    options = dict(n_poses=10, n_candidates=400, random_sets=3, seed=3)
     here = plan(hayati, cell, **options)
     with Client(cluster) as client, get_task_stream(client) as stream:
         there = plan(hayati, cell, **options, client=client)

@@ -45,7 +45,7 @@ TIAGO = (
     " tip: gripper_right_pal_atc_base_link}}\n"
     "joint_unit: rad\ncolumns: {{x: x1, y: y1, z: z1{angles}}}\nsamples: {d}/{f}\n"
 )
-PLAIN = {"nongeometric": "none", "reject_outliers": False}
+PLAIN = {"nongeometric": "none", "keep_outliers": True}
 CONSERVATIVE = {"selection": "conservative"}
 
 # (name, dataset builder key, options) of every run; the builders are below.

@@ -15,7 +15,7 @@ import relcal
 from relcal.robot.model import auto_hayati
 
 model = auto_hayati(relcal.get_robot("a465"))
-result = relcal.plan(model, relcal.Cell(), k=12, n_candidates=600, random_sets=10, seed=0)
+result = relcal.plan(model, relcal.Cell(), n_poses=12, n_candidates=600, random_sets=10, seed=0)
 print(
     f"{len(result.q)} poses from {result.n_candidates} feasible candidates "
     f"in {result.seconds:.1f} s"

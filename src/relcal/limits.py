@@ -198,7 +198,8 @@ def check_calibration_memory(
     )
     if pairing == "all":
         remedy = (
-            "use --pairs consecutive or --pairs star (pairing='consecutive' or 'star' in Python; "
+            "use --pairing consecutive or --pairing star (pairing='consecutive' or 'star' in "
+            "Python; "
             f"{max(n_samples - 1, 0):,} pairs, about {_size(cheaper)})"
         )
         if cheaper > limit:
@@ -207,7 +208,7 @@ def check_calibration_memory(
         remedy = fewer
     check_memory(
         need,
-        f"{where}: {n_samples:,} samples with --pairs {pairing} ({pairs:,} pairs, {n_params} "
+        f"{where}: {n_samples:,} samples with --pairing {pairing} ({pairs:,} pairs, {n_params} "
         "parameters)",
         remedy + "; or raise RELCAL_MAX_MEMORY_MB if the machine has the memory",
     )

@@ -106,7 +106,27 @@ def _kind(name: str) -> str:
 
 @dataclass(frozen=True)
 class Identifiability:
-    """Singular values of the scaled Jacobian and what they imply."""
+    """Singular values of the scaled Jacobian and what they imply (:func:`relcal.analyse_problem`).
+
+    Parameters
+    ----------
+    singular_values : (P,) ndarray of float
+        Singular values of the Jacobian with unit-norm columns, descending.
+    column_norms : (P,) ndarray of float
+        The norm of each Jacobian column (its scale, per unit of the parameter).
+    rank : int
+        Numerical rank: singular values above ``rcond`` times the largest.
+    rcond : float
+        The relative rank tolerance used.
+    identifiable : (P,) ndarray of bool
+        Parameters the data determine individually.
+    subset : (rank,) ndarray of int
+        Parameter indices chosen by QR with column pivoting: an identifiable subset.
+    null_space : (P, P - rank) ndarray of float
+        Unidentifiable directions in the parameters' SI units (m, rad), unit-norm columns.
+    combinations : tuple of Combination
+        The unidentifiable combinations, named, each with its reason.
+    """
 
     singular_values: np.ndarray  # (P,), descending, of the unit-column Jacobian
     column_norms: np.ndarray  # (P,) scale of each column
@@ -119,6 +139,7 @@ class Identifiability:
 
     @property
     def condition_number(self) -> float:
+        """Ratio of the largest to the smallest kept singular value (inf at rank 0)."""
         s = self.singular_values
         return float(s[0] / s[self.rank - 1]) if self.rank else float("inf")
 
@@ -341,6 +362,39 @@ def analyse_problem(
     ``handeye="known"`` the hand-eye columns of the frame-invariant formulation are left out (the
     transform is taken as given). A coincidence problem is judged at its samples nudged onto their
     group points (:func:`relcal.calibration.coincidence.consistent`; ``jac`` is not used).
+
+    Parameters
+    ----------
+    problem : Problem
+        The identification problem.
+    rcond : float
+        Relative rank tolerance, 0 < rcond < 1: singular values of the column-scaled Jacobian
+        below ``rcond`` times the largest count as zero.
+    jac : (R, P) ndarray of float, optional
+        The identification Jacobian at the nominal model (R residual rows, P parameters).
+    handeye : {"estimated", "known"}
+        Whether the hand-eye transform is estimated with the robot parameters.
+
+    Returns
+    -------
+    Identifiability
+        Rank, identifiable parameters, a subset to identify and the named unidentifiable
+        combinations.
+
+    Raises
+    ------
+    ArgumentError
+        ``problem`` not a :class:`Problem`, ``rcond`` outside (0, 1), an unknown ``handeye``.
+
+    Examples
+    --------
+    >>> import relcal
+    >>> sim = relcal.simulate(relcal.get_robot("a465"), n_poses=20, seed=0)
+    >>> ana = relcal.analyse_problem(sim.problem)
+    >>> ana.rank, len(ana.singular_values)
+    (22, 24)
+    >>> ana.combinations[0].names
+    ('d[1]',)
     """
     from relcal.checks import check_choice, check_instance, check_number
 

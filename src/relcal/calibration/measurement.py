@@ -32,6 +32,7 @@ from typing import TYPE_CHECKING, Literal
 import numpy as np
 
 from relcal import geometry as tf
+from relcal._renamed import UNSET
 from relcal.robot.kinematics import (
     Layout,
     apply_errors,
@@ -53,12 +54,48 @@ PairStrategy = Literal["consecutive", "star", "all"]
 
 
 def make_pairs(
-    n_poses: int, strategy: PairStrategy = "consecutive", reference: int = 0
+    n_poses: int,
+    pairing: PairStrategy = "consecutive",
+    reference: int = 0,
+    *,
+    strategy: PairStrategy = UNSET,
 ) -> np.ndarray:
-    """Index pairs ``(P, 2)`` of poses: consecutive ``(k, k+1)``, a star around ``reference``, or
-    all ``n (n - 1) / 2`` pairs."""
+    """Index pairs of poses that form relative measurements.
+
+    Parameters
+    ----------
+    n_poses : int
+        Number of poses ``n`` (0 or more).
+    pairing : {"consecutive", "star", "all"}
+        Consecutive ``(k, k+1)``, a star around ``reference``, or all ``n (n - 1) / 2`` pairs
+        (the command line's ``--pairing``).
+    reference : int
+        The centre of the star, ``0 <= reference < n_poses``.
+    strategy : {"consecutive", "star", "all"}
+        Deprecated name of ``pairing`` (a DeprecationWarning; removed in relcal 0.2).
+
+    Returns
+    -------
+    (P, 2) ndarray of int
+        The pairs ``(i, j)``, ``i`` first.
+
+    Raises
+    ------
+    ArgumentError
+        ``n_poses`` negative or not whole, ``reference`` out of range, an unknown pairing.
+
+    Examples
+    --------
+    >>> import relcal
+    >>> relcal.make_pairs(4, "consecutive").tolist()
+    [[0, 1], [1, 2], [2, 3]]
+    >>> relcal.make_pairs(4, "all").shape
+    (6, 2)
+    """
+    from relcal._renamed import renamed
     from relcal.checks import check_number
 
+    strategy = renamed("make_pairs", "strategy", strategy, "pairing", pairing, "consecutive")
     n_poses = check_number(n_poses, "n_poses", 0, integer=True)
     idx = np.arange(n_poses)
     if strategy == "star" and n_poses and not 0 <= reference < n_poses:
@@ -85,6 +122,45 @@ class Problem:
     base-aligned frame (absolute, published) or camera poses in the board frame (invariant).
     ``handeye`` is the flange-from-camera guess ``X`` used by the invariant formulation (for the
     others the measured pose is the tool pose: put the camera in ``model.tool``).
+
+    Parameters
+    ----------
+    model : RobotModel
+        The nominal robot.
+    layout : Layout
+        The robot parameters to identify (:func:`relcal.make_layout` of ``model``).
+    q : (N, n_joints) array_like of float
+        Joint values in rad (m for prismatic joints).
+    poses : (N, 4, 4) array_like of float
+        Measured poses (m): tool poses in a base-aligned frame (``absolute``, ``published``),
+        camera poses in the board frame (``invariant``), tracker points in the translation
+        column (``tracker``); identity placeholders for ``coincidence`` (unused).
+    formulation : {"invariant", "published", "absolute", "tracker", "coincidence"}
+        How measurements are compared with the model: relative motions ``C_i^-1 C_j`` with the
+        hand-eye estimated, the published base-frame differences (Lu & Hayes), absolute poses,
+        points of a tracker, or coincident tool points.
+    measure : {"pose", "position"}
+        Position and orientation (6 rows per measurement), or position only (3 rows).
+    pairs : (P, 2) array_like of int or None
+        Index pairs of the relative formulations; None means consecutive pairs.
+    handeye : (4, 4) array_like of float
+        Flange-from-camera guess ``X`` of the ``invariant`` formulation (m).
+    weights : (6,) array_like of float or None
+        Per-row factors of each 6-row residual, e.g. ``1/sigma`` of translation and rotation.
+    pair_weights : (P, 6, 6) array_like of float or None
+        Per-measurement whitening blocks applied after ``weights`` (a learned noise model).
+    instrument : (4, 4) array_like of float
+        ``tracker``: guess of the instrument-from-base transform (m).
+    marker : (3,) array_like of float
+        ``tracker``: guess of the marker position in the tool frame (m).
+    coincidence : Coincidence or None
+        ``coincidence``: the groups, their point guesses and the known distances.
+
+    Raises
+    ------
+    ArgumentError
+        An unknown formulation, poses that are not ``(N, 4, 4)`` or not finite, a pair index out
+        of range or a pose paired with itself, a hand-eye that is not 4x4 (naming the argument).
     """
 
     model: RobotModel
@@ -142,10 +218,18 @@ class Problem:
 
     @property
     def rows_per_measurement(self) -> int:
+        """Residual rows per measurement: 3 for points and positions, 6 for poses."""
         point = self.formulation in ("tracker", "coincidence")
         return 3 if self.measure == "position" or point else 6
 
     def pair_indices(self) -> np.ndarray:
+        """The pose index pairs of the relative measurements.
+
+        Returns
+        -------
+        (P, 2) ndarray of int
+            ``pairs``, or consecutive pairs when not given.
+        """
         if self.pairs is not None:
             return np.asarray(self.pairs, dtype=int)
         return make_pairs(len(self.q))
@@ -157,6 +241,14 @@ class Problem:
         return tf.relative(self.poses, self.pair_indices())
 
     def n_residuals(self) -> int:
+        """Number of residual rows of the problem.
+
+        Returns
+        -------
+        int
+            Rows over all measurements: per pair, per pose or per point times
+            :attr:`rows_per_measurement`, plus one per known distance of coincidence data.
+        """
         if self.formulation == "coincidence":  # 3 rows per sample, 1 per known distance
             return 3 * len(self.q) + len(self.coincidence.lengths)
         per_pose = self.formulation in ("absolute", "tracker")

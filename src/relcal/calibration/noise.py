@@ -22,7 +22,20 @@ from relcal.geometry import DEG, MM
 
 @dataclass(frozen=True)
 class Noise:
-    """Standard deviations of measurement noise: position (m), orientation (rad), joints (rad)."""
+    """Standard deviations of measurement noise: position (m), orientation (rad), joints (rad).
+
+    Parameters
+    ----------
+    position : float
+        Standard deviation of each position component of a measured pose, m.
+    orientation : float
+        Standard deviation of each rotation-vector component of a measured pose, rad.
+    joints : float
+        Standard deviation of each joint reading, rad (m for prismatic joints).
+    covariance : (6, 6) ndarray of float or None
+        Covariance of a pose's body-frame error (translation m, rotation rad) replacing the
+        isotropic ``position`` and ``orientation`` levels when given (a learned noise model).
+    """
 
     position: float = 0.0
     orientation: float = 0.0
@@ -32,14 +45,37 @@ class Noise:
     covariance: np.ndarray | None = field(default=None, compare=False)
 
     def pose_covariance(self) -> np.ndarray:
-        """The ``(6, 6)`` covariance of one measured pose's body-frame error."""
+        """The covariance of one measured pose's body-frame error.
+
+        Returns
+        -------
+        (6, 6) ndarray of float
+            Translation (m^2) then rotation-vector (rad^2) blocks: ``covariance`` when given,
+            otherwise diagonal from ``position`` and ``orientation``.
+        """
         if self.covariance is not None:
             return np.asarray(self.covariance, dtype=float)
         return np.diag(np.r_[np.full(3, self.position**2), np.full(3, self.orientation**2)])
 
     @classmethod
     def parse(cls, text: str) -> Noise:
-        """From ``"POS_MM,ORI_DEG[,JOINT_DEG]"``, e.g. ``"0.05,0.01,0.001"``."""
+        """The noise levels of the command line's ``--noise`` text.
+
+        Parameters
+        ----------
+        text : str
+            ``"POS_MM,ORI_DEG[,JOINT_DEG]"``, e.g. ``"0.05,0.01,0.001"``: mm and degrees.
+
+        Returns
+        -------
+        Noise
+            The levels in m and rad.
+
+        Raises
+        ------
+        RelcalError
+            Not two or three non-negative finite numbers.
+        """
         try:
             values = [float(v) for v in text.split(",")]
         except ValueError:

@@ -50,7 +50,42 @@ class Calibration:
     the primary "before" of every comparison. When the data support no kinematic correction the
     chosen model *is* the baseline (``exported == "baseline"``). ``validation``: held-out pairs
     or points (:class:`Validation`), or held-out placements of coincidence data
-    (:class:`PlacementValidation`).
+    (:class:`PlacementValidation`). Made by :func:`relcal.calibrate`; written by
+    :func:`relcal.write_calibration`.
+
+    Parameters
+    ----------
+    dataset : Dataset
+        The calibrated dataset.
+    measurements : Measurements
+        Its measured poses (all samples).
+    problem : Problem
+        The identification problem of the training samples, with the chosen weighting.
+    result : Result
+        The chosen model's fit: parameters ``(P,)`` (m, rad) following ``problem.full_layout``.
+    baseline : Result
+        The fit of the measurement frames alone (nominal kinematics).
+    validation : Validation, PlacementValidation or None
+        Held-out errors before and after; None without held-out samples.
+    train : (N_train,) ndarray of int
+        Indices in ``dataset`` of the training samples fitted (outliers left out unless kept).
+    test : (N_test,) ndarray of int
+        Indices in ``dataset`` of the held-out samples.
+    settings : dict
+        The options of the run (pairing, method, loss, ...), as written to ``results.json``.
+    outliers : tuple of str
+        Ids of training samples that fit badly (left out of the fit unless kept).
+    noise : PoseNoise or None
+        The noise model learned from the residuals: a ``(6, 6)`` covariance of each pose's
+        error (translation m, rotation rad).
+    selection : tuple of Score
+        Each candidate model's cross-validated held-out errors.
+    chosen : int
+        Index of the chosen candidate in ``selection``.
+    reason : str
+        Why that candidate was chosen, in words.
+    bootstrap_std : (P,) ndarray of float or None
+        Bootstrap standard deviations over training samples (m, rad); NaN if not estimated.
     """
 
     dataset: Dataset

@@ -17,6 +17,7 @@ from dataclasses import replace
 
 import numpy as np
 
+from relcal._renamed import UNSET, renamed
 from relcal.calibration.identify import Result, SolverOptions, identify, identify_lm
 from relcal.calibration.kinds import MeasurementKind, NoiseModel, Training, kind_of
 from relcal.calibration.measurement import PairStrategy
@@ -73,32 +74,100 @@ def calibrate(
     pairing: PairStrategy = "all",
     method: str = "lm",
     loss: str = "linear",
-    reject_outliers: bool = True,
+    reject_outliers: bool = UNSET,
     holdout_ids: Sequence[str] | None = None,
     select_folds: int = 5,
     selection: str = "cv",
     nongeometric: str | Sequence[str] = "auto",
     weightings: Sequence[str] = ("plain",),
+    *,
+    keep_outliers: bool = False,
 ) -> Calibration:
     """Choose, fit and validate a model on the training samples; validate on the held-out ones.
 
     Steps: a fit of the identifiable geometry flags training samples that fit badly (left out of
-    what follows with ``reject_outliers``); the noise is learned from the residuals; candidate
+    what follows unless ``keep_outliers``); the noise is learned from the residuals; candidate
     models (the measurement frames only, geometry, non-geometric families) under the row
     weightings are scored by ``select_folds``-fold cross-validation over training samples and
     the simplest one within two standard errors of the best is fitted (``selection="all"``
     takes the largest, ``"conservative"`` then drops parameters below 3 standard deviations),
-    with the baseline (the frames alone) beside it. ``holdout_ids`` names the validation
-    samples (placements for coincidence data) instead of a random share ``holdout``;
-    ``measurements``: the camera poses of :func:`data.imaging.measure` (measured here if not
-    given). ``nongeometric``: the families of non-geometric terms offered to model selection on
-    top of those the model file enables: ``"auto"`` every family the model can have
-    (:func:`robot.model.nongeometric_options`), ``"none"``, or a list. ``weightings``: the row
-    weightings each candidate of relative poses is tried with, ``plain`` and/or ``noise model``
-    (each pair whitened by its learned 6x6 covariance; its predicted standard deviations can be
-    20 to 40 % small on the parameters of parallel axes, measured by Monte Carlo, so it is not
-    the default). ``loss``: of the fits once outliers are out (``lm`` only).
+    with the baseline (the frames alone) beside it.
+
+    Parameters
+    ----------
+    dataset : Dataset
+        The samples (:func:`relcal.load_dataset` or :meth:`Dataset.from_arrays`).
+    measurements : Measurements, optional
+        The camera poses of :func:`relcal.measure` (measured here if not given).
+    holdout : float
+        Share of the samples (placements for coincidence data) held out for validation,
+        0 <= holdout < 1; 0: no validation.
+    seed : int
+        Seed of the held-out split and the cross-validation folds (0 or more).
+    pairing : {"all", "consecutive", "star"}
+        Which pairs of training samples form relative measurements.
+    method : {"lm", "published"}
+        The solver (:class:`SolverOptions`).
+    loss : {"linear", "huber", "cauchy", "soft_l1"}
+        Loss of the fits once outliers are out (``lm`` only).
+    reject_outliers : bool
+        Deprecated (a DeprecationWarning; removed in relcal 0.2): ``reject_outliers=False`` is
+        ``keep_outliers=True``. Not given by default.
+    holdout_ids : sequence of str, optional
+        The validation samples by id (placements by name for coincidence data), instead of a
+        random share ``holdout``.
+    select_folds : int
+        Folds (2 or more) of the cross-validation over training samples that scores the
+        candidate models.
+    selection : {"cv", "conservative", "all"}
+        Model selection: the simplest candidate within two standard errors of the best, then
+        only parameters above 3 standard deviations, or every identifiable parameter.
+    nongeometric : str or sequence of str
+        The families of non-geometric terms offered to model selection on top of those the
+        model file enables: ``"auto"`` every family the model can have
+        (:func:`relcal.robot.model.nongeometric_options`), ``"none"``, or a list such as
+        ``["scale", "harmonic"]``.
+    weightings : sequence of str
+        The row weightings each candidate of relative poses is tried with, ``plain`` and/or
+        ``noise model`` (each pair whitened by its learned 6x6 covariance; its predicted
+        standard deviations can be 20 to 40 % small on the parameters of parallel axes,
+        measured by Monte Carlo, so it is not the default).
+    keep_outliers : bool
+        Keep the training samples that fit badly in the fit (the command line's
+        ``--keep-outliers``); by default they are left out. Keyword only.
+
+    Returns
+    -------
+    Calibration
+        The chosen model's fit (``result``), the baseline, the held-out validation and the
+        calibrated model (``model``).
+
+    Raises
+    ------
+    ArgumentError
+        An argument of the wrong type or out of range: a path instead of a :class:`Dataset`,
+        measurements of another dataset, ``holdout_ids="s1"`` instead of a list, an unknown
+        choice, or ``reject_outliers`` and ``keep_outliers`` that disagree.
+    RelcalError
+        Data that are wrong (units, conventions, another robot; named with the likely cause), an
+        unknown weighting, too few usable samples, or a calibration above the memory limit.
+
+    Examples
+    --------
+    >>> import relcal
+    >>> dataset = relcal.load_dataset("examples/tiago-pro-poses")  # from the repository root
+    >>> cal = relcal.calibrate(dataset, nongeometric="none")
+    >>> cal.result.converged, len(cal.test)  # a quarter of the 48 samples held out
+    (True, 12)
+    >>> before, after = cal.validation.rms("before"), cal.validation.rms("calibrated")
+    >>> bool(after < before)  # held-out position RMS, mm
+    True
     """
+    keep_outliers = renamed(
+        "calibrate", "reject_outliers", reject_outliers, "keep_outliers", keep_outliers, False,
+        lambda reject: not reject,
+    )  # fmt: skip
+    reject_outliers = not keep_outliers  # the settings key of results.json and the registry
     check_calibrate(
         dataset, measurements, holdout, seed, pairing, method, loss, holdout_ids, select_folds,
         selection,

@@ -843,22 +843,47 @@ def verify_session(
 
     Parameters
     ----------
-    calibration
-        The output folder of ``relcal calibrate`` (or :func:`load_calibration` of it).
-    dataset
+    calibration : CalibrationFiles, str or Path
+        The output folder of ``relcal calibrate`` or :func:`relcal.write_calibration` (or
+        :func:`load_calibration` of it).
+    dataset : Dataset
         The new session (:func:`relcal.load_dataset`).
-    measurements
+    measurements : Measurements, optional
         Its measurements (:func:`relcal.measure`), when its images are already measured.
-    folds, seed
-        Folds of the cross-fitted nuisance refit, and the seed of the folds and bootstraps.
-    progress
+    folds : int
+        Folds of the cross-fitted refit of the session's nuisance transforms.
+    seed : int
+        Seed of the folds and bootstraps.
+    progress : bool
         Progress bars (measuring images; the refits when they take over a second).
 
     Returns
     -------
-    tuple of Verification and Assessment
-        Every sample's errors under both models, and the numbers with the verdict
-        (``summary.verdict``, ``summary.exit_status``).
+    verification : Verification
+        Every sample's errors under the calibrated model and the session's nominal model.
+    assessment : Assessment
+        The numbers (mm, degrees, with 95 % intervals) and the verdict (``verdict``,
+        ``reason``).
+
+    Raises
+    ------
+    RelcalError
+        Not a calibration folder (no ``model.yaml`` or ``results.json``, or unreadable), a
+        session of a robot with other joints, or too few usable samples (below 4; 3 for
+        coincidence data) to refit the session's nuisance transforms.
+
+    Examples
+    --------
+    A calibration written to a folder, verified on a session (here the same one, to keep the
+    example short and self-contained; a real check uses a new session):
+
+    >>> import tempfile, relcal
+    >>> dataset = relcal.load_dataset("examples/tiago-pro-poses")  # from the repository root
+    >>> out = tempfile.mkdtemp() + "/cal"
+    >>> files = relcal.write_calibration(relcal.calibrate(dataset, nongeometric="none"), out)
+    >>> verification, assessment = relcal.verify_session(out, dataset)
+    >>> assessment.verdict, assessment.n_samples
+    ('holds', 48)
     """
     from relcal.data.imaging import measure
 

@@ -186,7 +186,7 @@ def _calibrate(args, dataset, out, holdout_ids, registry) -> int:
         "pairing": args.pairs,
         "method": args.method,
         "loss": args.loss,
-        "reject_outliers": not args.keep_outliers,
+        "keep_outliers": args.keep_outliers,
         "selection": args.select,
         "nongeometric": args.nongeometric,
         "weightings": ("plain",) if args.weighting == "plain" else ("plain", "noise model"),
@@ -339,7 +339,15 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="also run K-fold cross-validation (results.json); 2 <= K <= samples / 2 (for "
         "coincidence samples, K <= placements: K = placements leaves each one out in turn)",
     )
-    cp.add_argument("--pairs", choices=("consecutive", "star", "all"), default="all")
+    cp.add_argument(
+        "--pairing",
+        "--pairs",
+        dest="pairs",
+        choices=("consecutive", "star", "all"),
+        default="all",
+        help="which pairs of training samples form relative measurements (default all; "
+        "--pairs is its former name)",
+    )
     cp.add_argument("--method", choices=("lm", "published"), default="lm")
     cp.add_argument(
         "--loss",
@@ -352,12 +360,14 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--keep-outliers", action="store_true", help="do not leave detected outliers out of the fit"
     )
     cp.add_argument(
+        "--selection",
         "--select",
+        dest="select",
         choices=("cv", "conservative", "all"),
         default="cv",
         help="model selection: cv (default) the simplest candidate within two standard errors "
         "of the best cross-validated one; conservative: then only parameters above 3 std; all: "
-        "every identifiable parameter",
+        "every identifiable parameter (--select is its former name)",
     )
     cp.add_argument(
         "--nongeometric",

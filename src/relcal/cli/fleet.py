@@ -67,7 +67,7 @@ def _fleet(args: argparse.Namespace, sessions, registry) -> int:
         "pairing": args.pairs,
         "method": args.method,
         "loss": args.loss,
-        "reject_outliers": not args.keep_outliers,
+        "keep_outliers": args.keep_outliers,
         "selection": args.select,
         "nongeometric": args.nongeometric,
     }
@@ -202,14 +202,25 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--holdout", type=holdout_fraction, default=0.25, help="held-out share (default 0.25)"
     )
     cp.add_argument("--seed", type=seed, default=0, help="seed of the held-out split")
-    cp.add_argument("--pairs", choices=("consecutive", "star", "all"), default="all")
+    cp.add_argument(
+        "--pairing",
+        "--pairs",
+        dest="pairs",
+        choices=("consecutive", "star", "all"),
+        default="all",
+        help="which pairs of training samples form relative measurements (default all; "
+        "--pairs is its former name)",
+    )
     cp.add_argument("--method", choices=("lm", "published"), default="lm")
     cp.add_argument("--loss", choices=("linear", "huber", "cauchy", "soft_l1"), default="linear")
     cp.add_argument(
+        "--selection",
         "--select",
+        dest="select",
         choices=("cv", "conservative", "all"),
         default="cv",
-        help="model selection, as `relcal calibrate --select` (default cv)",
+        help="model selection, as `relcal calibrate --selection` (default cv; --select is its "
+        "former name)",
     )
     cp.add_argument("--keep-outliers", action="store_true", help="keep detected outliers")
     cp.add_argument(

@@ -131,7 +131,15 @@ def register(sub: argparse._SubParsersAction) -> None:
         default="estimated",
         help="frame-invariant formulation: estimate the hand-eye transform or take it as known",
     )
-    p.add_argument("--pairs", choices=("consecutive", "star", "all"), default="consecutive")
+    p.add_argument(
+        "--pairing",
+        "--pairs",
+        dest="pairs",
+        choices=("consecutive", "star", "all"),
+        default="consecutive",
+        help="which pairs of poses form relative measurements (default consecutive; --pairs is "
+        "its former name)",
+    )
     add_noise_arg(p)
     p.add_argument(
         "--estimator",

@@ -221,7 +221,7 @@ def run(args: argparse.Namespace) -> int:
         res = plan(
             model,
             cell,
-            k=args.poses,
+            n_poses=args.poses,
             constraints=constraints,
             criterion=args.index,
             algorithm=args.algorithm,
@@ -295,12 +295,21 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="flange-from-camera guess X,Y,Z[,ROLL,PITCH,YAW] (m, deg; default 0,0.04,0.06, the "
         "simulation's mount)",
     )
-    p.add_argument("--poses", type=int_at_least(3), default=30, help="poses to select (default 30)")
     p.add_argument(
+        "--n-poses",
+        "--poses",
+        dest="poses",
+        type=int_at_least(3),
+        default=30,
+        help="poses to select (default 30; --poses is its former name)",
+    )
+    p.add_argument(
+        "--n-candidates",
         "--candidates",
+        dest="candidates",
         type=positive_int,
         default=2000,
-        help="feasible candidates (default 2000)",
+        help="feasible candidates (default 2000; --candidates is its former name)",
     )
     p.add_argument(
         "--index",

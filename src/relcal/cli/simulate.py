@@ -214,9 +214,22 @@ def register(sub: argparse._SubParsersAction) -> None:
     sim.add_argument("--measure", choices=("position", "pose"), help="one run only (default both)")
     sim.add_argument("--formulation", choices=("published", "invariant"), default="published")
     sim.add_argument("--method", choices=("published", "lm"), default="published")
-    sim.add_argument("--pairs", choices=("consecutive", "star", "all"), default="consecutive")
     sim.add_argument(
-        "--poses", type=int_at_least(3), default=60, help="number of poses (default 60)"
+        "--pairing",
+        "--pairs",
+        dest="pairs",
+        choices=("consecutive", "star", "all"),
+        default="consecutive",
+        help="which pairs of poses form relative measurements (default consecutive; --pairs is "
+        "its former name)",
+    )
+    sim.add_argument(
+        "--n-poses",
+        "--poses",
+        dest="poses",
+        type=int_at_least(3),
+        default=60,
+        help="number of poses (default 60; --poses is its former name)",
     )
     sim.add_argument(
         "--noise", type=noise_levels, help="POS_MM,ORI_DEG[,JOINT_DEG] standard deviations"

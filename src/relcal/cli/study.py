@@ -21,7 +21,7 @@ examples:
   relcal study --robot a465 --hayati auto                    # 200 trials, 30 simulated poses
   relcal study --robot a465 --hayati auto --poses plan.csv --json study.json
   relcal study --robot a465 --hayati auto --poses 16 --sampling matched
-  relcal study --robot a465 --hayati auto --estimator least_squares --pairs all
+  relcal study --robot a465 --hayati auto --estimator least_squares --pairing all
 
 The empirical standard deviation of each parameter over T independent trials scatters by about
 1/sqrt(2(T-1)) around the true one (5% at 200 trials); --sampling matched removes that scatter
@@ -141,7 +141,15 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--sampling", choices=("random", "matched"), default="random")
     p.add_argument("--formulation", choices=("invariant", "published"), default="invariant")
     p.add_argument("--measure", choices=("pose", "position"), default="pose")
-    p.add_argument("--pairs", choices=("consecutive", "star", "all"), default="consecutive")
+    p.add_argument(
+        "--pairing",
+        "--pairs",
+        dest="pairs",
+        choices=("consecutive", "star", "all"),
+        default="consecutive",
+        help="which pairs of poses form relative measurements (default consecutive; --pairs is "
+        "its former name)",
+    )
     p.add_argument("--errors", help="YAML file of true errors (default: random, seeded)")
     p.add_argument(
         "--length-scale",

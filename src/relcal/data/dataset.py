@@ -155,7 +155,54 @@ class _DatasetSpec(pydantic.BaseModel):
 
 @dataclass(frozen=True)
 class Dataset:
-    """A loaded dataset. ``q`` ``(N, n)`` in rad (m for prismatic joints)."""
+    """A loaded dataset: the robot, the joint values of every sample and what was measured.
+
+    Made by :func:`relcal.load_dataset` (a folder) or :meth:`Dataset.from_arrays` (arrays in
+    memory); frozen.
+
+    Parameters
+    ----------
+    root : Path
+        The dataset folder (where relative paths of ``dataset.yaml`` start).
+    model : RobotModel
+        The nominal robot.
+    mode : {"eye_in_hand", "eye_to_hand"}
+        Camera on the flange looking at a fixed board, or a fixed camera and the board on the
+        flange.
+    handeye : (4, 4) ndarray of float or None
+        Guess of the flange-from-camera (or flange-from-board) transform, m; None to estimate
+        it from the data.
+    ids : tuple of str
+        ``N`` sample ids.
+    q : (N, n_joints) ndarray of float
+        Joint values in rad (m for prismatic joints).
+    images : tuple of Path or None
+        One image per sample, or None when poses are given.
+    poses : (N, 4, 4) ndarray of float or None
+        Measured camera poses ``C_k`` (or instrument poses, or points in the translation column
+        for ``measured="position"``) when given directly, m.
+    board : Board or None
+        The calibration board seen in the images.
+    camera : Camera, str or None
+        The camera intrinsics, or ``"calibrate"`` to calibrate them from the same images.
+    spec_path : Path or None
+        The ``dataset.yaml`` read, for messages.
+    tolerances : dict of str to float or None
+        Plausibility thresholds (mm, deg, percent) overriding the defaults.
+    measured : {"image", "pose", "position", "coincidence"}
+        What each sample holds.
+    robot_id : str or None
+        Which physical robot (the registry's history); the folder name when absent.
+    joint_unit, pose_angle_unit : str or None
+        The units as declared in ``dataset.yaml`` (the diagnoses name them).
+    groups : tuple of str or None
+        Coincidence samples: each sample's group (a socket of a placement).
+    tool_point : (3,) ndarray of float or None
+        Coincidence samples: the tool point guess in the tip frame, m (None: solved).
+    distances : tuple of (str, str, float, float)
+        Coincidence samples: known distances between groups as
+        ``(group_a, group_b, distance_m, std_m)``.
+    """
 
     root: Path
     model: RobotModel
@@ -422,7 +469,33 @@ def _resolve(root: Path, value: str | dict | None, loader, what: str, spec: Path
 
 
 def load_dataset(folder: str | Path) -> Dataset:
-    """Read and check ``folder/dataset.yaml`` and its samples table."""
+    """Read and check ``folder/dataset.yaml`` and its samples table.
+
+    Parameters
+    ----------
+    folder : str or Path
+        The dataset folder, holding ``dataset.yaml`` (see the file formats reference).
+
+    Returns
+    -------
+    Dataset
+        The samples, joint values in rad (m for prismatic joints), with the robot model.
+
+    Raises
+    ------
+    ArgumentError
+        ``folder`` is not a string or path.
+    RelcalError
+        Not a dataset folder, or a file that is malformed, too large, in the wrong units or
+        inconsistent with the robot (naming the file, the line or field and the fix).
+
+    Examples
+    --------
+    >>> import relcal
+    >>> dataset = relcal.load_dataset("examples/tiago-pro-poses")  # from the repository root
+    >>> dataset.robot_id, dataset.measured, dataset.q.shape
+    ('tiago-pro-right-arm', 'pose', (48, 8))
+    """
     from relcal.checks import check_instance
 
     check_instance(folder, str | Path, "folder", "a dataset folder path (str or Path)")

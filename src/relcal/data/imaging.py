@@ -16,7 +16,25 @@ from relcal.vision.detect import Rejected, estimate_pose, measure_images
 
 @dataclass(frozen=True)
 class Measurements:
-    """Camera poses ``C_k`` per sample and which samples are usable."""
+    """Camera poses ``C_k`` per sample and which samples are usable (:func:`relcal.measure`).
+
+    Parameters
+    ----------
+    poses : (N, 4, 4) ndarray of float
+        Camera in the board frame per sample (m); NaN where rejected.
+    ok : (N,) ndarray of bool
+        Usable samples.
+    reasons : tuple of str
+        Why each sample was rejected; ``""`` for accepted ones.
+    rms_px : (N,) ndarray of float
+        Board reprojection RMS per image (px); NaN without images.
+    covariance : (N, 6, 6) ndarray of float or None
+        Covariance of each pose's (translation m, rotation vector rad), or None.
+    camera : Camera or None
+        The intrinsics used (given or calibrated).
+    intrinsics_report : dict
+        How the intrinsics were calibrated from the images, when they were.
+    """
 
     poses: np.ndarray  # (N, 4, 4); NaN where rejected
     ok: np.ndarray  # (N,) bool
@@ -30,8 +48,32 @@ class Measurements:
 def measure(
     dataset: Dataset, workers: int = 2, progress: bool = True, max_rms: float = 1.0
 ) -> Measurements:
-    """Camera poses of every sample: given directly, or from the images (frames whose board
-    reprojection RMS is above ``max_rms`` px rejected)."""
+    """Camera poses of every sample: given directly, or measured from the images.
+
+    Parameters
+    ----------
+    dataset : Dataset
+        The samples (:func:`relcal.load_dataset`).
+    workers : int
+        Processes that detect the board in images (1 or more).
+    progress : bool
+        Show a progress bar while images are measured.
+    max_rms : float
+        Frames whose board reprojection RMS is above this (px, > 0) are rejected.
+
+    Returns
+    -------
+    Measurements
+        One pose per sample, with which are usable and why others are not.
+
+    Raises
+    ------
+    ArgumentError
+        ``dataset`` not a :class:`Dataset`, ``workers`` below 1 or not whole, ``max_rms`` not
+        positive.
+    RelcalError
+        No image shows the board (with the likely cause).
+    """
     from relcal.checks import check_dataset, check_number
 
     check_dataset(dataset)

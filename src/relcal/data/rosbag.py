@@ -253,9 +253,41 @@ def import_rosbag(
     robot: str | None = None,
     options: StopOptions = StopOptions(),
 ) -> RosbagImport:
-    """Write a dataset folder from a bag: one sample per stop, with the image or pose nearest
-    its middle (within the stop). ``robot`` is written into ``dataset.yaml`` (a built-in name
-    or a path); joints are written in rad (m) under their names."""
+    """Write a dataset folder from a bag: one sample per stop of the robot.
+
+    Each stop gives one sample, with the image or pose nearest its middle (within the stop).
+    Joints are written in rad (m for prismatic joints) under their names.
+
+    Parameters
+    ----------
+    bag : str or Path
+        The rosbag: a ROS 1 ``.bag``, a ROS 2 bag folder, or an ``.mcap``/``.db3`` file.
+    out : str or Path
+        The dataset folder to write.
+    joints : str
+        The ``sensor_msgs/JointState`` topic.
+    image, pose : str, optional
+        The image topic, or the pose topic (camera in the board frame); exactly one.
+    camera_info : str, optional
+        The ``CameraInfo`` topic of the intrinsics (default: found beside the image topic).
+    robot : str, optional
+        Written into ``dataset.yaml`` as ``robot:`` (a built-in name or a path).
+    options : StopOptions
+        How stops are found: joint speed below ``velocity`` (rad/s, m/s) for at least
+        ``settle`` s.
+
+    Returns
+    -------
+    RosbagImport
+        The stops, which of them got a sample, and why others did not.
+
+    Raises
+    ------
+    RelcalError
+        Neither or both of ``image`` and ``pose``, a bag that is not found, the ``rosbags``
+        package missing (the ``ros`` extra), a topic that is not in the bag, or a bag in which
+        the robot never stops.
+    """
     bag, out = Path(bag), Path(out)
     if (image is None) == (pose is None):
         raise RelcalError("relcal import rosbag: give exactly one of --image TOPIC or --pose TOPIC")

@@ -50,6 +50,19 @@ class Cell:
     printed face up (:func:`board_frame`). ``handeye`` is the flange-from-camera ``X`` of the
     mount drawing: the guess that planning and identification start from, and the truth of a
     simulation (:mod:`relcal.sim.scenario`).
+
+    Parameters
+    ----------
+    board : Board
+        The calibration board (default: a chessboard of 7 x 10 squares of 20 mm).
+    center : (3,) ndarray of float
+        The pattern centre in the robot's base frame, m (default 0.45, 0, 0).
+    camera : Camera
+        The camera's intrinsics (default: 2448 x 2048 px, 3.45 um pixels, 8 mm lens, no
+        distortion).
+    handeye : (4, 4) ndarray of float
+        Flange-from-camera transform ``X``, m (default: the camera 40 mm beside and 60 mm in
+        front of the flange).
     """
 
     board: Board = field(default_factory=default_board)

@@ -22,6 +22,7 @@ from typing import Literal
 
 import numpy as np
 
+from relcal._renamed import UNSET
 from relcal.calibration.measurement import Formulation, Measure
 from relcal.calibration.noise import Noise
 from relcal.design.cell import Cell
@@ -102,7 +103,7 @@ class PlanResult:
 def plan(
     model: RobotModel,
     cell: Cell,
-    k: int = 30,
+    n_poses: int = 30,
     constraints: Constraints | None = None,
     criterion: Criterion = "worst",
     algorithm: Algorithm = "exchange",
@@ -114,17 +115,81 @@ def plan(
     n_validation: int = 50,
     seed: int = 0,
     client=None,
+    *,
+    k: int = UNSET,
 ) -> PlanResult:
-    """Plan ``k`` poses: candidates, selection, and the comparison with ``random_sets`` random
-    feasible sets of ``k`` candidates (predicted standard deviations and accuracy on
-    ``n_validation`` other feasible poses).
+    """Plan ``n_poses`` poses: candidates, selection, and the comparison with random sets.
+
+    The plan is compared with ``random_sets`` random feasible sets of as many candidates
+    (predicted standard deviations and accuracy on ``n_validation`` other feasible poses).
 
     With ``client`` (a ``distributed.Client``) the candidate batches and the scoring of the
     candidates at every greedy and exchange step run as tasks on its cluster; the plan is the
     same as in this process (each candidate batch has its own random stream from ``seed``).
+
+    Parameters
+    ----------
+    model : RobotModel
+        The nominal robot.
+    cell : Cell
+        The board, where it is, the camera and its mount.
+    n_poses : int
+        Number of poses to plan.
+    constraints : Constraints, optional
+        What makes a configuration usable (board in view, distance, view angle, joint margins,
+        collisions); the defaults of :class:`relcal.design.feasibility.Constraints`.
+    criterion : {"worst", "A", "O1", "O2", "O3", "O4", "O5"}
+        What the selection optimises: the worst predicted standard deviation, or an
+        observability index.
+    algorithm : {"exchange", "greedy"}
+        Greedy selection alone, or followed by exchanges.
+    n_candidates : int
+        Feasible candidate configurations to select from.
+    noise : Noise
+        Measurement noise the predicted standard deviations are computed with (m, rad).
+    formulation : {"invariant", "published", "absolute", "tracker"}
+        The identification formulation the plan is for.
+    measure : {"pose", "position"}
+        Position and orientation, or position only.
+    random_sets : int
+        Random feasible sets of ``n_poses`` candidates compared with the plan.
+    n_validation : int
+        Other feasible poses on which predicted accuracy is computed.
+    seed : int
+        Seed of the candidates and the random sets.
+    client : distributed.Client, optional
+        A Dask client to run the candidate batches and the scoring on.
+    k : int
+        Deprecated name of ``n_poses`` (a DeprecationWarning; removed in relcal 0.2).
+
+    Returns
+    -------
+    PlanResult
+        The planned configurations ``q`` ``(n_poses, n_joints)`` in travel order (rad, m), their
+        predicted quality and that of the random sets.
+
+    Raises
+    ------
+    RelcalError
+        Fewer feasible candidates than ``n_poses + n_validation``.
+    ValueError
+        An unknown algorithm.
+
+    Examples
+    --------
+    >>> import relcal
+    >>> result = relcal.plan(
+    ...     relcal.get_robot("a465"), relcal.Cell(), n_poses=12, n_candidates=300, random_sets=3,
+    ...     n_validation=10,
+    ... )
+    >>> result.q.shape
+    (12, 6)
     """
     import time
 
+    from relcal._renamed import renamed
+
+    k = renamed("plan", "k", k, "n_poses", n_poses, 30)
     constraints = constraints or Constraints()
     start = time.perf_counter()
     pool_seed, sets_seed = np.random.SeedSequence(seed).spawn(2)

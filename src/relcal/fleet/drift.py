@@ -112,7 +112,7 @@ def refit(run: Run, terms: tuple[str, ...]) -> Run:
         "pairing": s.get("pairing") or "all",
         "method": s.get("method", "lm"),
         "loss": s.get("loss", "linear"),
-        "reject_outliers": s.get("reject_outliers", True),
+        "keep_outliers": not s.get("reject_outliers", True),  # the recorded settings key
         "nongeometric": list(terms) if terms else "none",
     }
     if s.get("weighting"):

@@ -73,16 +73,52 @@ def write_calibration(
     journal: Journal | None = None,
     registry=None,
 ) -> list[Path]:
-    """Write a calibration's set into ``out_dir`` (and a copy of ``results.json`` to
-    ``json_path``, the HTML report to ``report_path``) as one unit; return the files written.
+    """Write a calibration's files into a folder, as one unit.
 
-    ``doc`` is the results document (default :func:`results_document`, to which the command
-    adds cross-validation). Raises :class:`relcal.errors.RelcalError` with nothing written when
-    a destination is refused. The files read so far in this process count as inputs (never
-    written over); wrap a session's runs in :func:`relcal.outputset.tracking` to start afresh.
-    ``registry`` (a :class:`relcal.fleet.registry.Registry`, opened with
-    :func:`~relcal.fleet.registry.open_for_writing` before the work) records the calibration in
-    the same transaction as the set's install (or give any ``journal``).
+    The files read so far in this process count as inputs (never written over); wrap a
+    session's runs in :func:`relcal.outputset.tracking` to start afresh.
+
+    Parameters
+    ----------
+    cal : Calibration
+        What :func:`relcal.calibrate` returned.
+    out_dir : str or Path
+        The output folder (``model.yaml``, ``robot.urdf``, ``results.json``,
+        ``parameters.csv``, ...), replaced whole; the command line's ``--out``.
+    doc : dict, optional
+        The results document (default :func:`results_document`, to which the command adds
+        cross-validation).
+    json_path : str or Path, optional
+        Also a copy of ``results.json`` here (the command line's ``--json``).
+    report_path : str or Path, optional
+        Also the HTML report here (the command line's ``--report``).
+    run_id : str, optional
+        The run id written into the files (default: a new one).
+    journal : Journal, optional
+        A registry record to commit in the same transaction as the set's install.
+    registry : Registry, optional
+        A :class:`relcal.fleet.registry.Registry`, opened with
+        :func:`~relcal.fleet.registry.open_for_writing` before the work: the calibration is
+        recorded in the same transaction as the set's install.
+
+    Returns
+    -------
+    list of Path
+        The files written: those in ``out_dir``, then ``json_path`` and ``report_path``.
+
+    Raises
+    ------
+    RelcalError
+        A destination is refused (an input of this process, a folder that is not a calibration
+        set, unwritable); nothing is written.
+
+    Examples
+    --------
+    >>> import tempfile, relcal
+    >>> cal = relcal.calibrate(relcal.load_dataset("examples/tiago-pro-poses"), nongeometric="none")
+    >>> files = relcal.write_calibration(cal, tempfile.mkdtemp() + "/cal")
+    >>> sorted(path.name for path in files)[:3]
+    ['model.yaml', 'origin_corrections.yaml', 'parameters.csv']
     """
     doc = results_document(cal) if doc is None else doc
     items = calibration_outputs(cal, out_dir, doc, json_path, report_path, run_id)

@@ -28,7 +28,28 @@ from relcal.robot.urdf import MOVABLE
 
 
 def calibrated_model(model: RobotModel, layout: Layout, params: np.ndarray) -> RobotModel:
-    """The nominal model with the identified geometric errors applied."""
+    """The nominal model with the identified errors applied, its name marked as calibrated.
+
+    Parameters
+    ----------
+    model : RobotModel
+        The nominal robot.
+    layout : Layout
+        The layout of the identified robot parameters (:func:`relcal.make_layout`).
+    params : (P',) array_like of float
+        Identified errors (m, rad, ...); the first ``layout.size`` follow ``layout`` and any
+        further entries (hand-eye, instrument frames) are ignored.
+
+    Returns
+    -------
+    RobotModel
+        The calibrated model.
+
+    Raises
+    ------
+    ArgumentError
+        Fewer than ``layout.size`` values, or values that are not finite.
+    """
     name = model.name if model.name.endswith("(calibrated)") else f"{model.name} (calibrated)"
     return replace(apply_errors(model, layout, params[: layout.size]), name=name)
 
@@ -234,6 +255,21 @@ def calibrated_urdf(model: RobotModel) -> bytes:
 
     Everything else (meshes, inertials, Gazebo and ros2_control tags, comments, formatting) is
     byte for byte the input. Use :func:`urdf` for models that did not come from a URDF.
+
+    Parameters
+    ----------
+    model : RobotModel
+        A calibrated model of a robot loaded from a URDF (:func:`relcal.load_urdf`).
+
+    Returns
+    -------
+    bytes
+        The URDF file's content.
+
+    Raises
+    ------
+    RelcalError
+        The model was not loaded from a URDF.
     """
     chain = _require_urdf(model, "calibrated_urdf")
     return _replace_origins(chain.path, chain.data, _changed(model))
@@ -355,10 +391,22 @@ def _has_joints(model: RobotModel, suffixes) -> bool:
 
 
 def robot_files(model: RobotModel) -> dict[str, bytes]:
-    """The calibrated robot's files by name: ``robot.urdf`` (generated from the model, or for a
-    URDF robot its own file with the calibrated joint origins), and for URDF robots
-    ``origin_corrections.yaml``, plus ``ur_calibration.yaml`` for UR arms and
-    ``franka_kinematics.yaml`` for Franka arms."""
+    """The calibrated robot's files by name.
+
+    ``robot.urdf`` (generated from the model, or for a URDF robot its own file with the
+    calibrated joint origins), and for URDF robots ``origin_corrections.yaml``, plus
+    ``ur_calibration.yaml`` for UR arms and ``franka_kinematics.yaml`` for Franka arms.
+
+    Parameters
+    ----------
+    model : RobotModel
+        The calibrated model (``Calibration.model``).
+
+    Returns
+    -------
+    dict of str to bytes
+        File name to content.
+    """
     if model.urdf is None:
         return {"robot.urdf": urdf(model).encode()}
     files = {

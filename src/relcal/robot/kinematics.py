@@ -51,8 +51,21 @@ DISPLAY_UNITS = {
 class Layout:
     """Names and meaning of the entries of a parameter vector.
 
-    ``kinds[k]`` is ``theta_off``, ``a``, ``d``, ``alpha``, ``beta``, ``base`` or ``tool``;
-    ``index[k]`` is the 0-based joint, or the component 0..5 of a base/tool 6-vector.
+    Made by :func:`relcal.make_layout`; iterating gives ``(kind, index)`` per entry.
+
+    Parameters
+    ----------
+    names : tuple of str
+        ``P`` names a person reads, such as ``theta_off[2]`` or ``d[1]`` (1-based joints).
+    kinds : tuple of str
+        Per entry ``theta_off``, ``a``, ``d``, ``alpha``, ``beta``, ``origin``, a non-geometric
+        kind (``scale``, ``compliance``, ``harmonic_c``, ``harmonic_s``), ``base`` or ``tool``
+        (or the prefix of a frame added by :meth:`extended`).
+    index : tuple of int
+        Per entry the 0-based joint, or the component 0..5 of a 6-vector frame (x, y, z in m,
+        then a rotation vector in rad).
+    prismatic : tuple of int
+        0-based joints that slide (their compliance is in m/N).
     """
 
     names: tuple[str, ...]
@@ -62,11 +75,18 @@ class Layout:
 
     @property
     def size(self) -> int:
+        """Number of entries ``P`` of the parameter vector."""
         return len(self.names)
 
     def units(self) -> tuple[str, ...]:
-        """SI unit of each entry: ``m``, ``rad``, ``1`` (scale), ``rad/(N m)`` or ``m/N``
-        (compliance); frame 6-vectors and URDF origins are three lengths then three angles."""
+        """SI unit of each entry.
+
+        Returns
+        -------
+        tuple of str
+            ``P`` units: ``m``, ``rad``, ``1`` (scale), ``rad/(N m)`` or ``m/N`` (compliance);
+            frame 6-vectors and URDF origins are three lengths then three angles.
+        """
         out = []
         for k, i in self:
             if k == "compliance" and i in self.prismatic:
@@ -78,24 +98,57 @@ class Layout:
         return tuple(out)
 
     def display(self) -> tuple[np.ndarray, tuple[str, ...]]:
-        """Factors from SI ``(P,)`` and the units a person reads (mm, deg, ppm, urad/Nm, um/N)."""
+        """Factors from SI to the units a person reads, and those units.
+
+        Returns
+        -------
+        factors : (P,) ndarray of float
+            Multiply an SI parameter vector by these to show it (1000 for m to mm, ...).
+        units : tuple of str
+            ``P`` display units: mm, deg, ppm, urad/Nm or um/N.
+        """
         shown = [DISPLAY_UNITS[u] for u in self.units()]
         return np.array([f for f, _ in shown]), tuple(u for _, u in shown)
 
     def is_angle(self) -> np.ndarray:
-        """Mask of entries in radians (lengths, scales and compliances are not)."""
+        """Mask of entries in radians.
+
+        Returns
+        -------
+        (P,) ndarray of bool
+            True for angles; lengths, scales and compliances are False.
+        """
         return np.array([u == "rad" for u in self.units()], dtype=bool)
 
     def is_geometric(self) -> np.ndarray:
-        """Mask of entries that are not non-geometric terms (``scale``, ``compliance``, ...)."""
+        """Mask of entries that are not non-geometric terms.
+
+        Returns
+        -------
+        (P,) ndarray of bool
+            False for ``scale``, ``compliance``, ``harmonic_c`` and ``harmonic_s`` entries.
+        """
         return np.array([k not in NONGEOMETRIC_KINDS for k in self.kinds], dtype=bool)
 
     def __iter__(self):
         return iter(zip(self.kinds, self.index, strict=True))
 
     def extended(self, prefix: str, components: tuple[str, ...] = FRAME_COMPONENTS) -> Layout:
-        """This layout followed by a 6-vector frame named ``prefix`` (e.g. ``handeye``), or by
-        other ``components`` (``("x", "y", "z")``: a point, in metres)."""
+        """This layout followed by a frame or a point of nuisance parameters.
+
+        Parameters
+        ----------
+        prefix : str
+            The kind and name prefix of the new entries (e.g. ``handeye``).
+        components : tuple of str
+            Their components: a 6-vector frame by default (x, y, z in m, then a rotation vector
+            in rad), or ``("x", "y", "z")`` for a point in m.
+
+        Returns
+        -------
+        Layout
+            ``P + len(components)`` entries, the new ones named ``prefix.component``.
+        """
         names = tuple(f"{prefix}.{c}" for c in components)
         k = len(components)
         return Layout(
@@ -116,9 +169,37 @@ def _nongeometric_entries(model: RobotModel) -> list[tuple[str, int]]:
 
 
 def make_layout(model: RobotModel, base: bool = False, tool: bool = False) -> Layout:
-    """The geometric parameters of ``model`` (the DH parameters, or the URDF origins for URDF
+    """The parameters of ``model`` that a calibration can identify.
+
+    The geometric parameters (the DH parameters, ordered by kind, or the URDF origins for URDF
     robots loaded with ``parametrisation: origins``), the non-geometric terms its joints ask for
-    (``model.nongeometric``), plus base and tool 6-vectors if asked."""
+    (``model.nongeometric``), plus base and tool 6-vectors if asked.
+
+    Parameters
+    ----------
+    model : RobotModel
+        The nominal robot.
+    base, tool : bool
+        Add the base, and the tool, transform as a 6-vector each (x, y, z in m, rotation vector
+        in rad).
+
+    Returns
+    -------
+    Layout
+        Names, kinds and joints of the ``P`` entries of a parameter (error) vector.
+
+    Raises
+    ------
+    ArgumentError
+        ``model`` is not a :class:`RobotModel`.
+
+    Examples
+    --------
+    >>> import relcal
+    >>> layout = relcal.make_layout(relcal.get_robot("a465"))
+    >>> layout.size, layout.names[:3]
+    (24, ('theta_off[1]', 'theta_off[2]', 'theta_off[3]'))
+    """
     from relcal.checks import check_model
 
     check_model(model)
@@ -174,14 +255,46 @@ _FRAMES = ("base", "tool")
 
 
 def apply_errors(model: RobotModel, layout: Layout, errors: np.ndarray) -> RobotModel:
-    """The model with additive errors (geometric and non-geometric values); base/tool errors
-    move those frames locally; URDF origin errors move the joint origins (and the model is
-    converted again, exactly).
+    """The model with additive errors applied.
 
+    Geometric and non-geometric values are added; base/tool errors move those frames locally;
+    URDF origin errors move the joint origins (and the model is converted again, exactly).
     In a layout with origin entries the zero offsets (``theta_off``, ``d``) go into the origins
     too, along the joint axis (:func:`relcal.robot.urdf.zero_directions`): every origin error is
     then additive, ``apply_errors(apply_errors(m, l, x), l, y) == apply_errors(m, l, x + y)``,
-    which :func:`pose_jacobian` differentiates exactly."""
+    which :func:`pose_jacobian` differentiates exactly.
+
+    Parameters
+    ----------
+    model : RobotModel
+        The nominal robot.
+    layout : Layout
+        What each entry of ``errors`` is (:func:`relcal.make_layout` of ``model``).
+    errors : (P,) array_like of float
+        One error per entry of ``layout``, in its SI unit (m, rad, ...; :meth:`Layout.units`).
+
+    Returns
+    -------
+    RobotModel
+        A new model; ``model`` is unchanged.
+
+    Raises
+    ------
+    ArgumentError
+        ``errors`` of the wrong length or not finite, or ``model`` not a :class:`RobotModel`.
+    RelcalError
+        Origin errors for a model that was not loaded from a URDF.
+
+    Examples
+    --------
+    >>> import numpy as np, relcal
+    >>> model = relcal.get_robot("a465")
+    >>> layout = relcal.make_layout(model)
+    >>> errors = np.zeros(layout.size)
+    >>> errors[layout.names.index("d[1]")] = 0.001  # 1 mm
+    >>> float(relcal.apply_errors(model, layout, errors).d[0])
+    0.331
+    """
     from relcal.checks import check_errors, check_model
 
     check_model(model)
@@ -390,8 +503,7 @@ def _use_fast(backend: Backend, n_conf: int) -> bool:
 
 
 def fk(model: RobotModel, q: np.ndarray, backend: Backend = "numpy") -> np.ndarray:
-    """Flange/tool poses in the base frame ``F(q)``: ``(4, 4)`` for one configuration ``q`` of
-    shape ``(n,)``, ``(N, 4, 4)`` for a batch ``(N, n)``.
+    """Flange/tool poses in the base frame, ``F(q)``: base, joint and tool transforms chained.
 
     ``backend="numpy"`` (the default) is the reference implementation; ``"numba"`` the compiled
     kernel of :mod:`relcal.robot.fastkin` (same result to round-off, about 40 times faster on large
@@ -400,6 +512,38 @@ def fk(model: RobotModel, q: np.ndarray, backend: Backend = "numpy") -> np.ndarr
     is optional (the ``fast`` extra): ``"numba"`` without it raises :class:`RelcalError`; the
     default never depends on whether it is installed. Non-geometric terms enter both paths
     through :func:`effective_joints`.
+
+    Parameters
+    ----------
+    model : RobotModel
+        The robot.
+    q : (n_joints,) or (N, n_joints) array_like of float
+        One configuration or a batch: joint values in rad (m for prismatic joints).
+    backend : {"numpy", "numba", "auto"}
+        Which implementation computes the poses.
+
+    Returns
+    -------
+    (4, 4) or (N, 4, 4) ndarray of float
+        The homogeneous transform(s) base-from-tool, translation in m.
+
+    Raises
+    ------
+    ArgumentError
+        ``q`` with the wrong number of joints, or not finite; ``model`` not a
+        :class:`RobotModel`.
+    RelcalError
+        ``backend="numba"`` and the compiled kernel cannot be loaded.
+
+    Examples
+    --------
+    >>> import numpy as np, relcal
+    >>> model = relcal.get_robot("a465")
+    >>> pose = relcal.fk(model, np.zeros(6))
+    >>> pose.shape, np.round(pose[:3, 3], 3) + 0.0  # the flange position, m
+    ((4, 4), array([ 0.303,  0.   , -0.076]))
+    >>> relcal.fk(model, np.zeros((5, 6))).shape
+    (5, 4, 4)
     """
     from relcal.checks import check_joints, check_model
 

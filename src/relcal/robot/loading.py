@@ -16,10 +16,40 @@ def get_robot(
     tip: str | None = None,
     parametrisation: str = "minimal",
 ) -> RobotModel:
-    """A built-in robot by name (``a465``, ``puma560``, ...), a model YAML file by path, or the
-    serial chain ``root`` -> ``tip`` of a URDF file (``.urdf``; root and tip may be omitted when
-    the tree has one obvious serial chain; ``parametrisation``: ``minimal`` or ``origins``, see
-    :func:`relcal.robot.urdf.load_urdf`)."""
+    """A robot model: built-in by name, a model YAML file, or a URDF chain.
+
+    Parameters
+    ----------
+    name_or_path : str or Path
+        A built-in robot's name (``a465``, ``puma560``, ...), a model YAML file (``.yaml``,
+        ``.yml``) or a URDF file (``.urdf``).
+    root, tip : str, optional
+        The URDF chain's first and last links; may be omitted when the tree has one obvious
+        serial chain. URDF files only.
+    parametrisation : {"minimal", "origins"}
+        For URDF robots, the error parameters :func:`relcal.make_layout` gives: the DH
+        parameters, or per joint a small motion of its URDF origin and a zero offset (see
+        :func:`relcal.load_urdf`).
+
+    Returns
+    -------
+    RobotModel
+        The nominal model, lengths in m and angles in rad.
+
+    Raises
+    ------
+    ArgumentError
+        ``name_or_path`` not a string or path, or an unknown ``parametrisation``.
+    RelcalError
+        An unknown robot name, a file that cannot be read as a model, or ``root``/``tip`` given
+        for a file that is not a URDF.
+
+    Examples
+    --------
+    >>> import relcal
+    >>> relcal.get_robot("a465")
+    <RobotModel 'Thermo CRS A465': 6 joints, standard DH>
+    """
     from relcal.checks import check_choice, check_instance
 
     check_instance(name_or_path, str | Path, "name_or_path", "a robot name or a file path")

@@ -108,7 +108,53 @@ class Inertials:
 
 @dataclass(frozen=True)
 class RobotModel:
-    """A serial chain. Arrays have one entry per joint; lengths in m, angles in rad."""
+    """A serial chain. Arrays have one entry per joint; lengths in m, angles in rad.
+
+    Build one with :func:`relcal.get_robot`, :func:`relcal.load_model` or
+    :func:`relcal.load_urdf`; it is frozen (:meth:`with_values` makes a changed copy).
+
+    Parameters
+    ----------
+    name : str
+        The robot's name (``a465``, or the URDF robot's name).
+    convention : {"dh", "mdh"}
+        Standard DH, ``A_i = Rz(theta_i + theta_off_i) Tz(d_i) Tx(a_i) Rx(alpha_i)``, or
+        modified DH (Craig), ``A_i = Rx(alpha_{i-1}) Tx(a_{i-1}) Rz(theta_i + theta_off_i)
+        Tz(d_i)``.
+    theta_off, d, a, alpha, beta : (n_joints,) ndarray of float
+        The geometric parameters per joint: zero offset (rad), d and a (m), twist alpha (rad)
+        and Hayati's beta (rad, used where ``hayati`` is set).
+    prismatic : (n_joints,) ndarray of bool
+        Joints that slide along their axis (``q`` in m) instead of turning (``q`` in rad).
+    hayati : (n_joints,) ndarray of bool
+        Joints modelled with Hayati's extra rotation ``Ry(beta)`` (consecutive parallel axes).
+    lower, upper : (n_joints,) ndarray of float
+        Joint limits, rad (m for prismatic joints).
+    joint_names : tuple of str
+        One name per joint, as in the samples table's header.
+    base, tool : (4, 4) ndarray of float
+        Fixed base and tool transforms (m); identity by default.
+    source : str
+        Where the model came from (a file path or a built-in name), for messages.
+    inertials : Inertials or None
+        Link masses in the joint frames (URDF models), or None.
+    urdf : UrdfChain or None
+        The URDF chain the model was loaded from (for exports back into it), or None.
+    scale, compliance, harmonic_c, harmonic_s : (n_joints,) ndarray of float or None
+        Non-geometric values per joint (zero: no effect): joint scale (1), compliance
+        (rad/(N m), m/N for a prismatic joint), first harmonic cosine and sine (rad). None
+        means zeros.
+    nongeometric : tuple of tuple of str
+        Per joint, the non-geometric terms (``scale``, ``compliance``, ``harmonic``) that are
+        calibration parameters; empty tuples by default.
+    loads : Loads or None
+        Link masses and payload that gravity pulls on (for compliance), or None.
+
+    Raises
+    ------
+    ValueError
+        A non-geometric array or ``nongeometric`` whose length is not the number of joints.
+    """
 
     name: str
     convention: Literal["dh", "mdh"]
@@ -157,6 +203,7 @@ class RobotModel:
 
     @property
     def n_joints(self) -> int:
+        """Number of joints ``n_joints`` of the chain."""
         return len(self.theta_off)
 
     def __repr__(self) -> str:
@@ -177,19 +224,56 @@ class RobotModel:
         )
 
     def has_nongeometric_values(self) -> bool:
-        """Whether any non-geometric term changes the kinematics."""
+        """Whether any non-geometric term changes the kinematics.
+
+        Returns
+        -------
+        bool
+            True when a scale, compliance or harmonic value of some joint is not zero.
+        """
         return any(getattr(self, k).any() for k in NONGEOMETRIC_KINDS)
 
     def geometric(self, kind: str) -> np.ndarray:
-        """The per-joint array of one parameter kind (``theta_off``, ``a``, ``d``, ...)."""
+        """The per-joint array of one parameter kind.
+
+        Parameters
+        ----------
+        kind : str
+            ``theta_off``, ``a``, ``d``, ``alpha``, ``beta``, ``scale``, ``compliance``,
+            ``harmonic_c`` or ``harmonic_s``.
+
+        Returns
+        -------
+        (n_joints,) ndarray of float
+            The values, m or rad (scale 1, compliance rad/(N m) or m/N).
+        """
         return getattr(self, kind)
 
     def with_values(self, **arrays: np.ndarray) -> RobotModel:
-        """A copy with some arrays replaced."""
+        """A copy with some arrays replaced.
+
+        Parameters
+        ----------
+        **arrays : array_like
+            New per-joint arrays by field name (``theta_off=...``, ``scale=...``), each
+            ``(n_joints,)``, converted to float.
+
+        Returns
+        -------
+        RobotModel
+            The copy; this model is unchanged.
+        """
         return replace(self, **{k: np.asarray(v, dtype=float) for k, v in arrays.items()})
 
     def fixed_d(self) -> np.ndarray:
-        """Mask of joints whose ``d`` is not a geometric parameter (replaced by a Hayati beta)."""
+        """Mask of joints whose ``d`` is not a geometric parameter (replaced by a Hayati beta).
+
+        Returns
+        -------
+        (n_joints,) ndarray of bool
+            True where ``d`` is held (the joint before a Hayati beta in modified DH, the same
+            joint in standard DH).
+        """
         fixed = np.zeros(self.n_joints, dtype=bool)
         for i in np.flatnonzero(self.hayati):
             j = i if self.convention == "dh" else i - 1
@@ -488,9 +572,28 @@ def model_from_dict(data: object, path: str | Path = "<robot>", node: object = N
 
 
 def load_model(path: str | Path) -> RobotModel:
-    """Load a robot model YAML file. A YAML file that is not a robot model (no ``joints:``
-    list) is refused without its content in the message: a file named in the wrong place must
-    not be shown."""
+    """Load a robot model YAML file.
+
+    A YAML file that is not a robot model (no ``joints:`` list) is refused without its content
+    in the message: a file named in the wrong place must not be shown.
+
+    Parameters
+    ----------
+    path : str or Path
+        The model file (``name``, ``convention`` and a ``joints:`` list; lengths in m, angles in
+        degrees, see ``relcal/robot/library/a465.yaml``).
+
+    Returns
+    -------
+    RobotModel
+        The model, lengths in m and angles in rad.
+
+    Raises
+    ------
+    RelcalError
+        The file is missing, too large, not YAML, not a robot model, or has a field of the wrong
+        type or an unknown field (named with its line).
+    """
     from relcal.io import load_yaml
 
     data, node = load_yaml(path)

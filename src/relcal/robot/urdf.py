@@ -439,6 +439,28 @@ def load_urdf(
     tool); ``parametrisation`` chooses the error parameters that
     :func:`relcal.robot.kinematics.make_layout` gives it: ``minimal`` (the DH parameters) or
     ``origins`` (per joint a small motion of its URDF origin and a zero offset).
+
+    Parameters
+    ----------
+    path : str or Path
+        The URDF file (``.urdf``; a ``.xacro`` is refused with how to expand it).
+    root, tip : str, optional
+        The chain's first and last links.
+    parametrisation : {"minimal", "origins"}
+        The error parameters of the model's layout.
+    parallel_tol_deg : float
+        Angle (deg) below which consecutive joint axes count as parallel.
+
+    Returns
+    -------
+    RobotModel
+        The chain in modified DH, lengths in m and angles in rad, with ``model.urdf`` set.
+
+    Raises
+    ------
+    RelcalError
+        An unknown parametrisation, a xacro file, a file that is too large or not a URDF, links
+        that are not in the tree or not one serial chain, or an unsupported joint type.
     """
     path = str(path)
     if parametrisation not in PARAMETRISATIONS:
