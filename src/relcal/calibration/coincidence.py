@@ -39,7 +39,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from relcal import geometry as tf
-from relcal.calibration.measurement import Problem
+from relcal.calibration.measurement import FormulationHooks, Problem, register_formulation
 from relcal.errors import RelcalError
 from relcal.robot.kinematics import Layout, apply_errors, fk, make_layout, spatial_jacobian
 from relcal.robot.model import RobotModel
@@ -576,3 +576,14 @@ def check_plausible(problem: Problem, baseline_params: np.ndarray, source: str =
 def nuisance_columns(problem: Problem) -> np.ndarray:
     """The tool point and group point columns of ``problem.full_layout``."""
     return np.arange(problem.layout.size, problem.full_layout.size)
+
+
+def _problem_layout(problem: Problem) -> Layout:
+    """:func:`full_layout` of a coincidence problem."""
+    return full_layout(problem.layout, problem.coincidence)
+
+
+register_formulation(
+    "coincidence",
+    FormulationHooks(full_layout=_problem_layout, residuals=residuals, sample_errors=sample_errors),
+)

@@ -23,7 +23,7 @@ from relcal.calibration.identifiability import (
     analyse_problem,
     scaled,
 )
-from relcal.calibration.measurement import Problem, pair_errors, residuals
+from relcal.calibration.measurement import Problem, check_measured, pair_errors, residuals
 from relcal.calibration.noise import Noise, robust_sigma
 from relcal.calibration.uncertainty import noise_factor, parameter_covariance, whitener
 from relcal.errors import ArgumentError, RelcalError
@@ -814,7 +814,7 @@ def identify(
     >>> bool(result.final_cost_per_observation < 1e-12)
     True
     """
-    from relcal.checks import check_instance, check_measured
+    from relcal.checks import check_instance
 
     check_instance(problem, Problem, "problem", "a Problem (relcal.Problem(model, layout, ...))")
     check_measured(problem)

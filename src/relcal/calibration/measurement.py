@@ -26,13 +26,24 @@ Residuals follow ``r ~ A (p_true - p)``: measured minus modelled, so a Gauss-New
 from __future__ import annotations
 
 import functools
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
-from typing import TYPE_CHECKING, Literal
+from typing import TYPE_CHECKING, Any, Literal, get_args
 
 import numpy as np
 
 from relcal import geometry as tf
 from relcal._renamed import UNSET
+from relcal.checks import (
+    check_array,
+    check_choice,
+    check_instance,
+    check_joints,
+    check_pairs,
+    check_transform,
+    check_vector,
+)
+from relcal.errors import ArgumentError, RelcalError
 from relcal.robot.kinematics import (
     Layout,
     apply_errors,
@@ -41,7 +52,7 @@ from relcal.robot.kinematics import (
     pose_jacobian,
     spatial_jacobian,
 )
-from relcal.robot.model import RobotModel
+from relcal.robot.model import RobotModel, check_model
 
 if TYPE_CHECKING:
     from relcal.calibration.coincidence import Coincidence
@@ -51,6 +62,50 @@ MARKER_COMPONENTS = ("x", "y", "z")  # the tracker formulation's marker position
 Formulation = Literal["absolute", "published", "invariant", "tracker", "coincidence"]
 Measure = Literal["position", "pose"]
 PairStrategy = Literal["consecutive", "star", "all"]
+
+
+@dataclass(frozen=True)
+class FormulationHooks:
+    """What a formulation whose math lives in its own module supplies to :class:`Problem`
+    (``coincidence``: :mod:`relcal.calibration.coincidence`, which registers them when it is
+    imported, as it is to build the :class:`~relcal.calibration.coincidence.Coincidence` its
+    problems carry). Imports go one way: that module imports this one, never the reverse.
+
+    ``full_layout(problem)``: the parameter layout with the formulation's nuisance parameters;
+    ``residuals(problem, params, jacobian)``: the residual ``(M,)`` and its Jacobian
+    ``(M, P)`` (or None), as :func:`residuals`; ``sample_errors(problem, params)``: the
+    position error of each sample ``(N, 3)``, m.
+    """
+
+    full_layout: Callable[[Problem], Layout]
+    residuals: Callable[..., tuple[np.ndarray, np.ndarray | None]]
+    sample_errors: Callable[[Problem, np.ndarray], np.ndarray]
+
+
+_FORMULATIONS: dict[str, FormulationHooks] = {}
+
+
+def register_formulation(name: str, hooks: FormulationHooks) -> None:
+    """Register the hooks of formulation ``name`` (a module defining a formulation calls this
+    when it is imported)."""
+    _FORMULATIONS[name] = hooks
+
+
+def formulation_hooks(name: str) -> FormulationHooks:
+    """The registered hooks of formulation ``name``.
+
+    Raises
+    ------
+    RelcalError
+        No module registered ``name`` (its problem was not built through its module).
+    """
+    try:
+        return _FORMULATIONS[name]
+    except KeyError:
+        raise RelcalError(
+            f"formulation {name!r}: its module is not loaded (build its problem through it, "
+            "e.g. relcal.calibration.coincidence.coincidence_problem)"
+        ) from None
 
 
 def make_pairs(
@@ -195,10 +250,8 @@ class Problem:
         )
 
     def __post_init__(self) -> None:
-        """Arguments checked where the API is entered (:func:`relcal.checks.check_problem`):
+        """Arguments checked where the API is entered (:func:`check_problem`):
         a wrong shape, a non-finite pose or an unknown formulation is a RelcalError naming it."""
-        from relcal.checks import check_problem
-
         for name, value in check_problem(self).items():
             object.__setattr__(self, name, value)
 
@@ -211,9 +264,7 @@ class Problem:
         if self.formulation == "tracker":
             return self.layout.extended("instrument").extended("marker", MARKER_COMPONENTS)
         if self.formulation == "coincidence":
-            from relcal.calibration.coincidence import full_layout
-
-            return full_layout(self.layout, self.coincidence)
+            return formulation_hooks(self.formulation).full_layout(self)
         return self.layout
 
     @property
@@ -309,9 +360,7 @@ def residuals(
     if problem.formulation == "tracker":
         return _tracker(problem, params, jacobian)
     if problem.formulation == "coincidence":
-        from relcal.calibration import coincidence
-
-        return coincidence.residuals(problem, params, jacobian)
+        return formulation_hooks(problem.formulation).residuals(problem, params, jacobian)
     model, handeye = split_params(problem, params)
     if jacobian and problem.formulation == "invariant":
         tip, jac = spatial_jacobian(model, problem.q, problem.layout)
@@ -402,9 +451,7 @@ def pair_errors(problem: Problem, params: np.ndarray) -> np.ndarray:
     With position-only measurements the rotation columns are NaN.
     """
     if problem.formulation == "coincidence":  # per sample, the distance rows left out
-        from relcal.calibration.coincidence import sample_errors
-
-        r = sample_errors(problem, params)
+        r = formulation_hooks(problem.formulation).sample_errors(problem, params)
         return np.concatenate([r, np.full_like(r, np.nan)], axis=1)
     if problem.formulation == "tracker":  # points: 3 rows per sample, no orientation
         plain = replace(problem, weights=None, pair_weights=None)
@@ -457,3 +504,85 @@ def _tracker(problem: Problem, params: np.ndarray, jacobian: bool):
     if weights is not None:
         a = a * weights[:, None]
     return r.reshape(-1), a.reshape(-1, a.shape[-1])
+
+
+MEASURES = ("position", "pose")
+
+
+def check_problem(problem) -> dict[str, Any]:
+    """The checked and converted fields of a :class:`relcal.calibration.measurement.Problem`
+    (called by its ``__post_init__``)."""
+    p = "Problem"
+    check_model(problem.model, f"{p}.model")
+    check_instance(problem.layout, Layout, f"{p}.layout", "a Layout (relcal.make_layout(model))")
+    check_choice(problem.formulation, f"{p}.formulation", get_args(Formulation))
+    check_choice(problem.measure, f"{p}.measure", MEASURES)
+    model = problem.model
+    out: dict[str, Any] = {}
+    q = out["q"] = check_joints(problem.q, model.n_joints, f"{p}.q", model.name)
+    n = len(q)
+    poses = out["poses"] = check_array(
+        problem.poses,
+        f"{p}.poses",
+        (n, 4, 4),
+        finite=False,
+        hint=f"one 4x4 measured pose per row of q ({n})",
+    )
+    # a pose that is wholly NaN is a sample without a measurement (a rejected frame): allowed
+    # in a problem as long as no measurement uses it (:func:`check_measured`); a partly finite
+    # pose, or no finite pose at all, is wrong data
+    finite = np.isfinite(poses).reshape(n, -1)
+    partial = np.flatnonzero(finite.any(axis=1) & ~finite.all(axis=1))
+    if partial.size or (n and not finite.any()):
+        bad = np.flatnonzero(~finite.all(axis=1))
+        raise ArgumentError(
+            f"{p}.poses: {bad.size} of {n} items are not finite (NaN or infinite), the first "
+            f"{p}.poses[{int(bad[0])}]; missing or failed measurements? leave those samples out"
+        )
+    if problem.formulation == "coincidence" and problem.coincidence is None:
+        raise ArgumentError(
+            f"{p}.coincidence: expected the groups and distances (a Coincidence) of the "
+            "coincidence formulation, got None; build the problem with "
+            "relcal.calibration.coincidence.coincidence_problem"
+        )
+    if problem.pairs is not None:
+        out["pairs"] = check_pairs(problem.pairs, n, f"{p}.pairs")
+    pairs = len(out["pairs"]) if problem.pairs is not None else max(n - 1, 0)
+    if problem.formulation in ("published", "invariant") and pairs == 0:
+        raise ArgumentError(
+            f"{p}: no pairs of poses ({n} poses); relative measurements need 2 or more"
+        )
+    out["handeye"] = check_transform(problem.handeye, f"{p}.handeye")
+    out["instrument"] = check_transform(problem.instrument, f"{p}.instrument")
+    out["marker"] = check_vector(problem.marker, f"{p}.marker", 3, "the marker position x, y, z")
+    if problem.weights is not None:
+        out["weights"] = check_array(
+            problem.weights, f"{p}.weights", (6,), hint="one factor per residual row (t, r)"
+        )
+    if problem.pair_weights is not None:
+        per = n if problem.formulation in ("absolute", "tracker") else pairs
+        out["pair_weights"] = check_array(
+            problem.pair_weights,
+            f"{p}.pair_weights",
+            (per, 6, 6),
+            hint="one 6x6 whitening block per measurement",
+        )
+    return out
+
+
+def check_measured(problem) -> None:
+    """Every pose a measurement of ``problem`` uses is finite (``identify``): a sample without a
+    measurement (a wholly NaN pose) may sit in a problem, not in its pairs."""
+    n = len(problem.q)
+    if problem.formulation in ("absolute", "tracker"):
+        used = np.arange(n)
+    else:
+        used = np.unique(problem.pair_indices())
+    finite = np.isfinite(problem.poses[used]).reshape(len(used), -1).all(axis=1)
+    if not finite.all():
+        bad = used[~finite]
+        raise ArgumentError(
+            f"Problem.poses: {bad.size} of the {len(used)} poses the measurements use are not "
+            f"finite, the first Problem.poses[{int(bad[0])}]; leave samples without a "
+            "measurement out of the pairs"
+        )

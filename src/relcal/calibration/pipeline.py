@@ -7,7 +7,8 @@ corrections, validate on the held-out samples, and gather the settings into one
 :class:`~relcal.calibration.outcome.Calibration`. What differs between relative poses, absolute
 points and coincidences (their problem and nuisance parameters, noise model, outlier input, split,
 linearisation for model selection, validation and plausibility checks) is supplied by a
-:class:`~relcal.calibration.kinds.MeasurementKind` (:func:`~relcal.calibration.kinds.kind_of`).
+:class:`~relcal.calibration.kinds.MeasurementKind`
+(:func:`~relcal.calibration.kinds.dispatch.kind_of`).
 """
 
 from __future__ import annotations
@@ -18,8 +19,10 @@ from dataclasses import replace
 import numpy as np
 
 from relcal._renamed import UNSET, renamed
+from relcal.calibration.arguments import check_calibrate
 from relcal.calibration.identify import Result, SolverOptions, identify, identify_lm
-from relcal.calibration.kinds import MeasurementKind, NoiseModel, Training, kind_of
+from relcal.calibration.kinds import MeasurementKind, NoiseModel, Training
+from relcal.calibration.kinds.dispatch import kind_of
 from relcal.calibration.measurement import PairStrategy
 from relcal.calibration.outcome import Calibration
 from relcal.calibration.selection import (
@@ -36,7 +39,6 @@ from relcal.calibration.selection import (
     significant_columns,
     significant_fit,
 )
-from relcal.checks import check_calibrate
 from relcal.data.dataset import Dataset
 from relcal.data.imaging import Measurements, measure
 from relcal.errors import RelcalError

@@ -175,7 +175,7 @@ def _calibrate(args, dataset, out, holdout_ids, registry) -> int:
             check_holdout_ids(dataset, holdout_ids)
     m = measure(dataset, workers=args.workers, progress=not args.quiet, max_rms=args.max_rms)
     if by_placement and args.kfold:
-        from relcal.calibration.kinds import kind_of
+        from relcal.calibration.kinds.dispatch import kind_of
 
         kind_of(dataset, m).folds(args.kfold, args.seed)  # K within the placements
     elif not by_placement:

@@ -57,7 +57,8 @@ import pydantic
 from scipy.spatial.transform import Rotation
 
 from relcal import geometry as tf
-from relcal.errors import RelcalError, excerpt, printable
+from relcal.checks import check_instance, describe
+from relcal.errors import ArgumentError, RelcalError, excerpt, printable
 from relcal.io import load_yaml, note_input, read_table, validate
 from relcal.limits import check_input_size
 from relcal.robot.loading import get_robot
@@ -496,8 +497,6 @@ def load_dataset(folder: str | Path) -> Dataset:
     >>> dataset.robot_id, dataset.measured, dataset.q.shape
     ('tiago-pro-right-arm', 'pose', (48, 8))
     """
-    from relcal.checks import check_instance
-
     check_instance(folder, str | Path, "folder", "a dataset folder path (str or Path)")
     root = Path(folder)
     spec_path = root / "dataset.yaml"
@@ -1061,3 +1060,13 @@ def write_coincidence_samples(ids, groups, q: np.ndarray, digits: int = 17) -> s
     for sid, group, row in zip(ids, groups, q, strict=True):
         lines.append(",".join([str(sid), str(group), *[f"{v:.{digits}g}" for v in row]]))
     return "\n".join(lines) + "\n"
+
+
+def check_dataset(dataset: Any, name: str = "dataset") -> Any:
+    """A loaded :class:`relcal.data.dataset.Dataset` (a folder path is loaded first)."""
+    if isinstance(dataset, str | Path):
+        raise ArgumentError(
+            f"{name}: expected a Dataset, got {describe(dataset)}: load the folder first, "
+            f"relcal.load_dataset({str(dataset)!r})"
+        )
+    return check_instance(dataset, Dataset, name, "a Dataset (relcal.load_dataset(folder))")

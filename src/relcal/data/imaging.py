@@ -8,7 +8,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from relcal import geometry as tf
-from relcal.data.dataset import Dataset
+from relcal.data.dataset import Dataset, check_dataset
 from relcal.errors import RelcalError
 from relcal.vision.camera import calibrate_intrinsics
 from relcal.vision.detect import Rejected, estimate_pose, measure_images
@@ -74,7 +74,7 @@ def measure(
     RelcalError
         No image shows the board (with the likely cause).
     """
-    from relcal.checks import check_dataset, check_number
+    from relcal.checks import check_number
 
     check_dataset(dataset)
     check_number(workers, "workers", 1, integer=True)

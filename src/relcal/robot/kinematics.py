@@ -25,13 +25,14 @@ from __future__ import annotations
 import functools
 import importlib.util
 from dataclasses import dataclass, replace
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 
 from relcal import geometry as tf
+from relcal.checks import check_array, check_instance
 from relcal.errors import ArgumentError, RelcalError
-from relcal.robot.model import KINDS, NONGEOMETRIC_KINDS, RobotModel
+from relcal.robot.model import KINDS, NONGEOMETRIC_KINDS, RobotModel, check_model
 
 FRAME_COMPONENTS = ("tx", "ty", "tz", "rx", "ry", "rz")
 # SI unit of each kind of parameter; frame 6-vectors are m then rad.
@@ -200,8 +201,6 @@ def make_layout(model: RobotModel, base: bool = False, tool: bool = False) -> La
     >>> layout.size, layout.names[:3]
     (24, ('theta_off[1]', 'theta_off[2]', 'theta_off[3]'))
     """
-    from relcal.checks import check_model
-
     check_model(model)
     if model.urdf is not None and model.urdf.parametrisation == "origins":
         return origins_layout(model, base, tool)
@@ -295,8 +294,6 @@ def apply_errors(model: RobotModel, layout: Layout, errors: np.ndarray) -> Robot
     >>> float(relcal.apply_errors(model, layout, errors).d[0])
     0.331
     """
-    from relcal.checks import check_errors, check_model
-
     check_model(model)
     errors = check_errors(errors, layout)
     folded: tuple[str, ...] = ()
@@ -545,7 +542,7 @@ def fk(model: RobotModel, q: np.ndarray, backend: Backend = "numpy") -> np.ndarr
     >>> relcal.fk(model, np.zeros((5, 6))).shape
     (5, 4, 4)
     """
-    from relcal.checks import check_joints, check_model
+    from relcal.checks import check_joints
 
     check_model(model)
     if np.ndim(q) == 1:  # one configuration: one pose (4, 4)
@@ -801,3 +798,17 @@ def spatial_jacobian(
     """
     tip_pose, axes, points, rotation = _screws(model, q, layout)
     return tip_pose, _columns(axes, _cross(points[:, rotation], axes[:, rotation]), rotation)
+
+
+def check_errors(errors: Any, layout, name: str = "errors") -> np.ndarray:
+    """A parameter vector of ``layout`` (``apply_errors``): one finite value per entry."""
+    check_instance(layout, Layout, "layout", "a Layout (relcal.make_layout(model))")
+    size = layout.size
+    names = ", ".join(layout.names[:4]) + (", ..." if size > 4 else "")
+    return check_array(
+        errors,
+        name,
+        (size,),
+        hint=f"one value per parameter of the layout ({size}: {names}; m and rad); a vector "
+        "made for another layout or model?",
+    )

@@ -26,13 +26,14 @@ from __future__ import annotations
 from dataclasses import dataclass, field, replace
 from importlib import resources
 from pathlib import Path
-from typing import Annotated, Literal
+from typing import Annotated, Any, Literal
 
 import numpy as np
 import pydantic
 
 from relcal import geometry as tf
-from relcal.errors import RelcalError
+from relcal.checks import check_instance, describe
+from relcal.errors import ArgumentError, RelcalError
 
 KINDS = ("theta_off", "a", "d", "alpha", "beta")
 ANGLE_KINDS = ("theta_off", "alpha", "beta")
@@ -726,3 +727,13 @@ def restrict_limits(
             )
         lower[i], upper[i] = lo, hi
     return replace(model, lower=lower, upper=upper)
+
+
+def check_model(model: Any, name: str = "model") -> Any:
+    """A :class:`relcal.robot.model.RobotModel`."""
+    if isinstance(model, str | Path):
+        raise ArgumentError(
+            f"{name}: expected a RobotModel, got {describe(model)}: load it first, "
+            f"relcal.get_robot({str(model)!r})"
+        )
+    return check_instance(model, RobotModel, name, "a RobotModel (relcal.get_robot('a465'))")

@@ -154,7 +154,8 @@ def simulate(
     >>> bool(lengths < 1e-9 and angles < 1e-9)
     True
     """
-    from relcal.checks import check_choice, check_model, check_number
+    from relcal.checks import check_choice, check_number
+    from relcal.robot.model import check_model
 
     check_model(model)
     check_choice(formulation, "formulation", ("published", "invariant", "absolute"))

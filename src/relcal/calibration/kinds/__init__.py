@@ -23,7 +23,8 @@ differs between kinds of data, and nothing else:
 The kinds: :class:`~relcal.calibration.kinds.poses.PoseKind` (relative camera or mocap poses),
 :class:`~relcal.calibration.kinds.points.PointKind` (absolute points of a tracker or a marker) and
 :class:`~relcal.calibration.kinds.coincidence.CoincidenceKind` (a tool point seated again and again
-at unknown points, with known distances). :func:`kind_of` picks one for a dataset.
+at unknown points, with known distances). :func:`~relcal.calibration.kinds.dispatch.kind_of`
+picks one for a dataset.
 """
 
 from __future__ import annotations
@@ -199,20 +200,3 @@ class MeasurementKind:
     def settings(self, training: Training) -> dict:
         """What the record's settings say of this kind beyond the skeleton's."""
         return {}
-
-
-def kind_of(
-    dataset: Dataset, measurements: Measurements, pairing: PairStrategy = "all"
-) -> MeasurementKind:
-    """The measurement kind of ``dataset``: coincidence groups, position-only points, or poses."""
-    if dataset.measured == "coincidence":
-        from relcal.calibration.kinds.coincidence import CoincidenceKind
-
-        return CoincidenceKind(dataset, measurements, pairing)
-    if dataset.measured == "position":
-        from relcal.calibration.kinds.points import PointKind
-
-        return PointKind(dataset, measurements, pairing)
-    from relcal.calibration.kinds.poses import PoseKind
-
-    return PoseKind(dataset, measurements, pairing)

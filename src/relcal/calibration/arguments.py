@@ -1,0 +1,50 @@
+"""The arguments of :func:`relcal.calibrate`, checked where the API is entered (the generic
+primitives are :mod:`relcal.checks`)."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from relcal.checks import check_choice, check_instance, check_number, describe
+from relcal.data.dataset import check_dataset
+from relcal.data.imaging import Measurements
+from relcal.errors import ArgumentError
+
+
+def check_calibrate(
+    dataset: Any,
+    measurements: Any,
+    holdout: Any,
+    seed: Any,
+    pairing: Any,
+    method: Any,
+    loss: Any,
+    holdout_ids: Any,
+    select_folds: Any,
+    selection: Any,
+) -> None:
+    """The arguments of :func:`relcal.calibrate`."""
+    check_dataset(dataset)
+    if measurements is not None:
+        check_instance(
+            measurements, Measurements, "measurements", "Measurements (relcal.measure(dataset))"
+        )
+        if len(measurements.ok) != len(dataset.ids):
+            raise ArgumentError(
+                f"measurements: {len(measurements.ok)} samples, the dataset has "
+                f"{len(dataset.ids)}: measured from another dataset?"
+            )
+    check_number(holdout, "holdout", 0, 1, high_open=True)
+    check_number(seed, "seed", integer=True)
+    check_choice(pairing, "pairing", ("consecutive", "star", "all"))
+    check_choice(method, "method", ("lm", "published"))
+    check_choice(loss, "loss", ("linear", "huber", "cauchy", "soft_l1"))
+    check_choice(selection, "selection", ("cv", "conservative", "all"))
+    check_number(select_folds, "select_folds", 2, integer=True)
+    if holdout_ids is not None:
+        if isinstance(holdout_ids, str) or not all(isinstance(i, str) for i in holdout_ids):
+            raise ArgumentError(
+                f"holdout_ids: expected a list of sample ids (strings), got "
+                f"{describe(holdout_ids)}"
+                + ("; a single id is ['s1'], not 's1'" if isinstance(holdout_ids, str) else "")
+            )
