@@ -164,6 +164,123 @@ MISUSE.update(
         "problem-weights-3": (lambda a: problem(a, weights=np.ones(3))(), ("weights", "(6,)")),
         "problem-model-a-string": (lambda a: problem(a, model="a465")(), ("model", "get_robot")),
         "problem-measure-unknown": (lambda a: problem(a, measure="angle")(), ("measure",)),
+        "problem-coincidence-without-groups": (
+            lambda a: problem(a, formulation="coincidence", measure="position", pairs=None)(),
+            ("coincidence", "coincidence_problem"),
+        ),
+    }
+)
+# the sweep of relcal.__all__ (issue 20/22): every public function refuses a wrong argument by
+# name before any work (a path for a Dataset, an unknown choice, a wrong type, shape or value)
+MISUSE.update(
+    {
+        "verify-session-dataset-a-path": (
+            lambda a: relcal.verify_session("/no/calibration", str(a["dataset"].root)),
+            ("dataset", "load_dataset"),
+        ),
+        "verify-session-calibration-a-number": (
+            lambda a: relcal.verify_session(3, a["dataset"]),
+            ("calibration", "int 3", "load_calibration"),
+        ),
+        "verify-session-folds-1": (
+            lambda a: relcal.verify_session("/no/calibration", a["dataset"], folds=1),
+            ("folds", "[2, inf)"),
+        ),
+        "verify-session-measurements-of-another-dataset": (
+            lambda a: relcal.verify_session(
+                "/no/calibration", a["dataset"], relcal.measure(a["other"], progress=False)
+            ),
+            ("measurements", "another dataset"),
+        ),
+        "verify-session-progress-a-string": (
+            lambda a: relcal.verify_session("/no/calibration", a["dataset"], progress="yes"),
+            ("progress", "True or False"),
+        ),
+        "plan-algorithm-unknown": (
+            lambda a: relcal.plan(a["model"], relcal.Cell(), algorithm="annealing"),
+            ("algorithm", "annealing", "'greedy', 'exchange'"),
+        ),
+        "plan-a-robot-name": (lambda a: relcal.plan("a465", relcal.Cell()), ("model", "get_robot")),
+        "plan-no-cell": (lambda a: relcal.plan(a["model"], None), ("cell", "relcal.Cell()")),
+        "plan-criterion-unknown": (
+            lambda a: relcal.plan(a["model"], relcal.Cell(), criterion="D"),
+            ("criterion", "'worst'"),
+        ),
+        "plan-one-pose-relative": (
+            lambda a: relcal.plan(a["model"], relcal.Cell(), n_poses=1),
+            ("n_poses", "[2, inf)"),
+        ),
+        "plan-coincidence": (
+            lambda a: relcal.plan(a["model"], relcal.Cell(), formulation="coincidence"),
+            ("formulation", "'tracker'"),
+        ),
+        "plan-noise-a-number": (
+            lambda a: relcal.plan(a["model"], relcal.Cell(), noise=1e-4),
+            ("noise", "Noise"),
+        ),
+        "plan-negative-random-sets": (
+            lambda a: relcal.plan(a["model"], relcal.Cell(), random_sets=-1),
+            ("random_sets",),
+        ),
+        "calibrate-weightings-a-string": (
+            lambda a: relcal.calibrate(a["dataset"], weightings="plain"),
+            ("weightings", "['plain']"),
+        ),
+        "calibrate-weightings-unknown": (
+            lambda a: relcal.calibrate(a["dataset"], weightings=["plain", "robust"]),
+            ("weightings[1]", "robust"),
+        ),
+        "calibrate-nongeometric-unknown": (
+            lambda a: relcal.calibrate(a["dataset"], nongeometric="gravity"),
+            ("nongeometric", "gravity", "['scale']"),
+        ),
+        "calibrate-nongeometric-unknown-family": (
+            lambda a: relcal.calibrate(a["dataset"], nongeometric=["scale", "backlash"]),
+            ("nongeometric[1]", "backlash"),
+        ),
+        "calibrated-model-a-name": (
+            lambda a: relcal.calibrated_model("a465", a["layout"], np.zeros(24)),
+            ("model", "get_robot"),
+        ),
+        "calibrated-model-no-layout": (
+            lambda a: relcal.calibrated_model(a["model"], None, np.zeros(24)),
+            ("layout", "make_layout"),
+        ),
+        "calibrated-model-too-few-params": (
+            lambda a: relcal.calibrated_model(a["model"], a["layout"], np.zeros(20)),
+            ("params", "20 values", "24 parameters"),
+        ),
+        "calibrated-urdf-a-name": (lambda a: relcal.calibrated_urdf("a465"), ("model",)),
+        "robot-files-a-path": (lambda a: relcal.robot_files(Path("arm.urdf")), ("model",)),
+        "write-calibration-a-dataset": (
+            lambda a: relcal.write_calibration(a["dataset"], "/tmp/never-written"),
+            ("cal", "Calibration"),
+        ),
+        "import-rosbag-bag-a-number": (
+            lambda a: relcal.import_rosbag(5, "/tmp/never-written", "/joint_states"),
+            ("bag", "int 5"),
+        ),
+        "import-rosbag-joints-a-list": (
+            lambda a: relcal.import_rosbag("x.bag", "/tmp/never-written", ["/joint_states"]),
+            ("joints", "JointState"),
+        ),
+        "load-model-a-number": (lambda a: relcal.load_model(5), ("path", "int 5")),
+        "load-urdf-none": (lambda a: relcal.load_urdf(None), ("path", "None")),
+        "noise-negative": (lambda a: relcal.Noise(position=-1e-4), ("Noise.position",)),
+        "noise-text": (lambda a: relcal.Noise(position="0.05mm"), ("Noise.position", "parse")),
+        "noise-covariance-3x3": (
+            lambda a: relcal.Noise(covariance=np.eye(3)),
+            ("Noise.covariance", "(6, 6)"),
+        ),
+        "cell-center-2d": (lambda a: relcal.Cell(center=[0.4, 0.0]), ("Cell.center", "(3,)")),
+        "cell-handeye-nan": (
+            lambda a: relcal.Cell(handeye=np.full((4, 4), np.nan)),
+            ("Cell.handeye", "not finite"),
+        ),
+        "simulate-noise-a-number": (
+            lambda a: relcal.simulate(a["model"], noise=1e-4),
+            ("noise", "Noise"),
+        ),
     }
 )
 
@@ -187,6 +304,37 @@ def test_the_right_calls_still_work(api):
     assert result.converged
     assert relcal.fk(api["model"], np.zeros(6)).shape == (4, 4)
     assert relcal.fk(api["model"], [[0.0] * 6] * 3).shape == (3, 4, 4)
+
+
+def test_plan_and_verify_session_check_before_any_work(api, monkeypatch):
+    """An unknown algorithm is refused before the candidate pool is drawn, and a bad
+    ``verify_session`` argument before the calibration folder is read or an image measured."""
+    from relcal.calibration import verify
+    from relcal.design import plan
+
+    def no_work(*args, **kwargs):
+        raise AssertionError("work started before the arguments were checked")
+
+    monkeypatch.setattr(plan, "candidates", no_work)
+    monkeypatch.setattr(verify, "load_calibration", no_work)
+    with pytest.raises(ArgumentError, match="algorithm"):
+        relcal.plan(api["model"], relcal.Cell(), algorithm="annealing")
+    with pytest.raises(ArgumentError, match="dataset"):
+        relcal.verify_session("/no/calibration", str(api["dataset"].root))
+
+
+def test_checked_values_are_kept_converted():
+    """The checks convert, they do not change: NumPy scalars and lists come out as floats and
+    arrays with the same values."""
+    noise = relcal.Noise(np.float32(5e-5), np.float64(1e-4), 0)
+    assert (noise.position, noise.orientation, noise.joints) == (
+        float(np.float32(5e-5)),
+        1e-4,
+        0.0,
+    )
+    cell = relcal.Cell(center=[0.5, 0.1, 0.0])
+    assert isinstance(cell.center, np.ndarray) and cell.center.tolist() == [0.5, 0.1, 0.0]
+    assert relcal.Noise() == relcal.Noise(0.0, 0.0, 0.0)
 
 
 # ------------------------------------------------------------ every option checked by argparse

@@ -9,6 +9,7 @@ Each ``check_*`` returns the value converted (a float or int array of the checke
 from __future__ import annotations
 
 from collections.abc import Iterable, Sequence
+from os import PathLike
 from pathlib import Path
 from typing import Any
 
@@ -49,6 +50,50 @@ def check_instance(value: Any, cls: type | tuple[type, ...], name: str, expected
     if not isinstance(value, cls):
         raise ArgumentError(f"{name}: expected {expected}, got {describe(value)}")
     return value
+
+
+def check_path(value: Any, name: str, expected: str) -> Path:
+    """``value`` as a :class:`~pathlib.Path`: a ``str`` or an ``os.PathLike``; ``expected``
+    says which file or folder (``"a dataset folder"``)."""
+    if isinstance(value, str | PathLike) and not isinstance(value, bytes):
+        path = Path(value)
+        if str(path).strip():
+            return path
+    raise ArgumentError(f"{name}: expected {expected} (a str or Path), got {describe(value)}")
+
+
+def check_flag(value: Any, name: str) -> bool:
+    """``value`` must be ``True`` or ``False`` (a NumPy bool too)."""
+    if not isinstance(value, bool | np.bool_):
+        raise ArgumentError(f"{name}: expected True or False, got {describe(value)}")
+    return bool(value)
+
+
+def check_names(
+    value: Any, name: str, choices: Iterable[str], example: str, *, empty: bool = False
+) -> tuple[str, ...]:
+    """A list of strings, each one of ``choices`` (a bare string is refused: ``example`` shows
+    the list spelling, e.g. ``"['plain']"``); an empty list only with ``empty``."""
+    choices = tuple(choices)
+    if isinstance(value, str) or not isinstance(value, Iterable):
+        single = f"; a single one is {example}, not {value!r}" if isinstance(value, str) else ""
+        raise ArgumentError(
+            f"{name}: expected a list of names (one or more of "
+            + ", ".join(repr(c) for c in choices)
+            + f"), got {describe(value)}{single}"
+        )
+    names = tuple(value)
+    if not names and not empty:
+        raise ArgumentError(
+            f"{name}: expected one or more of " + ", ".join(repr(c) for c in choices) + ", got none"
+        )
+    for k, item in enumerate(names):
+        if not isinstance(item, str) or item not in choices:
+            raise ArgumentError(
+                f"{name}[{k}]: unknown {describe(item)}; expected one of "
+                + ", ".join(repr(c) for c in choices)
+            )
+    return names
 
 
 def check_choice(value: Any, name: str, choices: Iterable[str]) -> str:

@@ -5,10 +5,12 @@ from __future__ import annotations
 
 from typing import Any
 
-from relcal.checks import check_choice, check_instance, check_number, describe
+from relcal.calibration.selection import WEIGHTINGS
+from relcal.checks import check_choice, check_names, check_number, describe
 from relcal.data.dataset import check_dataset
-from relcal.data.imaging import Measurements
+from relcal.data.imaging import check_measurements
 from relcal.errors import ArgumentError
+from relcal.robot.model import NONGEOMETRIC
 
 
 def check_calibrate(
@@ -22,18 +24,13 @@ def check_calibrate(
     holdout_ids: Any,
     select_folds: Any,
     selection: Any,
+    nongeometric: Any = "auto",
+    weightings: Any = ("plain",),
 ) -> None:
     """The arguments of :func:`relcal.calibrate`."""
     check_dataset(dataset)
     if measurements is not None:
-        check_instance(
-            measurements, Measurements, "measurements", "Measurements (relcal.measure(dataset))"
-        )
-        if len(measurements.ok) != len(dataset.ids):
-            raise ArgumentError(
-                f"measurements: {len(measurements.ok)} samples, the dataset has "
-                f"{len(dataset.ids)}: measured from another dataset?"
-            )
+        check_measurements(measurements, dataset)
     check_number(holdout, "holdout", 0, 1, high_open=True)
     check_number(seed, "seed", integer=True)
     check_choice(pairing, "pairing", ("consecutive", "star", "all"))
@@ -48,3 +45,12 @@ def check_calibrate(
                 f"{describe(holdout_ids)}"
                 + ("; a single id is ['s1'], not 's1'" if isinstance(holdout_ids, str) else "")
             )
+    if isinstance(nongeometric, str):
+        if nongeometric not in ("auto", "none"):
+            raise ArgumentError(
+                f"nongeometric: unknown {describe(nongeometric)}; expected 'auto', 'none' or a "
+                f"list of families ({', '.join(NONGEOMETRIC)}), e.g. ['scale']"
+            )
+    else:
+        check_names(nongeometric, "nongeometric", NONGEOMETRIC, "['scale']", empty=True)
+    check_names(weightings, "weightings", WEIGHTINGS, "['plain']")

@@ -16,7 +16,8 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.sparse
 
-from relcal.errors import RelcalError
+from relcal.checks import check_array, check_number, describe
+from relcal.errors import ArgumentError, RelcalError
 from relcal.geometry import DEG, MM
 
 
@@ -43,6 +44,26 @@ class Noise:
     # (6, 6) covariance of the body-frame pose error (translation m, rotation rad), replacing the
     # isotropic position and orientation levels when given (a learned noise model).
     covariance: np.ndarray | None = field(default=None, compare=False)
+
+    def __post_init__(self) -> None:
+        """Arguments checked where the API is entered: each level a finite number >= 0 (SI:
+        m, rad; a string such as '0.05mm' is for :meth:`parse`), the covariance ``(6, 6)``."""
+        for name in ("position", "orientation", "joints"):
+            value = getattr(self, name)
+            if isinstance(value, str):
+                raise ArgumentError(
+                    f"Noise.{name}: expected a number (m or rad), got {describe(value)}; text "
+                    "such as '0.05,0.01' (mm, degrees) is read by Noise.parse"
+                )
+            object.__setattr__(self, name, check_number(value, f"Noise.{name}", 0))
+        if self.covariance is not None:
+            cov = check_array(
+                self.covariance,
+                "Noise.covariance",
+                (6, 6),
+                hint="the covariance of a pose's body-frame error (translation m, rotation rad)",
+            )
+            object.__setattr__(self, "covariance", cov)
 
     def pose_covariance(self) -> np.ndarray:
         """The covariance of one measured pose's body-frame error.

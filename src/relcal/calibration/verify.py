@@ -42,7 +42,7 @@ import json
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 
@@ -51,6 +51,7 @@ from relcal.calibration.identify import calibrated_handeye, identify_lm
 from relcal.calibration.measurement import Problem, make_pairs, pair_errors, tracker_frames
 from relcal.calibration.selection import plain_whiteners
 from relcal.calibration.validate import rms_draws, stats
+from relcal.checks import check_flag, check_number, check_path
 from relcal.errors import RelcalError
 from relcal.robot.kinematics import Layout, fk
 from relcal.robot.model import RobotModel
@@ -827,6 +828,28 @@ def load_calibration(folder: str | Path) -> CalibrationFiles:
     return CalibrationFiles(folder, load_model(folder / "model.yaml"), results)
 
 
+def check_session(
+    calibration: Any, dataset: Any, measurements: Any, folds: Any, seed: Any, progress: Any
+) -> None:
+    """The arguments of :func:`verify_session`, checked before anything is read."""
+    from relcal.data.dataset import check_dataset
+    from relcal.data.imaging import check_measurements
+
+    if not isinstance(calibration, CalibrationFiles):
+        check_path(
+            calibration,
+            "calibration",
+            "a calibration folder (the --out folder of relcal calibrate, or "
+            "relcal.write_calibration's) or load_calibration(folder)",
+        )
+    check_dataset(dataset)
+    if measurements is not None:
+        check_measurements(measurements, dataset)
+    check_number(folds, "folds", 2, integer=True)
+    check_number(seed, "seed", 0, integer=True)
+    check_flag(progress, "progress")
+
+
 def verify_session(
     calibration: CalibrationFiles | str | Path,
     dataset,
@@ -867,6 +890,11 @@ def verify_session(
 
     Raises
     ------
+    ArgumentError
+        ``calibration`` not a folder path or :class:`CalibrationFiles`, ``dataset`` not a
+        :class:`~relcal.Dataset` (a folder path: load it first), ``measurements`` not those of
+        ``dataset``, ``folds`` below 2 or not whole, ``seed`` not whole, ``progress`` not a bool
+        (checked before anything is read).
     RelcalError
         Not a calibration folder (no ``model.yaml`` or ``results.json``, or unreadable), a
         session of a robot with other joints, or too few usable samples (below 4; 3 for
@@ -887,6 +915,7 @@ def verify_session(
     """
     from relcal.data.imaging import measure
 
+    check_session(calibration, dataset, measurements, folds, seed, progress)
     files = calibration if isinstance(calibration, CalibrationFiles) else None
     files = files or load_calibration(calibration)
     if measurements is None:

@@ -4,12 +4,14 @@ same images), pose with covariance, and rejected frames with their reasons."""
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
 from relcal import geometry as tf
+from relcal.checks import check_instance
 from relcal.data.dataset import Dataset, check_dataset
-from relcal.errors import RelcalError
+from relcal.errors import ArgumentError, RelcalError
 from relcal.vision.camera import calibrate_intrinsics
 from relcal.vision.detect import Rejected, estimate_pose, measure_images
 
@@ -43,6 +45,16 @@ class Measurements:
     covariance: np.ndarray | None = None  # (N, 6, 6) of (translation, rotation vector), or None
     camera: object = None  # the intrinsics used (given or calibrated)
     intrinsics_report: dict = field(default_factory=dict)
+
+
+def check_measurements(measurements: Any, dataset: Dataset, name: str = "measurements") -> None:
+    """``measurements`` are :class:`Measurements` of ``dataset`` (one entry per sample)."""
+    check_instance(measurements, Measurements, name, "Measurements (relcal.measure(dataset))")
+    if len(measurements.ok) != len(dataset.ids):
+        raise ArgumentError(
+            f"{name}: {len(measurements.ok)} samples, the dataset has "
+            f"{len(dataset.ids)}: measured from another dataset?"
+        )
 
 
 def measure(

@@ -17,6 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
+from relcal.checks import check_instance, check_path
 from relcal.data.dataset import POSE_COLUMNS
 from relcal.data.importers import Imported
 from relcal.errors import RelcalError
@@ -283,12 +284,23 @@ def import_rosbag(
 
     Raises
     ------
+    ArgumentError
+        ``bag`` or ``out`` not a path, a topic or ``robot`` not a string, ``options`` not
+        :class:`StopOptions` (before the bag is opened).
     RelcalError
         Neither or both of ``image`` and ``pose``, a bag that is not found, the ``rosbags``
         package missing (the ``ros`` extra), a topic that is not in the bag, or a bag in which
         the robot never stops.
     """
-    bag, out = Path(bag), Path(out)
+    bag = check_path(bag, "bag", "a rosbag (a ROS 2 bag folder or a ROS 1 .bag file)")
+    out = check_path(out, "out", "the dataset folder to write")
+    check_instance(joints, str, "joints", "the JointState topic (e.g. '/joint_states')")
+    for name, value in (
+        ("image", image), ("pose", pose), ("camera_info", camera_info), ("robot", robot)
+    ):  # fmt: skip
+        if value is not None:
+            check_instance(value, str, name, "a topic name (str) or None")
+    check_instance(options, StopOptions, "options", "StopOptions(velocity=, settle=)")
     if (image is None) == (pose is None):
         raise RelcalError("relcal import rosbag: give exactly one of --image TOPIC or --pose TOPIC")
     with _open(bag) as reader:

@@ -8,6 +8,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from relcal import geometry as tf
+from relcal.checks import check_array, check_instance, check_transform
 from relcal.geometry import look_at
 from relcal.robot.model import RobotModel
 from relcal.vision.boards import Board, pattern_extent
@@ -69,6 +70,17 @@ class Cell:
     center: np.ndarray = field(default_factory=lambda: np.array([0.45, 0.0, 0.0]))
     camera: Camera = field(default_factory=default_camera)
     handeye: np.ndarray = field(default_factory=default_handeye)
+
+    def __post_init__(self) -> None:
+        """Arguments checked where the API is entered: a wrong type or shape is an
+        ArgumentError naming the field."""
+        check_instance(self.board, Board, "Cell.board", "a Board (relcal.vision.boards.Board)")
+        check_instance(self.camera, Camera, "Cell.camera", "a Camera (relcal.vision.camera)")
+        center = check_array(
+            self.center, "Cell.center", (3,), hint="the board centre x, y, z in the base frame, m"
+        )
+        object.__setattr__(self, "center", center)
+        object.__setattr__(self, "handeye", check_transform(self.handeye, "Cell.handeye"))
 
     @property
     def board_pose(self) -> np.ndarray:

@@ -18,13 +18,14 @@ blocks of pool indices in both cases, so the plan is the same as in one process.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 
 from relcal._renamed import UNSET
 from relcal.calibration.measurement import Formulation, Measure
 from relcal.calibration.noise import Noise
+from relcal.checks import check_choice, check_instance, check_number
 from relcal.design.cell import Cell
 from relcal.design.criteria import (
     CRITERIA,
@@ -43,7 +44,7 @@ from relcal.design.scoring import Scorer
 from relcal.design.search import exchange, greedy
 from relcal.design.travel import Route, travel_order
 from relcal.errors import RelcalError
-from relcal.robot.model import RobotModel
+from relcal.robot.model import RobotModel, check_model
 
 __all__ = [
     "CRITERIA",
@@ -71,6 +72,46 @@ __all__ = [
 ]
 
 Algorithm = Literal["greedy", "exchange"]
+ALGORITHMS = ("greedy", "exchange")
+PLAN_FORMULATIONS = ("invariant", "published", "absolute", "tracker")  # coincidence: no plan
+
+
+def check_plan(
+    model: Any,
+    cell: Any,
+    n_poses: Any,
+    constraints: Any,
+    criterion: Any,
+    algorithm: Any,
+    n_candidates: Any,
+    noise: Any,
+    formulation: Any,
+    measure: Any,
+    random_sets: Any,
+    n_validation: Any,
+    seed: Any,
+) -> None:
+    """The arguments of :func:`plan`, checked before any candidate is drawn."""
+    check_model(model)
+    check_instance(cell, Cell, "cell", "a Cell (relcal.Cell(), the board, camera and mount)")
+    if constraints is not None:
+        check_instance(
+            constraints,
+            Constraints,
+            "constraints",
+            "Constraints (relcal.design.feasibility.Constraints) or None",
+        )
+    check_choice(criterion, "criterion", CRITERIA)
+    check_choice(algorithm, "algorithm", ALGORITHMS)
+    check_instance(noise, Noise, "noise", "a Noise (relcal.Noise(position=, orientation=))")
+    check_choice(formulation, "formulation", PLAN_FORMULATIONS)
+    check_choice(measure, "measure", ("pose", "position"))
+    relative = formulation in ("invariant", "published")
+    check_number(n_poses, "n_poses", 2 if relative else 1, integer=True)
+    check_number(n_candidates, "n_candidates", 1, integer=True)
+    check_number(random_sets, "random_sets", 0, integer=True)
+    check_number(n_validation, "n_validation", 0, integer=True)
+    check_number(seed, "seed", 0, integer=True)
 
 
 @dataclass(frozen=True)
@@ -170,10 +211,12 @@ def plan(
 
     Raises
     ------
+    ArgumentError
+        An argument of the wrong type or value (a robot name for ``model``, an unknown
+        ``algorithm``, ``criterion``, ``formulation`` or ``measure``, ``n_poses`` below 2 for a
+        relative formulation, a negative count or seed), before any candidate is drawn.
     RelcalError
         Fewer feasible candidates than ``n_poses + n_validation``.
-    ValueError
-        An unknown algorithm.
 
     Examples
     --------
@@ -190,6 +233,10 @@ def plan(
     from relcal._renamed import renamed
 
     k = renamed("plan", "k", k, "n_poses", n_poses, 30)
+    check_plan(
+        model, cell, k, constraints, criterion, algorithm, n_candidates, noise, formulation,
+        measure, random_sets, n_validation, seed,
+    )  # fmt: skip
     constraints = constraints or Constraints()
     start = time.perf_counter()
     pool_seed, sets_seed = np.random.SeedSequence(seed).spawn(2)
@@ -205,8 +252,6 @@ def plan(
     q_val, pool = pool[:n_validation], pool[n_validation:]
     problem = selection_problem(model, cell, pool, formulation, measure)
     info = information(problem, noise, constraints.length_scale)
-    if algorithm not in ("greedy", "exchange"):
-        raise ValueError(f"unknown algorithm '{algorithm}': use greedy or exchange")
     with Scorer(info, client) as scorer:
         chosen = greedy(info, k, criterion, scorer)
         swaps = 0

@@ -10,6 +10,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from relcal.calibration.outcome import Calibration
+from relcal.checks import check_instance, check_path
 from relcal.data.dataset import Dataset, joints_in_unit, write_samples
 from relcal.data.imaging import Measurements
 from relcal.io import json_text, yaml_text
@@ -108,6 +109,9 @@ def write_calibration(
 
     Raises
     ------
+    ArgumentError
+        ``cal`` not a :class:`~relcal.Calibration`, or ``out_dir`` (or ``json_path``,
+        ``report_path``) not a path; nothing is written.
     RelcalError
         A destination is refused (an input of this process, a folder that is not a calibration
         set, unwritable); nothing is written.
@@ -120,6 +124,11 @@ def write_calibration(
     >>> sorted(path.name for path in files)[:3]
     ['model.yaml', 'origin_corrections.yaml', 'parameters.csv']
     """
+    check_instance(cal, Calibration, "cal", "a Calibration (what relcal.calibrate returned)")
+    check_path(out_dir, "out_dir", "the output folder")
+    for name, path in (("json_path", json_path), ("report_path", report_path)):
+        if path is not None:
+            check_path(path, name, "a file path")
     doc = results_document(cal) if doc is None else doc
     items = calibration_outputs(cal, out_dir, doc, json_path, report_path, run_id)
     if registry is not None and journal is None:

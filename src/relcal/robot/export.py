@@ -20,10 +20,11 @@ from xml.sax.saxutils import quoteattr
 import numpy as np
 
 from relcal import geometry as tf
-from relcal.errors import RelcalError
+from relcal.checks import check_array, check_instance
+from relcal.errors import ArgumentError, RelcalError
 from relcal.io import yaml_text
 from relcal.robot.kinematics import Layout, _link_transforms, apply_errors, forward_frames
-from relcal.robot.model import NONGEOMETRIC_KINDS, RobotModel
+from relcal.robot.model import NONGEOMETRIC_KINDS, RobotModel, check_model
 from relcal.robot.urdf import MOVABLE
 
 
@@ -48,8 +49,18 @@ def calibrated_model(model: RobotModel, layout: Layout, params: np.ndarray) -> R
     Raises
     ------
     ArgumentError
-        Fewer than ``layout.size`` values, or values that are not finite.
+        ``model`` not a RobotModel, ``layout`` not a Layout, fewer than ``layout.size`` values,
+        or values that are not finite.
     """
+    check_model(model)
+    check_instance(layout, Layout, "layout", "a Layout (relcal.make_layout(model))")
+    values = check_array(params, "params", (None,), finite=False)
+    if len(values) < layout.size:
+        raise ArgumentError(
+            f"params: {len(values)} values, the layout has {layout.size} parameters (m, rad); "
+            "the estimate of another layout or model? (Result.params of this layout's problem)"
+        )
+    params = values
     name = model.name if model.name.endswith("(calibrated)") else f"{model.name} (calibrated)"
     return replace(apply_errors(model, layout, params[: layout.size]), name=name)
 
@@ -268,9 +279,12 @@ def calibrated_urdf(model: RobotModel) -> bytes:
 
     Raises
     ------
+    ArgumentError
+        ``model`` is not a RobotModel (a robot name or a path: load it first).
     RelcalError
         The model was not loaded from a URDF.
     """
+    check_model(model)
     chain = _require_urdf(model, "calibrated_urdf")
     return _replace_origins(chain.path, chain.data, _changed(model))
 
@@ -407,6 +421,7 @@ def robot_files(model: RobotModel) -> dict[str, bytes]:
     dict of str to bytes
         File name to content.
     """
+    check_model(model)
     if model.urdf is None:
         return {"robot.urdf": urdf(model).encode()}
     files = {

@@ -32,7 +32,7 @@ import numpy as np
 import pydantic
 
 from relcal import geometry as tf
-from relcal.checks import check_instance, describe
+from relcal.checks import check_instance, check_path, describe
 from relcal.errors import ArgumentError, RelcalError
 
 KINDS = ("theta_off", "a", "d", "alpha", "beta")
@@ -591,12 +591,15 @@ def load_model(path: str | Path) -> RobotModel:
 
     Raises
     ------
+    ArgumentError
+        ``path`` is not a str or Path.
     RelcalError
         The file is missing, too large, not YAML, not a robot model, or has a field of the wrong
         type or an unknown field (named with its line).
     """
     from relcal.io import load_yaml
 
+    path = check_path(path, "path", "a robot model YAML file")
     data, node = load_yaml(path)
     if not isinstance(data, dict) or not isinstance(data.get("joints"), list):
         raise RelcalError(

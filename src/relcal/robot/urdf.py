@@ -31,6 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from relcal import geometry as tf
+from relcal.checks import check_path
 from relcal.errors import RelcalError
 from relcal.robot.model import ChainJoint, Inertials, RobotModel, UrdfChain
 
@@ -458,11 +459,13 @@ def load_urdf(
 
     Raises
     ------
+    ArgumentError
+        ``path`` is not a str or Path.
     RelcalError
         An unknown parametrisation, a xacro file, a file that is too large or not a URDF, links
         that are not in the tree or not one serial chain, or an unsupported joint type.
     """
-    path = str(path)
+    path = str(check_path(path, "path", "a URDF file"))
     if parametrisation not in PARAMETRISATIONS:
         raise RelcalError(
             f"{path}: unknown parametrisation '{parametrisation}': use minimal or origins"

@@ -144,7 +144,9 @@ def simulate(
     Raises
     ------
     ArgumentError
-        ``model`` not a :class:`RobotModel`, an unknown choice, or fewer than 3 poses.
+        ``model`` not a :class:`RobotModel`, an unknown choice, fewer than 3 poses, ``noise``
+        not a :class:`Noise`, ``cell`` not a :class:`~relcal.Cell`, ``options`` not
+        :class:`~relcal.SolverOptions`.
 
     Examples
     --------
@@ -154,7 +156,7 @@ def simulate(
     >>> bool(lengths < 1e-9 and angles < 1e-9)
     True
     """
-    from relcal.checks import check_choice, check_number
+    from relcal.checks import check_choice, check_instance, check_number
     from relcal.robot.model import check_model
 
     check_model(model)
@@ -163,6 +165,11 @@ def simulate(
     check_number(n_poses, "n_poses", 3, integer=True)
     check_choice(method, "method", ("published", "lm"))
     check_choice(pairing, "pairing", ("consecutive", "star", "all"))
+    check_instance(noise, Noise, "noise", "a Noise (relcal.Noise(position=, orientation=), m, rad)")
+    if cell is not None:
+        check_instance(cell, Cell, "cell", "a Cell (relcal.Cell()) or None")
+    if options is not None:
+        check_instance(options, SolverOptions, "options", "SolverOptions(method=..., loss=...)")
     rng = np.random.default_rng(seed)
     scenario = make_scenario(
         model,
