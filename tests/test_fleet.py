@@ -261,3 +261,77 @@ def test_a_killed_worker_does_not_stop_the_fleet(fleet, cluster, tmp_path):
         if not any(x.startswith(".") or x.endswith(".prev") for x in p.relative_to(out).parts)
     ]
     assert len(sets) == 19
+
+
+# --------------------------------------------- per-session options as `relcal calibrate` has them
+
+
+def test_a_session_with_kfold_and_both_weightings_is_relcal_calibrates(tmp_path):
+    """``--kfold`` and ``--weighting both`` per session: the same Python API calls as
+    ``relcal calibrate`` (calibrate, then cross_validate), the same numbers, in the session's
+    results.json and its fleet entry; without them neither is there."""
+    from relcal.calibration.pipeline import calibrate, cross_validate
+    from relcal.data.dataset import load_dataset
+    from relcal.data.imaging import measure
+    from relcal.fleet.records import held_out_errors
+    from relcal.fleet.runner import calibrate_session
+    from relcal.reporting.documents import cross_validation_document
+
+    path = write_session(tmp_path / "arm1" / "s1", make_robot("a465", "arm1", 41), 7, n=16)
+    options = {"seed": 0, "nongeometric": "none", "weightings": ("plain", "noise model")}
+    entry = calibrate_session(str(path), "arm1/s1", str(tmp_path / "out"), {**options, "kfold": 2})
+    assert entry["status"] == "ok", entry.get("reason")
+    doc = json.loads(entry["files"]["results.json"])
+    tried = {c["weighting"] for c in doc["model_selection"]["candidates"]}
+    assert tried == {"plain", "noise model"}
+    dataset = load_dataset(path)
+    m = measure(dataset, progress=False)
+    direct = calibrate(dataset, m, **options)
+    assert doc["model_selection"]["chosen"] == direct.selection[direct.chosen].candidate.name
+    folds = cross_validate(dataset, m, k=2, **options)
+    want = cross_validation_document(folds)
+    assert doc["cross_validation"]["k"] == 2 and doc["cross_validation"]["chosen"] == want["chosen"]
+    pooled = held_out_errors({"validation": want["pooled"]})
+    assert entry["kfold"] == 2
+    assert entry["kfold_calibrated_position_rms_mm"] == pytest.approx(
+        pooled["calibrated_position_rms_mm"], rel=1e-9
+    )
+    assert entry["kfold_baseline_position_rms_mm"] == pytest.approx(
+        pooled["baseline_position_rms_mm"], rel=1e-9
+    )
+    assert entry["kfold_calibrated_position_rms_mm"] < entry["kfold_baseline_position_rms_mm"]
+    plain = calibrate_session(str(path), "arm1/s1", str(tmp_path / "out2"), {"seed": 0})
+    assert "kfold" not in plain
+    assert "cross_validation" not in json.loads(plain["files"]["results.json"])
+
+
+def test_a_session_too_small_for_its_folds_fails_alone(tmp_path):
+    """K above half the usable samples: that session fails with the reason, before any fit."""
+    from relcal.fleet.runner import calibrate_session
+
+    path = write_session(tmp_path / "arm1" / "s1", make_robot("a465", "arm1", 41), 7, n=10)
+    entry = calibrate_session(str(path), "s1", str(tmp_path / "out"), {"kfold": 6})
+    assert entry["status"] == "failed"
+    assert "--kfold 6" in entry["reason"] and "K is 2 to 5" in entry["reason"], entry["reason"]
+
+
+def test_fleet_command_passes_kfold_and_weighting_to_every_session(tmp_path, monkeypatch):
+    """The options reach each session's call as relcal calibrate maps them; bad values are
+    refused by argparse (exit 2 naming the option)."""
+    from relcal.fleet import runner
+
+    root = tmp_path / "plant"
+    write_session(root / "arm1" / "s1", make_robot("a465", "arm1", 41), 7, n=10)
+    seen = []
+
+    def fake_run_fleet(sessions, out, options, *args, **kwargs):
+        seen.append(options)
+        return []
+
+    monkeypatch.setattr(runner, "run_fleet", fake_run_fleet)
+    argv = ["fleet", "calibrate", str(root), "--quiet"]
+    assert main([*argv, "--kfold", "3", "--weighting", "both"]) == 0
+    assert main(argv) == 0
+    assert seen[0]["kfold"] == 3 and seen[0]["weightings"] == ("plain", "noise model")
+    assert seen[1]["kfold"] is None and seen[1]["weightings"] == ("plain",)
+    assert main([*argv, "--kfold", "1"]) == 2 and main([*argv, "--weighting", "robust"]) == 2

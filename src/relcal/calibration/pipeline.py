@@ -58,6 +58,10 @@ def cross_validate(
     samples; whole placements for coincidences); ``progress``: a progress bar over the folds."""
     from tqdm import tqdm
 
+    from relcal.checks import check_number
+
+    check_number(k, "k", 2, integer=True)
+    check_number(seed, "seed", integer=True)
     if measurements is None:
         measurements = measure(dataset)
     kind = kind_of(dataset, measurements, options.get("pairing", "all"))

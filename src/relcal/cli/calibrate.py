@@ -69,6 +69,10 @@ def _destinations(out: Path, json_path, report_path=None):
     return items
 
 
+# --weighting: the row weightings tried per candidate (relcal.calibrate's ``weightings``)
+WEIGHTING_CHOICES = {"plain": ("plain",), "both": ("plain", "noise model")}
+
+
 def check_kfold(dataset, k: int | None, usable: int | None = None) -> None:
     """More folds than pairs of samples cannot each hold out a validation pair."""
     from relcal.errors import RelcalError
@@ -189,7 +193,7 @@ def _calibrate(args, dataset, out, holdout_ids, registry) -> int:
         "keep_outliers": args.keep_outliers,
         "selection": args.select,
         "nongeometric": args.nongeometric,
-        "weightings": ("plain",) if args.weighting == "plain" else ("plain", "noise model"),
+        "weightings": WEIGHTING_CHOICES[args.weighting],
     }
     cal = calibrate(
         dataset, m, holdout=args.holdout, seed=args.seed, holdout_ids=holdout_ids, **options
@@ -380,7 +384,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     cp.add_argument(
         "--weighting",
-        choices=("plain", "both"),
+        choices=tuple(WEIGHTING_CHOICES),
         default="plain",
         help="row weightings tried per candidate: plain (default; translation in m, rotation x "
         "0.1 m/rad) or both (also each pair whitened by the learned 6x6 noise)",

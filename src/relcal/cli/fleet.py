@@ -5,10 +5,11 @@ from __future__ import annotations
 import argparse
 from datetime import UTC, datetime
 
-from relcal.cli.calibrate import nongeometric_terms
+from relcal.cli.calibrate import WEIGHTING_CHOICES, nongeometric_terms
 from relcal.cli.common import (
     fraction,
     holdout_fraction,
+    int_at_least,
     json_arg,
     output_file,
     output_folder,
@@ -70,6 +71,8 @@ def _fleet(args: argparse.Namespace, sessions, registry) -> int:
         "keep_outliers": args.keep_outliers,
         "selection": args.select,
         "nongeometric": args.nongeometric,
+        "weightings": WEIGHTING_CHOICES[args.weighting],
+        "kfold": args.kfold,
     }
     started = datetime.now(UTC)
     bar = None
@@ -143,6 +146,9 @@ def fleet_document(args, sessions, entries, elapsed: float, registry) -> dict:
         "baseline_orientation_rms_deg",
         "calibrated_position_rms_mm",
         "calibrated_orientation_rms_deg",
+        "kfold",
+        "kfold_baseline_position_rms_mm",
+        "kfold_calibrated_position_rms_mm",
         "drift",
         "seconds",
     )
@@ -230,6 +236,21 @@ def register(sub: argparse._SubParsersAction) -> None:
         metavar="auto|none|TERMS",
         help="non-geometric candidates, as `relcal calibrate --nongeometric` (default auto; "
         "none: every unit on the geometry alone, so that their corrections compare)",
+    )
+    cp.add_argument(
+        "--weighting",
+        choices=tuple(WEIGHTING_CHOICES),
+        default="plain",
+        help="row weightings tried per candidate, as `relcal calibrate --weighting` (default "
+        "plain; both: also each pair whitened by the learned 6x6 noise)",
+    )
+    cp.add_argument(
+        "--kfold",
+        type=int_at_least(2),
+        metavar="K",
+        help="also K-fold cross-validation of each session, as `relcal calibrate --kfold` (in "
+        "its results.json, pooled RMS in the fleet JSON); a session with fewer than 2K usable "
+        "samples (K placements for coincidence data) fails alone with the reason",
     )
     cp.add_argument(
         "--units-z",

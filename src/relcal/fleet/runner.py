@@ -113,18 +113,22 @@ def _calibrate(
 ) -> dict[str, Any]:
     import numpy as np
 
-    from relcal.calibration.pipeline import calibrate
+    from relcal.calibration.kinds.dispatch import kind_of
+    from relcal.calibration.pipeline import calibrate, cross_validate
     from relcal.data.dataset import load_dataset
     from relcal.data.imaging import measure
     from relcal.fleet.records import calibration_record, held_out_errors
     from relcal.outputset import Folder, check, inputs, new_run_id
-    from relcal.reporting.documents import results_document
+    from relcal.reporting.documents import cross_validation_document, results_document
     from relcal.reporting.outputs import calibration_files
 
+    kfold = options.pop("kfold", None)  # as `relcal calibrate --kfold`: folds after the fit
     dataset = load_dataset(path)
     check([Folder(out, what="outputs")])  # refused before the work (an input, a foreign folder)
     with np.errstate(all="ignore"):
         m = measure(dataset, workers=1, progress=False)
+        if kfold:
+            kind_of(dataset, m).folds(kfold, options.get("seed", 0))  # too few: fail first
         cal = calibrate(dataset, m, **options)
         doc = results_document(cal)
     if cal.hurts:  # as `relcal calibrate`: a model worse than the baseline is not written
@@ -139,6 +143,18 @@ def _calibrate(
             f"against {val.rms('before'):.3f} mm); nothing written",
             **held_out_errors(doc),
         }
+    cross: dict[str, Any] = {}
+    if kfold:
+        per_fold = {k: v for k, v in options.items() if k not in ("holdout", "seed")}
+        with np.errstate(all="ignore"):
+            folds = cross_validate(dataset, m, k=kfold, seed=options.get("seed", 0), **per_fold)
+        doc["cross_validation"] = cross_validation_document(folds)
+        pooled = held_out_errors({"validation": doc["cross_validation"]["pooled"]})
+        cross = {
+            "kfold": kfold,
+            "kfold_baseline_position_rms_mm": pooled["baseline_position_rms_mm"],
+            "kfold_calibrated_position_rms_mm": pooled["calibrated_position_rms_mm"],
+        }
     run_id = new_run_id()
     record = calibration_record(cal, doc, outputs=out, session=name, robot_id=robot_id)
     return {
@@ -148,6 +164,7 @@ def _calibrate(
         "reason": None if cal.result.converged else "the identification did not converge",
         "outputs": str(out.resolve()),
         **held_out_errors(doc),
+        **cross,
         "record": record,
         # installed by the client with the record (install_session): the files of `relcal
         # calibrate`, and what this session read (never written over)

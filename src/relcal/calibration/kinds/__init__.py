@@ -125,8 +125,15 @@ class MeasurementKind:
         return usable, np.zeros(0, dtype=int)
 
     def folds(self, k: int, seed: int) -> list[list[str]]:
-        """The held-out ids (:meth:`split`'s ``holdout_ids``) of each of ``k`` folds."""
+        """The held-out ids (:meth:`split`'s ``holdout_ids``) of each of ``k`` folds; each fold
+        holds out at least 2 usable samples (a pair), so ``k`` is 2 to half of them."""
         usable = self.usable()
+        if not 2 <= k <= len(usable) // 2:
+            raise RelcalError(
+                f"--kfold {k}: {self.dataset.spec_path.parent if self.dataset.spec_path else ''} "
+                f"has {len(usable)} usable samples; each fold needs at least 2 held-out samples, "
+                f"so K is 2 to {len(usable) // 2}"
+            )
         return [[self.dataset.ids[i] for i in usable[f]] for f in folds(len(usable), k, seed)]
 
     def sample_indices(self, ids: Sequence[str]) -> np.ndarray:
