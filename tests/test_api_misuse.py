@@ -277,6 +277,33 @@ MISUSE.update(
             lambda a: relcal.Cell(handeye=np.full((4, 4), np.nan)),
             ("Cell.handeye", "not finite"),
         ),
+        "problem-layout-of-a-7-joint-robot": (
+            lambda a: problem(a, layout=relcal.make_layout(relcal.get_robot("franka_fr3")))(),
+            ("Problem.layout", "theta_off[7]", "6 joints", "another model"),
+        ),
+        "apply-errors-layout-of-a-7-joint-robot": (
+            lambda a: relcal.apply_errors(
+                a["model"], relcal.make_layout(relcal.get_robot("franka_fr3")), np.zeros(28)
+            ),
+            ("layout", "theta_off[7]", "another model"),
+        ),
+        "identify-identifiability-an-array": (
+            lambda a: relcal.identify(problem(a)(), None, np.zeros(3)),
+            ("identifiability", "analyse_problem"),
+        ),
+        "make-layout-base-a-string": (
+            lambda a: relcal.make_layout(a["model"], base="yes"),
+            ("base", "True or False"),
+        ),
+        "measure-progress-a-string": (
+            lambda a: relcal.measure(a["dataset"], progress="no"),
+            ("progress", "True or False"),
+        ),
+        "calibrate-keep-outliers-a-string": (
+            lambda a: relcal.calibrate(a["dataset"], keep_outliers="no"),
+            ("keep_outliers", "True or False"),
+        ),
+        "simulate-seed-a-string": (lambda a: relcal.simulate(a["model"], seed="x"), ("seed",)),
         "simulate-noise-a-number": (
             lambda a: relcal.simulate(a["model"], noise=1e-4),
             ("noise", "Noise"),

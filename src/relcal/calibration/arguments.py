@@ -6,7 +6,7 @@ from __future__ import annotations
 from typing import Any
 
 from relcal.calibration.selection import WEIGHTINGS
-from relcal.checks import check_choice, check_names, check_number, describe
+from relcal.checks import check_choice, check_flag, check_names, check_number, describe
 from relcal.data.dataset import check_dataset
 from relcal.data.imaging import check_measurements
 from relcal.errors import ArgumentError
@@ -26,6 +26,7 @@ def check_calibrate(
     selection: Any,
     nongeometric: Any = "auto",
     weightings: Any = ("plain",),
+    keep_outliers: Any = False,
 ) -> None:
     """The arguments of :func:`relcal.calibrate`."""
     check_dataset(dataset)
@@ -54,3 +55,4 @@ def check_calibrate(
     else:
         check_names(nongeometric, "nongeometric", NONGEOMETRIC, "['scale']", empty=True)
     check_names(weightings, "weightings", WEIGHTINGS, "['plain']")
+    check_flag(keep_outliers, "keep_outliers")

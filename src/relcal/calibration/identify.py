@@ -820,6 +820,13 @@ def identify(
     check_measured(problem)
     if options is not None:
         check_instance(options, SolverOptions, "options", "SolverOptions(method=..., loss=...)")
+    if identifiability is not None:
+        check_instance(
+            identifiability,
+            Identifiability,
+            "identifiability",
+            "an Identifiability (relcal.analyse_problem(problem)) or None",
+        )
     o = options or SolverOptions()
     if o.method == "published":
         return identify_published(problem, o.rcond, o.tol, o.max_iterations, identifiability)

@@ -37,7 +37,6 @@ from relcal._renamed import UNSET
 from relcal.checks import (
     check_array,
     check_choice,
-    check_instance,
     check_joints,
     check_pairs,
     check_transform,
@@ -47,6 +46,7 @@ from relcal.errors import ArgumentError, RelcalError
 from relcal.robot.kinematics import (
     Layout,
     apply_errors,
+    check_layout,
     fk,
     make_layout,
     pose_jacobian,
@@ -514,7 +514,7 @@ def check_problem(problem) -> dict[str, Any]:
     (called by its ``__post_init__``)."""
     p = "Problem"
     check_model(problem.model, f"{p}.model")
-    check_instance(problem.layout, Layout, f"{p}.layout", "a Layout (relcal.make_layout(model))")
+    check_layout(problem.layout, problem.model, f"{p}.layout")
     check_choice(problem.formulation, f"{p}.formulation", get_args(Formulation))
     check_choice(problem.measure, f"{p}.measure", MEASURES)
     model = problem.model

@@ -86,11 +86,12 @@ def measure(
     RelcalError
         No image shows the board (with the likely cause).
     """
-    from relcal.checks import check_number
+    from relcal.checks import check_flag, check_number
 
     check_dataset(dataset)
     check_number(workers, "workers", 1, integer=True)
     check_number(max_rms, "max_rms", 0, low_open=True)
+    check_flag(progress, "progress")
     n = len(dataset.ids)
     if dataset.poses is not None:
         return Measurements(

@@ -30,7 +30,7 @@ from typing import Any, Literal
 import numpy as np
 
 from relcal import geometry as tf
-from relcal.checks import check_array, check_instance
+from relcal.checks import check_array, check_flag, check_instance
 from relcal.errors import ArgumentError, RelcalError
 from relcal.robot.model import KINDS, NONGEOMETRIC_KINDS, RobotModel, check_model
 
@@ -202,6 +202,8 @@ def make_layout(model: RobotModel, base: bool = False, tool: bool = False) -> La
     (24, ('theta_off[1]', 'theta_off[2]', 'theta_off[3]'))
     """
     check_model(model)
+    check_flag(base, "base")
+    check_flag(tool, "tool")
     if model.urdf is not None and model.urdf.parametrisation == "origins":
         return origins_layout(model, base, tool)
     n = model.n_joints
@@ -295,6 +297,7 @@ def apply_errors(model: RobotModel, layout: Layout, errors: np.ndarray) -> Robot
     0.331
     """
     check_model(model)
+    check_layout(layout, model)
     errors = check_errors(errors, layout)
     folded: tuple[str, ...] = ()
     if "origin" in layout.kinds:
@@ -812,3 +815,18 @@ def check_errors(errors: Any, layout, name: str = "errors") -> np.ndarray:
         hint=f"one value per parameter of the layout ({size}: {names}; m and rad); a vector "
         "made for another layout or model?",
     )
+
+
+def check_layout(layout: Any, model: RobotModel, name: str = "layout") -> Layout:
+    """``layout`` is a :class:`Layout` whose joint entries fit ``model`` (a layout made for a
+    robot with more joints is refused naming its first entry beyond ``model``'s joints)."""
+    check_instance(layout, Layout, name, "a Layout (relcal.make_layout(model))")
+    n = model.n_joints
+    for entry, (kind, i) in zip(layout.names, layout, strict=True):
+        joint = i // 6 if kind == "origin" else i
+        if (kind in KINDS or kind in NONGEOMETRIC_KINDS or kind == "origin") and joint >= n:
+            raise ArgumentError(
+                f"{name}: entry {entry!r} is of joint {joint + 1}, the robot {model.name!r} has "
+                f"{n} joints; a layout made by make_layout of another model?"
+            )
+    return layout

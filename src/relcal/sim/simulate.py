@@ -165,6 +165,8 @@ def simulate(
     check_number(n_poses, "n_poses", 3, integer=True)
     check_choice(method, "method", ("published", "lm"))
     check_choice(pairing, "pairing", ("consecutive", "star", "all"))
+    if not isinstance(seed, np.random.Generator | np.random.SeedSequence):
+        check_number(seed, "seed", 0, integer=True)
     check_instance(noise, Noise, "noise", "a Noise (relcal.Noise(position=, orientation=), m, rad)")
     if cell is not None:
         check_instance(cell, Cell, "cell", "a Cell (relcal.Cell()) or None")
