@@ -303,6 +303,14 @@ MISUSE.update(
             lambda a: relcal.calibrate(a["dataset"], keep_outliers="no"),
             ("keep_outliers", "True or False"),
         ),
+        "from-arrays-mode-unknown": (
+            lambda a: relcal.Dataset.from_arrays(a["model"], a["q"], a["poses"], mode="weird"),
+            ("mode", "eye_in_hand"),
+        ),
+        "from-arrays-handeye-3x3": (
+            lambda a: relcal.Dataset.from_arrays(a["model"], a["q"], a["poses"], handeye=np.eye(3)),
+            ("handeye", "(4, 4)"),
+        ),
         "simulate-seed-a-string": (lambda a: relcal.simulate(a["model"], seed="x"), ("seed",)),
         "simulate-noise-a-number": (
             lambda a: relcal.simulate(a["model"], noise=1e-4),

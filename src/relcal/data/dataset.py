@@ -292,9 +292,10 @@ class Dataset:
 
         Raises
         ------
-        RelcalError
-            An argument of the wrong shape, not finite, not a rigid transform, or in a unit
-            that looks wrong (degrees given as radians), naming the argument and the cause.
+        ArgumentError
+            An argument of the wrong type or shape, not finite, not a rigid transform, or in a
+            unit that looks wrong (degrees given as radians), naming the argument and the cause
+            (a :class:`~relcal.RelcalError` and a ``ValueError``).
 
         Examples
         --------
@@ -329,10 +330,12 @@ def _array(name: str, value, what: str) -> np.ndarray:
     try:
         out = np.asarray(value, dtype=float)
     except (TypeError, ValueError) as exc:
-        raise RelcalError(f"{name}: expected {what}, got {type(value).__name__} ({exc})") from None
+        raise ArgumentError(
+            f"{name}: expected {what}, got {type(value).__name__} ({exc})"
+        ) from None
     if not np.all(np.isfinite(out)):
         bad = np.argwhere(~np.isfinite(out))[0]
-        raise RelcalError(f"{name}: {what}; entry {tuple(int(i) for i in bad)} is not finite")
+        raise ArgumentError(f"{name}: {what}; entry {tuple(int(i) for i in bad)} is not finite")
     return out
 
 
@@ -345,7 +348,7 @@ def _rigid(name: str, transforms: np.ndarray) -> None:
     if bad.size:
         k = int(bad[0])
         where = f"{name}[{k}]" if transforms.ndim == 3 else name
-        raise RelcalError(
+        raise ArgumentError(
             f"{where}: not a rigid transform (rotation part orthonormal with determinant +1, last "
             f"row 0 0 0 1); {len(bad)} of them are not: transposed matrices, a scale, or rows "
             "in another layout?"
@@ -360,52 +363,52 @@ def _from_arrays(
     if isinstance(model, str | Path):
         model = get_robot(model)
     if not isinstance(model, RobotModel):
-        raise RelcalError(f"model: expected a RobotModel or a robot name/file, got {model!r}")
+        raise ArgumentError(f"model: expected a RobotModel or a robot name/file, got {model!r}")
     if hayati not in ("auto", "off"):
-        raise RelcalError(f"hayati: {hayati!r}; use 'auto' or 'off'")
+        raise ArgumentError(f"hayati: {hayati!r}; use 'auto' or 'off'")
     if hayati == "auto":
         model = auto_hayati(model)
     if mode not in ("eye_in_hand", "eye_to_hand"):
-        raise RelcalError(f"mode: {mode!r}; use 'eye_in_hand' or 'eye_to_hand'")
+        raise ArgumentError(f"mode: {mode!r}; use 'eye_in_hand' or 'eye_to_hand'")
     if joint_unit not in ("rad", "deg"):
-        raise RelcalError(f"joint_unit: {joint_unit!r}; use 'rad' or 'deg'")
+        raise ArgumentError(f"joint_unit: {joint_unit!r}; use 'rad' or 'deg'")
     n = model.n_joints
     q = _array("q", q, f"joint values of shape (N, {n})")
     if q.ndim != 2 or q.shape[1] != n:
-        raise RelcalError(
+        raise ArgumentError(
             f"q: shape {q.shape}, expected (N, {n}) for the {n}-joint robot '{model.name}' (one "
             "row per sample, one column per joint" + ("; one sample needs q[None]" if q.ndim == 1
             else "; transposed?" if q.ndim == 2 and q.shape[0] == n else "") + ")"
         )  # fmt: skip
     if len(q) < 4:
-        raise RelcalError(f"q: {len(q)} samples; at least 4 are needed (many more to calibrate)")
+        raise ArgumentError(f"q: {len(q)} samples; at least 4 are needed (many more to calibrate)")
     revolute = ~model.prismatic
     if revolute.any():
         peak = np.abs(q[:, revolute]).max()
         if joint_unit == "rad" and peak > 2 * np.pi + 0.1:
-            raise RelcalError(
+            raise ArgumentError(
                 f"q: joint angles reach {peak:.1f}, which looks like degrees, but joint_unit is "
                 "'rad' (pass joint_unit='deg', or np.radians(q))"
             )
         if joint_unit == "deg" and len(q) >= 5 and peak < np.pi + 0.05 and np.abs(q).mean() > 1e-3:
-            raise RelcalError(
+            raise ArgumentError(
                 f"q: no joint angle exceeds {peak:.2f}, which looks like radians, but joint_unit "
                 "is 'deg'"
             )
     q = joints_from_unit(model, q, joint_unit)
     if (poses is None) == (images is None):
-        raise RelcalError("give either poses (measured poses or positions) or images, not both")
+        raise ArgumentError("give either poses (measured poses or positions) or images, not both")
     measured: Measured
     image_paths = None
     if images is not None:
         image_paths = tuple(Path(p) for p in images)
         if len(image_paths) != len(q):
-            raise RelcalError(f"images: {len(image_paths)} paths for {len(q)} samples in q")
+            raise ArgumentError(f"images: {len(image_paths)} paths for {len(q)} samples in q")
         missing = [p for p in image_paths if not p.is_file()]
         if missing:
-            raise RelcalError(f"images: file not found: {missing[0]} ({len(missing)} missing)")
+            raise ArgumentError(f"images: file not found: {missing[0]} ({len(missing)} missing)")
         if board is None or camera is None:
-            raise RelcalError(
+            raise ArgumentError(
                 "images need board= (relcal.vision.boards.load_board) and camera= (intrinsics, "
                 "relcal.vision.camera.load_camera, or 'calibrate')"
             )
@@ -414,7 +417,7 @@ def _from_arrays(
         pose_arr = _array("poses", poses, "measured poses (N, 4, 4), (N, 7) or positions (N, 3)")
         shape = pose_arr.shape
         if shape[:1] != (len(q),):
-            raise RelcalError(
+            raise ArgumentError(
                 f"poses: {shape[0] if shape else 0} measurements for {len(q)} samples in q "
                 f"(shape {shape}): one per row of q"
             )
@@ -430,18 +433,18 @@ def _from_arrays(
             pose_arr[:, :3, 3] = positions
             measured = "position"
         else:
-            raise RelcalError(
+            raise ArgumentError(
                 f"poses: shape {shape}; expected (N, 4, 4) homogeneous transforms, (N, 7) rows "
                 "x, y, z, qx, qy, qz, qw (m, unit quaternion, x-first), or (N, 3) positions (m)"
             )
     if handeye is not None:
         handeye = _array("handeye", handeye, "a (4, 4) transform")
         if handeye.shape != (4, 4):
-            raise RelcalError(f"handeye: shape {handeye.shape}, expected (4, 4) (metres)")
+            raise ArgumentError(f"handeye: shape {handeye.shape}, expected (4, 4) (metres)")
         _rigid("handeye", handeye)
     ids = tuple(str(k) for k in range(len(q))) if ids is None else tuple(str(i) for i in ids)
     if len(ids) != len(q) or len(set(ids)) != len(ids):
-        raise RelcalError(f"ids: {len(ids)} ids for {len(q)} samples; each sample one unique id")
+        raise ArgumentError(f"ids: {len(ids)} ids for {len(q)} samples; each sample one unique id")
     return cls(
         Path(root),
         model,
