@@ -15,9 +15,11 @@ For each pose, in the plan's order (see :func:`capture`):
 3. **Wait until still**: joints are read every ``poll`` seconds; the arm is still when, over the
    last ``settle_window`` seconds, every joint's readings span at most ``settle_threshold``
    (peak to peak: this is "|dq| below a threshold over a window" from positions, robust to
-   encoder noise) and, where the driver reports joint velocities (:attr:`JointReading.dq`:
-   franky, ur_rtde), every reading's ``|dq|`` is at most ``settle_velocity`` (a creep or a slow
-   swing the window's positions hide). Not still within ``settle_timeout``: the attempt fails.
+   encoder noise) and, with ``settle_velocity`` set and a driver that reports joint velocities
+   (:attr:`JointReading.dq`: franky, ur_rtde), every reading's ``|dq|`` is at most
+   ``settle_velocity`` (a vibration too small for the positions' threshold). Off by default:
+   velocities are noisier than positions (franky-sim's chatter at 0.08 rad/s on an arm at rest,
+   whose positions span 0.005 deg). Not still within ``settle_timeout``: the attempt fails.
    "The move returned" is never taken for "the arm is still": how fast the arm still moved when
    the move returned, and how long it then took to become still, are kept per sample.
 4. **Final joint error**: the mean of the readings in the still window must be within
@@ -77,8 +79,7 @@ class CaptureSettings:
         s between joint readings while waiting.
     settle_velocity : float or None
         rad/s (m/s): largest ``|dq|`` of any joint over the still window, for drivers that report
-        velocities; default ``settle_threshold / settle_window`` (a joint at that speed would
-        cross the threshold within the window).
+        velocities (``None``, the default: positions only).
     joint_tolerance : float
         rad (m): largest difference between the still mean and the target on any joint.
     frame_timeout : float
@@ -135,13 +136,6 @@ class CaptureSettings:
                 f"capture settings: the settle window ({self.settle_window} s) must be shorter "
                 f"than the settle timeout ({self.settle_timeout} s)"
             )
-
-    @property
-    def velocity_limit(self) -> float:
-        """rad/s (m/s): :attr:`settle_velocity` or its default."""
-        if self.settle_velocity is not None:
-            return self.settle_velocity
-        return self.settle_threshold / self.settle_window
 
 
 @dataclass(frozen=True)
@@ -376,14 +370,15 @@ def judge_frame(
 
 
 def speed_of(first: JointReading, second: JointReading | None = None) -> float:
-    """The largest joint speed (rad/s, m/s) at ``first``: its reported velocities, else the
-    difference to the next reading ``second`` over their stamps (``nan`` without either)."""
+    """The largest joint speed (rad/s, m/s) at ``first``: the difference to the next reading
+    ``second`` over their stamps, else ``first``'s reported velocities (``nan`` without
+    either). Positions first: reported velocities can be noisier than the motion measured."""
+    if second is not None and second.stamp > first.stamp:
+        step = np.asarray(second.q, float) - np.asarray(first.q, float)
+        return float(np.abs(step).max() / (second.stamp - first.stamp))
     if first.dq is not None:
         return float(np.abs(np.asarray(first.dq, float)).max())
-    if second is None or second.stamp <= first.stamp:
-        return float("nan")
-    step = np.asarray(second.q, float) - np.asarray(first.q, float)
-    return float(np.abs(step).max() / (second.stamp - first.stamp))
+    return float("nan")
 
 
 def still_spread(window: Sequence[JointReading]) -> tuple[np.ndarray, float | None]:
@@ -401,8 +396,8 @@ def wait_until_still(
     robot: Robot, clock: Clock, settings: CaptureSettings
 ) -> tuple[list[JointReading], float, float]:
     """Read the joints until they have been still for ``settle_window`` seconds: positions
-    within ``settle_threshold`` peak to peak, and reported velocities (where the driver gives
-    them) within :attr:`CaptureSettings.velocity_limit`.
+    within ``settle_threshold`` peak to peak, and with ``settle_velocity`` set, reported
+    velocities (where the driver gives them) within it.
 
     Returns
     -------
@@ -422,7 +417,7 @@ def wait_until_still(
     history: list[JointReading] = []
     first: list[JointReading] = []
     spread, fastest = np.inf, None
-    limit = settings.velocity_limit
+    limit = settings.settle_velocity
     while True:
         reading = robot.read()
         dq = None if reading.dq is None else np.asarray(reading.dq, float)
@@ -440,16 +435,19 @@ def wait_until_still(
                 spread_j, fastest = still_spread(window)
                 spread = float(spread_j.max())
                 if np.all(spread_j <= settings.settle_threshold) and (
-                    fastest is None or fastest <= limit
+                    limit is None or fastest is None or fastest <= limit
                 ):
                     return window, window[0].stamp, speed_of(*first)
         if clock.now() - begin > settings.settle_timeout:
             shown = "no full window" if not np.isfinite(spread) else f"{spread / DEG:.4f} deg"
-            speed = "" if fastest is None else f", speed up to {fastest / DEG:.4f} deg/s"
+            speed = limits = ""
+            if limit is not None and fastest is not None:
+                speed = f", speed up to {fastest / DEG:.4f} deg/s"
+                limits = f", {limit / DEG:.4f} deg/s"
             raise _Failed(
                 f"not still: joints still moving after {settings.settle_timeout:g} s "
                 f"(spread over the last {settings.settle_window:g} s: {shown}{speed}, threshold "
-                f"{settings.settle_threshold / DEG:.4f} deg, {limit / DEG:.4f} deg/s)"
+                f"{settings.settle_threshold / DEG:.4f} deg{limits})"
             )
         clock.sleep(settings.poll)
 
