@@ -95,9 +95,9 @@ def test_plan_capture_calibrate_recovers_the_planted_errors(tmp_path, robot, see
 
 
 def usable_poses(robot: str, seed: int, plan: Path) -> list[int]:
-    """Rows of the plan whose ideal image (no faults, no noise) passes the frame gates: the
-    planner does not check what the robot's own links hide (one pose in ten or so shows a link
-    in front of the board, which the loop rightly skips)."""
+    """Rows of the plan whose ideal image (no faults, no noise) passes the frame gates (the
+    planner's line-of-sight check uses capsules about the skeleton, not the rendered links, so
+    a rare pose may still show a link over a corner, which the loop rightly skips)."""
     from relcal.capture.loop import judge_frame
     from relcal.capture.virtual import make_cell
 
