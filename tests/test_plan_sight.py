@@ -74,7 +74,9 @@ def test_skeleton_check_agrees_with_a_brute_force_distance():
 
 ARM = """<?xml version="1.0"?>
 <robot name="column_arm">
-  <link name="base_link"/>
+  <link name="base_link">
+    <collision><origin xyz="0.5 0 0.05"/><geometry><box size="0.1 0.1 0.1"/></geometry></collision>
+  </link>
   <joint name="j1" type="revolute"><parent link="base_link"/><child link="column"/>
     <origin xyz="0 0 0.1"/><axis xyz="0 0 1"/><limit lower="-3" upper="3" effort="1" velocity="1"/>
   </joint>
@@ -91,7 +93,9 @@ ARM = """<?xml version="1.0"?>
   </link>
   <joint name="tool" type="fixed"><parent link="upper"/><child link="tool0"/>
     <origin xyz="0.3 0 0"/></joint>
-  <link name="tool0"/>
+  <link name="tool0">
+    <collision><geometry><sphere radius="0.03"/></geometry></collision>
+  </link>
 </robot>
 """
 
@@ -114,11 +118,18 @@ def test_urdf_check_uses_the_collision_geometry(tmp_path):
     np.testing.assert_array_equal(
         urdf_sight_free(geometry, q, lines), [False, False, False, True, True, True]
     )
-    # the upper arm (along x from the column's top at z = 0.4, radius 0.03) turned by j1 out of
-    # the way of a line over (0.15, 0, 0.4), then into it
-    over = np.array([[[[0.15, -0.2, 0.4], [0.15, 0.2, 0.4]]]] * 2)
+    # the upper arm and the sphere on the tool link move with the camera (no pose changes what
+    # they hide) and are left out; the column and a static body (the box on the base, off the
+    # chain) hide the view
+    from relcal.design.sight import camera_bodies
+
+    assert sorted(geometry.bodies[k].link for k in camera_bodies(geometry)) == ["tool0", "upper"]
+    over_upper = [[0.15, -0.2, 0.4], [0.15, 0.2, 0.4]]  # across the upper arm at q = 0
+    base_box = [[0.5, -0.3, 0.05], [0.5, 0.3, 0.05]]
+    tool_sphere = [[0.31, -0.2, 0.4], [0.31, 0.2, 0.4]]
+    lines = np.array([[base_box], [tool_sphere], [over_upper]])
     np.testing.assert_array_equal(
-        urdf_sight_free(geometry, np.array([[np.pi / 2, 0.0], [0.0, 0.0]]), over), [True, False]
+        urdf_sight_free(geometry, np.zeros((3, 2)), lines), [False, True, True]
     )
 
 

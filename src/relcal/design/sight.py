@@ -15,7 +15,10 @@ is blocked when any sight line passes through the robot:
   ``<collision>``): exact segment-to-segment distances, vectorised over poses;
 - with the URDF's own collision geometry through python-fcl where the chain has some
   (:class:`relcal.design.urdf_collision.UrdfCollision`): each sight line a capsule of radius
-  ``ray_radius`` checked against every moving body.
+  ``ray_radius`` checked against every body of the file (those off the chain, such as a mobile
+  manipulator's torso and head, at their joints' zero), except those rigidly attached to the flange
+  (a gripper, the camera's mount: they move with the camera, so no pose changes what they hide;
+  :func:`camera_bodies`).
 
 A grid of 5 x 5 lines misses an obstacle thinner than the gap between neighbouring lines where
 they pass it (about a quarter of the pattern's size at the board, less near the camera); links
@@ -94,7 +97,7 @@ def skeleton_sight_free(
 
 def urdf_sight_free(geometry, q: np.ndarray, lines: np.ndarray, ray_radius: float = 1e-3):
     """Mask ``(N,)``: no sight line of ``lines`` ``(N, R, 2, 3)``, as a capsule of
-    ``ray_radius`` (m), touches a moving collision body of ``geometry``
+    ``ray_radius`` (m), touches a collision body of ``geometry`` (except :func:`camera_bodies`)
     (:class:`~relcal.design.urdf_collision.UrdfCollision`) at configurations ``q`` ``(N, n)``."""
     fcl = geometry.fcl
     q = np.atleast_2d(q)
@@ -103,20 +106,21 @@ def urdf_sight_free(geometry, q: np.ndarray, lines: np.ndarray, ray_radius: floa
     if not len(q):
         return ok
     poses = geometry.poses(q)  # (N, B, 4, 4)
-    moving = [k for k, b in enumerate(geometry.bodies) if geometry._moves(b.link)]
-    radius = np.array([geometry.bodies[k].radius for k in moving])
-    objects = [fcl.CollisionObject(geometry.bodies[k].geometry, fcl.Transform()) for k in moving]
+    rigid = camera_bodies(geometry)
+    checked = [k for k in range(len(geometry.bodies)) if k not in rigid]  # static ones too
+    radius = np.array([geometry.bodies[k].radius for k in checked])
+    objects = [fcl.CollisionObject(geometry.bodies[k].geometry, fcl.Transform()) for k in checked]
     request = fcl.CollisionRequest()
     for n in range(len(q)):
         a, b = lines[n, :, 0], lines[n, :, 1]
-        centres = poses[n, moving, :3, 3]  # (M, 3)
+        centres = poses[n, checked, :3, 3]  # (M, 3)
         # bounding spheres first: the distance from each body's centre to each line
         gap = segment_distance(a[:, None], b[:, None], centres[None], centres[None])  # (R, M)
         near = gap <= radius[None] + ray_radius
         if not near.any():
             continue
         for m in np.flatnonzero(near.any(axis=0)):
-            k = moving[m]
+            k = checked[m]
             objects[m].setTransform(fcl.Transform(poses[n, k, :3, :3], poses[n, k, :3, 3]))
         for r, m in zip(*np.nonzero(near), strict=True):
             axis = b[r] - a[r]
@@ -129,6 +133,24 @@ def urdf_sight_free(geometry, q: np.ndarray, lines: np.ndarray, ray_radius: floa
                 ok[n] = False
                 break
     return ok
+
+
+def camera_bodies(geometry, probes: int = 3, seed: int = 0) -> set[int]:
+    """Indices of the bodies of ``geometry`` rigidly attached to the flange (the tip link and
+    links fixed to it: a gripper, the camera's mount): they move with the camera, so no pose
+    changes what they hide, and they are left out of the line of sight. Found as the bodies whose
+    pose relative to the flange is the same in ``probes`` random configurations."""
+    from relcal.robot.kinematics import fk
+
+    model = geometry.model
+    rng = np.random.default_rng(seed)
+    lo = np.where(np.isfinite(model.lower), model.lower, -np.pi)
+    hi = np.where(np.isfinite(model.upper), model.upper, np.pi)
+    q = rng.uniform(lo, hi, (probes, model.n_joints))
+    flange = fk(model, q)  # (P, 4, 4)
+    relative = tf.invert(flange)[:, None] @ geometry.poses(q)  # (P, B, 4, 4)
+    same = np.abs(relative - relative[:1]).max(axis=(0, 2, 3)) < 1e-9
+    return {int(k) for k in np.flatnonzero(same)}
 
 
 def _z_to(axis: np.ndarray) -> np.ndarray:
