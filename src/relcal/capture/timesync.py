@@ -33,6 +33,8 @@ from relcal.errors import require
 __all__ = ["ClockMap", "clock_rate", "require"]
 
 RATE_DEAD_BAND = 0.02  # rates within 2 % of 1 are taken as 1
+RATE_BIN = 0.005  # s of device time: the rate is estimated from the least delayed sample of each
+RATE_EVERY = 10  # bins between two estimates of the rate
 
 
 def clock_rate(device: np.ndarray, received: np.ndarray, min_span: float = 0.3) -> float | None:
@@ -83,30 +85,57 @@ class ClockMap:
         self.clock = clock or RealClock()
         self.window = float(window)
         self.rate_window = float(rate_window)
-        self._history: deque[tuple[float, float]] = deque()  # (device stamp, received)
+        self._recent: deque[tuple[float, float]] = deque()  # (device stamp, received)
+        self._bins: deque[tuple[int, float, float]] = deque()  # (bin, device stamp, received)
+        self._newest = -np.inf  # the newest device stamp seen
         self.rate: float | None = None  # loop seconds per device second (None: not known yet)
 
     def observe(self, device_stamp: float, received: float | None = None) -> float:
         """Record one sample stamped ``device_stamp`` (s, device clock) received at ``received``
-        (s, loop clock; default now) and return its stamp on the loop clock."""
-        now = self.clock.now() if received is None else received
-        history = self._history
-        keep = max(self.window, self.rate_window)
-        if history and device_stamp < history[-1][0] - self.window:
-            history.clear()  # the device clock restarted: everything goes
+        (s, loop clock; default now) and return its stamp on the loop clock.
+
+        Cost: the samples of the last ``window`` device seconds, plus every
+        :data:`RATE_EVERY` bins of :data:`RATE_BIN` device seconds a rate estimate over at most
+        ``rate_window / RATE_BIN`` samples (about 0.2 ms, 20 times a device second)."""
+        d = float(device_stamp)
+        now = float(self.clock.now() if received is None else received)
+        if d < self._newest - self.window:  # the device clock restarted: everything goes
+            self._recent.clear()
+            self._bins.clear()
+            self._newest = -np.inf
             self.rate = None
-        while history and history[0][0] < device_stamp - keep:
-            history.popleft()  # too old
-        history.append((float(device_stamp), float(now)))
+        self._newest = max(self._newest, d)
+        recent = self._recent
+        recent.append((d, now))
+        while recent and recent[0][0] < self._newest - self.window:
+            recent.popleft()
         if self.rate_window <= 0:
             self.rate = 1.0
-        elif len(history) > 1:
-            stamps = np.array(history)
+        else:
+            self._bin(d, now)
+        return self.to_loop(d)
+
+    def _bin(self, d: float, now: float) -> None:
+        """Keep the least delayed sample of each :data:`RATE_BIN` of device time; re-estimate
+        the rate every :data:`RATE_EVERY` bins (every bin while it is not known)."""
+        bins = self._bins
+        index = int(np.floor(d / RATE_BIN))
+        slope = 1.0 if self.rate is None else self.rate
+        for k in range(len(bins) - 1, max(len(bins) - 6, -1), -1):  # the newest few bins
+            b, bd, br = bins[k]
+            if b == index:
+                if now - slope * d < br - slope * bd:
+                    bins[k] = (index, d, now)
+                return
+        bins.append((index, d, now))
+        while bins and bins[0][1] < self._newest - self.rate_window:
+            bins.popleft()
+        if len(bins) > 2 and (self.rate is None or index % RATE_EVERY == 0):
+            stamps = np.array([(bd, br) for _, bd, br in bins])
             stamps = stamps[np.argsort(stamps[:, 0], kind="stable")]  # delivered out of order
             rate = clock_rate(stamps[:, 0], stamps[:, 1])
             # within the dead band the estimate is latency noise (crystals differ by 1e-5)
             self.rate = 1.0 if rate is not None and abs(rate - 1.0) < RATE_DEAD_BAND else rate
-        return self.to_loop(device_stamp)
 
     def to_loop(self, device_stamp: float) -> float:
         """``device_stamp`` (s, device clock) on the loop clock, with the offset known so far:
@@ -114,22 +143,17 @@ class ClockMap:
         ``window`` device seconds. While the rate is not known yet (the first ``0.3`` device
         seconds), only the newest sample is used, at rate 1: late by its latency, never early by
         a slowdown."""
-        if not self._history:
+        if not self._recent:
             raise RuntimeError("ClockMap.to_loop before any observed sample")
-        newest = max(d for d, _ in self._history)
         if self.rate is None:
-            return min(r + device_stamp - d for d, r in self._history if d == newest)
-        return min(
-            r + self.rate * (device_stamp - d)
-            for d, r in self._history
-            if d >= newest - self.window
-        )
+            return min(r + device_stamp - d for d, r in self._recent if d == self._newest)
+        rate = self.rate
+        return min(r + rate * (device_stamp - d) for d, r in self._recent)
 
     @property
     def offset(self) -> float | None:
         """Loop clock minus device clock (s, plus the smallest latency) at the newest sample,
         ``None`` before any sample."""
-        if not self._history:
+        if not self._recent:
             return None
-        newest = max(d for d, _ in self._history)
-        return self.to_loop(newest) - newest
+        return self.to_loop(self._newest) - self._newest
