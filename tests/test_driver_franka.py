@@ -220,7 +220,16 @@ def test_capture_with_the_franka_driver_and_a_following_virtual_camera_then_cali
         assert s["frame_stamp"] >= s["still_window"][0]
         assert max(s["joint_std"]) < 0.01 * np.pi / 180
     truth = json.loads((tmp_path / "truth.json").read_text())
-    assert len(truth["frames"]) == 10 and truth["robot"] == "Franka Research 3"
+    assert len(truth["frames"]) == 10 and truth["followed_driver"] == "FrankaRobot"
+    # each recorded image was rendered from joints the driver reported after the arm was still
+    # (within the settle threshold of the joints recorded with it, the still window's mean)
+    by_sequence = {f["sequence"]: f for f in truth["frames"]}
+    rows = [line.split(",") for line in (out / "samples.csv").read_text().splitlines()[1:]]
+    recorded = {row[0]: np.radians([float(v) for v in row[1:8]]) for row in rows}
+    for pose_id, s in log["samples"].items():
+        frame = by_sequence[s["frame_sequence"]]
+        assert frame["stamp"] == s["frame_stamp"]
+        assert np.abs(frame["q_true"] - recorded[pose_id]).max() < 0.02 * np.pi / 180
     code = main(["calibrate", str(out), "--out", str(tmp_path / "cal"), "--nongeometric",
                  "none", "--quiet", "--json", str(tmp_path / "cal.json")])  # fmt: skip
     assert code == 0

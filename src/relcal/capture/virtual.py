@@ -1104,7 +1104,18 @@ class FollowingCamera:
             if self.truth_path:
                 from relcal.io import json_text, write_text
 
-                write_text(self.truth_path, json_text(self.cell.truth_document()), "truth")
+                write_text(self.truth_path, json_text(self.truth_document()), "truth")
                 self.truth_path = None
         finally:
             self.cell.close()
+
+    def truth_document(self) -> dict:
+        """The planted truth and the joints of every frame (as
+        :meth:`VirtualCell.truth_document`, without the virtual arm's dynamics, moves and
+        faults, which a followed driver does not have)."""
+        doc = self.cell.truth_document()
+        for key in ("dynamics", "fps", "faults", "moves_note", "moves", "joint_noise_deg"):
+            doc.pop(key, None)
+        doc["followed_driver"] = type(self.robot).__name__
+        doc["frames_note"] = "joints (rad, m) the driver reported for each frame, taken as true"
+        return doc
