@@ -144,9 +144,9 @@ class Sample:
 
     ``q`` ``(n,)`` is the mean of the joint readings over the still window (rad, m); ``frame`` the
     accepted frame; ``window`` the still window ``(start, end)`` (s); ``returned_speed`` the
-    largest joint speed (rad/s, m/s) read right after the move returned (the driver's velocities,
-    else a difference of the first two readings), ``settle_seconds`` the time from the move's
-    return to the end of the still window (s).
+    largest joint speed (rad/s, m/s) right after the move returned (:func:`speed_of` the first two
+    readings), ``settle_seconds`` the time from the move's return to the end of the still window
+    (s).
     """
 
     pose_id: str
