@@ -57,7 +57,7 @@ def cross_validate(
 
     if measurements is None:
         measurements = measure(dataset)
-    kind = kind_of(dataset, measurements, options.get("pairing", "all"))
+    kind = kind_of(dataset, measurements, options.get("pairing", "auto"))
     parts = kind.folds(k, seed)
     return [
         calibrate(dataset, measurements, seed=seed, holdout_ids=ids, **options)
@@ -70,7 +70,7 @@ def calibrate(
     measurements: Measurements | None = None,
     holdout: float = 0.25,
     seed: int = 0,
-    pairing: PairStrategy = "all",
+    pairing: PairStrategy = "auto",
     method: str = "lm",
     loss: str = "linear",
     reject_outliers: bool = True,
@@ -97,7 +97,11 @@ def calibrate(
     weightings each candidate of relative poses is tried with, ``plain`` and/or ``noise model``
     (each pair whitened by its learned 6x6 covariance; its predicted standard deviations can be
     20 to 40 % small on the parameters of parallel axes, measured by Monte Carlo, so it is not
-    the default). ``loss``: of the fits once outliers are out (``lm`` only).
+    the default). ``loss``: of the fits once outliers are out (``lm`` only). ``pairing`` of
+    relative poses: ``auto`` (all pairs up to
+    :data:`~relcal.calibration.measurement.AUTO_ALL_PAIRS` usable samples, ``board`` above),
+    ``all``, ``consecutive``, ``star``, or ``board`` (each pose against ``W F X``, the board
+    transform ``W`` estimated: linear in the samples).
     """
     check_calibrate(
         dataset, measurements, holdout, seed, pairing, method, loss, holdout_ids, select_folds,

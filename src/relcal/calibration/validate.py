@@ -17,7 +17,13 @@ import numpy as np
 
 from relcal.calibration.coincidence import Coincidence, split_params, tool_points
 from relcal.calibration.identify import Result
-from relcal.calibration.measurement import PairStrategy, Problem, make_pairs, pair_errors
+from relcal.calibration.measurement import (
+    PairStrategy,
+    Problem,
+    capped_pairs,
+    make_pairs,
+    pair_errors,
+)
 from relcal.robot.model import RobotModel
 
 _KINDS = (("position_mm", slice(0, 3), 1e3), ("orientation_deg", slice(3, 6), 180 / np.pi))
@@ -185,15 +191,20 @@ def pooled(validations: list):
     )
 
 
-def subset(problem: Problem, samples: np.ndarray, pairing: PairStrategy = "all") -> Problem:
-    """The problem restricted to some samples, re-paired among themselves."""
+def subset(
+    problem: Problem,
+    samples: np.ndarray,
+    pairing: PairStrategy = "all",
+    max_pairs: int | None = None,
+) -> Problem:
+    """The problem restricted to some samples, re-paired among themselves; all pairs capped at
+    ``max_pairs`` drawn at random (:func:`~relcal.calibration.measurement.capped_pairs`)."""
     samples = np.asarray(samples)
-    return replace(
-        problem,
-        q=problem.q[samples],
-        poses=problem.poses[samples],
-        pairs=make_pairs(len(samples), pairing),
-    )
+    if pairing == "all" and max_pairs is not None:
+        pairs = capped_pairs(len(samples), max_pairs)
+    else:
+        pairs = make_pairs(len(samples), pairing)
+    return replace(problem, q=problem.q[samples], poses=problem.poses[samples], pairs=pairs)
 
 
 def _scores(problem: Problem, params: np.ndarray, samples, partners, sigma=None):
@@ -266,6 +277,7 @@ def held_out(
     pairing: PairStrategy = "all",
     baseline: Result | None = None,
     train: np.ndarray | None = None,
+    max_pairs: int | None = None,
 ) -> Validation:
     """Errors on pairs among ``samples`` (which the identification did not use), or on each
     sample alone (as pairs ``(k, k)``) for the per-pose formulations, of the nominal model with
@@ -274,7 +286,8 @@ def held_out(
     With the ``train`` samples, held-out samples that fit badly under both the calibrated model
     and the baseline (:func:`held_out_outliers`) are left out of the pairs and listed in
     ``outliers``, as outliers among the training samples are left out of the fit (while at
-    least 2 held-out samples remain)."""
+    least 2 held-out samples remain). ``max_pairs``: at most that many of the pairs, drawn at
+    random (a large held-out set: the statistics stay linear in the samples)."""
     samples = np.asarray(samples)
     outliers = np.zeros(0, dtype=int)
     if train is not None:
@@ -282,7 +295,7 @@ def held_out(
         outliers = held_out_outliers(problem, models, samples, train)
         if len(samples) - len(outliers) >= 2:
             samples = np.setdiff1d(samples, outliers)
-    test = subset(problem, samples, pairing)
+    test = subset(problem, samples, pairing, max_pairs)
     if problem.formulation in ("absolute", "tracker"):
         pairs = np.stack([samples, samples], axis=1)
     else:

@@ -6,6 +6,8 @@ import argparse
 from datetime import UTC, datetime
 
 from relcal.cli.common import (
+    PAIRINGS,
+    PAIRS_HELP,
     fraction,
     holdout_fraction,
     json_arg,
@@ -193,7 +195,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--holdout", type=holdout_fraction, default=0.25, help="held-out share (default 0.25)"
     )
     cp.add_argument("--seed", type=seed, default=0, help="seed of the held-out split")
-    cp.add_argument("--pairs", choices=("consecutive", "star", "all"), default="all")
+    cp.add_argument("--pairs", choices=PAIRINGS, default="auto", help=PAIRS_HELP)
     cp.add_argument("--method", choices=("lm", "published"), default="lm")
     cp.add_argument("--loss", choices=("linear", "huber", "cauchy", "soft_l1"), default="linear")
     cp.add_argument(
