@@ -747,4 +747,5 @@ def calibrated_handeye(problem: Problem, result: Result) -> np.ndarray:
     """The hand-eye transform ``X`` implied by the result (the guess when not estimated)."""
     if problem.formulation not in ("invariant", "board"):
         return problem.handeye
-    return problem.handeye @ tf.from_vector(result.params[problem.layout.size :])
+    n_geo = problem.layout.size
+    return problem.handeye @ tf.from_vector(result.params[n_geo : n_geo + 6])

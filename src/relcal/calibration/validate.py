@@ -52,6 +52,9 @@ def stats(errors: np.ndarray) -> dict[str, dict[str, float]]:
     return out
 
 
+RESAMPLE_CHUNK = 2**21  # numbers of one chunk of the bootstrap's per-pair weights (16 MB)
+
+
 def _resampler(pairs: np.ndarray, n_boot: int, seed: int):
     """The paired bootstrap over the *samples* of ``pairs`` ``(P, 2)``: a function mapping a value
     per pair ``(P,)`` to its sum in each of ``n_boot`` draws (a pair counts as often as both its
@@ -65,13 +68,18 @@ def _resampler(pairs: np.ndarray, n_boot: int, seed: int):
     counts = np.zeros((n_boot, n))
     np.add.at(counts, (np.arange(n_boot)[:, None], draws), 1.0)
 
+    chunk = max(1, min(n_boot, RESAMPLE_CHUNK // max(len(pairs), 1)))
+
     def resampled(values: np.ndarray) -> np.ndarray:
-        """``sum_p counts[i_p] counts[j_p] values_p`` per draw, via an ``(n, n)`` table."""
-        table = np.zeros((n, n))
-        np.add.at(table, (i, j), values)
+        """``sum_p counts[i_p] counts[j_p] values_p`` per draw: ``O(n_boot P)`` time, draws
+        taken a chunk at a time (an ``(n, n)`` table would cost ``n_boot n^2``)."""
         if per_sample:
-            return counts @ np.diag(table)
-        return np.einsum("bi,ij,bj->b", counts, table, counts)
+            return counts @ np.bincount(i, values, minlength=n)
+        out = np.empty(n_boot)
+        for start in range(0, n_boot, chunk):
+            c = counts[start : start + chunk]
+            out[start : start + chunk] = (c[:, i] * c[:, j]) @ values
+        return out
 
     return resampled, resampled(np.ones(len(pairs))) > 0
 

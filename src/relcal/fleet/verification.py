@@ -161,7 +161,7 @@ def model_from_record(run: Run, nominal: RobotModel) -> RobotModel:
         model = with_nongeometric(model, tuple(families))
     layout = make_layout(model)
     params = np.zeros(layout.size)
-    frames = ("handeye.", "instrument.", "marker.")
+    frames = ("handeye.", "board.", "instrument.", "marker.")
     unknown = [n for n in values if n not in layout.names and not n.startswith(frames)]
     if unknown:
         raise RelcalError(

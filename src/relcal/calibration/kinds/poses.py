@@ -51,7 +51,7 @@ from relcal.calibration.validate import held_out
 from relcal.limits import check_calibration_memory
 from relcal.robot.kinematics import fk, make_layout
 
-VALIDATION_PAIRS = 20_000  # held-out pairs validated with the board formulation (random, seeded)
+VALIDATION_PAIRS = 10_000  # held-out pairs validated with the board formulation (random, seeded)
 
 
 @dataclass(frozen=True)
@@ -129,10 +129,10 @@ class PoseKind(MeasurementKind):
         whitening of both weightings."""
         problem = training.problem
         left = pair_left_maps(problem)
-        fitted = (lin.pairs, lin.jac[:, :, training.geometric], np.diag(plain_whiteners(1)[0]))
+        fitted = (lin.pairs, lin.jac[:, :, training.geometric], plain_rows(problem))
         noise = estimate_pose_noise(pair_errors(problem, full.params), left, fitted)
         whiteners = {
-            "plain": plain_whiteners(len(left)),
+            "plain": np.broadcast_to(np.diag(plain_rows(problem)), (len(left), 6, 6)),
             "noise model": pair_whiteners(noise.covariance, left),
         }
         return NoiseModel(noise, whiteners)
@@ -192,8 +192,26 @@ def weighted_problem(
     """``problem`` with the rows weighted as ``weighting`` says (the plain weighting is diagonal:
     row factors, no per-pair blocks)."""
     if weighting == "plain":
-        return replace(problem, weights=np.diag(plain_whiteners(1)[0]), pair_weights=None)
+        return replace(problem, weights=plain_rows(problem), pair_weights=None)
     return replace(problem, weights=None, pair_weights=whiteners[weighting])
+
+
+def plain_rows(problem: Problem) -> np.ndarray:
+    """The plain weighting's row factors ``(6,)``: translation rows in m, rotation rows times
+    0.1 m/rad for pairs (:func:`~relcal.calibration.selection.plain_whiteners`); for the board
+    formulation times the median distance (m) of the camera from the board's origin, the lever
+    arm by which a camera's rotation error moves what it sees (a relative pose carries it in its
+    translation; a pose against the board only in its rotation rows)."""
+    rows = np.diag(plain_whiteners(1)[0]).copy()
+    if problem.formulation == "board":
+        rows[3:] = board_lever(problem.poses)
+    return rows
+
+
+def board_lever(poses: np.ndarray) -> float:
+    """The median distance (m) of the cameras ``(N, 4, 4)`` (poses in the board frame) from the
+    board's origin; 0.1 m at least."""
+    return max(float(np.median(np.linalg.norm(poses[:, :3, 3], axis=1))), 0.1)
 
 
 def pair_left_maps(problem: Problem) -> np.ndarray:
