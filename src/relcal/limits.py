@@ -180,11 +180,14 @@ def pair_count(n_samples: int, pairing: str) -> int:
 # - consecutive or star pairs: the covariance whitens the noise of a chain through the training
 #   samples with a dense SVD of (6 n)^2 numbers: 1.55 GB at 1000 samples (750 training), about 8
 #   such matrices;
-# - board: one measurement per sample (the same bytes per measurement and parameter as a pair)
-#   and a block-diagonal covariance, no dense matrix of the samples: linear (bench/scale.py
-#   measures it, e.g. 10,000 samples in a few hundred MB).
+# - board: one measurement per sample and a block-diagonal covariance, no dense matrix of the
+#   samples: linear. bench/scale.py measured peaks (RSS of a whole `relcal calibrate`, 42 + 12
+#   parameters) of 218 MB at 1000 samples, 299 MB at 3000 and 393 MB at 10,000: about 20 KB per
+#   sample, 370 bytes per sample and parameter (residuals, Jacobians, the linearisation, the
+#   noise model's moments and their copies).
 # The peak is the larger of the two terms (they come at different steps).
 PAIR_BYTES_PER_PARAMETER = 6 * 8 * 3
+BOARD_BYTES_PER_PARAMETER = 400
 CHAIN_COPIES = 8
 BASE_BYTES = 150 * 2**20
 
@@ -197,9 +200,10 @@ def calibration_memory(
     and hand-eye) under ``pairing`` (``auto`` resolved by ``n_samples``)."""
     n_train = n_samples if n_train is None else n_train
     pairing = resolve_pairing(pairing, n_samples)
-    n_params += 6 if pairing == "board" else 0  # the board transform's 6-vector
+    if pairing == "board":  # + the board transform's 6-vector
+        return BASE_BYTES + n_samples * (n_params + 6) * BOARD_BYTES_PER_PARAMETER
     pairs = pair_count(n_samples, pairing) * n_params * PAIR_BYTES_PER_PARAMETER
-    chain = 0.0 if pairing == "board" else CHAIN_COPIES * (6.0 * n_train) ** 2 * 8
+    chain = CHAIN_COPIES * (6.0 * n_train) ** 2 * 8
     return BASE_BYTES + max(pairs, chain)
 
 
@@ -216,7 +220,7 @@ def check_calibration_memory(
     limit = memory_limit()
     n_train = n_samples if n_train is None else n_train
     cheaper = calibration_memory(n_samples, "board", n_params, n_train)
-    per_sample = n_params * PAIR_BYTES_PER_PARAMETER
+    per_sample = (n_params + 6) * BOARD_BYTES_PER_PARAMETER
     largest = max(limit - BASE_BYTES, 0) / per_sample  # samples with the board formulation
     fewer = f"calibrate at most about {int(largest):,} samples"
     if used != "board":
