@@ -2,6 +2,7 @@
 ``W`` estimated, instead of all ``N (N - 1) / 2`` pairs: its exact Jacobian, the same estimate and
 the same information as all pairs, ``--pairs auto``, and per-sample statistics that stay linear."""
 
+import re
 from dataclasses import replace
 
 import numpy as np
@@ -24,6 +25,7 @@ from relcal.calibration.measurement import (
 )
 from relcal.calibration.noise import Noise
 from relcal.calibration.uncertainty import parameter_covariance
+from relcal.errors import RelcalError
 from relcal.robot.kinematics import fk, make_layout
 from relcal.robot.loading import get_robot
 from relcal.robot.model import auto_hayati
@@ -192,6 +194,10 @@ def test_calibrate_with_the_board_agrees_with_all_pairs(tmp_path):
     planted = {s for s in syn.ids if ds.ids.index(s) in board.train or s in board.outliers}
     assert planted and set(board.outliers) == set(pairs.outliers) == planted
     assert board.result.converged and pairs.result.converged
+    # the pose noise learned from the residuals: the planted 0.05 mm and 0.05 mrad, both ways
+    for cal in (board, pairs):
+        assert cal.noise.noise.position == pytest.approx(5e-5, rel=0.2)
+        assert cal.noise.noise.orientation == pytest.approx(5e-5, rel=0.2)
     assert board.selection[board.chosen].candidate.name == "geometric"
     assert pairs.selection[pairs.chosen].candidate.name == "geometric"
     n_geo = board.problem.layout.size
@@ -217,3 +223,40 @@ def test_calibrate_with_the_board_agrees_with_all_pairs(tmp_path):
 
     med_b, med_p = median_mm(board.validation.calibrated), median_mm(pairs.validation.calibrated)
     assert abs(med_b - med_p) < 0.25 * med_p and med_b < 0.02 * median_mm(board.validation.before)
+
+
+def test_convergence_is_the_finite_difference_gradient_of_the_board_residual(arm, rng):
+    q = random_q(arm, 40, rng)
+    truth = planted(arm, rng)
+    problem = board_problem(arm, q, truth, 1e-4, rng)
+    problem = replace(problem, board=board_guess(fk(arm, q), problem.poses, HANDEYE))
+    res = identify_lm(problem)
+    assert res.converged and res.gradient_check.decrement < 1e-7
+    cols = res.identifiability.subset
+    beside = res.params.copy()
+    beside[cols] += 0.05 * res.std[cols]  # a twentieth of a standard deviation off
+    moved = replace(res, params=beside)
+    assert moved.stopped and not moved.converged
+
+
+def test_the_memory_estimate_follows_the_formulation():
+    from relcal.limits import calibration_memory, check_calibration_memory
+
+    n_params = 42
+    board = [calibration_memory(n, "auto", n_params) for n in (1000, 10_000, 100_000)]
+    assert board[1] - board[0] == pytest.approx((board[2] - board[1]) / 10)  # linear
+    assert board[1] < 0.5 * 2**30 and board[2] < 2**31  # 10,000 and 100,000 samples fit
+    # all pairs quadratic, consecutive pairs with their dense covariance chain
+    assert calibration_memory(3000, "all", n_params) > 20 * 2**30
+    assert calibration_memory(1000, "consecutive", n_params, 750) > 2**30
+    # auto is all pairs up to 300 samples: the estimate of all pairs there
+    assert calibration_memory(300, "auto", n_params) == calibration_memory(300, "all", n_params)
+    check_calibration_memory(10_000, "auto", n_params, "ds", 7500)  # not refused
+    with pytest.raises(RelcalError, match=r"1,000,000 samples with --pairs board") as refused:
+        check_calibration_memory(1_000_000, "board", n_params, "ds", 750_000)
+    # the count it suggests is the largest that fits
+    most = int(re.search(r"at most about ([\d,]+) samples", str(refused.value))[1].replace(",", ""))
+    assert calibration_memory(most, "board", n_params) <= 2048 * 2**20
+    assert calibration_memory(int(most * 1.01), "board", n_params) > 2048 * 2**20
+    with pytest.raises(RelcalError, match="use --pairs board or auto"):
+        check_calibration_memory(3000, "all", n_params, "ds", 2250)
