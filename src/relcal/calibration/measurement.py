@@ -59,6 +59,7 @@ Formulation = Literal["absolute", "published", "invariant", "board", "tracker", 
 Measure = Literal["position", "pose"]
 PairStrategy = Literal["consecutive", "star", "all", "board", "auto"]
 PAIRINGS = ("auto", "all", "consecutive", "star", "board")  # the choices a user has
+VALIDATION_PAIRS = 10_000  # pairs of held-out samples validated above AUTO_ALL_PAIRS (random)
 
 
 def sample_pairs(n_samples: int) -> np.ndarray:
@@ -287,6 +288,12 @@ def board_guess(tip: np.ndarray, poses: np.ndarray, handeye: np.ndarray) -> np.n
     out[:3, :3] = u @ np.diag([1.0, 1.0, np.linalg.det(u @ vt)]) @ vt
     out[:3, 3] = each[:, :3, 3].mean(axis=0)
     return out
+
+
+def board_lever(poses: np.ndarray) -> float:
+    """The median distance (m) of the cameras ``(N, 4, 4)`` (poses in the board frame) from the
+    board's origin; 0.1 m at least."""
+    return max(float(np.median(np.linalg.norm(poses[:, :3, 3], axis=1))), 0.1)
 
 
 def residuals(

@@ -14,7 +14,8 @@ errors in units of their robust noise, a 6x6 pose noise learned from the pair re
 translation in m, rotation x 0.1 m/rad; ``noise model``: each pair whitened by its learned
 covariance), one linearisation at the geometric fit shared by every candidate of model
 selection, and validation on the pairs among held-out samples (at most
-:data:`VALIDATION_PAIRS` of them, drawn at random, when the board formulation is used).
+:data:`~relcal.calibration.measurement.VALIDATION_PAIRS` of them, drawn at random, when the
+board formulation is used).
 """
 
 from __future__ import annotations
@@ -29,8 +30,10 @@ from relcal.calibration.identifiability import check_pose_set
 from relcal.calibration.identify import Result
 from relcal.calibration.kinds import MeasurementKind, NoiseModel, Training
 from relcal.calibration.measurement import (
+    VALIDATION_PAIRS,
     Problem,
     board_guess,
+    board_lever,
     make_pairs,
     pair_errors,
     residuals,
@@ -50,8 +53,6 @@ from relcal.calibration.selection import (
 from relcal.calibration.validate import held_out
 from relcal.limits import check_calibration_memory
 from relcal.robot.kinematics import fk, make_layout
-
-VALIDATION_PAIRS = 10_000  # held-out pairs validated with the board formulation (random, seeded)
 
 
 @dataclass(frozen=True)
@@ -149,7 +150,8 @@ class PoseKind(MeasurementKind):
         screen: bool = False,
     ):
         """Relative pose errors of the pairs among the held-out samples (at least two); with the
-        board formulation, of at most :data:`VALIDATION_PAIRS` of those pairs, and of the
+        board formulation, of at most
+        :data:`~relcal.calibration.measurement.VALIDATION_PAIRS` of those pairs, and of the
         relative poses only (the board estimate of the training samples is not used)."""
         if len(test) < 2:
             return None
@@ -206,12 +208,6 @@ def plain_rows(problem: Problem) -> np.ndarray:
     if problem.formulation == "board":
         rows[3:] = board_lever(problem.poses)
     return rows
-
-
-def board_lever(poses: np.ndarray) -> float:
-    """The median distance (m) of the cameras ``(N, 4, 4)`` (poses in the board frame) from the
-    board's origin; 0.1 m at least."""
-    return max(float(np.median(np.linalg.norm(poses[:, :3, 3], axis=1))), 0.1)
 
 
 def pair_left_maps(problem: Problem) -> np.ndarray:
