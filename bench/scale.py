@@ -7,8 +7,8 @@ and 1 deg, no hand-eye guess given) are calibrated by ``relcal calibrate DATASET
 default pairing (``auto``: the board formulation above 300 usable samples), each in a fresh
 process: its CPU time (user + system, one BLAS thread) and its peak resident memory (the
 kernel's high-water mark, ``ru_maxrss`` of the child) are measured, and the time is compared with
-the 1000-sample row scaled linearly. Goals: within 1.5x of linear time, and peak memory below the 2 GB limit of
-``RELCAL_MAX_MEMORY_MB`` (all pairs of 10,000 samples would need about 50 million pairs).
+the 1000-sample row scaled linearly. Goals: within 1.5x of linear time, and peak memory below
+the 2 GB limit of ``RELCAL_MAX_MEMORY_MB`` (all pairs of 10,000 samples would be 50 million).
 
 ``python bench/scale.py`` prints the rows alone; ``bench/run.py`` (``make bench``) puts them in
 its table.
