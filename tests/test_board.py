@@ -260,3 +260,16 @@ def test_the_memory_estimate_follows_the_formulation():
     assert calibration_memory(int(most * 1.01), "board", n_params) > 2048 * 2**20
     with pytest.raises(RelcalError, match="use --pairs board or auto"):
         check_calibration_memory(3000, "all", n_params, "ds", 2250)
+
+
+def test_auto_keeps_all_pairs_for_small_sets(tmp_path):
+    """Up to 300 usable samples ``auto`` is all pairs: the same calibration as before."""
+    from helpers_dataset import synthetic_dataset
+
+    import relcal
+
+    ds = relcal.load_dataset(synthetic_dataset(tmp_path / "d", n=30).root)
+    auto, pairs = relcal.calibrate(ds), relcal.calibrate(ds, pairing="all")
+    assert auto.settings["pairing"] == "all" and auto.problem.formulation == "invariant"
+    np.testing.assert_array_equal(auto.result.params, pairs.result.params)
+    np.testing.assert_array_equal(auto.validation.calibrated, pairs.validation.calibrated)
