@@ -209,6 +209,9 @@ def test_calibrate_with_the_board_agrees_with_all_pairs(tmp_path):
     for fit, std in ((board.result, std_b), (pairs.result, std_p)):
         z = np.abs(fit.params[geo] - syn.truth[geo]) / std
         assert z.max() < 3.5 and np.sqrt(np.mean(z**2)) < 1.5, z
+    # the predicted standard deviations (pose by pose) against a bootstrap over the samples
+    ratio = board.bootstrap_std[subset] / board.result.std[subset]
+    assert 0.8 < np.median(ratio) < 1.25 and ratio.min() > 0.6 and ratio.max() < 1.6, ratio
     # and the two agree within the larger of their standard deviations (the board's is the
     # smaller here: its rows weighted by the camera's lever arm, it uses the rotations better)
     assert np.median(std_b / std_p) < 1.0
