@@ -240,13 +240,14 @@ def check_problem(problem) -> dict[str, Any]:
         )
     out["handeye"] = check_transform(problem.handeye, f"{p}.handeye")
     out["instrument"] = check_transform(problem.instrument, f"{p}.instrument")
+    out["board"] = check_transform(problem.board, f"{p}.board")
     out["marker"] = check_vector(problem.marker, f"{p}.marker", 3, "the marker position x, y, z")
     if problem.weights is not None:
         out["weights"] = check_array(
             problem.weights, f"{p}.weights", (6,), hint="one factor per residual row (t, r)"
         )
     if problem.pair_weights is not None:
-        per = n if problem.formulation in ("absolute", "tracker") else pairs
+        per = n if problem.formulation in ("absolute", "tracker", "board") else pairs
         out["pair_weights"] = check_array(
             problem.pair_weights,
             f"{p}.pair_weights",
@@ -311,7 +312,7 @@ def check_calibrate(
             )
     check_number(holdout, "holdout", 0, 1, high_open=True)
     check_number(seed, "seed", integer=True)
-    check_choice(pairing, "pairing", ("consecutive", "star", "all"))
+    check_choice(pairing, "pairing", ("auto", "consecutive", "star", "all", "board"))
     check_choice(method, "method", ("lm", "published"))
     check_choice(loss, "loss", ("linear", "huber", "cauchy", "soft_l1"))
     check_choice(selection, "selection", ("cv", "conservative", "all"))

@@ -26,10 +26,10 @@ from relcal.robot.model import RobotModel, parallel_axes
 DEFAULT_RCOND = 1e-6
 HandEye = Literal["estimated", "known"]
 INDEX_NAMES = ("O1", "O2", "O3", "O4", "O5")
-# Frames estimated alongside the geometry (not part of the robot): hand-eye X, the tracker
-# formulation's instrument transform T and marker position m, the coincidence formulation's tool
-# point and group points.
-NUISANCE_KINDS = ("handeye", "instrument", "marker", "tool_point", "point")
+# Frames estimated alongside the geometry (not part of the robot): hand-eye X, the board
+# formulation's board transform W, the tracker formulation's instrument transform T and marker
+# position m, the coincidence formulation's tool point and group points.
+NUISANCE_KINDS = ("handeye", "board", "instrument", "marker", "tool_point", "point")
 _INVOLVED = 1e-6  # a parameter with a larger share of a null vector is not identifiable alone
 
 
@@ -334,9 +334,11 @@ def explainer(problem: Problem):
                 return "moves the marker by a constant amount in the flange frame: m absorbs it"
             return "linearly dependent at these poses: vary the poses or fix one of them"
         if "handeye" not in kinds and constant(spatial @ geometric):
+            if problem.formulation == "board":
+                return "acts as a rigid motion of the robot base: the board transform W absorbs it"
             return "acts as a rigid motion of the robot base: cancels in relative measurements"
         if "handeye" in kinds or constant(body @ geometric):
-            if problem.formulation == "invariant":
+            if problem.formulation in ("invariant", "board"):
                 return "acts like a change of the hand-eye transform X, which absorbs it"
             return "acts like a change of the tool transform"
         if same_motion(geometric):

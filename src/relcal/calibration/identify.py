@@ -419,7 +419,9 @@ def result_covariance(
     if problem.formulation in ("absolute", "tracker", "coincidence"):  # independent samples
         return least_squares_covariance(a, r, ident.subset)
     if noise is None:
-        sigma = robust_sigma(pair_errors(problem, params)) / np.sqrt(2)  # two poses per pair
+        sigma = robust_sigma(pair_errors(problem, params))
+        if problem.formulation != "board":
+            sigma = sigma / np.sqrt(2)  # two poses per pair
         noise = Noise(position=float(sigma[0]), orientation=float(sigma[3]))
     unc = parameter_covariance(problem, noise, ident, params=params)
     cov = np.full((len(params), len(params)), np.nan)
@@ -615,7 +617,7 @@ def _reduced(
     n_geo = problem.layout.size
     free = np.asarray(subset, dtype=int)
     geo_free = np.sort(free[free < n_geo])
-    if problem.formulation != "invariant" or "origin" in problem.layout.kinds:
+    if problem.formulation not in ("invariant", "board") or "origin" in problem.layout.kinds:
         return None
     if len(geo_free) == n_geo:
         return None
@@ -631,7 +633,8 @@ def _reduced(
         tuple(layout.index[i] for i in geo_free),
         layout.prismatic,
     )
-    columns = np.r_[geo_free, np.arange(n_geo, n_geo + 6)]
+    frames = problem.full_layout.size - n_geo  # hand-eye (and board) 6-vectors
+    columns = np.r_[geo_free, np.arange(n_geo, n_geo + frames)]
     sub_subset = np.r_[np.arange(len(geo_free)), len(geo_free) + free[free >= n_geo] - n_geo]
     return replace(problem, model=model, layout=sub), columns, sub_subset.astype(int)
 
@@ -849,6 +852,7 @@ def identify_weighted(
 
 def calibrated_handeye(problem: Problem, result: Result) -> np.ndarray:
     """The hand-eye transform ``X`` implied by the result (the guess when not estimated)."""
-    if problem.formulation != "invariant":
+    if problem.formulation not in ("invariant", "board"):
         return problem.handeye
-    return problem.handeye @ tf.from_vector(result.params[problem.layout.size :])
+    n_geo = problem.layout.size
+    return problem.handeye @ tf.from_vector(result.params[n_geo : n_geo + 6])

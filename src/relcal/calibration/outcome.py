@@ -10,7 +10,7 @@ from typing import Literal
 import numpy as np
 
 from relcal.calibration.identify import Result, calibrated_handeye
-from relcal.calibration.measurement import Problem, pair_errors
+from relcal.calibration.measurement import Problem, pair_errors, per_sample_median
 from relcal.calibration.noise import PoseNoise
 from relcal.calibration.selection import BASELINE_CANDIDATES, Score
 from relcal.calibration.validate import PlacementValidation, Validation
@@ -210,7 +210,6 @@ def outlier_samples(weighted: np.ndarray, pairs: np.ndarray, threshold: float = 
     """Indices of samples whose pairs fit badly: each sample's score is the median normalised
     error of its pairs; a robust z-score above ``threshold`` flags it."""
     norms = np.linalg.norm(weighted, axis=1)
-    n = int(pairs.max()) + 1
-    score = np.array([np.median(norms[(pairs == k).any(axis=1)]) for k in range(n)])
+    score = per_sample_median(norms, pairs)
     spread = 1.4826 * np.median(np.abs(score - np.median(score)))
     return np.flatnonzero((score - np.median(score)) > threshold * max(spread, 1e-12))

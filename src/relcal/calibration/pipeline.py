@@ -58,7 +58,7 @@ def cross_validate(
 
     if measurements is None:
         measurements = measure(dataset)
-    kind = kind_of(dataset, measurements, options.get("pairing", "all"))
+    kind = kind_of(dataset, measurements, options.get("pairing", "auto"))
     parts = kind.folds(k, seed)
     return [
         calibrate(dataset, measurements, seed=seed, holdout_ids=ids, **options)
@@ -71,7 +71,7 @@ def calibrate(
     measurements: Measurements | None = None,
     holdout: float = 0.25,
     seed: int = 0,
-    pairing: PairStrategy = "all",
+    pairing: PairStrategy = "auto",
     method: str = "lm",
     loss: str = "linear",
     reject_outliers: bool = UNSET,
@@ -104,8 +104,11 @@ def calibrate(
         0 <= holdout < 1; 0: no validation.
     seed : int
         Seed of the held-out split and the cross-validation folds (0 or more).
-    pairing : {"all", "consecutive", "star"}
-        Which pairs of training samples form relative measurements.
+    pairing : {"auto", "all", "consecutive", "star", "board"}
+        Which pairs of training samples form relative measurements: ``auto`` (all pairs up to
+        :data:`~relcal.calibration.measurement.AUTO_ALL_PAIRS` usable samples, ``board``
+        above), all, consecutive or star pairs, or ``board`` (each pose against ``W F X``, the
+        board transform ``W`` estimated: linear in the samples).
     method : {"lm", "published"}
         The solver (:class:`SolverOptions`).
     loss : {"linear", "huber", "cauchy", "soft_l1"}

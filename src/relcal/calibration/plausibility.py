@@ -81,13 +81,16 @@ class Tolerances:
 
 
 def check_pairs(n: int, rng_seed: int = 0) -> np.ndarray:
-    """Index pairs ``(P, 2)`` for the checks: all pairs, or ``MAX_PAIRS`` random ones."""
-    i, j = np.triu_indices(n, 1)
-    pairs = np.stack([i, j], axis=1)
-    if len(pairs) > MAX_PAIRS:
-        pick = np.random.default_rng(rng_seed).choice(len(pairs), MAX_PAIRS, replace=False)
-        pairs = pairs[np.sort(pick)]
-    return pairs
+    """Index pairs ``(P, 2)`` for the checks: all pairs, or ``MAX_PAIRS`` random ones (picked by
+    their position in the list of all pairs, which is never formed: linear in ``n``)."""
+    total = n * (n - 1) // 2
+    if total <= MAX_PAIRS:
+        i, j = np.triu_indices(n, 1)
+        return np.stack([i, j], axis=1)
+    pick = np.sort(np.random.default_rng(rng_seed).choice(total, MAX_PAIRS, replace=False))
+    starts = np.cumsum(np.r_[0, np.arange(n - 1, 0, -1)])  # where row i of triu_indices starts
+    i = np.searchsorted(starts, pick, side="right") - 1
+    return np.stack([i, i + 1 + pick - starts[i]], axis=1)
 
 
 def rotation_misfit(commanded: np.ndarray, measured: np.ndarray) -> tuple[float, np.ndarray]:
@@ -470,10 +473,9 @@ def _pair_angles(commanded: np.ndarray, measured: np.ndarray, rx: np.ndarray) ->
 def _wrong_samples(pairs: np.ndarray, values: np.ndarray, threshold: float = 5.0) -> np.ndarray:
     """Samples whose pairs misfit far more than the others' (each sample's median over its
     pairs, a robust z-score above ``threshold``), at most a quarter of them."""
-    n = int(pairs.max()) + 1
-    score = np.full(n, np.nan)
-    for k in np.unique(pairs):
-        score[k] = np.median(values[(pairs == k).any(axis=1)])
+    from relcal.calibration.measurement import per_sample_median
+
+    score = per_sample_median(values, pairs)
     seen = np.isfinite(score)
     centre = np.median(score[seen])
     spread = max(1.4826 * np.median(np.abs(score[seen] - centre)), 1e-12 * max(centre, 1e-12))
@@ -847,7 +849,7 @@ def check_result(dataset, problem, result, what: str | None = None) -> None:
     ``what`` (how the samples are called, e.g. ``points``), refused corrections below 3 standard
     deviations are named as not determined by the data."""
     layout = problem.full_layout
-    free = ("instrument", "marker", "tool_point", "point")
+    free = ("board", "instrument", "marker", "tool_point", "point")
     keep = [
         k
         for k, kind in enumerate(layout.kinds)

@@ -33,7 +33,7 @@ from relcal.robot.model import RobotModel, nongeometric_options, with_nongeometr
 GEOMETRIC_KINDS = ("theta_off", "a", "d", "alpha", "beta", "base", "tool", "origin")
 # Estimated with the robot, never exported: the hand-eye, a tracker's instrument transform and
 # marker, a coincidence's tool point and group points.
-FRAME_KINDS = ("handeye", "instrument", "marker", "tool_point", "point")
+FRAME_KINDS = ("handeye", "board", "instrument", "marker", "tool_point", "point")
 PLAIN_ROTATION_WEIGHT = 0.1  # m/rad: rotation rows count like a 0.1 m lever arm
 # Candidates without kinematic correction, by formulation: the hand-eye transform alone,
 # (position-only data) the instrument transform and the marker alone, (coincidences) the tool
@@ -352,6 +352,7 @@ def bootstrap_std(
     counts = np.zeros((n_boot, lin.n_samples))
     np.add.at(counts, (np.arange(n_boot)[:, None], draws), 1.0)
     weights = counts[:, i] * counts[:, j]  # (B, P): a pair counts as often as both its samples
+    weights = np.where(i == j, counts[:, i], weights)  # a sample's own measurement: as it
     normals, rhss = (weights @ gram).reshape(n_boot, k, k), weights @ rhs
     draws = [solve_normal(n, r) for n, r in zip(normals, rhss, strict=True)]
     out = np.full(lin.jac.shape[-1], np.nan)

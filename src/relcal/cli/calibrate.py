@@ -7,6 +7,8 @@ from contextlib import nullcontext
 from pathlib import Path
 
 from relcal.cli.common import (
+    PAIRINGS,
+    PAIRS_HELP,
     holdout_fraction,
     int_at_least,
     json_arg,
@@ -343,10 +345,9 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--pairing",
         "--pairs",
         dest="pairs",
-        choices=("consecutive", "star", "all"),
-        default="all",
-        help="which pairs of training samples form relative measurements (default all; "
-        "--pairs is its former name)",
+        choices=PAIRINGS,
+        default="auto",
+        help=PAIRS_HELP,
     )
     cp.add_argument("--method", choices=("lm", "published"), default="lm")
     cp.add_argument(

@@ -83,7 +83,7 @@ class MeasurementKind:
 
     dataset: Dataset
     measurements: Measurements
-    pairing: PairStrategy = "all"
+    pairing: PairStrategy = "auto"
 
     formulation: ClassVar[str]  # of measurement.residuals
     measure: ClassVar[str]  # "pose" or "position"
@@ -202,7 +202,7 @@ class MeasurementKind:
 
 
 def kind_of(
-    dataset: Dataset, measurements: Measurements, pairing: PairStrategy = "all"
+    dataset: Dataset, measurements: Measurements, pairing: PairStrategy = "auto"
 ) -> MeasurementKind:
     """The measurement kind of ``dataset``: coincidence groups, position-only points, or poses."""
     if dataset.measured == "coincidence":
