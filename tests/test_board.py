@@ -261,7 +261,7 @@ def test_the_memory_estimate_follows_the_formulation():
     most = int(re.search(r"at most about ([\d,]+) samples", str(refused.value))[1].replace(",", ""))
     assert calibration_memory(most, "board", n_params) <= 2048 * 2**20
     assert calibration_memory(int(most * 1.01), "board", n_params) > 2048 * 2**20
-    with pytest.raises(RelcalError, match="use --pairs board or auto"):
+    with pytest.raises(RelcalError, match="use --pairing board or auto"):
         check_calibration_memory(3000, "all", n_params, "ds", 2250)
 
 
