@@ -557,6 +557,10 @@ def calibration_summary(doc: dict) -> str:
         )
     for text in ident["unidentifiable"]:
         lines.append(f"  not identifiable: {text}")
+    for text in ident.get("weak_directions", []):
+        lines.append(f"  weakly determined: {text}")
+    for text in ident.get("dropped_candidates", []):
+        lines.append(f"  candidates dropped: {text}")
     return "\n".join(lines)
 
 
