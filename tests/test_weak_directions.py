@@ -184,6 +184,23 @@ def test_circle_grid_default_recipe_drops_the_undetermined_candidates(tmp_path):
     assert not any("scale" in n or "harmonic" in n for n in names), names
 
 
+def test_joints_that_never_move_are_held_at_nominal_and_named(tmp_path, capsys):
+    """Poses that never move joints 4 and 6 of the A465 were refused ('vary the joints more'):
+    now the combinations they leave undetermined are held at nominal and named with the joints'
+    travel, the non-geometric candidates they cannot determine are dropped, and the run exits 0."""
+    from test_bad_input import Q_FIXED_WRIST, write_dataset
+
+    root = write_dataset(tmp_path / "d", q=Q_FIXED_WRIST)
+    assert main(["calibrate", str(root), "--out", str(tmp_path / "out")]) == 0
+    printed = capsys.readouterr().out
+    doc = json.loads((tmp_path / "out" / "results.json").read_text())
+    nominal = [w for w in doc["settings"]["weak_directions"] if w["held"] == "at nominal"]
+    fixed = get_robot("a465").joint_names[3]  # joint 4
+    assert any(f"{fixed} moved over 0 deg" in w["text"] for w in nominal), nominal
+    assert "weakly determined:" in printed and "candidates dropped:" in printed
+    assert {d["family"] for d in doc["settings"]["dropped_candidates"]} == {"scale", "harmonic"}
+
+
 # -- the maximum a posteriori cost -----------------------------------------------------------
 
 

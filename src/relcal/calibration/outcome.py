@@ -68,6 +68,8 @@ class Calibration:
     chosen: int = 0  # index into selection
     reason: str = ""
     bootstrap_std: np.ndarray | None = None  # (P,) over training samples; NaN if not estimated
+    # What the plausibility gate warned of (plausibility.check_calibration), in words.
+    warnings: tuple[str, ...] = ()
 
     def __repr__(self) -> str:
         from relcal._repr import plural, short

@@ -246,9 +246,6 @@ def calibrate(
         )
     weak = _weak(training, result, std if with_priors else None, dataset.q[train])
 
-    # Plausibility of the corrections (a wrong input absorbed by the model): before writing.
-    kind.check_result(training, result)
-
     boot = None
     if kind.shared_linearisation:
         boot = bootstrap_std(
@@ -258,6 +255,10 @@ def calibrate(
             seed=seed,
             prior=None if lin_priors is None else lin_priors.get(pick.weighting),
         )
+
+    # The plausibility gate (a wrong input absorbed by the model, terms beyond their bounds,
+    # intervals the bootstrap contradicts): before anything is written.
+    warnings = kind.check_model(training, result, baseline, boot)
     settings = {
         "holdout_fraction": holdout,
         "seed": seed,
@@ -295,6 +296,7 @@ def calibrate(
         chosen=chosen,
         reason=reason,
         bootstrap_std=boot,
+        warnings=tuple(warnings),
     )
 
 
@@ -436,7 +438,8 @@ def _weak(training: Training, result: Result, std: np.ndarray | None, q: np.ndar
             "parameter": " + ".join(c.names),
             "held": "at nominal",
             "text": f"{c.describe()}: not determined by these samples (samples that vary the "
-            "joints more would determine it); held at nominal",
+            f"joints more would determine it{_travel(training.problem, c.names, q)}); held at "
+            "nominal",
         }
         for c in training.ident.weak
     ]
@@ -448,3 +451,31 @@ def _weak(training: Training, result: Result, std: np.ndarray | None, q: np.ndar
     for w in weak_directions(training.problem, subset, data, post, std, q):
         out.append({**w.to_dict(), "held": "by its prior"})
     return out
+
+
+def _travel(problem, names: Sequence[str], q: np.ndarray) -> str:
+    """``"; joint2 moved over 0 deg, ..."`` for the joints of the link parameters ``names``
+    (how far each moved in the samples ``q``), least travel first; empty without any."""
+    layout = problem.full_layout
+    model = problem.model
+    where = {n: k for k, n in enumerate(layout.names)}
+    joints = set()
+    for n in names:
+        k = where[n]
+        if k >= problem.layout.size or layout.kinds[k] in ("base", "tool"):
+            continue
+        i = int(layout.index[k]) // (6 if layout.kinds[k] == "origin" else 1)
+        if 0 <= i < model.n_joints:
+            joints.add(i)
+    if not joints:
+        return ""
+    travel = {i: float(np.ptp(q[:, i])) for i in joints}
+    parts = []
+    for i in sorted(joints, key=travel.get):
+        shown = (
+            f"{travel[i] * 1e3:.3g} mm"
+            if model.prismatic[i]
+            else f"{np.degrees(travel[i]):.3g} deg"
+        )
+        parts.append(f"{model.joint_names[i]} moved over {shown}")
+    return "; " + ", ".join(parts)

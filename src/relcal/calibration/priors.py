@@ -86,13 +86,15 @@ def problem_weights(weighted: Problem, params: np.ndarray, std: np.ndarray) -> n
 @dataclass(frozen=True)
 class WeakDirection:
     """A parameter the data barely determine, held near nominal by its prior: its name, the
-    joint it belongs to (empty for none), the prior's and the posterior's standard deviation
-    and what the data alone would give (SI units; inf: nothing), and the joint's travel in the
-    data (rad, or m for a prismatic joint; None if unknown)."""
+    joint it belongs to (empty for none), the unit it is shown in and the factor from SI, the
+    prior's and the posterior's standard deviation and what the data alone would give (SI
+    units; inf: nothing), and the joint's travel in the data (rad, or m for a prismatic joint;
+    None if unknown)."""
 
     name: str
     joint: str
-    is_angle: bool
+    unit: str  # the unit a person reads (mm, deg, ppm, urad/Nm, um/N)
+    factor: float  # from SI to ``unit``
     prior_std: float
     posterior_std: float
     data_std: float
@@ -101,7 +103,7 @@ class WeakDirection:
 
     def describe(self) -> str:
         """One line in words, with the joint's name and the units a person reads."""
-        unit, conv = ("deg", 180 / np.pi) if self.is_angle else ("mm", 1e3)
+        unit, conv = self.unit, self.factor
         if np.isfinite(self.data_std):
             alone = f"the data alone determine it to +- {self.data_std * conv:.3g} {unit}"
         else:
@@ -120,7 +122,8 @@ class WeakDirection:
         return {
             "parameter": self.name,
             "joint": self.joint,
-            "unit": "rad" if self.is_angle else "m",
+            "unit": self.unit,
+            "factor_from_si": self.factor,
             "prior_std": self.prior_std,
             "posterior_std": self.posterior_std,
             "data_std": self.data_std if np.isfinite(self.data_std) else None,
@@ -146,7 +149,7 @@ def weak_directions(
     layout = problem.full_layout
     model = problem.model
     n_geo = problem.layout.size
-    angle = layout.is_angle()
+    factors, units = layout.display()
     out = []
     for k in np.asarray(subset, dtype=int):
         if not np.isfinite(std[k]):
@@ -167,12 +170,13 @@ def weak_directions(
             WeakDirection(
                 layout.names[k],
                 joint,
-                bool(angle[k]),
+                units[k],
+                float(factors[k]),
                 float(std[k]),
                 post,
                 data,
                 travel,
                 prismatic,
-            )  # fmt: skip
+            )
         )
     return out

@@ -561,6 +561,8 @@ def calibration_summary(doc: dict) -> str:
         lines.append(f"  weakly determined: {text}")
     for text in ident.get("dropped_candidates", []):
         lines.append(f"  candidates dropped: {text}")
+    for text in ident.get("plausibility_warnings", []):
+        lines.append(f"  plausibility warning: {text}")
     return "\n".join(lines)
 
 
