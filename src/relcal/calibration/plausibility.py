@@ -940,10 +940,12 @@ def frame_shifts(
         length = float(np.linalg.norm(diff[:3]))
         angle = float(np.linalg.norm(diff[3:6])) if len(diff) >= 6 else 0.0
         if length > tolerances.handeye_length or angle > tolerances.handeye_angle:
+            what = {"handeye": "hand-eye transform", "instrument": "instrument transform"}
             lines.append(
-                f"the {kind.replace('_', ' ')} of the calibrated model differs from the "
-                f"baseline's by {length * 1e3:.3g} mm and {np.degrees(angle):.3g} deg: the "
-                "kinematic corrections take over part of it (check the corrections named with it)"
+                f"the {what.get(kind, kind.replace('_', ' '))} of the calibrated model differs "
+                f"from the baseline's by {length * 1e3:.3g} mm and {np.degrees(angle):.3g} "
+                "deg: the kinematic corrections take over part of it (check the corrections "
+                "named with it)"
             )
     return lines
 
@@ -977,30 +979,47 @@ def std_consistency(
     display: tuple[np.ndarray, Sequence[str]] | None = None,
 ) -> tuple[list[str], str | None]:
     """Predicted standard deviations against the bootstrap's (both ``(P,)``, NaN where not
-    estimated): a warning per parameter where they differ by more than :data:`STD_WARN`, and a
-    refusal (its message) when the median parameter's differ by more than :data:`STD_REFUSE`
-    (the noise model is wrong, so is every interval). ``display``: factors from SI and units
-    for the messages (:meth:`Layout.display`; default SI)."""
+    estimated): a warning for the parameters whose predicted std is more than :data:`STD_WARN`
+    times smaller than the bootstrap's (overconfident intervals), one for those more than that
+    larger (conservative intervals), and a refusal (its message) when the median parameter's
+    predicted std is more than :data:`STD_REFUSE` times smaller (the noise model does not
+    describe the data, and every interval would be too narrow). ``display``: factors from SI
+    and units for the messages (:meth:`Layout.display`; default SI)."""
     predicted, bootstrap = np.asarray(predicted, float), np.asarray(bootstrap, float)
     both = np.isfinite(predicted) & np.isfinite(bootstrap) & (predicted > 0) & (bootstrap > 0)
     if not both.any():
         return [], None
-    ratio = np.ones_like(predicted)
-    ratio[both] = np.maximum(predicted[both] / bootstrap[both], bootstrap[both] / predicted[both])
+    ratio = np.ones_like(predicted)  # bootstrap over predicted: above 1, overconfident
+    ratio[both] = bootstrap[both] / predicted[both]
     factor, unit = display if display is not None else (np.ones(len(names)), ("SI",) * len(names))
-    warn = [
-        f"{names[k]}: predicted std {predicted[k] * factor[k]:.3g} {unit[k]}, bootstrap "
-        f"{bootstrap[k] * factor[k]:.3g} {unit[k]}: {ratio[k]:.3g}x apart; its interval is "
-        "uncertain"
-        for k in np.flatnonzero(both & (ratio > STD_WARN))
-    ]
+
+    def listed(ks: np.ndarray) -> str:
+        shown = [
+            f"{names[k]} {predicted[k] * factor[k]:.3g} vs {bootstrap[k] * factor[k]:.3g} {unit[k]}"
+            for k in ks[:6]
+        ]
+        return ", ".join(shown) + (f" and {len(ks) - 6} more" if len(ks) > 6 else "")
+
+    warn = []
+    narrow = np.flatnonzero(both & (ratio > STD_WARN))
+    if len(narrow):
+        warn.append(
+            f"predicted standard deviations more than {STD_WARN:g}x below the bootstrap's "
+            f"(intervals too narrow): {listed(narrow)}"
+        )
+    wide = np.flatnonzero(both & (ratio < 1 / STD_WARN))
+    if len(wide):
+        warn.append(
+            f"predicted standard deviations more than {STD_WARN:g}x above the bootstrap's "
+            f"(intervals conservative): {listed(wide)}"
+        )
     median = float(np.median(ratio[both]))
     refuse = None
     if both.sum() >= 3 and median > STD_REFUSE:
         refuse = (
-            f"predicted standard deviations and the bootstrap's differ by {median:.3g}x for the "
-            "median parameter: the noise model does not describe these data, and no interval "
-            "would hold (check for correlated or mislabelled samples)"
+            f"the bootstrap's standard deviations are {median:.3g}x the predicted ones for the "
+            "median parameter: the noise model does not describe these data, and every interval "
+            "would be too narrow (check for correlated, repeated or mislabelled samples)"
         )
     return warn, refuse
 
