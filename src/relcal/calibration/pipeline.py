@@ -408,13 +408,13 @@ def _drop_undetermined(
                     f"measurement frames ({combo.describe()}); no model, not even the baseline, "
                     "can be fitted: add samples that vary the joints"
                 )
-            for f in fams - {"frames", "geometric"}:
+            for f in sorted(fams - {"frames", "geometric"}):  # (a set's order varies by run)
                 families.setdefault(f, []).append(named)
         if not families:
             break
         model = kind.dataset.model
         flags = tuple(tuple(t for t in f if t not in families) for f in model.nongeometric)
-        for f, combos in families.items():
+        for f, combos in sorted(families.items()):
             dropped.append(
                 {
                     "family": f,
