@@ -368,11 +368,15 @@ def held_dependence(
     if published:  # nothing is held: the solver picks a point on the symmetry's orbit
         refit = identify_published(problem, identifiability=ident, initial=params + step)
     else:
+        if prior is not None:
+            # What the *data* determine: the plain least squares from the estimate, against
+            # the same moved along the symmetries (the priors pull both alike; a prior's pull
+            # on a combination's member would read as a dependence of the others).
+            params = identify_lm(problem, 50, ident, whiten=whiten, initial=params, fixed=params)
+            params = params.params
         moved = params.copy()
         moved[held] += step[held]
-        refit = identify_lm(
-            problem, 50, ident, whiten=whiten, initial=params + step, fixed=moved, prior=prior
-        )
+        refit = identify_lm(problem, 50, ident, whiten=whiten, initial=params + step, fixed=moved)
     involved = np.linalg.norm(ident.null_space, axis=1) > 1e-6
     moves = np.abs(refit.params - params) / unit > DEPENDENCE_TOL
     if problem.formulation == "coincidence":
