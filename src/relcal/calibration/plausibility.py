@@ -897,6 +897,10 @@ NONGEOMETRIC_BOUNDS = {
 PRISMATIC_COMPLIANCE = 1e-4  # m/N
 STD_WARN = 3.0  # predicted and bootstrap standard deviations differ by more: a warning
 STD_REFUSE = 10.0  # ... by more than this for the median parameter: refused
+# A bootstrap of few samples draws degenerate sets (a resampling of 10 samples holds about 6
+# distinct ones): compared only from this many training samples, refused only from the next.
+STD_MIN_SAMPLES = 20
+STD_REFUSE_SAMPLES = 40
 
 
 def nongeometric_problems(
@@ -1041,7 +1045,8 @@ def check_calibration(
     non-geometric terms beyond :data:`NONGEOMETRIC_BOUNDS` and predicted standard deviations
     grossly inconsistent with the bootstrap's; returns warnings: frames moved from the
     baseline's, zero offsets that put training samples beyond the joint limits, standard
-    deviations more than :data:`STD_WARN` apart. ``what``: how the samples are called (points,
+    deviations more than :data:`STD_WARN` apart (from :data:`STD_MIN_SAMPLES` training samples;
+    refused from :data:`STD_REFUSE_SAMPLES`). ``what``: how the samples are called (points,
     placements) for the messages; ``q``: the training joint values; ``links``: whether the link
     corrections are checked here (False: the measurement kind checked them, its frames free).
     """
@@ -1062,11 +1067,12 @@ def check_calibration(
         warnings += frame_shifts(layout.names, layout.kinds, result.params, baseline.params, tol)
     if q is not None:
         warnings += joint_limit_warnings(problem.model, layout, result.params, q, tol)
-    if bootstrap is not None:
+    n = len(problem.q) if q is None else len(q)
+    if bootstrap is not None and n >= STD_MIN_SAMPLES:
         std_warnings, refuse = std_consistency(
             layout.names, result.std, bootstrap, layout.display()
         )
-        if refuse:
+        if refuse and n >= STD_REFUSE_SAMPLES:
             raise RelcalError(f"{where}: {refuse}")
         warnings += std_warnings
     return warnings
