@@ -159,11 +159,14 @@ def test_tiago_pro_with_a_narrow_wrist_calibrates_and_names_the_wrist(tmp_path):
     cal = calibrate(dataset)
     _assert_held_and_named(cal, ("arm_right_6_joint", "arm_right_7_joint"))
     # the command line exits 0 and results.json names the weak directions
-    out = tmp_path / "out"
-    assert main(["calibrate", str(folder), "--out", str(out), "--quiet"]) == 0
+    out, report = tmp_path / "out", tmp_path / "report.html"
+    argv = ["calibrate", str(folder), "--out", str(out), "--report", str(report), "--quiet"]
+    assert main(argv) == 0
     doc = json.loads((out / "results.json").read_text())
     weak = doc["identification"]["weak_directions"]
     assert any("arm_right_7_joint" in text for text in weak), weak
+    html = report.read_text()
+    assert "Weakly determined directions" in html and "arm_right_7_joint): held by its" in html
     assert doc["settings"]["priors"]["length_mm"] == 1.0
 
 
