@@ -873,7 +873,7 @@ def check_result(dataset, problem, result, what: str | None = None) -> None:
         if getattr(result, "prior", None) is None:  # a plain least squares (priors: none)
             remedy = (
                 "the default priors hold such parameters at their manufacturing tolerances "
-                "(remove priors: none from the model file, or --priors none)"
+                "(leave out priors: none in the model file and --priors none)"
             )
         else:
             remedy = "even held by their priors: check the inputs (units, robot model, rows)"
