@@ -126,6 +126,9 @@ class Identifiability:
         Unidentifiable directions in the parameters' SI units (m, rad), unit-norm columns.
     combinations : tuple of Combination
         The unidentifiable combinations, named, each with its reason.
+    weak : tuple of Combination
+        Of ``combinations``, those that varied poses would determine: weak data (a joint that
+        barely moves), not a structural symmetry of the measurement.
     """
 
     singular_values: np.ndarray  # (P,), descending, of the unit-column Jacobian
@@ -136,6 +139,9 @@ class Identifiability:
     subset: np.ndarray  # (rank,) parameter indices chosen by QR with column pivoting
     null_space: np.ndarray  # (P, P - rank) in original parameter units, columns unit-norm
     combinations: tuple[Combination, ...]
+    # Of ``combinations``, those that generic (varied) poses would determine: weak data, not a
+    # structural symmetry (:func:`check_pose_set`).
+    weak: tuple[Combination, ...] = ()
 
     @property
     def condition_number(self) -> float:
@@ -416,10 +422,14 @@ def analyse_problem(
     return analyse(jac, layout, rcond, explainer(problem))
 
 
-def check_pose_set(problem: Problem, source: str, seed: int = 0) -> Identifiability:
-    """Identifiability at the problem's poses; an error if they identify less than generic poses
-    would (the structural null space of this robot and formulation), naming what they miss.
-    ``source`` names the data in the message (e.g. the dataset file)."""
+def check_pose_set(
+    problem: Problem, source: str, seed: int = 0, refuse: bool = True
+) -> Identifiability:
+    """Identifiability at the problem's poses, with the combinations they leave undetermined
+    that generic poses would determine (the structural null space of this robot and
+    formulation) as its ``weak`` ones. With ``refuse``, an error if there are any, naming what
+    they miss; without, the caller decides (:func:`weak_families`). ``source`` names the data
+    in the message (e.g. the dataset file)."""
     ident = analyse_problem(problem)
     if problem.formulation == "coincidence":  # generic poses seat no tool point in a group
         return ident
@@ -435,12 +445,15 @@ def check_pose_set(problem: Problem, source: str, seed: int = 0) -> Identifiabil
     )
     if ident.rank < reference.rank:
         known = {c.names for c in reference.combinations}
-        extra = [c.describe() for c in ident.combinations if c.names not in known]
-        raise RelcalError(
-            f"{source}: the poses identify only {ident.rank} of the {reference.rank} "
-            "parameter combinations that varied poses would; vary the joints more. Not "
-            "determined by these poses: " + "; ".join(extra or ["(mixed combinations)"])
-        )
+        weak = tuple(c for c in ident.combinations if c.names not in known)
+        if refuse:
+            raise RelcalError(
+                f"{source}: the poses identify only {ident.rank} of the {reference.rank} "
+                "parameter combinations that varied poses would; vary the joints more. Not "
+                "determined by these poses: "
+                + "; ".join([c.describe() for c in weak] or ["(mixed combinations)"])
+            )
+        return replace(ident, weak=weak or ident.combinations[: reference.rank - ident.rank])
     return ident
 
 

@@ -86,6 +86,9 @@ class Calibration:
         Why that candidate was chosen, in words.
     bootstrap_std : (P,) ndarray of float or None
         Bootstrap standard deviations over training samples (m, rad); NaN if not estimated.
+    warnings : tuple of str
+        What the plausibility gate found doubtful but not wrong (frames moved from the
+        baseline's, offsets past the joint limits, predicted and bootstrap std that disagree).
     """
 
     dataset: Dataset
@@ -103,6 +106,8 @@ class Calibration:
     chosen: int = 0  # index into selection
     reason: str = ""
     bootstrap_std: np.ndarray | None = None  # (P,) over training samples; NaN if not estimated
+    # What the plausibility gate warned of (plausibility.check_calibration), in words.
+    warnings: tuple[str, ...] = ()
 
     def __repr__(self) -> str:
         from relcal._repr import plural, short

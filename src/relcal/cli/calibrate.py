@@ -192,6 +192,7 @@ def _calibrate(args, dataset, out, holdout_ids, registry) -> int:
         "selection": args.select,
         "nongeometric": args.nongeometric,
         "weightings": ("plain",) if args.weighting == "plain" else ("plain", "noise model"),
+        "priors": args.priors,
     }
     cal = calibrate(
         dataset, m, holdout=args.holdout, seed=args.seed, holdout_ids=holdout_ids, **options
@@ -378,6 +379,14 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="non-geometric candidates for model selection: auto (default: joint scale, first "
         "harmonic, and compliance where the model has masses), none, or a list such as "
         "scale,harmonic",
+    )
+    cp.add_argument(
+        "--priors",
+        choices=("model", "none"),
+        default="model",
+        help="model (default): weakly determined parameters are held by the manufacturing "
+        "tolerances of the model file's priors: (1 mm, 0.5 deg, joint offsets 1 deg unless it "
+        "says otherwise), a maximum a posteriori fit; none: the plain least squares",
     )
     cp.add_argument(
         "--weighting",

@@ -52,6 +52,49 @@ def check_limits(path: Path, model, ids, q: np.ndarray, joint_unit: str) -> None
     )
 
 
+def covered_ranges(model_path: Path):
+    """The joint ranges the calibration covered (``joint_ranges`` of the ``results.json``
+    written beside its model file), or None when there is no such record."""
+    import json
+
+    from relcal.calibration.verify import JointRanges
+
+    doc_path = Path(model_path).parent / "results.json"
+    try:
+        doc = json.loads(doc_path.read_text())
+        return JointRanges.from_dict(doc["joint_ranges"])
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+
+
+def outside_warnings(ranges, ids, q: np.ndarray, joint_unit: str) -> list[str]:
+    """One warning per target whose joints ``q`` ``(N, n)`` (rad, m) lie beyond the ranges the
+    calibration covered (by more than their slack): its accuracy there was never validated."""
+    import numpy as np
+
+    if ranges is None or len(ranges.names) != q.shape[1]:
+        return []
+    outside = ranges.outside(q)
+    lines = []
+    for k in np.flatnonzero(outside.any(axis=1)):
+        joints = []
+        for j in np.flatnonzero(outside[k]):
+            conv, unit = (
+                (1.0, "m")
+                if ranges.prismatic[j]
+                else ((np.degrees(1.0), "deg") if joint_unit == "deg" else (1.0, "rad"))
+            )
+            joints.append(
+                f"{ranges.names[j]} = {q[k, j] * conv:.4g} {unit} (covered "
+                f"{ranges.lower[j] * conv:.4g} .. {ranges.upper[j] * conv:.4g})"
+            )
+        lines.append(
+            f"target {ids[k]}: {', '.join(joints)}: outside the joint ranges the calibration "
+            "covered; its accuracy there is not validated"
+        )
+    return lines
+
+
 SINGULAR = 0.02  # inverse condition number (translation over 0.5 m) below which we warn
 
 
@@ -118,6 +161,9 @@ def run(args: argparse.Namespace) -> int:
         return 1
     cond = near_singular(calibrated, comp.q)
     if not args.quiet:
+        ranges = covered_ranges(Path(args.model))
+        for line in outside_warnings(ranges, ids, comp.q, args.joint_unit):
+            print(f"relcal: warning: {line}", file=sys.stderr)
         for k in np.flatnonzero(cond < SINGULAR):
             swing = (
                 ""

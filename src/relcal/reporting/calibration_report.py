@@ -315,6 +315,15 @@ def _parameters(cal: Calibration, doc: dict) -> tuple[str, str, Html]:
         hk.bullet_list(
             doc["identification"]["unidentifiable"], "none: every parameter is identifiable"
         ),
+        Html("<h3>Weakly determined directions, held (by priors or at nominal)</h3>"),
+        hk.bullet_list(
+            doc["identification"].get("weak_directions", [])
+            + [
+                f"candidates dropped: {t}"
+                for t in doc["identification"].get("dropped_candidates", [])
+            ],
+            "none: the data determine every estimated parameter more than its prior does",
+        ),
         Html("<h3>Hand-eye transform</h3>"),
         _handeye_table(doc),
     )

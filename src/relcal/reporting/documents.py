@@ -351,6 +351,10 @@ def results_document(cal: Calibration) -> dict:
             "seconds": r.seconds,
             "singular_values": [float(s) for s in r.identifiability.singular_values],
             "unidentifiable": r.unidentifiable,
+            # issue 18: held by priors or at nominal, and candidates the data do not determine
+            "weak_directions": [w["text"] for w in cal.settings.get("weak_directions", [])],
+            "dropped_candidates": [d["reason"] for d in cal.settings.get("dropped_candidates", [])],
+            "plausibility_warnings": list(getattr(cal, "warnings", ())),
         },
         "parameters": parameter_rows(cal),
         "identifiable_combinations": combination_rows(cal),

@@ -557,6 +557,12 @@ def calibration_summary(doc: dict) -> str:
         )
     for text in ident["unidentifiable"]:
         lines.append(f"  not identifiable: {text}")
+    for text in ident.get("weak_directions", []):
+        lines.append(f"  weakly determined: {text}")
+    for text in ident.get("dropped_candidates", []):
+        lines.append(f"  candidates dropped: {text}")
+    for text in ident.get("plausibility_warnings", []):
+        lines.append(f"  plausibility warning: {text}")
     return "\n".join(lines)
 
 

@@ -33,6 +33,7 @@ import pydantic
 
 from relcal import geometry as tf
 from relcal.errors import RelcalError
+from relcal.robot.priors import Priors
 
 KINDS = ("theta_off", "a", "d", "alpha", "beta")
 ANGLE_KINDS = ("theta_off", "alpha", "beta")
@@ -149,6 +150,9 @@ class RobotModel:
         calibration parameters; empty tuples by default.
     loads : Loads or None
         Link masses and payload that gravity pulls on (for compliance), or None.
+    priors : Priors
+        Manufacturing tolerances per parameter kind that hold weakly determined directions
+        (``priors:`` of the model file; :class:`relcal.robot.priors.Priors`).
 
     Raises
     ------
@@ -181,6 +185,8 @@ class RobotModel:
     harmonic_s: np.ndarray | None = None
     nongeometric: tuple[tuple[str, ...], ...] = ()  # per joint, the terms calibrated (or ())
     loads: Loads | None = None
+    # Manufacturing tolerances that hold weakly determined directions (``priors:``).
+    priors: Priors = field(default_factory=Priors)
 
     def __post_init__(self) -> None:
         # Zeros where not given; also when a copy changes the number of joints (``replace``
@@ -377,6 +383,7 @@ class _Robot(_Strict):
     tool: _Transform = _Transform()
     payload: _Payload | None = None
     gravity: tuple[Number, Number, Number] = GRAVITY
+    priors: str | dict[str, Number] | None = None  # relcal.robot.priors.Priors.parse
 
     @pydantic.model_validator(mode="after")
     def _masses_for_compliance(self) -> _Robot:
@@ -538,6 +545,7 @@ def model_from_dict(data: object, path: str | Path = "<robot>", node: object = N
         base=frame(spec.base),
         tool=frame(spec.tool),
         source=spec.source,
+        priors=Priors.parse(spec.priors, f"{path}: priors"),
     )
     masses = [j.mass for j in joints]
     if any(masses) or spec.payload is not None:
@@ -657,6 +665,8 @@ def model_to_dict(model: RobotModel) -> dict:
             }
         if tuple(model.loads.gravity) != GRAVITY:
             out["gravity"] = [float(v) for v in model.loads.gravity]
+    if model.priors != Priors():
+        out["priors"] = model.priors.to_dict()
     return out
 
 

@@ -104,7 +104,7 @@ class PoseKind(MeasurementKind):
         if handeye is None:
             handeye = solve_handeye(fk(ds.model, ds.q[train]), self.measurements.poses[train])
         problem = self.problem_on(train, handeye)
-        ident = check_pose_set(problem, str(ds.spec_path))
+        ident = check_pose_set(problem, str(ds.spec_path), refuse=False)
         return Training(train, problem, ident, geometric_columns(problem, ident.subset))
 
     def weighted(
