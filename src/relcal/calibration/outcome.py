@@ -68,6 +68,9 @@ class Calibration:
     chosen: int = 0  # index into selection
     reason: str = ""
     bootstrap_std: np.ndarray | None = None  # (P,) over training samples; NaN if not estimated
+    # the chosen columns without the non-geometric terms, refitted: what a geometry-only file
+    # (URDF, vendor files) can hold; None when the chosen model has no non-geometric term
+    geometry: Result | None = None
 
     def __repr__(self) -> str:
         from relcal._repr import plural, short
@@ -128,6 +131,26 @@ class Calibration:
             return model
         columns = self.selection[self.chosen].candidate.columns
         return exported_model(model, {layout.kinds[c] for c in columns if c < layout.size})
+
+    @property
+    def geometry_model(self) -> RobotModel:
+        """The model of the geometry-only files (URDF, UR and Franka files): :attr:`model` when
+        the chosen model has no non-geometric term, otherwise the geometry-only refit
+        (:attr:`geometry`) with every non-geometric term off."""
+        if self.geometry is None:
+            return self.model
+        layout = self.problem.layout
+        model = calibrated_model(self.problem.model, layout, self.geometry.params)
+        return exported_model(model, set())
+
+    @functools.cached_property
+    def artifacts(self):
+        """Every file a user can load (``model.yaml``, ``robot.urdf``, vendor files), each read
+        back and validated on the held-out samples:
+        :func:`relcal.calibration.artifacts.export_artifacts`."""
+        from relcal.calibration.artifacts import export_artifacts
+
+        return export_artifacts(self)
 
     @functools.cached_property
     def comparison(self) -> Comparison:

@@ -183,6 +183,8 @@ def calibrate(
 
     # Plausibility of the corrections (a wrong input absorbed by the model): before writing.
     kind.check_result(training, result)
+    # What a geometry-only file (URDF, vendor files) can hold: validated on its own at export.
+    geometry = _geometry_only(kind, training, result, pick.weighting, loss, noise, fits is None)
 
     boot = None
     if kind.shared_linearisation:
@@ -221,6 +223,34 @@ def calibrate(
         chosen=chosen,
         reason=reason,
         bootstrap_std=boot,
+        geometry=geometry,
+    )
+
+
+def _geometry_only(
+    kind: MeasurementKind,
+    training: Training,
+    result: Result,
+    weighting: str,
+    loss: str,
+    noise: NoiseModel,
+    with_noise: bool,
+) -> Result | None:
+    """The chosen model's fitted columns without its non-geometric terms, refitted (by
+    Levenberg-Marquardt, from the chosen fit with those terms at zero): the best model that a
+    file holding geometry only (URDF, UR and Franka files) can express. None when the chosen
+    model has no non-geometric term: those files then hold the validated model itself."""
+    layout = training.problem.layout
+    fitted = np.asarray(result.identifiability.subset)
+    geometric = layout.is_geometric()
+    terms = np.array([c for c in fitted if c < layout.size and not geometric[c]], dtype=int)
+    if terms.size == 0:
+        return None
+    initial = result.params.copy()
+    initial[terms] = 0.0
+    columns = np.setdiff1d(fitted, terms)
+    return _fit(
+        kind, training, columns, weighting, "lm", loss, initial, noise if with_noise else None
     )
 
 

@@ -134,6 +134,17 @@ def calibration_record(
             **cal.settings,
             "chosen_model": chosen_model(cal),
             "joint_ranges": doc.get("joint_ranges"),  # what `relcal verify` checks a session by
+            "verdict": (doc.get("verdict") or {}).get("code"),
+            # every loadable file with its own held-out error (documents.artifacts_document)
+            "artifacts": [
+                {
+                    "file": f["file"],
+                    "holds": f["holds"],
+                    "written": f["written"],
+                    "position_rms_mm": (f["held_out"] or {}).get("position_rms_mm"),
+                }
+                for f in (doc.get("artifacts") or {}).get("files", [])
+            ],
         },
         "input_hashes": input_hashes(root, cal.dataset.images),
         "converged": bool(cal.result.converged),
