@@ -65,7 +65,9 @@ def test_real_tiago_calibration_verified_on_the_other_session(tmp_path):
     assert doc["nuisance"]["folds"] == 5 and "cross-fitting" in doc["nuisance"]["scheme"]
     base, after = doc["baseline"]["position_mm"], doc["calibrated"]["position_mm"]
     assert base["rms"] == pytest.approx(20.93, abs=0.02)
-    assert after["rms"] == pytest.approx(17.40, abs=0.02)
+    # 17.50 since model.yaml reloads exactly (its gravity reference written; 17.40 before, from
+    # a model.yaml whose compliance torques came from the calibrated geometry: 1.2 mm off)
+    assert after["rms"] == pytest.approx(17.50, abs=0.02)
     assert base["ci95"][0] < base["rms"] < base["ci95"][1]
     ratio = doc["ratio_to_baseline"]["position_mm"]
     assert ratio["ci95"][1] < 1.0  # it beats the nominal URDF on the new session

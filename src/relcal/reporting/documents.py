@@ -322,7 +322,28 @@ def cross_validation_document(folds: Sequence[Calibration]) -> dict:
         "folds": [validation_document(f.validation) if f.validation else None for f in folds],
         "chosen": [f.selection[f.chosen].candidate.name for f in folds],
         "pooled": validation_document(pooled(done)),
+        "artifacts": pooled_artifacts(folds),
     }
+
+
+def pooled_artifacts(folds: Sequence[Calibration]) -> dict[str, dict]:
+    """Each loadable file's own held-out errors pooled over the folds (every fold's file read
+    back and validated on that fold's held-out samples): ``{file: {"holds", "position_rms_mm",
+    "ratio_to_baseline", "refused_in_folds"}}``; files not validated in every fold left out."""
+    out = {}
+    for name in [a.name for a in folds[0].artifacts] if folds else []:
+        mine = [a for f in folds for a in f.artifacts if a.name == name]
+        vals = [a.validation for a in mine if a.validation is not None]
+        if len(vals) != len(folds):
+            continue
+        both = pooled(vals)
+        out[name] = {
+            "holds": mine[0].holds,
+            "position_rms_mm": both.rms("calibrated"),
+            "ratio_to_baseline": both.ratio(),
+            "refused_in_folds": sum(not a.written for a in mine),
+        }
+    return out
 
 
 def _nuisance_frames(cal: Calibration) -> dict:

@@ -351,7 +351,7 @@ def _parameter_table(plan_q: Quality, random_q: Quality, n_sets: int) -> list[st
         f"   (predicted std; random = the median of {n_sets} sets)"
     ]
     for p in a.subset:
-        scale, unit = (np.degrees(1.0), "deg") if a.is_angle[p] else (1e3, "mm")
+        scale, unit = _unit(bool(a.is_angle[p]), a.units[p] if a.units else None)
         sa, sb = a.crb_std[p], b.crb_std[p]
         lines.append(
             f"{a.names[p]:<14s} {unit:>4s} {sa * scale:>10.4g} {sb * scale:>10.4g} {sb / sa:>6.2f}"
@@ -372,7 +372,8 @@ def format_study(res: StudyResult, length_scale: float = 0.5) -> str:
     ]
     for k, p in enumerate(res.subset):
         angle = bool(res.is_angle[p])
-        scale, unit = (np.degrees(1.0), "deg") if angle else (1e3, "mm")
+        units = res.predicted.units
+        scale, unit = _unit(angle, units[p] if units else None)  # urad/Nm, ppm: never mm
         flag = "" if lo <= res.ratio[k] <= hi else "  outside 95% interval"
         if not res.predicted.identifiable[p]:
             flag += "  (absorbs an unidentifiable combination)"
@@ -553,6 +554,11 @@ def calibration_summary(doc: dict) -> str:
             f"RMS baseline {b['rms']:.3f} -> calibrated {a['rms']:.3f} mm "
             f"({_ratio_text(pooled['ratio_to_baseline']['position_mm'])}); chosen per fold: "
             + ", ".join(cv["chosen"])
+        )
+    for name, entry in ((cv or {}).get("artifacts") or {}).items():
+        lines.append(
+            f"  {name} ({entry['holds']}) over the folds: {entry['position_rms_mm']:.3f} mm "
+            f"({_ratio_text(entry['ratio_to_baseline'])} of the baseline)"
         )
     for text in ident["unidentifiable"]:
         lines.append(f"  not identifiable: {relabel(text, labels)}")
