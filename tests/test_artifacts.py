@@ -17,6 +17,7 @@ import yourdfpy
 from conftest import DATA, random_q
 from helpers_artifacts import ur5e_with_harmonics
 from helpers_sim import with_plausible_loads
+from scipy.spatial.transform import Rotation
 from urdf_helpers import TIAGO_CHAIN, TIAGO_JOINTS, pin_fk
 
 from relcal import geometry as tf
@@ -321,3 +322,32 @@ def test_each_file_is_validated_on_every_fold_too(tiago):
     assert files["robot.urdf"]["holds"] == "geometry only"
     assert files["model.yaml"]["position_rms_mm"] < files["robot.urdf"]["position_rms_mm"]
     assert files["robot.urdf"]["position_rms_mm"] < doc["pooled"]["baseline"]["position_mm"]["rms"]
+
+
+def test_compensate_names_the_model_files_own_error(tiago, tmp_path, capsys):
+    """relcal compensate reads the held-out error that results.json records for that very
+    model.yaml, and says when the file was changed since."""
+    model_path = tiago.out / "model.yaml"
+    model = load_model(model_path)
+    dataset = load_dataset(POSITIONS)
+    poses = fk(model, dataset.q[:3])
+    rows = []
+    for k, pose in enumerate(poses):
+        x, y, z, w = Rotation.from_matrix(pose[:3, :3]).as_quat()
+        rows.append(f"t{k}," + ",".join(f"{v:.12g}" for v in (*pose[:3, 3], x, y, z, w)))
+    targets = tmp_path / "targets.csv"
+    targets.write_text("id,x,y,z,qx,qy,qz,qw\n" + "\n".join(rows) + "\n")
+    args = ["compensate", "--model", str(model_path), "--targets", str(targets)]
+    assert main([*args, "--out", str(tmp_path / "j.csv"), "--json", str(tmp_path / "j.json")]) == 0
+    rms = _files(tiago.doc)["model.yaml"]["held_out"]["position_rms_mm"]
+    assert f"held-out position RMS {rms:.3f} mm over 24 samples" in capsys.readouterr().err
+    assert json.loads((tmp_path / "j.json").read_text())["model_validation"]["matches"]
+    changed = tmp_path / "other" / "model.yaml"
+    changed.parent.mkdir()
+    text = model_path.read_text()
+    assert "compliance: 0.08" in text
+    changed.write_text(text.replace("compliance: 0.08", "compliance: 0.09", 1))
+    (changed.parent / "results.json").write_text(json.dumps(tiago.doc))
+    args = ["compensate", "--model", str(changed), "--targets", str(targets)]
+    assert main([*args, "--out", str(tmp_path / "k.csv")]) == 0
+    assert "differs from the model.yaml that results.json validated" in capsys.readouterr().err
