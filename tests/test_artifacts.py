@@ -351,3 +351,34 @@ def test_compensate_names_the_model_files_own_error(tiago, tmp_path, capsys):
     args = ["compensate", "--model", str(changed), "--targets", str(targets)]
     assert main([*args, "--out", str(tmp_path / "k.csv")]) == 0
     assert "differs from the model.yaml that results.json validated" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("robot", ["ur5e", "panda"])
+def test_every_robot_file_reads_back_to_its_model(robot, tmp_path):
+    """What the artifacts are measured on: each file of relcal.robot_files read back (the UR
+    and Franka files written into the nominal URDF's origins) gives the model's kinematics."""
+    from urdf_helpers import UR5E_KINEMATICS, real, ur_description_urdf
+
+    from relcal.calibration.artifacts import read_back
+    from relcal.robot.export import calibrated_model, robot_files
+    from relcal.robot.urdf import load_urdf
+
+    if robot == "ur5e":
+        path = tmp_path / "ur5e.urdf"
+        path.write_text(ur_description_urdf(UR5E_KINEMATICS))
+        nominal = load_urdf(path, "base_link", "tool0")
+        expected = {"robot.urdf", "origin_corrections.yaml", "ur_calibration.yaml"}
+    else:
+        nominal = load_urdf(*real("panda"))
+        expected = {"robot.urdf", "origin_corrections.yaml", "franka_kinematics.yaml"}
+    rng = np.random.default_rng(3)
+    layout = make_layout(nominal)
+    model = calibrated_model(nominal, layout, rng.normal(0, 1e-3, layout.size))
+    files = robot_files(model)
+    assert expected <= set(files)
+    q = random_q(model, 10, rng)
+    for name, content in files.items():
+        folder = tmp_path / name.replace(".", "_")
+        folder.mkdir()
+        loaded = read_back(name, content, nominal, folder)
+        np.testing.assert_allclose(fk(loaded, q), fk(model, q), rtol=0, atol=1e-9, err_msg=name)
