@@ -148,6 +148,7 @@ def test_tiago_report_is_honest_everywhere(tiago):
     assert f"weighted residual RMS {ident['initial_residual_rms']:.3g}" in text
     assert ident["residual_unit"] in text and ident["residual_unit"] in html
     assert "Errors per point" in html and "Errors per pair" not in html
+    assert "Histograms of the absolute position errors" in html and "relative pose" not in html
     held = [t for t in text.splitlines() if t.startswith("held-out")][0]
     assert "over 24 points" in held and "pairs" not in held
     assert "outliers (they fit badly" in text

@@ -482,7 +482,7 @@ def calibration_report(cal: Calibration, doc: dict) -> str:
                 hk.paragraph(sentence),
                 hk.figure_html(
                     "plot-residuals",
-                    f"Histograms of the relative pose errors of {label} before and after "
+                    f"Histograms of the {kind.lower()} errors of {label} before and after "
                     "calibration (logarithmic bins)",
                     histogram_figure(before, after, label),
                 ),
