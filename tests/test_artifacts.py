@@ -126,6 +126,7 @@ def test_tiago_report_is_honest_everywhere(tiago):
     ratio = doc["validation"]["ratio_to_baseline"]["position_mm"]
     assert lo == pytest.approx(1 / ratio["ci95"][1]) and hi == pytest.approx(1 / ratio["ci95"][0])
     assert v["text"].startswith(f"deploy: {v['factor']:.2g}x better on held-out points")
+    assert f"95% interval {lo:.2g}x..{hi:.2g}x, 24 held-out samples" in v["text"]
     assert f"verdict: {v['text']}" in text.splitlines()
     assert 'id="verdict"' in html and v["text"] in html
     # joint names, not indices, for a URDF robot; theta_off[3] is the second arm joint
@@ -265,6 +266,7 @@ def test_verdict_reads_the_interval_and_the_count():
     assert better.text.startswith("deploy: 4x better on held-out points") and not better.warnings
     worse = verdict(_points(before, before * 3), formulation="tracker")
     assert worse.code == "do not deploy" and "3x worse" in worse.text
+    assert verdict(_points(before, before / 48)).text.startswith("deploy: 48x better")
     noisy = verdict(_points(before, before * rng.uniform(0.2, 1.9, 30)), formulation="tracker")
     assert noisy.code == "collect more samples" and "the interval spans 1" in noisy.text
     lo, hi = noisy.interval

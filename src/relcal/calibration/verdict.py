@@ -42,6 +42,12 @@ class Verdict:
     warnings: tuple[str, ...] = ()
 
 
+def times(factor: float) -> str:
+    """A factor as people say it: ``5.8x``, ``48x``, ``110x`` (two significant digits below 10,
+    whole numbers above)."""
+    return f"{factor:.2g}x" if factor < 10 else f"{factor:.0f}x"
+
+
 def held_out_what(validation: Validation | PlacementValidation, formulation: str) -> str:
     """How the held-out evidence is named: ``points`` (one point per sample), ``pairs of
     poses`` (relative poses) or ``placements`` (coincidences)."""
@@ -96,17 +102,17 @@ def verdict(
     r, (lo, hi) = ratio["after_over_before"], ratio["ci95"]
     factor = 1.0 / max(r, 1e-300)
     interval = (1.0 / max(hi, 1e-300), 1.0 / max(lo, 1e-300))
-    span = f"95% interval {interval[0]:.2f}x..{interval[1]:.2f}x, {n} held-out samples"
+    span = f"95% interval {times(interval[0])}..{times(interval[1])}, {n} held-out samples"
     if hi < 1.0:
         code: Code = "deploy"
-        text = f"deploy: {factor:.2g}x better on held-out {what} ({span})"
+        text = f"deploy: {times(factor)} better on held-out {what} ({span})"
     elif lo > 1.0:
         code = "do not deploy"
-        text = f"do not deploy: {r:.2g}x worse than the baseline on held-out {what} ({span})"
+        text = f"do not deploy: {times(r)} worse than the baseline on held-out {what} ({span})"
     else:
         code = "collect more samples"
         text = (
-            f"collect more samples: the interval spans 1 ({factor:.2g}x better on held-out "
+            f"collect more samples: the interval spans 1 ({times(factor)} better on held-out "
             f"{what}, {span})"
         )
     return Verdict(code, text, factor, interval, n, warnings)
