@@ -169,6 +169,15 @@ def test_registry_record_carries_the_files_and_the_verdict(tiago):
     assert stored["robot.urdf"]["position_rms_mm"] == pytest.approx(
         tiago.doc["artifacts"]["files"][1]["held_out"]["position_rms_mm"], rel=1e-9
     )
+    # units from the kind in the record too: `relcal history` showed compliances in mm
+    from relcal.fleet.drift import display
+
+    units = {p["name"]: p["unit"] for p in record["parameters"]}
+    assert units["compliance[2]"] == "rad/(N m)" and units["compliance[1]"] == "m/N"
+    assert units["theta_off[3]"] == "rad" and units["d[4]"] == "m"
+    row = next(p for p in record["parameters"] if p["name"] == "compliance[2]")
+    shown = {r["name"]: r for r in doc["parameters"]}["compliance[2]"]
+    assert display(row["value"], row["unit"]) == pytest.approx((shown["error"], "urad/Nm"))
 
 
 def test_a_refused_file_is_not_written(tiago):

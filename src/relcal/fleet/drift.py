@@ -380,8 +380,12 @@ def _chi_square(d: np.ndarray, cov: np.ndarray) -> tuple[float, int]:
 
 
 def display(value: float, unit: str) -> tuple[float, str]:
-    """An SI value in the unit people read: mm for lengths, degrees for angles."""
-    return (value * 1e3, "mm") if unit == "m" else (float(np.degrees(value)), "deg")
+    """An SI value in the unit people read: mm for lengths, degrees for angles, ppm for scales,
+    urad/Nm or um/N for compliances (never a compliance in mm)."""
+    from relcal.robot.kinematics import DISPLAY_UNITS
+
+    factor, shown = DISPLAY_UNITS.get(unit, (1.0, unit))
+    return float(value) * factor, shown
 
 
 def consecutive(

@@ -105,7 +105,7 @@ def calibration_record(
     ``robot_id`` (default: the dataset's) is the robot it is recorded under."""
     names, cov = covariance(cal)
     layout = cal.problem.full_layout
-    angle = layout.is_angle()
+    units = layout.units()  # SI: m, rad, 1 (scale), rad/(N m) or m/N (compliance)
     std = cal.std  # of the covariance recorded: `std` and `calibration_std` (older records) agree
     parameters = []
     for k, name in enumerate(layout.names):
@@ -114,7 +114,7 @@ def calibration_record(
         parameters.append(
             {
                 "name": name,
-                "unit": "rad" if angle[k] else "m",
+                "unit": units[k],
                 "value": float(cal.result.params[k]) if estimated else None,
                 "std": value,
                 "calibration_std": value,

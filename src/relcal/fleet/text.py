@@ -66,7 +66,7 @@ def history_text(
             ]
         )
     lines += _table(rows, {0})
-    lines += ["", "parameters (identified error, mm or deg, +- one standard deviation):"]
+    lines += ["", "parameters (identified error in its kind's unit, +- one standard deviation):"]
     header = ["name", "unit"] + [f"run {r.id}" for r in runs]
     table = [header]
     never: dict[str, list[str]] = {"n/i": [], "-": []}
