@@ -175,9 +175,29 @@ def test_registry_record_carries_the_files_and_the_verdict(tiago):
     units = {p["name"]: p["unit"] for p in record["parameters"]}
     assert units["compliance[2]"] == "rad/(N m)" and units["compliance[1]"] == "m/N"
     assert units["theta_off[3]"] == "rad" and units["d[4]"] == "m"
+    assert record["settings"]["parameter_labels"]["theta_off[3]"] == "theta_off[arm_right_2_joint]"
     row = next(p for p in record["parameters"] if p["name"] == "compliance[2]")
     shown = {r["name"]: r for r in doc["parameters"]}["compliance[2]"]
     assert display(row["value"], row["unit"]) == pytest.approx((shown["error"], "urad/Nm"))
+
+
+def test_history_names_the_joints_and_their_units(tiago, tmp_path):
+    """relcal history of the TIAGo record: parameters under their joints' names, compliances in
+    urad/Nm."""
+    from relcal.calibration.pipeline import calibrate
+    from relcal.fleet import registry as reg
+    from relcal.fleet.records import calibration_record
+    from relcal.fleet.text import history_text
+    from relcal.reporting.documents import results_document
+
+    dataset = load_dataset(POSITIONS)
+    cal = calibrate(dataset, measure(dataset, progress=False), selection="conservative")
+    with reg.open_registry(tmp_path / "h.sqlite") as registry:
+        run = registry.get(registry.add(calibration_record(cal, results_document(cal))))
+    text = history_text(run.robot_id, [run], [None], "h.sqlite")
+    row = next(t for t in text.splitlines() if t.startswith("compliance[arm_right_1_joint]"))
+    assert "urad/Nm" in row and "mm" not in row
+    assert "theta_off[arm_right_2_joint]" in text and "theta_off[3]" not in text
 
 
 def test_a_refused_file_is_not_written(tiago):

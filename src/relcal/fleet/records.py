@@ -135,6 +135,8 @@ def calibration_record(
             "chosen_model": chosen_model(cal),
             "joint_ranges": doc.get("joint_ranges"),  # what `relcal verify` checks a session by
             "verdict": (doc.get("verdict") or {}).get("code"),
+            # URDF robots: parameters named after their joints, as the calibration showed them
+            "parameter_labels": doc.get("parameter_labels") or {},
             # every loadable file with its own held-out error (documents.artifacts_document)
             "artifacts": [
                 {

@@ -601,7 +601,7 @@ def artifact_lines(doc: dict | None) -> list[str]:
     """Every loadable file with its own held-out RMS, measured on the file read back."""
     if not doc or not doc.get("files"):
         return []
-    lines = ["each file's own held-out RMS (measured on the file as written, read back):"]
+    lines = ["each file's own held-out RMS (measured on its bytes read back by a loader):"]
     lines += [f"  {artifact_text(f)}" for f in doc["files"]]
     if doc.get("geometry_is_validated_model"):
         lines.append(
