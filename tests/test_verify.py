@@ -65,8 +65,9 @@ def test_real_tiago_calibration_verified_on_the_other_session(tmp_path):
     assert doc["nuisance"]["folds"] == 5 and "cross-fitting" in doc["nuisance"]["scheme"]
     base, after = doc["baseline"]["position_mm"], doc["calibrated"]["position_mm"]
     assert base["rms"] == pytest.approx(20.93, abs=0.02)
-    # 17.40 mm before the priors held the marker's weak parameters (issue 18)
-    assert after["rms"] == pytest.approx(15.85, abs=0.02)
+    # 17.40 mm before the priors held the marker's weak parameters (issue 18) and before
+    # model.yaml reloaded exactly (its gravity reference written: a reload was 1.2 mm off)
+    assert after["rms"] == pytest.approx(15.92, abs=0.02)
     assert base["ci95"][0] < base["rms"] < base["ci95"][1]
     ratio = doc["ratio_to_baseline"]["position_mm"]
     assert ratio["ci95"][1] < 1.0  # it beats the nominal URDF on the new session

@@ -89,6 +89,10 @@ class Calibration:
     warnings : tuple of str
         What the plausibility gate found doubtful but not wrong (frames moved from the
         baseline's, offsets past the joint limits, predicted and bootstrap std that disagree).
+    geometry : Result or None
+        The chosen columns without their non-geometric terms, refitted: the best model a
+        geometry-only file (URDF, UR and Franka files) can hold, validated on its own at
+        export; None when the chosen model has no non-geometric term.
     """
 
     dataset: Dataset
@@ -108,6 +112,9 @@ class Calibration:
     bootstrap_std: np.ndarray | None = None  # (P,) over training samples; NaN if not estimated
     # What the plausibility gate warned of (plausibility.check_calibration), in words.
     warnings: tuple[str, ...] = ()
+    # the chosen columns without the non-geometric terms, refitted: what a geometry-only file
+    # (URDF, vendor files) can hold; None when the chosen model has no non-geometric term
+    geometry: Result | None = None
 
     def __repr__(self) -> str:
         from relcal._repr import plural, short
@@ -175,6 +182,26 @@ class Calibration:
             return model
         columns = self.selection[self.chosen].candidate.columns
         return exported_model(model, {layout.kinds[c] for c in columns if c < layout.size})
+
+    @property
+    def geometry_model(self) -> RobotModel:
+        """The model of the geometry-only files (URDF, UR and Franka files): :attr:`model` when
+        the chosen model has no non-geometric term, otherwise the geometry-only refit
+        (:attr:`geometry`) with every non-geometric term off."""
+        if self.geometry is None:
+            return self.model
+        layout = self.problem.layout
+        model = calibrated_model(self.problem.model, layout, self.geometry.params)
+        return exported_model(model, set())
+
+    @functools.cached_property
+    def artifacts(self):
+        """Every file a user can load (``model.yaml``, ``robot.urdf``, vendor files), each read
+        back and validated on the held-out samples:
+        :func:`relcal.calibration.artifacts.export_artifacts`."""
+        from relcal.calibration.artifacts import export_artifacts
+
+        return export_artifacts(self)
 
     @functools.cached_property
     def comparison(self) -> Comparison:

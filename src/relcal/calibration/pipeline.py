@@ -318,6 +318,10 @@ def calibrate(
             f"candidates with {d['family']} terms" for d in dropped
         )
     weak = _weak(training, result, std if with_priors else None, dataset.q[train])
+    # What a geometry-only file (URDF, vendor files) can hold: validated on its own at export.
+    geometry = _geometry_only(
+        kind, training, result, pick.weighting, loss, noise if fits is None else None, pick_prior
+    )
 
     boot = None
     if kind.shared_linearisation:
@@ -370,7 +374,33 @@ def calibrate(
         reason=reason,
         bootstrap_std=boot,
         warnings=tuple(warnings),
+        geometry=geometry,
     )
+
+
+def _geometry_only(
+    kind: MeasurementKind,
+    training: Training,
+    result: Result,
+    weighting: str,
+    loss: str,
+    noise: NoiseModel | None,
+    prior: np.ndarray | None,
+) -> Result | None:
+    """The chosen model's fitted columns without its non-geometric terms, refitted (by
+    Levenberg-Marquardt, from the chosen fit with those terms at zero): the best model that a
+    file holding geometry only (URDF, UR and Franka files) can express. None when the chosen
+    model has no non-geometric term: those files then hold the validated model itself."""
+    layout = training.problem.layout
+    fitted = np.asarray(result.identifiability.subset)
+    geometric = layout.is_geometric()
+    terms = np.array([c for c in fitted if c < layout.size and not geometric[c]], dtype=int)
+    if terms.size == 0:
+        return None
+    initial = result.params.copy()
+    initial[terms] = 0.0
+    columns = np.setdiff1d(fitted, terms)
+    return _fit(kind, training, columns, weighting, "lm", loss, initial, noise, prior)
 
 
 def _method(candidate, method: str) -> str:

@@ -382,12 +382,12 @@ def _chi_square(d: np.ndarray, cov: np.ndarray) -> tuple[float, int]:
 
 
 def display(value: float, unit: str) -> tuple[float, str]:
-    """An SI value in the unit people read: mm for lengths, degrees for angles, ppm for a joint
-    scale (unit ``1``), urad/Nm and um/N for compliances."""
+    """An SI value in the unit people read: mm for lengths, degrees for angles, ppm for scales,
+    urad/Nm or um/N for compliances (never a compliance in mm)."""
     from relcal.robot.kinematics import DISPLAY_UNITS
 
-    factor, shown = DISPLAY_UNITS.get(unit, (float(np.degrees(1.0)), "deg"))
-    return float(value * factor), shown
+    factor, shown = DISPLAY_UNITS.get(unit, (1.0, unit))
+    return float(value) * factor, shown
 
 
 def consecutive(
