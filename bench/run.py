@@ -73,7 +73,7 @@ from relcal.sim.scenario import (  # noqa: E402
 )
 
 #: Benchmark modules other engineers add under bench/ (``run() -> list[dict]``), in table order.
-OPTIONAL_MODULES = ("images", "montecarlo", "selection", "fleet", "plan", "capture")
+OPTIONAL_MODULES = ("images", "montecarlo", "selection", "scale", "fleet", "plan", "capture")
 
 FK_GOAL = 5e6  # configurations per second on one core
 ID_GOAL_MS = 10.0  # one identification of 100 poses

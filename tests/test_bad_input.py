@@ -145,6 +145,8 @@ def case(cid: str, argv: str, *setups: Setup, expect: tuple[str, ...] = (), code
     return pytest.param(argv, setups, code, expect, id=cid)
 
 
+# Poses that never move joints 4 and 6: no longer bad input (issue 18: what they cannot determine
+# is held and named), see tests/test_weak_directions.py.
 Q_FIXED_WRIST = np.random.default_rng(1).uniform(-1, 1, (20, 6))
 Q_FIXED_WRIST[:, 3] = 0.2  # joint 4 never moves
 Q_FIXED_WRIST[:, 5] = 0.1
@@ -270,12 +272,6 @@ CASES = [
         expect=("samples.csv line 2: image: file not found",),
     ),
     case("too-few-poses", "calibrate {tmp}/d", ds(n=3), expect=("only 3 usable samples",)),
-    case(
-        "poses-do-not-vary-a-joint",
-        "calibrate {tmp}/d",
-        ds(q=Q_FIXED_WRIST),
-        expect=("the poses identify only", "vary the joints more"),
-    ),
     case(
         "header-without-pose-or-image",
         "calibrate {tmp}/d",

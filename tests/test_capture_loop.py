@@ -276,7 +276,7 @@ def test_capture_opens_devices_by_name_and_refuses_bad_ones_in_one_line(capsys, 
     from relcal.capture import devices
     from relcal.cli import main
 
-    with pytest.raises(RelcalError, match="--camera sim: the virtual camera belongs to the"):
+    with pytest.raises(RelcalError, match="--camera sim: the virtual camera needs a robot"):
         devices.open_camera("sim", {})
     (tmp_path / "plan.csv").write_text("id,q1,q2,q3,q4,q5,q6\np1,1,2,3,4,5,6\n")
     base = ["capture", str(tmp_path / "plan.csv"), "--robot", "ur5e", "--out", str(tmp_path / "ds")]
@@ -284,7 +284,9 @@ def test_capture_opens_devices_by_name_and_refuses_bad_ones_in_one_line(capsys, 
         (["--robot-driver", "nope", "--camera", "sim"], "--robot-driver 'nope': expected one of"),
         (["--robot-driver", "sim", "--camera", "sim", "--robot-option", "colour=red"],
          "--robot-driver sim: unknown option 'colour'"),
-        (["--robot-driver", "sim", "--camera", "opencv"], "robot and camera go together"),
+        (["--robot-driver", "sim", "--camera", "opencv"], "a real camera cannot see it"),
+        (["--robot-driver", "sim", "--camera", "sim", "--camera-option", "seed=2"],
+         "option seed belongs to --robot-option"),
         (["--robot-driver", "sim", "--camera", "sim", "--robot-option", "faults=hide:p9"],
          "'hide:p9': 'p9' is not a pose id of the plan"),
     ]:  # fmt: skip
@@ -367,3 +369,62 @@ def test_a_urdf_robot_is_kept_as_its_urdf_in_the_dataset(tmp_path, board_image):
         data = load_dataset(tmp_path / "ds")
     assert data.model.urdf is not None and data.model.joint_names == model.joint_names
     np.testing.assert_allclose(data.q, q, atol=0.002 * DEG)
+
+
+class VibratingRobot(FakeRobot):
+    """Rings until ``settle`` s after the move returned, then vibrates for ``buzz`` s more at
+    10 Hz with 0.004 deg amplitude: 0.008 deg peak to peak, under the 0.01 deg position
+    threshold, but 0.25 deg/s, over the velocity limit; reports velocities when ``dq``."""
+
+    def __init__(self, clock, dq=True, buzz=1.0):
+        super().__init__(clock, settle=0.4, noise=0.0)
+        self.report_dq, self.buzz = dq, buzz
+
+    def parts(self, t):
+        since = t - self.returned - self.settle
+        amp = 0.004 * DEG * ((since >= 0) & (since < self.buzz))
+        w = 2 * np.pi * 10.0
+        return amp * np.sin(w * t), amp * w * np.cos(w * t)
+
+    def true_q(self, t):
+        return super().true_q(t) + self.parts(t)[0]
+
+    def read(self):
+        t = self.clock.now()
+        left = self.returned + self.settle - t
+        ring_dq = 0.05 * 40 * np.cos(40 * t) * (left > 0)
+        dq = np.full(6, ring_dq + self.parts(t)[1])
+        return JointReading(self.true_q(t), t, dq if self.report_dq else None)
+
+
+def test_reported_velocities_hold_the_window_until_the_arm_stops_moving(board_image):
+    from relcal.capture.loop import speed_of
+
+    starts = {}
+    settings = CaptureSettings(settle_window=0.3, settle_velocity=0.02 * DEG)
+    for dq in (False, True):
+        clock = SimClock()
+        robot = VibratingRobot(clock, dq=dq)
+        camera = FakeCamera(clock, board_image)
+        summary, sink = run(robot, camera, clock, plan=targets(1), settings=settings)
+        assert summary.recorded == ["p1"]
+        sample = sink.samples[0]
+        starts[dq] = sample.window[0] - robot.returns[0]
+        # the arm rang when the move returned (at t = 0.5 s: 0.05 rad x 40 rad/s x cos 20 =
+        # 0.82 rad/s), from the first two positions 10 ms apart
+        assert 0.4 < sample.returned_speed < 0.9, sample.returned_speed
+        assert sample.settle_seconds == pytest.approx(starts[dq] + 0.3, abs=0.02)
+        assert sample.record()["settle_seconds"] == pytest.approx(sample.settle_seconds)
+    # positions alone accept the vibration (under the threshold) once the ringing ends, at
+    # 0.4 s; the velocities wait until it ends too, at 1.4 s
+    assert 0.39 <= starts[False] < 0.45, starts
+    assert 1.39 <= starts[True] < 1.45, starts
+    assert np.isnan(speed_of(JointReading(np.zeros(2), 1.0)))
+    two = (JointReading(np.zeros(2), 1.0), JointReading(np.array([0.0, -0.03]), 1.01))
+    assert speed_of(*two) == pytest.approx(3.0)
+    assert speed_of(JointReading(np.zeros(2), 1.0, np.array([0.5, -2.0]))) == 2.0
+
+
+def test_settle_velocity_is_checked():
+    with pytest.raises(RelcalError, match="settle_velocity"):
+        CaptureSettings(settle_velocity=-1.0)

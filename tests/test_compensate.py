@@ -109,3 +109,31 @@ def test_calibrate_then_compensate_end_to_end(tmp_path, rng):
     rms_before, rms_after = np.sqrt(np.mean(before**2)), np.sqrt(np.mean(after**2))
     print(f"positioning RMS in a user frame: {rms_before * 1e3:.3f} -> {rms_after * 1e3:.4f} mm")
     assert rms_before > 5 * rms_after
+
+
+def test_compensate_warns_outside_the_joint_ranges_the_calibration_covered(tmp_path, capsys):
+    """results.json beside the model records the training joint ranges: a target beyond them is
+    named on standard error (its accuracy was never validated); targets inside are not."""
+    syn = synthetic_dataset(tmp_path / "d", n=30)
+    out = tmp_path / "out"
+    assert main(["calibrate", str(syn.root), "--out", str(out), "--quiet"]) == 0
+    ranges = json.loads((out / "results.json").read_text())["joint_ranges"]["joints"]
+    lower = np.array([j["lower"] for j in ranges])
+    upper = np.array([j["upper"] for j in ranges])
+    model = load_model(out / "model.yaml")
+    inside = (lower + upper) / 2
+    beyond = inside.copy()
+    beyond[0] = upper[0] + 0.5 * (model.upper[0] - upper[0])  # within the joint's limits
+    assert beyond[0] < model.upper[0] and beyond[0] > upper[0] + np.radians(2)
+    program = tmp_path / "program.csv"
+    program.write_text(
+        "id," + ",".join(f"q{i + 1}" for i in range(6)) + "\n"
+        + "".join(f"{name}," + ",".join(f"{v:.12g}" for v in np.degrees(q)) + "\n"
+                  for name, q in (("in", inside), ("far", beyond)))
+    )  # fmt: skip
+    argv = ["compensate", "--model", str(out / "model.yaml"), "--targets", str(program)]
+    argv += ["--nominal", str(out / "model.yaml"), "--out", str(tmp_path / "j.csv")]
+    assert main(argv) == 0
+    err = capsys.readouterr().err
+    assert "target far:" in err and "outside the joint ranges the calibration covered" in err
+    assert "target in:" not in err

@@ -22,7 +22,7 @@ from relcal.robot.loading import get_robot  # noqa: E402
 UR5E = get_robot("ur5e")
 CONTROL = ("moveJ", "stopJ", "getAsyncOperationProgressEx", "isJointsWithinSafetyLimits",
            "isConnected", "stopScript", "disconnect")  # fmt: skip
-RECEIVE = ("getActualQ", "getTimestamp", "isProtectiveStopped", "isEmergencyStopped",
+RECEIVE = ("getActualQ", "getActualQd", "getTimestamp", "isProtectiveStopped", "isEmergencyStopped",
            "isConnected", "disconnect")  # fmt: skip
 
 
@@ -55,6 +55,11 @@ class Arm:
 
     def running(self) -> bool:
         return self.clock.t - self.t0 < self.duration
+
+    def dq(self) -> np.ndarray:
+        if not self.running():
+            return np.zeros_like(self.q0)
+        return (self.q1 - self.q0) / self.duration
 
 
 class Status:
@@ -109,6 +114,9 @@ def doubles(arm: Arm):
 
         def getActualQ(self):  # noqa: N802
             return arm.q().tolist()
+
+        def getActualQd(self):  # noqa: N802
+            return arm.dq().tolist()
 
         def getTimestamp(self):  # noqa: N802
             # the newest RTDE packet of the 500 Hz stream, on the controller's clock
@@ -208,3 +216,33 @@ def test_clock_map_keeps_the_smallest_latency_and_follows_restarts():
     assert max(errors[50:]) < 0.02 and np.median(errors[50:]) < 0.003
     sync.observe(0.5)  # the device clock restarted: the old offset is forgotten
     assert sync.offset == pytest.approx(clock.now() - 0.5)
+
+
+@pytest.mark.parametrize("rate", [1.0, 1.25, 3.0, 12.0])
+def test_clock_map_follows_a_device_clock_slower_than_the_loop(rate):
+    """A simulator running ``rate`` times slower than real time (franky-sim on a loaded
+    machine): stamps stay never earlier than the truth and late by about the smallest latency;
+    taking the window's smallest offset at face value would make them ``0.25 * (rate - 1)`` s
+    early (2.75 s at 12)."""
+    from relcal.capture.timesync import ClockMap, clock_rate
+
+    clock = SimClock()
+    clock.sleep(100.0)
+    sync = ClockMap(clock)
+    rng = np.random.default_rng(1)
+    errors, device = [], 7.0
+    for _ in range(1500):  # 100 readings a loop second, latency 1 to 30 ms
+        clock.sleep(0.01 * rng.uniform(0.5, 1.5))
+        exposed = clock.now() - rng.uniform(0.001, 0.03)
+        device_stamp = device + (exposed - 100.0) / rate
+        errors.append(sync.observe(device_stamp) - exposed)
+    errors = np.array(errors[300:])
+    assert errors.min() >= -1e-3, errors.min()  # never earlier than the exposure
+    assert np.median(errors) < 0.01 and errors.max() < 0.04, (np.median(errors), errors.max())
+    assert sync.rate == pytest.approx(rate, rel=0.02)
+    # the estimator on its own: a straight line through the least delayed samples
+    d = np.linspace(0.0, 2.0, 200)
+    late = rng.uniform(0.0, 0.02, d.size)
+    late[[3, 190]] = 0.0
+    assert clock_rate(d, 5.0 + rate * d + late) == pytest.approx(rate, abs=0.02 / 1.9)
+    assert clock_rate(d[:20], 5.0 + rate * d[:20]) is None  # 0.2 s: too short to tell

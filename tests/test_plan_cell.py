@@ -38,9 +38,10 @@ def test_segment_distance_against_sampling():
     rng = np.random.default_rng(0)
     p0, p1, q0, q1 = (rng.normal(size=(200, 3)) for _ in range(4))
     p1[:20] = p0[:20]  # points
+    q1[20:40] = q0[20:40]  # points as the second segment (the camera's sphere)
     exact = segment_distance(p0, p1, q0, q1)
     t = np.linspace(0, 1, 1001)[:, None]
-    for k in range(0, 200, 7):
+    for k in [*range(0, 200, 7), *range(20, 40, 4)]:
         a = p0[k] + t * (p1[k] - p0[k])
         b = q0[k] + t * (q1[k] - q0[k])
         sampled = np.linalg.norm(a[:, None] - b[None], axis=-1).min()

@@ -46,6 +46,17 @@ def test_a_record_holds_what_the_calibration_found(calibrated, tmp_path):
     assert run.model_name == cal.dataset.model.name
     chosen = cal.selection[cal.chosen].candidate
     settings = {**cal.settings, "chosen_model": chosen.name, "joint_ranges": doc["joint_ranges"]}
+    settings["verdict"] = doc["verdict"]["code"]
+    settings["parameter_labels"] = {}  # a YAML robot: its joints are numbered
+    settings["artifacts"] = [
+        {
+            "file": f["file"],
+            "holds": f["holds"],
+            "written": f["written"],
+            "position_rms_mm": f["held_out"]["position_rms_mm"],
+        }
+        for f in doc["artifacts"]["files"]
+    ]
     assert run.settings == json.loads(json.dumps(settings))
     assert set(run.input_hashes) == {"dataset.yaml", "samples.csv"}
     assert run.outputs_path == str((tmp_path / "out").resolve())

@@ -47,10 +47,10 @@ def _tiago(folder: Path, samples: str) -> Path:
 
 @pytest.mark.skipif(not TIAGO.is_dir(), reason="real data not available")
 def test_real_tiago_calibration_verified_on_the_other_session(tmp_path):
-    """Kinematics calibrated on the 94 positions of 2026-07-02 (``--select conservative``: the
-    default selection is refused as implausible), verified on the positions of the 48 poses of
+    """Kinematics calibrated on the 94 positions of 2026-07-02 (``--select conservative``),
+    verified on the positions of the 48 poses of
     2026-08-05 (another session, another marker: ``T`` and ``m`` refitted). It beats the nominal
-    URDF there, but predicts it about 3.3 times worse than its own held-out points: the numbers
+    URDF there, but predicts it about 3.5 times worse than its own held-out points: the numbers
     of docs/howto/verify.md."""
     pytest.importorskip("relcal.robot.urdf")
     first = _tiago(tmp_path / "tiago-0702", "mocap_position_20260702.csv")
@@ -65,12 +65,14 @@ def test_real_tiago_calibration_verified_on_the_other_session(tmp_path):
     assert doc["nuisance"]["folds"] == 5 and "cross-fitting" in doc["nuisance"]["scheme"]
     base, after = doc["baseline"]["position_mm"], doc["calibrated"]["position_mm"]
     assert base["rms"] == pytest.approx(20.93, abs=0.02)
-    assert after["rms"] == pytest.approx(17.40, abs=0.02)
+    # 17.40 mm before the priors held the marker's weak parameters (issue 18) and before
+    # model.yaml reloaded exactly (its gravity reference written: a reload was 1.2 mm off)
+    assert after["rms"] == pytest.approx(15.92, abs=0.02)
     assert base["ci95"][0] < base["rms"] < base["ci95"][1]
     ratio = doc["ratio_to_baseline"]["position_mm"]
     assert ratio["ci95"][1] < 1.0  # it beats the nominal URDF on the new session
     at = doc["at_calibration"]["position_mm"]
-    assert at["rms"] == pytest.approx(5.25, abs=0.01) and at["n_samples"] == 24
+    assert at["rms"] == pytest.approx(4.48, abs=0.01) and at["n_samples"] == 24
     assert doc["ratio_to_calibration"]["position_mm"]["ci99"][0] > 2.0  # far worse than then
     assert len(doc["samples"]) == 48 and doc["joint_ranges"]["checked"]
     # the session's nuisance, fitted to all its points: the instrument close to the identity

@@ -10,7 +10,8 @@ names the input, the size found, the limit, and how to go on.
   expand to 10^9 values), or that refers to itself, or nests deeper than ``MAX_YAML_DEPTH``, is
   refused before anything walks it.
 - **Memory** (:func:`check_memory`): a computation whose size follows from the input (all
-  pairs of N samples is quadratic) states its need first; above ``RELCAL_MAX_MEMORY_MB``
+  pairs of N samples is quadratic; the board formulation, ``--pairs auto`` above 300 samples, is
+  linear) states its need first, for the formulation it will use; above ``RELCAL_MAX_MEMORY_MB``
   (default 2048) it is refused with the remedy.
 
 Nothing here imports NumPy: the command line checks sizes before loading anything heavy.
@@ -151,20 +152,42 @@ def _size(n: float) -> str:
     return f"{n / 2**30:.1f} GiB" if n >= 2**30 else f"{n / 2**20:.0f} MiB"
 
 
+AUTO_ALL_PAIRS = 300  # pairing ``auto``: all pairs up to this many samples, ``board`` above
+
+
+def resolve_pairing(pairing: str, n_samples: int) -> str:
+    """The pairing ``auto`` stands for with ``n_samples`` samples (``all`` up to
+    :data:`AUTO_ALL_PAIRS`, ``board`` above); any other pairing is itself."""
+    if pairing != "auto":
+        return pairing
+    return "all" if n_samples <= AUTO_ALL_PAIRS else "board"
+
+
 def pair_count(n_samples: int, pairing: str) -> int:
-    """Pairs of ``n_samples`` samples under ``pairing`` (``all`` is quadratic)."""
+    """Measurements of ``n_samples`` samples under ``pairing``: pairs (``all`` is quadratic), or
+    one per sample (``board``)."""
+    pairing = resolve_pairing(pairing, n_samples)
     if pairing == "all":
         return n_samples * (n_samples - 1) // 2
+    if pairing == "board":
+        return n_samples
     return max(n_samples - 1, 0)
 
 
 # Measured peaks of a calibration and its results on synthetic A465 sets (42 + 6 parameters):
 # - all pairs: 163 MB at 100 samples, 345 MB at 300, 922 MB at 500: 6.3 KB per pair of the whole
 #   dataset (residuals, Jacobians and their weighted copies, 3 x 8 bytes per row and parameter);
-# - any pairing: the covariance whitens the noise of a chain through the training samples with a
-#   dense SVD of (6 n)^2 numbers: 1.55 GB at 1000 samples (750 training), about 8 such matrices.
-# The peak is the larger of the two (they come at different steps).
+# - consecutive or star pairs: the covariance whitens the noise of a chain through the training
+#   samples with a dense SVD of (6 n)^2 numbers: 1.55 GB at 1000 samples (750 training), about 8
+#   such matrices;
+# - board: one measurement per sample and a block-diagonal covariance, no dense matrix of the
+#   samples: linear. bench/scale.py measured peaks (RSS of a whole `relcal calibrate`, 42 + 12
+#   parameters) of 218 MB at 1000 samples, 299 MB at 3000 and 393 MB at 10,000: about 20 KB per
+#   sample, 370 bytes per sample and parameter (residuals, Jacobians, the linearisation, the
+#   noise model's moments and their copies).
+# The peak is the larger of the two terms (they come at different steps).
 PAIR_BYTES_PER_PARAMETER = 6 * 8 * 3
+BOARD_BYTES_PER_PARAMETER = 400
 CHAIN_COPIES = 8
 BASE_BYTES = 150 * 2**20
 
@@ -174,8 +197,11 @@ def calibration_memory(
 ) -> float:
     """Estimated peak memory (bytes) of a calibration of ``n_samples`` samples (``n_train`` of
     them training, default all) with ``n_params`` parameters (geometry, non-geometric candidates
-    and hand-eye) under ``pairing``."""
+    and hand-eye) under ``pairing`` (``auto`` resolved by ``n_samples``)."""
     n_train = n_samples if n_train is None else n_train
+    pairing = resolve_pairing(pairing, n_samples)
+    if pairing == "board":  # + the board transform's 6-vector
+        return BASE_BYTES + n_samples * (n_params + 6) * BOARD_BYTES_PER_PARAMETER
     pairs = pair_count(n_samples, pairing) * n_params * PAIR_BYTES_PER_PARAMETER
     chain = CHAIN_COPIES * (6.0 * n_train) ** 2 * 8
     return BASE_BYTES + max(pairs, chain)
@@ -187,28 +213,29 @@ def check_calibration_memory(
     """Refuse a calibration whose pairs or covariance would not fit in the memory limit,
     before allocating them, naming the sample count, the estimate and the remedy."""
     need = calibration_memory(n_samples, pairing, n_params, n_train)
-    pairs = pair_count(n_samples, pairing)
+    if need <= memory_limit():
+        return
+    used = resolve_pairing(pairing, n_samples)
+    pairs = pair_count(n_samples, used)
     limit = memory_limit()
     n_train = n_samples if n_train is None else n_train
-    cheaper = calibration_memory(n_samples, "consecutive", n_params, n_train)
-    largest = ((max(limit - BASE_BYTES, 0) / (CHAIN_COPIES * 8)) ** 0.5) / 6  # training samples
-    fewer = (
-        f"calibrate at most about {int(largest * n_samples / max(n_train, 1)):,} samples (the "
-        "covariance of the estimate grows with the square of the training samples)"
-    )
-    if pairing == "all":
+    cheaper = calibration_memory(n_samples, "board", n_params, n_train)
+    per_sample = (n_params + 6) * BOARD_BYTES_PER_PARAMETER
+    largest = max(limit - BASE_BYTES, 0) / per_sample  # samples with the board formulation
+    fewer = f"calibrate at most about {int(largest):,} samples"
+    if used != "board":
         remedy = (
-            "use --pairing consecutive or --pairing star (pairing='consecutive' or 'star' in "
-            "Python; "
-            f"{max(n_samples - 1, 0):,} pairs, about {_size(cheaper)})"
+            "use --pairing board or auto, the default (pairing='board' or 'auto' in Python: one "
+            f"measurement per sample, the information of all pairs, about {_size(cheaper)})"
         )
         if cheaper > limit:
             remedy += f", which is still above the limit: {fewer}"
     else:
         remedy = fewer
+    shown = pairing if pairing == used else f"{pairing} ({used})"
+    count = f"{pairs:,} measurements" if used == "board" else f"{pairs:,} pairs"
     check_memory(
         need,
-        f"{where}: {n_samples:,} samples with --pairing {pairing} ({pairs:,} pairs, {n_params} "
-        "parameters)",
+        f"{where}: {n_samples:,} samples with --pairing {shown} ({count}, {n_params} parameters)",
         remedy + "; or raise RELCAL_MAX_MEMORY_MB if the machine has the memory",
     )

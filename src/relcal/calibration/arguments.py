@@ -34,7 +34,7 @@ def check_calibrate(
         check_measurements(measurements, dataset)
     check_number(holdout, "holdout", 0, 1, high_open=True)
     check_number(seed, "seed", integer=True)
-    check_choice(pairing, "pairing", ("consecutive", "star", "all"))
+    check_choice(pairing, "pairing", ("auto", "consecutive", "star", "all", "board"))
     check_choice(method, "method", ("lm", "published"))
     check_choice(loss, "loss", ("linear", "huber", "cauchy", "soft_l1"))
     check_choice(selection, "selection", ("cv", "conservative", "all"))

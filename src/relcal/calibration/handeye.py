@@ -12,7 +12,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from relcal import geometry as tf
-from relcal.calibration.measurement import make_pairs
+from relcal.calibration.measurement import AUTO_ALL_PAIRS, capped_pairs
 from relcal.errors import RelcalError
 
 
@@ -36,9 +36,13 @@ def align_rotations(
     return tf.kabsch(a, b)
 
 
+GUESS_PAIRS = AUTO_ALL_PAIRS * (AUTO_ALL_PAIRS - 1) // 2  # pairs of the guess: all of 300 samples
+
+
 def solve_handeye(flange: np.ndarray, measured: np.ndarray) -> np.ndarray:
-    """``X`` ``(4, 4)`` from flange poses ``F_k`` and measured poses ``C_k`` ``(N, 4, 4)``."""
-    pairs = make_pairs(len(flange), "all")
+    """``X`` ``(4, 4)`` from flange poses ``F_k`` and measured poses ``C_k`` ``(N, 4, 4)``: all
+    pairs, or :data:`GUESS_PAIRS` random ones of a larger set (linear in the samples)."""
+    pairs = capped_pairs(len(flange), GUESS_PAIRS)
     a, b = tf.relative(flange, pairs), tf.relative(measured, pairs)
     if len(pairs) < 2 or np.linalg.matrix_rank(rotation_vectors(a), tol=1e-3) < 2:
         raise RelcalError(

@@ -26,10 +26,10 @@ from relcal.robot.model import RobotModel, parallel_axes
 DEFAULT_RCOND = 1e-6
 HandEye = Literal["estimated", "known"]
 INDEX_NAMES = ("O1", "O2", "O3", "O4", "O5")
-# Frames estimated alongside the geometry (not part of the robot): hand-eye X, the tracker
-# formulation's instrument transform T and marker position m, the coincidence formulation's tool
-# point and group points.
-NUISANCE_KINDS = ("handeye", "instrument", "marker", "tool_point", "point")
+# Frames estimated alongside the geometry (not part of the robot): hand-eye X, the board
+# formulation's board transform W, the tracker formulation's instrument transform T and marker
+# position m, the coincidence formulation's tool point and group points.
+NUISANCE_KINDS = ("handeye", "board", "instrument", "marker", "tool_point", "point")
 _INVOLVED = 1e-6  # a parameter with a larger share of a null vector is not identifiable alone
 
 
@@ -126,6 +126,9 @@ class Identifiability:
         Unidentifiable directions in the parameters' SI units (m, rad), unit-norm columns.
     combinations : tuple of Combination
         The unidentifiable combinations, named, each with its reason.
+    weak : tuple of Combination
+        Of ``combinations``, those that varied poses would determine: weak data (a joint that
+        barely moves), not a structural symmetry of the measurement.
     """
 
     singular_values: np.ndarray  # (P,), descending, of the unit-column Jacobian
@@ -136,6 +139,9 @@ class Identifiability:
     subset: np.ndarray  # (rank,) parameter indices chosen by QR with column pivoting
     null_space: np.ndarray  # (P, P - rank) in original parameter units, columns unit-norm
     combinations: tuple[Combination, ...]
+    # Of ``combinations``, those that generic (varied) poses would determine: weak data, not a
+    # structural symmetry (:func:`check_pose_set`).
+    weak: tuple[Combination, ...] = ()
 
     @property
     def condition_number(self) -> float:
@@ -334,9 +340,11 @@ def explainer(problem: Problem):
                 return "moves the marker by a constant amount in the flange frame: m absorbs it"
             return "linearly dependent at these poses: vary the poses or fix one of them"
         if "handeye" not in kinds and constant(spatial @ geometric):
+            if problem.formulation == "board":
+                return "acts as a rigid motion of the robot base: the board transform W absorbs it"
             return "acts as a rigid motion of the robot base: cancels in relative measurements"
         if "handeye" in kinds or constant(body @ geometric):
-            if problem.formulation == "invariant":
+            if problem.formulation in ("invariant", "board"):
                 return "acts like a change of the hand-eye transform X, which absorbs it"
             return "acts like a change of the tool transform"
         if same_motion(geometric):
@@ -414,10 +422,14 @@ def analyse_problem(
     return analyse(jac, layout, rcond, explainer(problem))
 
 
-def check_pose_set(problem: Problem, source: str, seed: int = 0) -> Identifiability:
-    """Identifiability at the problem's poses; an error if they identify less than generic poses
-    would (the structural null space of this robot and formulation), naming what they miss.
-    ``source`` names the data in the message (e.g. the dataset file)."""
+def check_pose_set(
+    problem: Problem, source: str, seed: int = 0, refuse: bool = True
+) -> Identifiability:
+    """Identifiability at the problem's poses, with the combinations they leave undetermined
+    that generic poses would determine (the structural null space of this robot and
+    formulation) as its ``weak`` ones. With ``refuse``, an error if there are any, naming what
+    they miss; without, the caller decides (:func:`weak_families`). ``source`` names the data
+    in the message (e.g. the dataset file)."""
     ident = analyse_problem(problem)
     if problem.formulation == "coincidence":  # generic poses seat no tool point in a group
         return ident
@@ -433,12 +445,15 @@ def check_pose_set(problem: Problem, source: str, seed: int = 0) -> Identifiabil
     )
     if ident.rank < reference.rank:
         known = {c.names for c in reference.combinations}
-        extra = [c.describe() for c in ident.combinations if c.names not in known]
-        raise RelcalError(
-            f"{source}: the poses identify only {ident.rank} of the {reference.rank} "
-            "parameter combinations that varied poses would; vary the joints more. Not "
-            "determined by these poses: " + "; ".join(extra or ["(mixed combinations)"])
-        )
+        weak = tuple(c for c in ident.combinations if c.names not in known)
+        if refuse:
+            raise RelcalError(
+                f"{source}: the poses identify only {ident.rank} of the {reference.rank} "
+                "parameter combinations that varied poses would; vary the joints more. Not "
+                "determined by these poses: "
+                + "; ".join([c.describe() for c in weak] or ["(mixed combinations)"])
+            )
+        return replace(ident, weak=weak or ident.combinations[: reference.rank - ident.rank])
     return ident
 
 

@@ -137,6 +137,12 @@ class Result:
         The loss of the fit.
     f_scale : float
         Where the robust loss bends, weighted residual units.
+    prior : (P,) ndarray of float or None
+        Maximum a posteriori fits: the factors of the prior rows ``prior[k] * params[k]``
+        appended to the weighted residual (weighted-residual units per unit of parameter; 0: no
+        row). None: a plain least-squares fit.
+    prior_std : (P,) ndarray of float or None
+        The priors' standard deviations (m, rad; inf: no prior), or None.
     """
 
     params: np.ndarray
@@ -155,6 +161,11 @@ class Result:
     noise: Noise | None = field(default=None, compare=False)  # pose noise; default: from r
     loss: str = "linear"
     f_scale: float = 1.0
+    # Maximum a posteriori fits: the prior rows ``prior[k] * params[k]`` appended to the
+    # weighted residual (``(P,)``, weighted-residual units per unit of parameter; 0: no row),
+    # and the priors' standard deviations ``(P,)`` in SI units (inf: none). None: plain fit.
+    prior: np.ndarray | None = field(default=None, repr=False, compare=False)
+    prior_std: np.ndarray | None = field(default=None, repr=False, compare=False)
 
     @functools.cached_property
     def gradient_check(self) -> GradientCheck:
@@ -163,7 +174,13 @@ class Result:
         every = np.arange(len(self.params))
         columns = every if self.method == "published" else self.identifiability.subset
         return gradient_check(
-            self.problem, self.params, columns, self.loss, self.f_scale, self.whiten
+            self.problem,
+            self.params,
+            columns,
+            self.loss,
+            self.f_scale,
+            self.whiten,
+            prior=self.prior,
         )
 
     @property
@@ -192,15 +209,19 @@ class Result:
         not move when the parameters held at nominal take other values (a curved symmetry can
         draw a parameter outside the nominal null space into a combination; this finds it)."""
         return self.identifiability.identifiable & ~held_dependence(
-            self.problem, self.params, self.identifiability, self.whiten, self.method
+            self.problem, self.params, self.identifiability, self.whiten, self.method, self.prior
         )
 
     @functools.cached_property
     def covariance(self) -> np.ndarray:
-        """Covariance ``(P, P)`` of the estimate (m, rad; NaN for parameters held at nominal)."""
-        return result_covariance(
+        """Covariance ``(P, P)`` of the estimate (m, rad; NaN for parameters held at nominal):
+        the data's, combined with the priors when the fit had them (maximum a posteriori)."""
+        data = result_covariance(
             self.problem, self.params, self.identifiability, self.whiten, self.noise
         )
+        if self.prior_std is None:
+            return data
+        return posterior_covariance(data, self.prior_std, self.identifiability.subset)
 
     @property
     def unidentifiable(self) -> list[str]:
@@ -296,6 +317,7 @@ def gradient_check(
     f_scale: float = 1.0,
     whiten: np.ndarray | None = None,
     tolerance: float = GRADIENT_TOL,
+    prior: np.ndarray | None = None,
 ) -> GradientCheck:
     """Whether ``params`` ``(P,)`` is a stationary point of the stated cost over ``columns``.
 
@@ -305,13 +327,17 @@ def gradient_check(
     (step :data:`FD_STEP` in SI units), never the solver's analytic Jacobian, so a wrong
     Jacobian cannot certify its own fixed point. Forward differences suffice: their relative
     error (about ``FD_STEP``) moves the measured decrement by far less than its tolerance.
+    ``prior`` ``(P,)``: the prior rows ``prior[k] * x[k]`` of a maximum a posteriori fit, appended
+    for the ``columns`` where it is positive (:func:`prior_rows`); they bend with the loss too.
     """
     params = np.asarray(params, dtype=float)
     columns = np.asarray(columns, dtype=int)
+    rows = prior_rows(prior, columns)
 
     def real(x: np.ndarray) -> np.ndarray:
         r = residuals(problem, x, jacobian=False)
-        return r if whiten is None else whiten @ r
+        r = r if whiten is None else whiten @ r
+        return r if rows is None else np.r_[r, rows[1] * x[rows[0]]]
 
     r = real(params)
     jac = np.empty((len(r), len(columns)))
@@ -354,6 +380,42 @@ def _loss_derivative(loss: str, z: np.ndarray) -> np.ndarray:
     return np.ones_like(z)
 
 
+def prior_rows(
+    prior: np.ndarray | None, columns: np.ndarray
+) -> tuple[np.ndarray, np.ndarray] | None:
+    """The parameters (among ``columns``) that have a prior row, and the rows' weights; None
+    when there are none (a plain fit)."""
+    if prior is None:
+        return None
+    columns = np.asarray(columns, dtype=int)
+    keep = columns[np.asarray(prior, float)[columns] > 0]
+    if not len(keep):
+        return None
+    return keep, np.asarray(prior, float)[keep]
+
+
+def posterior_covariance(data: np.ndarray, std: np.ndarray, subset: np.ndarray) -> np.ndarray:
+    """The covariance ``(P, P)`` of a maximum a posteriori estimate: the data's covariance
+    ``data`` (NaN outside ``subset``; it may be singular along weak directions) combined with
+    independent priors of standard deviations ``std`` ``(P,)`` (inf: none),
+    ``(C^+ + diag(1 / std^2))^-1`` on ``subset`` (Jacobi-scaled)."""
+    subset = np.asarray(subset, dtype=int)
+    out = np.full_like(data, np.nan)
+    if not len(subset):
+        return out
+    c = data[np.ix_(subset, subset)]
+    if not np.all(np.isfinite(c)):
+        return data
+    d = np.sqrt(np.clip(np.diag(c), 1e-300, None))
+    info = np.linalg.pinv(c / np.outer(d, d), hermitian=True) / np.outer(d, d)
+    info = info + np.diag(1.0 / np.asarray(std, float)[subset] ** 2)
+    e = np.sqrt(np.clip(np.diag(info), 1e-300, None))
+    out[np.ix_(subset, subset)] = np.linalg.pinv(info / np.outer(e, e), hermitian=True) / np.outer(
+        e, e
+    )
+    return out
+
+
 DEPENDENCE_TOL = 1e-4  # mm or deg of change per mm or deg of a parameter held at nominal
 COINCIDENCE_DEPENDENCE = 0.1  # ... and, for coincidences, standard deviations of change
 
@@ -364,6 +426,7 @@ def held_dependence(
     ident: Identifiability,
     whiten: np.ndarray | None = None,
     method: str = "lm",
+    prior: np.ndarray | None = None,
 ) -> np.ndarray:
     """``(P,)`` bool: estimated parameters that move (by more than ``DEPENDENCE_TOL`` per unit)
     when the parameters held at nominal move along the unidentifiable directions by one unit
@@ -387,6 +450,12 @@ def held_dependence(
     if published:  # nothing is held: the solver picks a point on the symmetry's orbit
         refit = identify_published(problem, identifiability=ident, initial=params + step)
     else:
+        if prior is not None:
+            # What the *data* determine: the plain least squares from the estimate, against
+            # the same moved along the symmetries (the priors pull both alike; a prior's pull
+            # on a combination's member would read as a dependence of the others).
+            params = identify_lm(problem, 50, ident, whiten=whiten, initial=params, fixed=params)
+            params = params.params
         moved = params.copy()
         moved[held] += step[held]
         refit = identify_lm(problem, 50, ident, whiten=whiten, initial=params + step, fixed=moved)
@@ -419,7 +488,9 @@ def result_covariance(
     if problem.formulation in ("absolute", "tracker", "coincidence"):  # independent samples
         return least_squares_covariance(a, r, ident.subset)
     if noise is None:
-        sigma = robust_sigma(pair_errors(problem, params)) / np.sqrt(2)  # two poses per pair
+        sigma = robust_sigma(pair_errors(problem, params))
+        if problem.formulation != "board":
+            sigma = sigma / np.sqrt(2)  # two poses per pair
         noise = Noise(position=float(sigma[0]), orientation=float(sigma[3]))
     unc = parameter_covariance(problem, noise, ident, params=params)
     cov = np.full((len(params), len(params)), np.nan)
@@ -615,7 +686,7 @@ def _reduced(
     n_geo = problem.layout.size
     free = np.asarray(subset, dtype=int)
     geo_free = np.sort(free[free < n_geo])
-    if problem.formulation != "invariant" or "origin" in problem.layout.kinds:
+    if problem.formulation not in ("invariant", "board") or "origin" in problem.layout.kinds:
         return None
     if len(geo_free) == n_geo:
         return None
@@ -631,7 +702,8 @@ def _reduced(
         tuple(layout.index[i] for i in geo_free),
         layout.prismatic,
     )
-    columns = np.r_[geo_free, np.arange(n_geo, n_geo + 6)]
+    frames = problem.full_layout.size - n_geo  # hand-eye (and board) 6-vectors
+    columns = np.r_[geo_free, np.arange(n_geo, n_geo + frames)]
     sub_subset = np.r_[np.arange(len(geo_free)), len(geo_free) + free[free >= n_geo] - n_geo]
     return replace(problem, model=model, layout=sub), columns, sub_subset.astype(int)
 
@@ -646,6 +718,8 @@ def identify_lm(
     whiten: np.ndarray | None = None,
     initial: np.ndarray | None = None,
     fixed: np.ndarray | None = None,
+    prior: np.ndarray | None = None,
+    prior_std: np.ndarray | None = None,
 ) -> Result:
     """Levenberg-Marquardt (trust region) on the identifiable subset with column scaling.
 
@@ -654,6 +728,10 @@ def identify_lm(
     values to hold the parameters outside the subset at. ``whiten`` ``(r, M)`` multiplies the
     residual rows first (a full noise covariance's inverse root: :func:`identify_weighted`).
     A subset of the link parameters is solved on a problem that carries only them.
+    ``prior`` ``(P,)``: a maximum a posteriori fit, the rows ``prior[k] * params[k]`` (weighted
+    residual units; 0: none) appended to the residual for the estimated parameters
+    (:func:`relcal.calibration.priors.row_weights`); ``prior_std`` ``(P,)`` the priors' standard
+    deviations (SI units), for the covariance. Without them the cost is the plain least squares.
     """
     _check(problem)
     nominal = None  # residual and Jacobian at the nominal model, when computed here
@@ -669,13 +747,19 @@ def identify_lm(
     reduced = _reduced(problem, subset, held)
     if reduced is None:
         start = nominal if held is None else None
-        return _lm(problem, identifiability, max_nfev, loss, f_scale, whiten, initial, held, start)
+        res = _lm(
+            problem, identifiability, max_nfev, loss, f_scale, whiten, initial, held, start, prior
+        )
+        return replace(res, prior_std=prior_std if prior is not None else None)
     # The sub-problem holds every link parameter it has (no further reduction).
     sub_problem, columns, sub_subset = reduced
     sub_ident = replace(identifiability, subset=sub_subset)
     sub_initial = None if initial is None else np.asarray(initial, dtype=float)[columns]
     start = None if nominal is None or held is not None else (nominal[0], nominal[1][:, columns])
-    res = _lm(sub_problem, sub_ident, max_nfev, loss, f_scale, whiten, sub_initial, None, start)
+    sub_prior = None if prior is None else np.asarray(prior, float)[columns]
+    res = _lm(
+        sub_problem, sub_ident, max_nfev, loss, f_scale, whiten, sub_initial, None, start, sub_prior
+    )
     params = np.zeros(problem.full_layout.size) if held is None else held
     params[columns] = res.params
     return replace(
@@ -684,6 +768,8 @@ def identify_lm(
         names=problem.full_layout.names,
         identifiability=identifiability,
         problem=problem,
+        prior=prior,
+        prior_std=prior_std if prior is not None else None,
     )
 
 
@@ -697,11 +783,20 @@ def _lm(
     initial: np.ndarray | None,
     held: np.ndarray | None,
     start: tuple[np.ndarray, np.ndarray] | None,
+    prior: np.ndarray | None = None,
 ) -> Result:
     """:func:`identify_lm` on ``ident.subset`` of ``problem``, the others at ``held`` (zeros);
-    ``start``: the residual and Jacobian there, if the caller has them."""
+    ``start``: the residual and Jacobian there, if the caller has them; ``prior``: the prior
+    rows' weights ``(P,)`` (see :func:`identify_lm`)."""
     began = time.perf_counter()
     subset = ident.subset
+    rows = prior_rows(prior, subset)
+    # positions in x of the parameters with a prior row, and the rows' Jacobian
+    at = None if rows is None else np.searchsorted(subset, rows[0])
+    prior_jac = None
+    if rows is not None:
+        prior_jac = np.zeros((len(at), len(subset)))
+        prior_jac[np.arange(len(at)), at] = rows[1]
     full = np.zeros(problem.full_layout.size) if held is None else held
     r0, a0 = start if start is not None else residuals(problem, full)
     # The latest evaluation, residual and full Jacobian together: the solver asks for the
@@ -723,11 +818,13 @@ def _lm(
 
     def fun(x: np.ndarray) -> np.ndarray:
         r = evaluate(x)[0]
-        return -(r if whiten is None else whiten @ r)
+        r = -(r if whiten is None else whiten @ r)
+        return r if rows is None else np.r_[r, rows[1] * x[at]]
 
     def jac(x: np.ndarray) -> np.ndarray:
         a = evaluate(x)[1][:, subset]
-        return a if whiten is None else whiten @ a
+        a = a if whiten is None else whiten @ a
+        return a if prior_jac is None else np.vstack([a, prior_jac])
 
     nfev = 0
     if loss == "linear":
@@ -752,6 +849,9 @@ def _lm(
     else:
         x = x0
     r, a = evaluate(x)
+    n_rows = len(r0)
+    if rows is not None:  # the stated cost includes the prior rows (zero at nominal)
+        r = np.r_[r, -rows[1] * x[at]]
     if whiten is not None:
         label = "lm (noise-weighted)"
     else:
@@ -763,7 +863,7 @@ def _lm(
         iterations=nfev,
         initial_residual_norm=float(np.linalg.norm(r0)),
         residual_norm=float(np.linalg.norm(r)),
-        n_residuals=len(r0),
+        n_residuals=n_rows,
         rank=len(subset),
         seconds=time.perf_counter() - began,
         method=label,
@@ -772,6 +872,7 @@ def _lm(
         whiten=whiten,
         loss=loss,
         f_scale=f_scale,
+        prior=prior,
     )
 
 
@@ -856,6 +957,7 @@ def identify_weighted(
 
 def calibrated_handeye(problem: Problem, result: Result) -> np.ndarray:
     """The hand-eye transform ``X`` implied by the result (the guess when not estimated)."""
-    if problem.formulation != "invariant":
+    if problem.formulation not in ("invariant", "board"):
         return problem.handeye
-    return problem.handeye @ tf.from_vector(result.params[problem.layout.size :])
+    n_geo = problem.layout.size
+    return problem.handeye @ tf.from_vector(result.params[n_geo : n_geo + 6])

@@ -9,6 +9,12 @@ Residuals follow ``r ~ A (p_true - p)``: measured minus modelled, so a Gauss-New
 - ``invariant``: ``M_ij = C_i^-1 C_j`` against ``X^-1 F_i^-1 F_j X``; residual = 6-vector of
   ``model^-1 measured`` (in the camera frame). The board frame ``W`` cancels entirely; the hand-eye
   transform ``X`` is estimated with the geometry (6 extra parameters ``handeye.*``).
+- ``board``: each camera pose ``C_k`` against ``W F(q_k) X``, with the board-from-base transform
+  ``W`` (6 parameters ``board.*``, a small motion ``W0 exp(omega)`` of the guess) estimated with
+  the geometry and the hand-eye ``X``; residual = 6-vector of ``(W F_k X)^-1 C_k`` (camera frame).
+  ``N`` residual blocks instead of the ``N (N - 1) / 2`` of all pairs, carrying the same
+  information (``W`` takes what relative measurements cancel; see
+  ``docs/explanation/relative-formulation.md``): what large data sets use.
 - ``tracker``: points measured by an instrument (laser tracker reflector, mocap marker) whose
   frame ``T`` relative to the robot base is unknown: ``r_k = p_meas - T F(q_k) m`` (3 rows), with
   ``T`` (6 parameters ``instrument.*``, a small motion ``T0 exp(xi)`` of the guess) and the marker
@@ -43,6 +49,8 @@ from relcal.checks import (
     check_vector,
 )
 from relcal.errors import ArgumentError, RelcalError
+from relcal.limits import AUTO_ALL_PAIRS as AUTO_ALL_PAIRS  # re-exported
+from relcal.limits import resolve_pairing as resolve_pairing
 from relcal.robot.kinematics import (
     Layout,
     apply_errors,
@@ -59,9 +67,35 @@ if TYPE_CHECKING:
 
 MARKER_COMPONENTS = ("x", "y", "z")  # the tracker formulation's marker position, m
 
-Formulation = Literal["absolute", "published", "invariant", "tracker", "coincidence"]
+Formulation = Literal["absolute", "published", "invariant", "board", "tracker", "coincidence"]
 Measure = Literal["position", "pose"]
-PairStrategy = Literal["consecutive", "star", "all"]
+PairStrategy = Literal["consecutive", "star", "all", "board", "auto"]
+PAIRINGS = ("auto", "all", "consecutive", "star", "board")  # the choices a user has
+VALIDATION_PAIRS = 10_000  # pairs of held-out samples validated above AUTO_ALL_PAIRS (random)
+
+
+def sample_pairs(n_samples: int) -> np.ndarray:
+    """``(k, k)`` ``(N, 2)``: each sample its own measurement (the board formulation)."""
+    idx = np.arange(n_samples)
+    return np.stack([idx, idx], axis=1)
+
+
+def capped_pairs(n_samples: int, max_pairs: int, seed: int = 0) -> np.ndarray:
+    """All ``n (n - 1) / 2`` index pairs ``(P, 2)`` of ``n_samples`` samples, or, when there are
+    more than ``max_pairs``, that many distinct ones drawn at random (seeded, sorted): per-pair
+    statistics of a large set at a bounded cost, never quadratic."""
+    total = n_samples * (n_samples - 1) // 2
+    if total <= max_pairs:
+        return make_pairs(n_samples, "all")
+    rng = np.random.default_rng(seed)
+    codes = np.zeros(0, dtype=np.int64)
+    while len(codes) < max_pairs:  # draw (i, j) with i < j, keep distinct
+        i = rng.integers(0, n_samples, 2 * max_pairs)
+        j = rng.integers(0, n_samples, 2 * max_pairs)
+        lo, hi = np.minimum(i, j), np.maximum(i, j)
+        codes = np.unique(np.r_[codes, (lo * n_samples + hi)[lo != hi]])
+    codes = np.sort(rng.choice(codes, max_pairs, replace=False))
+    return np.stack([codes // n_samples, codes % n_samples], axis=1)
 
 
 @dataclass(frozen=True)
@@ -121,9 +155,11 @@ def make_pairs(
     ----------
     n_poses : int
         Number of poses ``n`` (0 or more).
-    pairing : {"consecutive", "star", "all"}
-        Consecutive ``(k, k+1)``, a star around ``reference``, or all ``n (n - 1) / 2`` pairs
-        (the command line's ``--pairing``).
+    pairing : {"consecutive", "star", "all", "board", "auto"}
+        Consecutive ``(k, k+1)``, a star around ``reference``, all ``n (n - 1) / 2`` pairs, or
+        ``board``: each pose alone, ``(k, k)`` (compared with the board, not with another
+        pose); ``auto`` is resolved first (:func:`resolve_pairing`). The command line's
+        ``--pairing``.
     reference : int
         The centre of the star, ``0 <= reference < n_poses``.
     strategy : {"consecutive", "star", "all"}
@@ -152,6 +188,7 @@ def make_pairs(
 
     strategy = renamed("make_pairs", "strategy", strategy, "pairing", pairing, "consecutive")
     n_poses = check_number(n_poses, "n_poses", 0, integer=True)
+    strategy = resolve_pairing(strategy, n_poses)
     idx = np.arange(n_poses)
     if strategy == "star" and n_poses and not 0 <= reference < n_poses:
         check_number(reference, "reference", 0, n_poses - 1, integer=True)
@@ -163,10 +200,33 @@ def make_pairs(
     if strategy == "all":
         i, j = np.triu_indices(n_poses, k=1)
         return np.stack([i, j], axis=1)
+    if strategy == "board":
+        return sample_pairs(n_poses)
     from relcal.checks import check_choice
 
-    check_choice(strategy, "pairing", ("consecutive", "star", "all"))
+    check_choice(strategy, "pairing", PAIRINGS)
     raise AssertionError("unreachable")
+
+
+def per_sample_median(values: np.ndarray, pairs: np.ndarray) -> np.ndarray:
+    """Each sample's median of ``values`` ``(P,)`` over the measurements ``pairs`` ``(P, 2)`` that
+    involve it (a pair ``(k, k)`` once), NaN for a sample in none; ``(max index + 1,)``. One
+    sort, ``O(P log P)``: no pass over all pairs per sample."""
+    pairs = np.asarray(pairs, dtype=int)
+    n = int(pairs.max()) + 1
+    other = pairs[:, 1] != pairs[:, 0]
+    sample = np.r_[pairs[:, 0], pairs[other, 1]]
+    value = np.r_[values, values[other]]
+    order = np.lexsort((value, sample))
+    sample, value = sample[order], value[order]
+    start = np.searchsorted(sample, np.arange(n), "left")
+    count = np.searchsorted(sample, np.arange(n), "right") - start
+    out = np.full(n, np.nan)
+    has = count > 0
+    lo = start[has] + (count[has] - 1) // 2
+    hi = start[has] + count[has] // 2
+    out[has] = 0.5 * (value[lo] + value[hi])
+    return out
 
 
 @dataclass(frozen=True)
@@ -174,9 +234,10 @@ class Problem:
     """An identification problem: nominal model, which parameters, and the measurements.
 
     ``q`` ``(N, n)`` joint values; ``poses`` ``(N, 4, 4)`` measured poses: tool poses in a
-    base-aligned frame (absolute, published) or camera poses in the board frame (invariant).
-    ``handeye`` is the flange-from-camera guess ``X`` used by the invariant formulation (for the
-    others the measured pose is the tool pose: put the camera in ``model.tool``).
+    base-aligned frame (absolute, published) or camera poses in the board frame (invariant,
+    board). ``handeye`` is the flange-from-camera guess ``X`` used by the invariant and board
+    formulations (for the others the measured pose is the tool pose: put the camera in
+    ``model.tool``); ``board`` the board-from-base guess ``W`` of the board formulation.
 
     Parameters
     ----------
@@ -190,16 +251,17 @@ class Problem:
         Measured poses (m): tool poses in a base-aligned frame (``absolute``, ``published``),
         camera poses in the board frame (``invariant``), tracker points in the translation
         column (``tracker``); identity placeholders for ``coincidence`` (unused).
-    formulation : {"invariant", "published", "absolute", "tracker", "coincidence"}
+    formulation : {"invariant", "board", "published", "absolute", "tracker", "coincidence"}
         How measurements are compared with the model: relative motions ``C_i^-1 C_j`` with the
-        hand-eye estimated, the published base-frame differences (Lu & Hayes), absolute poses,
+        hand-eye estimated, each camera pose against ``W F(q) X`` with the board transform ``W``
+        estimated too, the published base-frame differences (Lu & Hayes), absolute poses,
         points of a tracker, or coincident tool points.
     measure : {"pose", "position"}
         Position and orientation (6 rows per measurement), or position only (3 rows).
     pairs : (P, 2) array_like of int or None
         Index pairs of the relative formulations; None means consecutive pairs.
     handeye : (4, 4) array_like of float
-        Flange-from-camera guess ``X`` of the ``invariant`` formulation (m).
+        Flange-from-camera guess ``X`` of the ``invariant`` and ``board`` formulations (m).
     weights : (6,) array_like of float or None
         Per-row factors of each 6-row residual, e.g. ``1/sigma`` of translation and rotation.
     pair_weights : (P, 6, 6) array_like of float or None
@@ -210,6 +272,8 @@ class Problem:
         ``tracker``: guess of the marker position in the tool frame (m).
     coincidence : Coincidence or None
         ``coincidence``: the groups, their point guesses and the known distances.
+    board : (4, 4) array_like of float
+        ``board``: guess of the board-from-base transform ``W`` (m).
 
     Raises
     ------
@@ -233,6 +297,7 @@ class Problem:
     instrument: np.ndarray = field(default_factory=lambda: np.eye(4))  # tracker: guess of T
     marker: np.ndarray = field(default_factory=lambda: np.zeros(3))  # tracker: guess of m (m)
     coincidence: Coincidence | None = None  # coincidence: groups, guesses, known distances
+    board: np.ndarray = field(default_factory=lambda: np.eye(4))  # board: guess of W
 
     def __repr__(self) -> str:
         from relcal._repr import plural, short
@@ -261,6 +326,8 @@ class Problem:
         tracker formulation, the instrument 6-vector and the marker 3-vector)."""
         if self.formulation == "invariant":
             return self.layout.extended("handeye")
+        if self.formulation == "board":
+            return self.layout.extended("handeye").extended("board")
         if self.formulation == "tracker":
             return self.layout.extended("instrument").extended("marker", MARKER_COMPONENTS)
         if self.formulation == "coincidence":
@@ -279,8 +346,11 @@ class Problem:
         Returns
         -------
         (P, 2) ndarray of int
-            ``pairs``, or consecutive pairs when not given.
+            ``pairs``, consecutive pairs when not given, or ``(k, k)`` per sample for the
+            board formulation (each pose compared with the board).
         """
+        if self.formulation == "board":
+            return sample_pairs(len(self.q))
         if self.pairs is not None:
             return np.asarray(self.pairs, dtype=int)
         return make_pairs(len(self.q))
@@ -302,7 +372,7 @@ class Problem:
         """
         if self.formulation == "coincidence":  # 3 rows per sample, 1 per known distance
             return 3 * len(self.q) + len(self.coincidence.lengths)
-        per_pose = self.formulation in ("absolute", "tracker")
+        per_pose = self.formulation in ("absolute", "tracker", "board")
         count = len(self.q) if per_pose else len(self.pair_indices())
         return count * self.rows_per_measurement
 
@@ -341,9 +411,35 @@ def split_params(problem: Problem, params: np.ndarray) -> tuple[RobotModel, np.n
     n_geo = problem.layout.size
     model = apply_errors(problem.model, problem.layout, params[:n_geo])
     handeye = problem.handeye
-    if problem.formulation == "invariant":
+    if problem.formulation in ("invariant", "board"):
         handeye = handeye @ tf.from_vector(params[n_geo : n_geo + 6])
     return model, handeye
+
+
+def board_frame(problem: Problem, params: np.ndarray) -> np.ndarray:
+    """The board-from-base transform ``W`` ``(4, 4)`` of the board formulation at ``params``
+    (``problem.board`` moved by the ``board.*`` 6-vector)."""
+    n_geo = problem.layout.size
+    return problem.board @ tf.from_vector(params[n_geo + 6 : n_geo + 12])
+
+
+def board_guess(tip: np.ndarray, poses: np.ndarray, handeye: np.ndarray) -> np.ndarray:
+    """A guess of the board-from-base ``W`` ``(4, 4)`` from flange poses ``F_k`` and camera
+    poses ``C_k`` ``(N, 4, 4)`` and the hand-eye ``X``: the mean of ``C_k (F_k X)^-1`` (translations
+    averaged, the rotations' mean projected on SO(3)); a start the solver refines."""
+    each = poses @ tf.invert(tip @ handeye)
+    rotation = each[:, :3, :3].mean(axis=0)
+    u, _, vt = np.linalg.svd(rotation)
+    out = np.eye(4)
+    out[:3, :3] = u @ np.diag([1.0, 1.0, np.linalg.det(u @ vt)]) @ vt
+    out[:3, 3] = each[:, :3, 3].mean(axis=0)
+    return out
+
+
+def board_lever(poses: np.ndarray) -> float:
+    """The median distance (m) of the cameras ``(N, 4, 4)`` (poses in the board frame) from the
+    board's origin; 0.1 m at least."""
+    return max(float(np.median(np.linalg.norm(poses[:, :3, 3], axis=1))), 0.1)
 
 
 def residuals(
@@ -362,7 +458,7 @@ def residuals(
     if problem.formulation == "coincidence":
         return formulation_hooks(problem.formulation).residuals(problem, params, jacobian)
     model, handeye = split_params(problem, params)
-    if jacobian and problem.formulation == "invariant":
+    if jacobian and problem.formulation in ("invariant", "board"):
         tip, jac = spatial_jacobian(model, problem.q, problem.layout)
     elif jacobian:
         tip, jac = pose_jacobian(model, problem.q, problem.layout)
@@ -372,6 +468,11 @@ def residuals(
     if problem.formulation == "invariant":
         n_geo = problem.layout.size
         r, a = _invariant(problem, tip, jac, handeye, params[n_geo : n_geo + 6])
+        if jacobian and not model_jacobian:
+            a = residual_tangent(r) @ a
+    elif problem.formulation == "board":
+        n_geo = problem.layout.size
+        r, a = _board(problem, tip, jac, handeye, params[n_geo : n_geo + 12])
         if jacobian and not model_jacobian:
             a = residual_tangent(r) @ a
     else:
@@ -429,6 +530,40 @@ def _invariant(
     out[:, 3:, n_geo + 3 :] = eye - rot
     if np.any(handeye_params):  # per unit change of the 6-vector, not of a motion on top
         out[:, :, n_geo:] = out[:, :, n_geo:] @ tf.vector_tangent(handeye_params)
+    return r, out
+
+
+def _board(
+    problem: Problem,
+    tip: np.ndarray,
+    spatial: np.ndarray | None,
+    handeye: np.ndarray,
+    frame_params: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray | None]:
+    """Residuals ``(N, 6)`` of the board formulation, the 6-vectors of ``(W F_k X)^-1 C_k``, and
+    (given the spatial twists ``(N, 6, n_geo)`` of the parameters) the Jacobian
+    ``(N, 6, n_geo + 12)`` of the modelled pose ``W F_k X`` as a body motion (camera frame);
+    ``frame_params``: the ``handeye.*`` and ``board.*`` 6-vectors.
+
+    ``F_k -> exp(S_k) F_k`` and ``W -> W exp(omega)`` move ``W F_k X`` by the body twists
+    ``Ad((F_k X)^-1) S_k`` and ``Ad((F_k X)^-1) omega``; ``X -> X exp(xi)`` by ``xi``.
+    """
+    handeye_params, board_params = frame_params[:6], frame_params[6:12]
+    world = problem.board @ tf.from_vector(board_params)
+    camera = tip @ handeye  # F X
+    r = tf.to_vector(tf.invert(world @ camera) @ problem.poses)
+    if spatial is None:
+        return r, None
+    n_geo = spatial.shape[-1]
+    to_camera = tf.adjoint(tf.invert(camera))  # (N, 6, 6): base twists -> camera body twists
+    out = np.empty((len(r), 6, n_geo + 12))
+    out[:, :, :n_geo] = to_camera @ spatial
+    out[:, :, n_geo : n_geo + 6] = np.eye(6)
+    out[:, :, n_geo + 6 :] = to_camera
+    if np.any(handeye_params):  # per unit change of the 6-vectors, not of a motion on top
+        out[:, :, n_geo : n_geo + 6] = tf.vector_tangent(handeye_params)
+    if np.any(board_params):
+        out[:, :, n_geo + 6 :] = to_camera @ tf.vector_tangent(board_params)
     return r, out
 
 
@@ -554,13 +689,14 @@ def check_problem(problem) -> dict[str, Any]:
         )
     out["handeye"] = check_transform(problem.handeye, f"{p}.handeye")
     out["instrument"] = check_transform(problem.instrument, f"{p}.instrument")
+    out["board"] = check_transform(problem.board, f"{p}.board")
     out["marker"] = check_vector(problem.marker, f"{p}.marker", 3, "the marker position x, y, z")
     if problem.weights is not None:
         out["weights"] = check_array(
             problem.weights, f"{p}.weights", (6,), hint="one factor per residual row (t, r)"
         )
     if problem.pair_weights is not None:
-        per = n if problem.formulation in ("absolute", "tracker") else pairs
+        per = n if problem.formulation in ("absolute", "tracker", "board") else pairs
         out["pair_weights"] = check_array(
             problem.pair_weights,
             f"{p}.pair_weights",

@@ -10,7 +10,7 @@ from typing import Literal
 import numpy as np
 
 from relcal.calibration.identify import Result, calibrated_handeye
-from relcal.calibration.measurement import Problem, pair_errors
+from relcal.calibration.measurement import Problem, pair_errors, per_sample_median
 from relcal.calibration.noise import PoseNoise
 from relcal.calibration.selection import BASELINE_CANDIDATES, Score
 from relcal.calibration.validate import PlacementValidation, Validation
@@ -86,6 +86,13 @@ class Calibration:
         Why that candidate was chosen, in words.
     bootstrap_std : (P,) ndarray of float or None
         Bootstrap standard deviations over training samples (m, rad); NaN if not estimated.
+    warnings : tuple of str
+        What the plausibility gate found doubtful but not wrong (frames moved from the
+        baseline's, offsets past the joint limits, predicted and bootstrap std that disagree).
+    geometry : Result or None
+        The chosen columns without their non-geometric terms, refitted: the best model a
+        geometry-only file (URDF, UR and Franka files) can hold, validated on its own at
+        export; None when the chosen model has no non-geometric term.
     """
 
     dataset: Dataset
@@ -103,6 +110,11 @@ class Calibration:
     chosen: int = 0  # index into selection
     reason: str = ""
     bootstrap_std: np.ndarray | None = None  # (P,) over training samples; NaN if not estimated
+    # What the plausibility gate warned of (plausibility.check_calibration), in words.
+    warnings: tuple[str, ...] = ()
+    # the chosen columns without the non-geometric terms, refitted: what a geometry-only file
+    # (URDF, vendor files) can hold; None when the chosen model has no non-geometric term
+    geometry: Result | None = None
 
     def __repr__(self) -> str:
         from relcal._repr import plural, short
@@ -171,6 +183,26 @@ class Calibration:
         columns = self.selection[self.chosen].candidate.columns
         return exported_model(model, {layout.kinds[c] for c in columns if c < layout.size})
 
+    @property
+    def geometry_model(self) -> RobotModel:
+        """The model of the geometry-only files (URDF, UR and Franka files): :attr:`model` when
+        the chosen model has no non-geometric term, otherwise the geometry-only refit
+        (:attr:`geometry`) with every non-geometric term off."""
+        if self.geometry is None:
+            return self.model
+        layout = self.problem.layout
+        model = calibrated_model(self.problem.model, layout, self.geometry.params)
+        return exported_model(model, set())
+
+    @functools.cached_property
+    def artifacts(self):
+        """Every file a user can load (``model.yaml``, ``robot.urdf``, vendor files), each read
+        back and validated on the held-out samples:
+        :func:`relcal.calibration.artifacts.export_artifacts`."""
+        from relcal.calibration.artifacts import export_artifacts
+
+        return export_artifacts(self)
+
     @functools.cached_property
     def comparison(self) -> Comparison:
         """Baseline against exported model: on the held-out samples when there are some,
@@ -210,7 +242,6 @@ def outlier_samples(weighted: np.ndarray, pairs: np.ndarray, threshold: float = 
     """Indices of samples whose pairs fit badly: each sample's score is the median normalised
     error of its pairs; a robust z-score above ``threshold`` flags it."""
     norms = np.linalg.norm(weighted, axis=1)
-    n = int(pairs.max()) + 1
-    score = np.array([np.median(norms[(pairs == k).any(axis=1)]) for k in range(n)])
+    score = per_sample_median(norms, pairs)
     spread = 1.4826 * np.median(np.abs(score - np.median(score)))
     return np.flatnonzero((score - np.median(score)) > threshold * max(spread, 1e-12))

@@ -25,6 +25,7 @@ from relcal.calibration.kinds import MeasurementKind, NoiseModel, Training
 from relcal.calibration.kinds.dispatch import kind_of
 from relcal.calibration.measurement import PairStrategy
 from relcal.calibration.outcome import Calibration
+from relcal.calibration.priors import layout_prior_std, problem_weights, weak_directions
 from relcal.calibration.selection import (
     BASELINE_CANDIDATES,
     WEIGHTINGS,
@@ -33,6 +34,8 @@ from relcal.calibration.selection import (
     candidates,
     choose,
     choose_all,
+    family,
+    lin_prior,
     linearise,
     score_candidates,
     score_each,
@@ -42,8 +45,11 @@ from relcal.calibration.selection import (
 from relcal.data.dataset import Dataset
 from relcal.data.imaging import Measurements, measure
 from relcal.errors import RelcalError
+from relcal.robot.model import NONGEOMETRIC
+from relcal.robot.priors import Priors
 
 SELECTIONS = ("cv", "conservative", "all")
+PRIORS = ("model", "none")
 
 
 def cross_validate(
@@ -64,7 +70,7 @@ def cross_validate(
     check_number(seed, "seed", integer=True)
     if measurements is None:
         measurements = measure(dataset)
-    kind = kind_of(dataset, measurements, options.get("pairing", "all"))
+    kind = kind_of(dataset, measurements, options.get("pairing", "auto"))
     parts = kind.folds(k, seed)
     return [
         calibrate(dataset, measurements, seed=seed, holdout_ids=ids, **options)
@@ -77,7 +83,7 @@ def calibrate(
     measurements: Measurements | None = None,
     holdout: float = 0.25,
     seed: int = 0,
-    pairing: PairStrategy = "all",
+    pairing: PairStrategy = "auto",
     method: str = "lm",
     loss: str = "linear",
     reject_outliers: bool = UNSET,
@@ -86,6 +92,7 @@ def calibrate(
     selection: str = "cv",
     nongeometric: str | Sequence[str] = "auto",
     weightings: Sequence[str] = ("plain",),
+    priors: str = "model",
     *,
     keep_outliers: bool = False,
 ) -> Calibration:
@@ -99,6 +106,12 @@ def calibrate(
     takes the largest, ``"conservative"`` then drops parameters below 3 standard deviations),
     with the baseline (the frames alone) beside it.
 
+    Weak data degrade gracefully: a candidate family of non-geometric terms that these samples
+    do not determine (and varied ones would) is dropped from the selection, named in the
+    settings (``dropped_candidates``) and the reason; link parameters that they barely
+    determine are held by their priors (or at nominal where they are not determined at all) and
+    named (``weak_directions``). Only data that determine not even the baseline are refused.
+
     Parameters
     ----------
     dataset : Dataset
@@ -110,8 +123,11 @@ def calibrate(
         0 <= holdout < 1; 0: no validation.
     seed : int
         Seed of the held-out split and the cross-validation folds (0 or more).
-    pairing : {"all", "consecutive", "star"}
-        Which pairs of training samples form relative measurements.
+    pairing : {"auto", "all", "consecutive", "star", "board"}
+        Which pairs of training samples form relative measurements: ``auto`` (all pairs up to
+        :data:`~relcal.calibration.measurement.AUTO_ALL_PAIRS` usable samples, ``board``
+        above), all, consecutive or star pairs, or ``board`` (each pose against ``W F X``, the
+        board transform ``W`` estimated: linear in the samples).
     method : {"lm", "published"}
         The solver (:class:`SolverOptions`).
     loss : {"linear", "huber", "cauchy", "soft_l1"}
@@ -138,6 +154,10 @@ def calibrate(
         ``noise model`` (each pair whitened by its learned 6x6 covariance; its predicted
         standard deviations can be 20 to 40 % small on the parameters of parallel axes,
         measured by Monte Carlo, so it is not the default).
+    priors : {"model", "none"}
+        ``"model"`` holds weakly determined directions by the model's manufacturing tolerances
+        (``priors:`` of the model file, :mod:`relcal.calibration.priors`; maximum a posteriori
+        fits), ``"none"`` fits plain least squares whatever the model says.
     keep_outliers : bool
         Keep the training samples that fit badly in the fit (the command line's
         ``--keep-outliers``); by default they are left out. Keyword only.
@@ -185,18 +205,34 @@ def calibrate(
         measurements = measure(dataset)
     if selection not in SELECTIONS:
         raise RelcalError(f"unknown selection '{selection}': use cv, conservative or all")
+    if priors not in PRIORS:
+        raise RelcalError(f"unknown priors '{priors}': use model (the model file's) or none")
     kind = kind_of(dataset, measurements, pairing)
     train, test = kind.split(holdout, seed, holdout_ids)
     dataset = replace(dataset, model=candidate_model(dataset.model, nongeometric))
+    if priors == "none":
+        dataset = replace(dataset, model=replace(dataset.model, priors=Priors(enabled=False)))
     kind = replace(kind, dataset=dataset)
 
     # Plausibility of the inputs (a wrong unit, joint order, board size, robot): before fitting.
     plausibility = kind.check_inputs(train)
 
-    # Outliers: samples whose measurements fit badly at a fit of the geometry.
+    # Candidate families the samples do not determine are dropped (degrade, do not refuse).
     training = kind.training(train)
+    kind, training, dropped = _drop_undetermined(kind, training, train)
+    dataset = kind.dataset
+    std = layout_prior_std(training.problem)
+    with_priors = bool(np.isfinite(std).any())
+
+    # Outliers: samples whose measurements fit badly at a fit of the geometry.
     detection = _fit(kind, training, training.geometric, "plain", method, kind.detection_loss)
-    outliers, without = _outliers(kind, training, detection, method)
+    prior = None
+    if with_priors:  # the noise level of the rows from the plain fit, then the MAP fit
+        prior = _prior(kind, training, "plain", None, detection.params, std)
+        detection = _fit(
+            kind, training, training.geometric, "plain", method, kind.detection_loss, prior=prior
+        )
+    outliers, without = _outliers(kind, training, detection, method, prior)
     outlier_ids = tuple(dataset.ids[train[i]] for i in outliers)
     removed = bool(reject_outliers and outliers.size)
     if removed:
@@ -204,9 +240,13 @@ def calibrate(
         training = kind.training(train, previous=training)
         detection = without
     full = detection  # the geometry fitted with ``loss`` on the final training samples
+    if with_priors and removed:  # the rows' noise level without the outliers
+        prior = _prior(kind, training, "plain", None, detection.params, std)
     if removed or loss != kind.detection_loss:
         start = None if kind.refit_from_nominal else detection.params
-        full = _fit(kind, training, training.geometric, "plain", method, loss, initial=start)
+        full = _fit(
+            kind, training, training.geometric, "plain", method, loss, initial=start, prior=prior
+        )
 
     # Noise, candidates and their cross-validated scores.
     lin = linearise(training.problem, full.params) if kind.shared_linearisation else None
@@ -214,14 +254,34 @@ def calibrate(
     cands = candidates(training.problem, training.ident.subset, kind.weightings(weightings))
     folds_k = max(2, min(select_folds, len(train) // 2))
     fits = None
+    priors_of = {"plain": prior}  # the prior rows of each weighting's nonlinear fits
+    if with_priors:
+        for w in {c.weighting for c in cands} - {"plain"}:
+            priors_of[w] = _prior(kind, training, w, noise.whiteners, full.params, std)
+    lin_priors = None
     if kind.shared_linearisation:
-        scores = score_candidates(lin, noise.whiteners, cands, folds_k, seed)
+        if with_priors:
+            lin_priors = {
+                w: lin_prior(lin, whiten, full.params, std) for w, whiten in noise.whiteners.items()
+            }
+        scores = score_candidates(lin, noise.whiteners, cands, folds_k, seed, lin_priors)
     else:  # every candidate fitted, and linearised at its own fit
         fits = [
-            _fit(kind, training, c.columns, c.weighting, _method(c, method), loss, full.params)
+            _fit(
+                kind,
+                training,
+                c.columns,
+                c.weighting,
+                _method(c, method),
+                loss,
+                full.params,
+                prior=priors_of.get(c.weighting),
+            )  # fmt: skip
             for c in cands
         ]
-        scores = score_each(training.problem, fits, cands, folds_k, seed)
+        scores = score_each(
+            training.problem, fits, cands, folds_k, seed, std if with_priors else None
+        )
 
     # The chosen model and the baseline (the best-scoring candidate of the frames alone).
     chosen, reason = choose_all(scores) if selection == "all" else choose(scores)
@@ -229,8 +289,12 @@ def calibrate(
     at_baseline = [k for k, s in enumerate(scores) if s.candidate.name in BASELINE_CANDIDATES]
     base = min(at_baseline, key=lambda k: np.mean(scores[k].per_sample))
     he = scores[base].candidate
+    pick_prior = priors_of.get(pick.weighting)
     if fits is None:
-        baseline = _fit(kind, training, he.columns, he.weighting, "lm", loss, full.params, noise)
+        baseline = _fit(
+            kind, training, he.columns, he.weighting, "lm", loss, full.params, noise,
+            priors_of.get(he.weighting),
+        )  # fmt: skip
     else:
         baseline = fits[base]
     columns = pick.columns
@@ -242,7 +306,7 @@ def calibrate(
             columns = significant_columns(
                 weighted, training.ident, columns, noise.noise.noise, full.params
             )
-        args = (pick.weighting, method, loss, full.params, noise)
+        args = (pick.weighting, method, loss, full.params, noise, pick_prior)
         result = _fit(kind, training, columns, *args)
     else:
         result = fits[chosen]
@@ -250,18 +314,34 @@ def calibrate(
             initial = result.params
 
             def refit(cols: np.ndarray) -> Result:
-                return _fit(kind, training, cols, "plain", method, loss, initial)
+                return _fit(kind, training, cols, "plain", method, loss, initial, prior=prior)
 
             result = significant_fit(training.problem, result, columns, refit)
     if selection == "conservative" and pick.name not in BASELINE_CANDIDATES:
         reason += "; parameters below 3 standard deviations dropped (--select conservative)"
-
-    # Plausibility of the corrections (a wrong input absorbed by the model): before writing.
-    kind.check_result(training, result)
+    if dropped:
+        reason += "; dropped (not determined by these samples): " + "; ".join(
+            f"candidates with {d['family']} terms" for d in dropped
+        )
+    weak = _weak(training, result, std if with_priors else None, dataset.q[train])
+    # What a geometry-only file (URDF, vendor files) can hold: validated on its own at export.
+    geometry = _geometry_only(
+        kind, training, result, pick.weighting, loss, noise if fits is None else None, pick_prior
+    )
 
     boot = None
     if kind.shared_linearisation:
-        boot = bootstrap_std(lin, noise.whiteners[pick.weighting], columns, seed=seed)
+        boot = bootstrap_std(
+            lin,
+            noise.whiteners[pick.weighting],
+            columns,
+            seed=seed,
+            prior=None if lin_priors is None else lin_priors.get(pick.weighting),
+        )
+
+    # The plausibility gate (a wrong input absorbed by the model, terms beyond their bounds,
+    # intervals the bootstrap contradicts): before anything is written.
+    warnings = kind.check_model(training, result, baseline, boot)
     settings = {
         "holdout_fraction": holdout,
         "seed": seed,
@@ -276,6 +356,9 @@ def calibrate(
         "selection_folds": folds_k,
         "weighting": pick.weighting,
         "reject_outliers": reject_outliers,
+        **({"priors": dataset.model.priors.to_dict()} if with_priors else {}),
+        **({"weak_directions": weak} if weak else {}),
+        **({"dropped_candidates": dropped} if dropped else {}),
         **({} if plausibility is None else {"plausibility": plausibility}),
         **noise.settings,
         **kind.settings(training),
@@ -296,7 +379,34 @@ def calibrate(
         chosen=chosen,
         reason=reason,
         bootstrap_std=boot,
+        warnings=tuple(warnings),
+        geometry=geometry,
     )
+
+
+def _geometry_only(
+    kind: MeasurementKind,
+    training: Training,
+    result: Result,
+    weighting: str,
+    loss: str,
+    noise: NoiseModel | None,
+    prior: np.ndarray | None,
+) -> Result | None:
+    """The chosen model's fitted columns without its non-geometric terms, refitted (by
+    Levenberg-Marquardt, from the chosen fit with those terms at zero): the best model that a
+    file holding geometry only (URDF, UR and Franka files) can express. None when the chosen
+    model has no non-geometric term: those files then hold the validated model itself."""
+    layout = training.problem.layout
+    fitted = np.asarray(result.identifiability.subset)
+    geometric = layout.is_geometric()
+    terms = np.array([c for c in fitted if c < layout.size and not geometric[c]], dtype=int)
+    if terms.size == 0:
+        return None
+    initial = result.params.copy()
+    initial[terms] = 0.0
+    columns = np.setdiff1d(fitted, terms)
+    return _fit(kind, training, columns, weighting, "lm", loss, initial, noise, prior)
 
 
 def _method(candidate, method: str) -> str:
@@ -306,7 +416,11 @@ def _method(candidate, method: str) -> str:
 
 
 def _outliers(
-    kind: MeasurementKind, training: Training, detection: Result, method: str
+    kind: MeasurementKind,
+    training: Training,
+    detection: Result,
+    method: str,
+    prior: np.ndarray | None = None,
 ) -> tuple[np.ndarray, Result]:
     """Positions (in ``training.samples``) of the samples that fit badly at ``detection``, and
     the detection fit without them. Gross outliers bend the fit and can hide others: the search
@@ -320,8 +434,9 @@ def _outliers(
         dropped, kept = np.concatenate([dropped, kept[found]]), np.delete(kept, found)
         sub = kind.training(samples[kept], previous=training)
         detection = _fit(
-            kind, sub, sub.geometric, "plain", method, kind.detection_loss, initial=detection.params
-        )
+            kind, sub, sub.geometric, "plain", method, kind.detection_loss,
+            initial=detection.params, prior=prior,
+        )  # fmt: skip
         found = kind.outliers(sub, detection)
     return np.sort(dropped), detection
 
@@ -335,11 +450,13 @@ def _fit(
     loss: str,
     initial: np.ndarray | None = None,
     noise: NoiseModel | None = None,
+    prior: np.ndarray | None = None,
 ) -> Result:
     """The nonlinear fit of ``columns`` of the training problem weighted as ``weighting`` says,
     the robust loss bending where the kind says (:meth:`MeasurementKind.f_scale`); ``noise``: the
     kind's learned :class:`~relcal.calibration.kinds.NoiseModel` (the pose noise goes into the
-    result's covariance)."""
+    result's covariance); ``prior``: the prior rows' weights ``(P,)`` of a maximum a posteriori
+    fit (:func:`_prior`; the published solver has none: it truncates weak directions)."""
     whiteners = None if noise is None else noise.whiteners
     weighted = kind.weighted(training, weighting, whiteners)
     if method == "published":
@@ -347,7 +464,127 @@ def _fit(
     else:
         sub = replace(training.ident, subset=np.asarray(columns))
         f_scale = kind.f_scale(weighted)
-        result = identify_lm(weighted, 200, sub, loss, f_scale, initial=initial)
+        std = None if prior is None else layout_prior_std(weighted)
+        result = identify_lm(
+            weighted, 200, sub, loss, f_scale, initial=initial, prior=prior, prior_std=std
+        )
     if noise is None or noise.noise is None:
         return result
     return replace(result, noise=noise.noise.noise)  # the learned pose noise's levels
+
+
+def _prior(
+    kind: MeasurementKind,
+    training: Training,
+    weighting: str,
+    whiteners: dict[str, np.ndarray] | None,
+    params: np.ndarray,
+    std: np.ndarray,
+) -> np.ndarray | None:
+    """The prior rows' weights ``(P,)`` of the training problem weighted as ``weighting`` says,
+    the rows' noise level measured at ``params`` (:func:`priors.problem_weights`)."""
+    return problem_weights(kind.weighted(training, weighting, whiteners), params, std)
+
+
+def _drop_undetermined(
+    kind: MeasurementKind, training: Training, train: np.ndarray
+) -> tuple[MeasurementKind, Training, list[dict]]:
+    """The kind and training problem without the non-geometric families that a combination the
+    samples leave undetermined (and varied samples would determine) involves, and what was
+    dropped: ``[{"family", "reason"}]``. Refuses when such a combination involves only the
+    measurement frames: then not even the baseline can be fitted."""
+    dropped: list[dict] = []
+    for _ in range(len(NONGEOMETRIC) + 1):
+        weak = training.ident.weak
+        if not weak:
+            break
+        layout = training.problem.full_layout
+        kind_of_name = dict(zip(layout.names, layout.kinds, strict=True))
+        families: dict[str, list[str]] = {}
+        for combo in weak:
+            # the families of its leading members (a share below a tenth is round-off's)
+            lead = max(abs(c) for c in combo.coefficients)
+            members = [
+                n
+                for n, c in zip(combo.names, combo.coefficients, strict=True)
+                if abs(c) >= 0.1 * lead
+            ]
+            fams = {family(kind_of_name[n]) for n in members}
+            named = " with ".join(members)
+            if fams == {"frames"}:
+                raise RelcalError(
+                    f"{kind.dataset.spec_path}: these samples do not determine even the "
+                    f"measurement frames ({combo.describe()}); no model, not even the baseline, "
+                    "can be fitted: add samples that vary the joints"
+                )
+            for f in sorted(fams - {"frames", "geometric"}):  # (a set's order varies by run)
+                families.setdefault(f, []).append(named)
+        if not families:
+            break
+        model = kind.dataset.model
+        flags = tuple(tuple(t for t in f if t not in families) for f in model.nongeometric)
+        for f, combos in sorted(families.items()):
+            dropped.append(
+                {
+                    "family": f,
+                    "reason": f"{f} terms are not determined by these samples (the joints "
+                    "vary too little to tell them from the other parameters): one combination "
+                    "of " + "; one of ".join(combos) + " is left undetermined",
+                }
+            )
+        dataset = replace(kind.dataset, model=replace(model, nongeometric=flags))
+        kind = replace(kind, dataset=dataset)
+        training = kind.training(train)
+    return kind, training, dropped
+
+
+def _weak(training: Training, result: Result, std: np.ndarray | None, q: np.ndarray) -> list[dict]:
+    """The weak directions of a calibration, for the settings: the combinations these samples
+    leave undetermined (held at nominal: truncated) and the parameters held by their priors
+    rather than by the data (:func:`priors.weak_directions`), each with a sentence in words."""
+    out = [
+        {
+            "parameter": " + ".join(c.names),
+            "held": "at nominal",
+            "text": f"{c.describe()}: not determined by these samples (samples that vary the "
+            f"joints more would determine it{_travel(training.problem, c.names, q)}); held at "
+            "nominal",
+        }
+        for c in training.ident.weak
+    ]
+    if std is None or result.prior_std is None:
+        return out
+    post = result.covariance
+    data = replace(result, prior_std=None).covariance
+    subset = result.identifiability.subset
+    for w in weak_directions(training.problem, subset, data, post, std, q):
+        out.append({**w.to_dict(), "held": "by its prior"})
+    return out
+
+
+def _travel(problem, names: Sequence[str], q: np.ndarray) -> str:
+    """``"; joint2 moved over 0 deg, ..."`` for the joints of the link parameters ``names``
+    (how far each moved in the samples ``q``), least travel first; empty without any."""
+    layout = problem.full_layout
+    model = problem.model
+    where = {n: k for k, n in enumerate(layout.names)}
+    joints = set()
+    for n in names:
+        k = where[n]
+        if k >= problem.layout.size or layout.kinds[k] in ("base", "tool"):
+            continue
+        i = int(layout.index[k]) // (6 if layout.kinds[k] == "origin" else 1)
+        if 0 <= i < model.n_joints:
+            joints.add(i)
+    if not joints:
+        return ""
+    travel = {i: float(np.ptp(q[:, i])) for i in joints}
+    parts = []
+    for i in sorted(joints, key=travel.get):
+        shown = (
+            f"{travel[i] * 1e3:.3g} mm"
+            if model.prismatic[i]
+            else f"{np.degrees(travel[i]):.3g} deg"
+        )
+        parts.append(f"{model.joint_names[i]} moved over {shown}")
+    return "; " + ", ".join(parts)

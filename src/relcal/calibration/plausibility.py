@@ -81,13 +81,16 @@ class Tolerances:
 
 
 def check_pairs(n: int, rng_seed: int = 0) -> np.ndarray:
-    """Index pairs ``(P, 2)`` for the checks: all pairs, or ``MAX_PAIRS`` random ones."""
-    i, j = np.triu_indices(n, 1)
-    pairs = np.stack([i, j], axis=1)
-    if len(pairs) > MAX_PAIRS:
-        pick = np.random.default_rng(rng_seed).choice(len(pairs), MAX_PAIRS, replace=False)
-        pairs = pairs[np.sort(pick)]
-    return pairs
+    """Index pairs ``(P, 2)`` for the checks: all pairs, or ``MAX_PAIRS`` random ones (picked by
+    their position in the list of all pairs, which is never formed: linear in ``n``)."""
+    total = n * (n - 1) // 2
+    if total <= MAX_PAIRS:
+        i, j = np.triu_indices(n, 1)
+        return np.stack([i, j], axis=1)
+    pick = np.sort(np.random.default_rng(rng_seed).choice(total, MAX_PAIRS, replace=False))
+    starts = np.cumsum(np.r_[0, np.arange(n - 1, 0, -1)])  # where row i of triu_indices starts
+    i = np.searchsorted(starts, pick, side="right") - 1
+    return np.stack([i, i + 1 + pick - starts[i]], axis=1)
 
 
 def rotation_misfit(commanded: np.ndarray, measured: np.ndarray) -> tuple[float, np.ndarray]:
@@ -470,10 +473,9 @@ def _pair_angles(commanded: np.ndarray, measured: np.ndarray, rx: np.ndarray) ->
 def _wrong_samples(pairs: np.ndarray, values: np.ndarray, threshold: float = 5.0) -> np.ndarray:
     """Samples whose pairs misfit far more than the others' (each sample's median over its
     pairs, a robust z-score above ``threshold``), at most a quarter of them."""
-    n = int(pairs.max()) + 1
-    score = np.full(n, np.nan)
-    for k in np.unique(pairs):
-        score[k] = np.median(values[(pairs == k).any(axis=1)])
+    from relcal.calibration.measurement import per_sample_median
+
+    score = per_sample_median(values, pairs)
     seen = np.isfinite(score)
     centre = np.median(score[seen])
     spread = max(1.4826 * np.median(np.abs(score[seen] - centre)), 1e-12 * max(centre, 1e-12))
@@ -847,7 +849,7 @@ def check_result(dataset, problem, result, what: str | None = None) -> None:
     ``what`` (how the samples are called, e.g. ``points``), refused corrections below 3 standard
     deviations are named as not determined by the data."""
     layout = problem.full_layout
-    free = ("instrument", "marker", "tool_point", "point")
+    free = ("board", "instrument", "marker", "tool_point", "point")
     keep = [
         k
         for k, kind in enumerate(layout.kinds)
@@ -870,7 +872,209 @@ def check_result(dataset, problem, result, what: str | None = None) -> None:
         weak = [n for k, n in enumerate(names) if f"{n} corrected by" in str(exc) and z[k] < 3.0]
         if not weak:
             raise
+        if getattr(result, "prior", None) is None:  # a plain least squares (priors: none)
+            remedy = (
+                "the default priors hold such parameters at their manufacturing tolerances "
+                "(leave out priors: none in the model file and --priors none)"
+            )
+        else:
+            remedy = "even held by their priors: check the inputs (units, robot model, rows)"
         raise RelcalError(
             f"{exc}\n{', '.join(weak)}: not determined by these {what} (|error| below 3 standard "
-            "deviations); --select conservative leaves such parameters out"
+            f"deviations); {remedy}"
         ) from None
+
+
+# --- the one gate before a model is written -------------------------------------------------------
+
+# Largest plausible non-geometric terms (SI): a joint scale of 5 %, a compliance of 5 deg per
+# N m (0.1 mm per N for a prismatic joint), a first harmonic of 2 deg. Beyond them a term absorbs
+# something else (a wrong unit, a wrong model, a weak direction).
+NONGEOMETRIC_BOUNDS = {
+    "scale": (0.05, "1"),
+    "compliance": (np.radians(5.0), "rad/(N m)"),
+    "harmonic_c": (np.radians(2.0), "rad"),
+    "harmonic_s": (np.radians(2.0), "rad"),
+}
+PRISMATIC_COMPLIANCE = 1e-4  # m/N
+STD_WARN = 3.0  # predicted and bootstrap standard deviations differ by more: a warning
+STD_REFUSE = 10.0  # ... by more than this for the median parameter: refused
+# A bootstrap of few samples draws degenerate sets (a resampling of 10 samples holds about 6
+# distinct ones): compared only from this many training samples, refused only from the next.
+STD_MIN_SAMPLES = 20
+STD_REFUSE_SAMPLES = 40
+
+
+def nongeometric_problems(
+    names: Sequence[str], kinds: Sequence[str], units: Sequence[str], params: np.ndarray
+) -> list[str]:
+    """One line per non-geometric term beyond :data:`NONGEOMETRIC_BOUNDS` (``params`` SI)."""
+    from relcal.robot.kinematics import DISPLAY_UNITS
+
+    lines = []
+    for name, kind, unit, value in zip(names, kinds, units, params, strict=True):
+        if kind not in NONGEOMETRIC_BOUNDS:
+            continue
+        bound = PRISMATIC_COMPLIANCE if unit == "m/N" else NONGEOMETRIC_BOUNDS[kind][0]
+        if abs(value) <= bound:
+            continue
+        factor, shown = DISPLAY_UNITS[unit]
+        lines.append(
+            f"{name} = {value * factor:+.4g} {shown} (bound {bound * factor:.3g} {shown}): a term "
+            "this large absorbs something else (a wrong unit or model, a direction the data do "
+            "not determine)"
+        )
+    return lines
+
+
+def frame_shifts(
+    names: Sequence[str],
+    kinds: Sequence[str],
+    calibrated: np.ndarray,
+    baseline: np.ndarray,
+    tolerances: Tolerances = Tolerances(),
+) -> list[str]:
+    """Warnings where the calibrated model's measurement frames (hand-eye, instrument
+    transform, marker, tool point) moved from the baseline's by more than the hand-eye
+    tolerances: the kinematic corrections then take over part of a frame."""
+    lines = []
+    for kind in ("handeye", "instrument", "marker", "tool_point"):
+        idx = [k for k, kd in enumerate(kinds) if kd == kind]
+        if not idx:
+            continue
+        diff = np.asarray(calibrated, float)[idx] - np.asarray(baseline, float)[idx]
+        length = float(np.linalg.norm(diff[:3]))
+        angle = float(np.linalg.norm(diff[3:6])) if len(diff) >= 6 else 0.0
+        if length > tolerances.handeye_length or angle > tolerances.handeye_angle:
+            what = {"handeye": "hand-eye transform", "instrument": "instrument transform"}
+            lines.append(
+                f"the {what.get(kind, kind.replace('_', ' '))} of the calibrated model differs "
+                f"from the baseline's by {length * 1e3:.3g} mm and {np.degrees(angle):.3g} "
+                "deg: the kinematic corrections take over part of it (check the corrections "
+                "named with it)"
+            )
+    return lines
+
+
+def joint_limit_warnings(
+    model, layout, params: np.ndarray, q: np.ndarray, tolerances: Tolerances = Tolerances()
+) -> list[str]:
+    """Warnings where a training configuration, read with the calibrated zero offsets, lies
+    beyond the model's joint limits by more than ``tolerances.joint_limit``."""
+    lines = []
+    for k, (kind, i) in enumerate(zip(layout.kinds, layout.index, strict=True)):
+        if kind != "theta_off" or model.prismatic[i] or params[k] == 0:
+            continue
+        value = q[:, i] + params[k]
+        beyond = max(
+            float(np.max(model.lower[i] - value, initial=-np.inf)),
+            float(np.max(value - model.upper[i], initial=-np.inf)),
+        )
+        if np.isfinite(beyond) and beyond > tolerances.joint_limit:
+            lines.append(
+                f"{layout.names[k]} {np.degrees(params[k]):+.3g} deg puts {model.joint_names[i]} "
+                f"{np.degrees(beyond):.3g} deg beyond its limits in the training samples"
+            )
+    return lines
+
+
+def std_consistency(
+    names: Sequence[str],
+    predicted: np.ndarray,
+    bootstrap: np.ndarray,
+    display: tuple[np.ndarray, Sequence[str]] | None = None,
+) -> tuple[list[str], str | None]:
+    """Predicted standard deviations against the bootstrap's (both ``(P,)``, NaN where not
+    estimated): a warning for the parameters whose predicted std is more than :data:`STD_WARN`
+    times smaller than the bootstrap's (overconfident intervals), one for those more than that
+    larger (conservative intervals), and a refusal (its message) when the median parameter's
+    predicted std is more than :data:`STD_REFUSE` times smaller (the noise model does not
+    describe the data, and every interval would be too narrow). ``display``: factors from SI
+    and units for the messages (:meth:`Layout.display`; default SI)."""
+    predicted, bootstrap = np.asarray(predicted, float), np.asarray(bootstrap, float)
+    both = np.isfinite(predicted) & np.isfinite(bootstrap) & (predicted > 0) & (bootstrap > 0)
+    if not both.any():
+        return [], None
+    ratio = np.ones_like(predicted)  # bootstrap over predicted: above 1, overconfident
+    ratio[both] = bootstrap[both] / predicted[both]
+    factor, unit = display if display is not None else (np.ones(len(names)), ("SI",) * len(names))
+
+    def listed(ks: np.ndarray) -> str:
+        shown = [
+            f"{names[k]} {predicted[k] * factor[k]:.3g} vs {bootstrap[k] * factor[k]:.3g} {unit[k]}"
+            for k in ks[:6]
+        ]
+        return ", ".join(shown) + (f" and {len(ks) - 6} more" if len(ks) > 6 else "")
+
+    warn = []
+    narrow = np.flatnonzero(both & (ratio > STD_WARN))
+    if len(narrow):
+        warn.append(
+            f"predicted standard deviations more than {STD_WARN:g}x below the bootstrap's "
+            f"(intervals too narrow): {listed(narrow)}"
+        )
+    wide = np.flatnonzero(both & (ratio < 1 / STD_WARN))
+    if len(wide):
+        warn.append(
+            f"predicted standard deviations more than {STD_WARN:g}x above the bootstrap's "
+            f"(intervals conservative): {listed(wide)}"
+        )
+    median = float(np.median(ratio[both]))
+    refuse = None
+    if both.sum() >= 3 and median > STD_REFUSE:
+        refuse = (
+            f"the bootstrap's standard deviations are {median:.3g}x the predicted ones for the "
+            "median parameter: the noise model does not describe these data, and every interval "
+            "would be too narrow (check for correlated, repeated or mislabelled samples)"
+        )
+    return warn, refuse
+
+
+def check_calibration(
+    dataset,
+    problem,
+    result,
+    baseline=None,
+    bootstrap: np.ndarray | None = None,
+    what: str | None = None,
+    q: np.ndarray | None = None,
+    links: bool = True,
+) -> list[str]:
+    """The plausibility gate every calibration passes before a model is written (all measurement
+    kinds, the command line, the Python API and the fleet: :func:`pipeline.calibrate` calls it).
+
+    Refuses (:class:`RelcalError`) link corrections beyond the tolerances (:func:`check_result`),
+    non-geometric terms beyond :data:`NONGEOMETRIC_BOUNDS` and predicted standard deviations
+    grossly inconsistent with the bootstrap's; returns warnings: frames moved from the
+    baseline's, zero offsets that put training samples beyond the joint limits, standard
+    deviations more than :data:`STD_WARN` apart (from :data:`STD_MIN_SAMPLES` training samples;
+    refused from :data:`STD_REFUSE_SAMPLES`). ``what``: how the samples are called (points,
+    placements) for the messages; ``q``: the training joint values; ``links``: whether the link
+    corrections are checked here (False: the measurement kind checked them, its frames free).
+    """
+    if links:
+        check_result(dataset, problem, result, what)
+    layout = problem.full_layout
+    where = str(dataset.spec_path or dataset.root)
+    lines = nongeometric_problems(layout.names, layout.kinds, layout.units(), result.params)
+    if lines:
+        raise RelcalError(
+            f"{where}: identified non-geometric terms too large to be plausible:\n"
+            + "\n".join(lines)
+            + "\n(fix: check the inputs; --nongeometric none leaves these terms out)"
+        )
+    tol = Tolerances.from_display(dataset.tolerances)
+    warnings: list[str] = []
+    if baseline is not None:
+        warnings += frame_shifts(layout.names, layout.kinds, result.params, baseline.params, tol)
+    if q is not None:
+        warnings += joint_limit_warnings(problem.model, layout, result.params, q, tol)
+    n = len(problem.q) if q is None else len(q)
+    if bootstrap is not None and n >= STD_MIN_SAMPLES:
+        std_warnings, refuse = std_consistency(
+            layout.names, result.std, bootstrap, layout.display()
+        )
+        if refuse and n >= STD_REFUSE_SAMPLES:
+            raise RelcalError(f"{where}: {refuse}")
+        warnings += std_warnings
+    return warnings

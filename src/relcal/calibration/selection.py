@@ -33,7 +33,7 @@ from relcal.robot.model import RobotModel, nongeometric_options, with_nongeometr
 GEOMETRIC_KINDS = ("theta_off", "a", "d", "alpha", "beta", "base", "tool", "origin")
 # Estimated with the robot, never exported: the hand-eye, a tracker's instrument transform and
 # marker, a coincidence's tool point and group points.
-FRAME_KINDS = ("handeye", "instrument", "marker", "tool_point", "point")
+FRAME_KINDS = ("handeye", "board", "instrument", "marker", "tool_point", "point")
 PLAIN_ROTATION_WEIGHT = 0.1  # m/rad: rotation rows count like a 0.1 m lever arm
 # Candidates without kinematic correction, by formulation: the hand-eye transform alone,
 # (position-only data) the instrument transform and the marker alone, (coincidences) the tool
@@ -160,14 +160,46 @@ def solve_normal(normal: np.ndarray, rhs: np.ndarray) -> np.ndarray:
     return np.linalg.lstsq(normal / np.outer(d, d), rhs / d, rcond=1e-12)[0] / d
 
 
-def fit(lin: Linearised, whiten: np.ndarray, columns: np.ndarray, rows=None) -> np.ndarray:
-    """Weighted linear least squares over ``columns``; the full parameter vector ``(Q,)``."""
+def fit(
+    lin: Linearised,
+    whiten: np.ndarray,
+    columns: np.ndarray,
+    rows=None,
+    prior: np.ndarray | None = None,
+) -> np.ndarray:
+    """Weighted linear least squares over ``columns``; the full parameter vector ``(Q,)``.
+    ``prior`` ``(Q,)``: prior-row weights (:func:`lin_prior`) of a maximum a posteriori fit."""
     rows = slice(None) if rows is None else rows
     jw = (whiten[rows] @ lin.jac[rows][:, :, columns]).reshape(-1, len(columns))
     bw = np.einsum("pij,pj->pi", whiten[rows], lin.b[rows]).reshape(-1)
     out = np.zeros(lin.jac.shape[-1])
-    out[columns] = solve_normal(jw.T @ jw, jw.T @ bw)
+    out[columns] = solve_normal(jw.T @ jw + _prior_normal(prior, columns), jw.T @ bw)
     return out
+
+
+def _prior_normal(prior: np.ndarray | None, columns: np.ndarray) -> np.ndarray | float:
+    """The prior rows' share ``diag(w^2)`` of the normal matrix over ``columns`` (0: none)."""
+    if prior is None:
+        return 0.0
+    return np.diag(np.asarray(prior, float)[np.asarray(columns, int)] ** 2)
+
+
+def lin_prior(
+    lin: Linearised, whiten: np.ndarray, params: np.ndarray, std: np.ndarray
+) -> np.ndarray | None:
+    """The prior-row weights ``(Q,)`` of the linearised problem under the row whitening
+    ``whiten`` ``(P, 6, 6)``: ``sqrt(c) s / std`` with ``s`` the robust level of the whitened
+    rows at ``params`` and ``c`` the blocks' overcount (:mod:`relcal.calibration.priors`);
+    None when no parameter has a prior."""
+    from relcal.calibration.priors import noise_level, overcount, row_weights
+
+    if not np.isfinite(np.asarray(std, float)).any():
+        return None
+    rows = np.einsum("pij,pj->pi", whiten, errors(lin, params))
+    noise = noise_level(rows)
+    if noise <= 0:
+        return None
+    return row_weights(std, noise, overcount(len(lin.pairs), lin.n_samples))
 
 
 def errors(lin: Linearised, params: np.ndarray, rows=None) -> np.ndarray:
@@ -205,8 +237,11 @@ def score_candidates(
     cands: list[Candidate],
     k: int = 5,
     seed: int = 0,
+    prior: dict[str, np.ndarray | None] | None = None,
 ) -> list[Score]:
-    """K-fold scores of every candidate: each fold's samples held out, the others refitted."""
+    """K-fold scores of every candidate: each fold's samples held out, the others refitted;
+    ``prior``: per weighting, the prior-row weights of maximum a posteriori fits
+    (:func:`lin_prior`; None: plain least squares)."""
     held = {c.name + c.weighting: [] for c in cands}
     in_fold = np.zeros(lin.n_samples, dtype=int)
     for f, fold in enumerate(sample_folds(lin.n_samples, k, seed)):
@@ -227,7 +262,10 @@ def score_candidates(
                     continue
                 params = np.zeros(lin.jac.shape[-1])
                 cols = c.columns
-                params[cols] = solve_normal(normal[np.ix_(cols, cols)], rhs[cols])
+                w = None if prior is None else prior.get(weighting)
+                params[cols] = solve_normal(
+                    normal[np.ix_(cols, cols)] + _prior_normal(w, cols), rhs[cols]
+                )
                 held[c.name + c.weighting].append(errors(lin, params, test))
     pairs = lin.pairs[np.concatenate(test_pairs)]
     scores = []
@@ -274,16 +312,25 @@ def choose_all(scores: list[Score]) -> tuple[int, str]:
 
 
 def score_each(
-    problem: Problem, fits: list, cands: list[Candidate], k: int, seed: int
+    problem: Problem,
+    fits: list,
+    cands: list[Candidate],
+    k: int,
+    seed: int,
+    std: np.ndarray | None = None,
 ) -> list[Score]:
     """K-fold scores of the candidates by :func:`score_candidates`, each candidate's folds
     refitted on ``problem`` linearised at its own fit to every training sample (``fits``, one
-    :class:`~relcal.calibration.identify.Result` per candidate), in the plain weighting."""
+    :class:`~relcal.calibration.identify.Result` per candidate), in the plain weighting; ``std``
+    ``(Q,)``: the priors' standard deviations (SI) of maximum a posteriori folds."""
     out = []
     for cand, result in zip(cands, fits, strict=True):
         lin = linearise(problem, result.params)
         plain = {"plain": plain_whiteners(len(lin.pairs))}
-        out.append(score_candidates(lin, plain, [cand], k, seed)[0])
+        prior = None
+        if std is not None:
+            prior = {"plain": lin_prior(lin, plain["plain"], result.params, std)}
+        out.append(score_candidates(lin, plain, [cand], k, seed, prior)[0])
     return out
 
 
@@ -336,11 +383,17 @@ def significant_fit(problem: Problem, result, columns: np.ndarray, refit, z_min:
 
 
 def bootstrap_std(
-    lin: Linearised, whiten: np.ndarray, columns: np.ndarray, n_boot: int = 100, seed: int = 0
+    lin: Linearised,
+    whiten: np.ndarray,
+    columns: np.ndarray,
+    n_boot: int = 100,
+    seed: int = 0,
+    prior: np.ndarray | None = None,
 ) -> np.ndarray:
     """Standard deviations ``(Q,)`` of the linearised estimate over ``n_boot`` resamplings of the
     training *samples* (a pair counts as often as both its samples are drawn); NaN outside
-    ``columns``. An independent check of the predicted standard deviations."""
+    ``columns``. An independent check of the predicted standard deviations. ``prior``: the
+    prior-row weights of a maximum a posteriori fit (:func:`lin_prior`), in every resampling."""
     rng = np.random.default_rng(seed)
     k = len(columns)
     jw = whiten @ lin.jac[:, :, columns]  # (P, 6, k)
@@ -352,7 +405,9 @@ def bootstrap_std(
     counts = np.zeros((n_boot, lin.n_samples))
     np.add.at(counts, (np.arange(n_boot)[:, None], draws), 1.0)
     weights = counts[:, i] * counts[:, j]  # (B, P): a pair counts as often as both its samples
+    weights = np.where(i == j, counts[:, i], weights)  # a sample's own measurement: as it
     normals, rhss = (weights @ gram).reshape(n_boot, k, k), weights @ rhs
+    normals = normals + _prior_normal(prior, columns)
     draws = [solve_normal(n, r) for n, r in zip(normals, rhss, strict=True)]
     out = np.full(lin.jac.shape[-1], np.nan)
     out[columns] = np.std(draws, axis=0, ddof=1)

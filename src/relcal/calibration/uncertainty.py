@@ -90,7 +90,7 @@ def pose_covariances(
         camera = body_covariance(problem.poses, covariances)
     else:
         camera = np.broadcast_to(noise.pose_covariance(), (n, 6, 6)).copy()
-    if problem.formulation != "invariant":
+    if problem.formulation not in ("invariant", "board"):
         rot = fk(model, problem.q)[:, :3, :3]
         d = np.zeros((n, 6, 6))
         d[:, :3, :3] = rot
@@ -110,7 +110,7 @@ def joint_map(problem: Problem, params: np.ndarray | None = None) -> np.ndarray:
     params = np.zeros(problem.full_layout.size) if params is None else params
     model, handeye = split_params(problem, params)
     tip, jq = pose_jacobian(model, problem.q, joint_layout(model))
-    if problem.formulation != "invariant":
+    if problem.formulation not in ("invariant", "board"):
         return jq
     body = tf.rotate_twist(np.swapaxes(tip[:, :3, :3], -1, -2), jq)  # flange body twists
     return tf.adjoint(tf.invert(handeye)) @ body
@@ -130,7 +130,7 @@ def noise_blocks(
     """
     n = len(problem.q)
     params = np.zeros(problem.full_layout.size) if params is None else params
-    if problem.formulation == "absolute":
+    if problem.formulation in ("absolute", "board"):  # each pose its own measurement
         poses = np.arange(n)[:, None]
         blocks = np.broadcast_to(np.eye(6), (n, 1, 6, 6))
     else:
@@ -378,7 +378,7 @@ def spanning_chain(problem: Problem) -> Problem:
     many pairs the problem has. Otherwise (absolute poses, relative positions in the camera frame,
     pairs that leave poses apart) ``problem`` itself."""
     n = len(problem.q)
-    if problem.formulation == "absolute" or (
+    if problem.formulation in ("absolute", "board") or (
         problem.formulation == "invariant" and problem.measure == "position"
     ):
         return problem
@@ -387,6 +387,31 @@ def spanning_chain(problem: Problem) -> Problem:
     if scipy.sparse.csgraph.connected_components(graph, directed=False)[0] != 1:
         return problem
     return replace(problem, pairs=make_pairs(n, "consecutive"), pair_weights=None)
+
+
+def _per_pose_whitened(
+    problem: Problem,
+    a: np.ndarray,
+    noise: Noise,
+    covariances: np.ndarray | None,
+    params: np.ndarray,
+) -> np.ndarray:
+    """``A`` ``(6 N, k)`` of a per-pose formulation (board) whitened pose by pose: each pose's
+    rows (after the problem's row weights) times the inverse root of their covariance, in
+    ``O(N k)``; the dense whitener of :func:`noise_factor` would hold ``(6 N)^2`` numbers. Poses
+    whose covariance is singular (no noise at all) are left out of the information."""
+    poses, blocks = noise_blocks(problem, params)
+    root = _root(pose_covariances(problem, noise, covariances, params))
+    factor = blocks[:, 0] @ root  # (N, r, 6): each pose's residual noise is factor @ unit noise
+    cov = factor @ np.swapaxes(factor, -1, -2)
+    w, v = np.linalg.eigh(cov)
+    top = max(float(w.max(initial=0.0)), 1e-300)
+    keep = w > _RANK_TOL**2 * top
+    if not keep.any():
+        raise RelcalError("the noise model is zero: give position/orientation or joint noise")
+    inv = np.where(keep, 1.0 / np.sqrt(np.where(keep, w, 1.0)), 0.0)
+    rows = a.reshape(len(poses), factor.shape[1], -1)
+    return (np.swapaxes(v, -1, -2) @ rows * inv[:, :, None]).reshape(-1, a.shape[1])
 
 
 def parameter_covariance(
@@ -420,9 +445,13 @@ def parameter_covariance(
         raise ValueError(f"unknown estimator '{estimator}': use least_squares or weighted")
     _, a = residuals(problem, params, model_jacobian=True)
     a = a[:, subset]
-    chain = spanning_chain(problem)
-    a_chain = a if chain is problem else residuals(chain, params, model_jacobian=True)[1][:, subset]
-    wa = whitener(noise_factor(chain, noise, covariances, params)) @ a_chain
+    if problem.formulation == "board":  # independent poses: a block-diagonal whitening, linear
+        wa = _per_pose_whitened(problem, a, noise, covariances, params)
+    else:
+        chain = spanning_chain(problem)
+        same = chain is problem
+        a_chain = a if same else residuals(chain, params, model_jacobian=True)[1][:, subset]
+        wa = whitener(noise_factor(chain, noise, covariances, params)) @ a_chain
     crb = _inverse_scaled(wa.T @ wa)
     kz = _inverse_scaled(a.T @ a) @ projected_noise_factor(problem, a, noise, covariances, params)
     ls = kz @ kz.T

@@ -17,7 +17,13 @@ import numpy as np
 
 from relcal.calibration.coincidence import Coincidence, split_params, tool_points
 from relcal.calibration.identify import Result
-from relcal.calibration.measurement import PairStrategy, Problem, make_pairs, pair_errors
+from relcal.calibration.measurement import (
+    PairStrategy,
+    Problem,
+    capped_pairs,
+    make_pairs,
+    pair_errors,
+)
 from relcal.robot.model import RobotModel
 
 _KINDS = (("position_mm", slice(0, 3), 1e3), ("orientation_deg", slice(3, 6), 180 / np.pi))
@@ -46,6 +52,9 @@ def stats(errors: np.ndarray) -> dict[str, dict[str, float]]:
     return out
 
 
+RESAMPLE_CHUNK = 2**21  # numbers of one chunk of the bootstrap's per-pair weights (16 MB)
+
+
 def _resampler(pairs: np.ndarray, n_boot: int, seed: int):
     """The paired bootstrap over the *samples* of ``pairs`` ``(P, 2)``: a function mapping a value
     per pair ``(P,)`` to its sum in each of ``n_boot`` draws (a pair counts as often as both its
@@ -59,13 +68,18 @@ def _resampler(pairs: np.ndarray, n_boot: int, seed: int):
     counts = np.zeros((n_boot, n))
     np.add.at(counts, (np.arange(n_boot)[:, None], draws), 1.0)
 
+    chunk = max(1, min(n_boot, RESAMPLE_CHUNK // max(len(pairs), 1)))
+
     def resampled(values: np.ndarray) -> np.ndarray:
-        """``sum_p counts[i_p] counts[j_p] values_p`` per draw, via an ``(n, n)`` table."""
-        table = np.zeros((n, n))
-        np.add.at(table, (i, j), values)
+        """``sum_p counts[i_p] counts[j_p] values_p`` per draw: ``O(n_boot P)`` time, draws
+        taken a chunk at a time (an ``(n, n)`` table would cost ``n_boot n^2``)."""
         if per_sample:
-            return counts @ np.diag(table)
-        return np.einsum("bi,ij,bj->b", counts, table, counts)
+            return counts @ np.bincount(i, values, minlength=n)
+        out = np.empty(n_boot)
+        for start in range(0, n_boot, chunk):
+            c = counts[start : start + chunk]
+            out[start : start + chunk] = (c[:, i] * c[:, j]) @ values
+        return out
 
     return resampled, resampled(np.ones(len(pairs))) > 0
 
@@ -185,15 +199,20 @@ def pooled(validations: list):
     )
 
 
-def subset(problem: Problem, samples: np.ndarray, pairing: PairStrategy = "all") -> Problem:
-    """The problem restricted to some samples, re-paired among themselves."""
+def subset(
+    problem: Problem,
+    samples: np.ndarray,
+    pairing: PairStrategy = "all",
+    max_pairs: int | None = None,
+) -> Problem:
+    """The problem restricted to some samples, re-paired among themselves; all pairs capped at
+    ``max_pairs`` drawn at random (:func:`~relcal.calibration.measurement.capped_pairs`)."""
     samples = np.asarray(samples)
-    return replace(
-        problem,
-        q=problem.q[samples],
-        poses=problem.poses[samples],
-        pairs=make_pairs(len(samples), pairing),
-    )
+    if pairing == "all" and max_pairs is not None:
+        pairs = capped_pairs(len(samples), max_pairs)
+    else:
+        pairs = make_pairs(len(samples), pairing)
+    return replace(problem, q=problem.q[samples], poses=problem.poses[samples], pairs=pairs)
 
 
 def _scores(problem: Problem, params: np.ndarray, samples, partners, sigma=None):
@@ -266,6 +285,7 @@ def held_out(
     pairing: PairStrategy = "all",
     baseline: Result | None = None,
     train: np.ndarray | None = None,
+    max_pairs: int | None = None,
 ) -> Validation:
     """Errors on pairs among ``samples`` (which the identification did not use), or on each
     sample alone (as pairs ``(k, k)``) for the per-pose formulations, of the nominal model with
@@ -274,7 +294,8 @@ def held_out(
     With the ``train`` samples, held-out samples that fit badly under both the calibrated model
     and the baseline (:func:`held_out_outliers`) are left out of the pairs and listed in
     ``outliers``, as outliers among the training samples are left out of the fit (while at
-    least 2 held-out samples remain)."""
+    least 2 held-out samples remain). ``max_pairs``: at most that many of the pairs, drawn at
+    random (a large held-out set: the statistics stay linear in the samples)."""
     samples = np.asarray(samples)
     outliers = np.zeros(0, dtype=int)
     if train is not None:
@@ -282,7 +303,7 @@ def held_out(
         outliers = held_out_outliers(problem, models, samples, train)
         if len(samples) - len(outliers) >= 2:
             samples = np.setdiff1d(samples, outliers)
-    test = subset(problem, samples, pairing)
+    test = subset(problem, samples, pairing, max_pairs)
     if problem.formulation in ("absolute", "tracker"):
         pairs = np.stack([samples, samples], axis=1)
     else:

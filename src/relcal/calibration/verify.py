@@ -48,7 +48,17 @@ import numpy as np
 
 from relcal.calibration.handeye import solve_handeye, solve_instrument
 from relcal.calibration.identify import calibrated_handeye, identify_lm
-from relcal.calibration.measurement import Problem, make_pairs, pair_errors, tracker_frames
+from relcal.calibration.measurement import (
+    AUTO_ALL_PAIRS,
+    VALIDATION_PAIRS,
+    Problem,
+    board_guess,
+    board_lever,
+    capped_pairs,
+    make_pairs,
+    pair_errors,
+    tracker_frames,
+)
 from relcal.calibration.selection import plain_whiteners
 from relcal.calibration.validate import rms_draws, stats
 from relcal.checks import check_flag, check_number, check_path
@@ -262,16 +272,26 @@ class Nuisance:
     converged: bool
 
 
-def _pose_problem(model: RobotModel, q, poses, handeye) -> Problem:
-    return Problem(
-        model, EMPTY, q, poses, "invariant", "pose", make_pairs(len(q), "all"), handeye, PLAIN
-    )
+def _pose_problem(model: RobotModel, q, poses, handeye, fit: bool = False) -> Problem:
+    """Relative poses of a session with the kinematics frozen: all pairs up to
+    :data:`~relcal.calibration.measurement.AUTO_ALL_PAIRS` samples; above, the board formulation
+    for a ``fit`` of the nuisance and at most
+    :data:`~relcal.calibration.measurement.VALIDATION_PAIRS` random pairs for the errors (linear
+    in the samples, as calibrate's ``--pairs auto``)."""
+    n = len(q)
+    if n > AUTO_ALL_PAIRS and fit:
+        weights = PLAIN.copy()
+        weights[3:] = board_lever(poses)
+        board = board_guess(fk(model, q), poses, handeye)
+        return Problem(model, EMPTY, q, poses, "board", "pose", None, handeye, weights, board=board)
+    pairs = capped_pairs(n, VALIDATION_PAIRS) if n > AUTO_ALL_PAIRS else make_pairs(n, "all")
+    return Problem(model, EMPTY, q, poses, "invariant", "pose", pairs, handeye, PLAIN)
 
 
 def _fit_pose(model: RobotModel, q, poses) -> tuple[np.ndarray, bool]:
     """The hand-eye transform ``X`` fitted to relative poses with the kinematics frozen."""
     guess = solve_handeye(fk(model, q), poses)
-    problem = _pose_problem(model, q, poses, guess)
+    problem = _pose_problem(model, q, poses, guess, fit=True)
     result = identify_lm(problem)
     return calibrated_handeye(problem, result), bool(result.converged)
 

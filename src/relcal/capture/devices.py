@@ -80,7 +80,8 @@ CAMERAS: dict[str, Device] = {
 CAMERAS["sim"] = Device(
     "relcal.capture.virtual:VirtualCamera",
     "virtual",
-    "the virtual cell's flange camera; with --robot-driver sim",
+    "the virtual cell's flange camera (with --robot-driver sim), or a virtual camera that "
+    "follows any other driver's joints",
 )
 
 CONTEXT = ("joint_names", "clock", "source", "ask", "tell", "prismatic")  # given, not options

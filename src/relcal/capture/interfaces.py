@@ -30,10 +30,13 @@ class MoveFailed(RelcalError):
 
 @dataclass(frozen=True)
 class JointReading:
-    """One joint measurement: ``q`` ``(n,)`` (rad, m) stamped ``stamp`` (s, the loop's clock)."""
+    """One joint measurement: ``q`` ``(n,)`` (rad, m) stamped ``stamp`` (s, the loop's clock),
+    and the joint velocities ``dq`` ``(n,)`` (rad/s, m/s) where the controller reports them
+    (``None`` otherwise: the loop then judges stillness from positions alone)."""
 
     q: np.ndarray
     stamp: float
+    dq: np.ndarray | None = None
 
 
 @dataclass(frozen=True)

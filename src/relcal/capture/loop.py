@@ -14,9 +14,14 @@ For each pose, in the plan's order (see :func:`capture`):
 2. **Move** with a timeout (:class:`MoveFailed`: retried, then skipped).
 3. **Wait until still**: joints are read every ``poll`` seconds; the arm is still when, over the
    last ``settle_window`` seconds, every joint's readings span at most ``settle_threshold``
-   (peak to peak: this is "|dq| below a threshold over a window", robust to encoder noise). Not
-   still within ``settle_timeout``: the attempt fails. "The move returned" is never taken for
-   "the arm is still".
+   (peak to peak: this is "|dq| below a threshold over a window" from positions, robust to
+   encoder noise) and, with ``settle_velocity`` set and a driver that reports joint velocities
+   (:attr:`JointReading.dq`: franky, ur_rtde), every reading's ``|dq|`` is at most
+   ``settle_velocity`` (a vibration too small for the positions' threshold). Off by default:
+   velocities are noisier than positions (franky-sim's chatter at 0.08 rad/s on an arm at rest,
+   whose positions span 0.005 deg). Not still within ``settle_timeout``: the attempt fails.
+   "The move returned" is never taken for "the arm is still": how fast the arm still moved when
+   the move returned, and how long it then took to become still, are kept per sample.
 4. **Final joint error**: the mean of the readings in the still window must be within
    ``joint_tolerance`` of the target on every joint (checked once still: a moving arm's error
    says nothing).
@@ -72,6 +77,9 @@ class CaptureSettings:
         s after the move returned within which the arm must become still.
     poll : float
         s between joint readings while waiting.
+    settle_velocity : float or None
+        rad/s (m/s): largest ``|dq|`` of any joint over the still window, for drivers that report
+        velocities (``None``, the default: positions only).
     joint_tolerance : float
         rad (m): largest difference between the still mean and the target on any joint.
     frame_timeout : float
@@ -96,6 +104,7 @@ class CaptureSettings:
     settle_threshold: float = 0.01 * DEG
     settle_timeout: float = 15.0
     poll: float = 0.01
+    settle_velocity: float | None = None
     joint_tolerance: float = 0.1 * DEG
     frame_timeout: float = 2.0
     max_stale_frames: int = 60
@@ -113,6 +122,13 @@ class CaptureSettings:
                 raise RelcalError(
                     f"capture setting {name}: expected a positive number, got {value}"
                 )
+        if self.settle_velocity is not None and not (
+            np.isfinite(self.settle_velocity) and self.settle_velocity > 0
+        ):
+            raise RelcalError(
+                f"capture setting settle_velocity: expected a positive number, got "
+                f"{self.settle_velocity}"
+            )
         if self.retries < 0 or self.max_stale_frames < 0:
             raise RelcalError("capture settings retries and max_stale_frames must be >= 0")
         if self.settle_window >= self.settle_timeout:
@@ -127,7 +143,10 @@ class Sample:
     """One accepted capture: what the sink stores.
 
     ``q`` ``(n,)`` is the mean of the joint readings over the still window (rad, m); ``frame`` the
-    accepted frame; ``window`` the still window ``(start, end)`` (s).
+    accepted frame; ``window`` the still window ``(start, end)`` (s); ``returned_speed`` the
+    largest joint speed (rad/s, m/s) right after the move returned (:func:`speed_of` the first two
+    readings), ``settle_seconds`` the time from the move's return to the end of the still window
+    (s).
     """
 
     pose_id: str
@@ -142,6 +161,8 @@ class Sample:
     sharpness: float
     discarded_frames: int
     joint_std: np.ndarray  # (n,) standard deviation of the readings over the window
+    returned_speed: float = float("nan")
+    settle_seconds: float = float("nan")
 
     def record(self) -> dict:
         """The capture log entry (plain types; angles as stored, rad and m)."""
@@ -155,8 +176,14 @@ class Sample:
             "sharpness": float(self.sharpness),
             "discarded_frames": self.discarded_frames,
             "joint_std": [float(v) for v in self.joint_std],
+            "returned_speed": _finite_or_none(self.returned_speed),
+            "settle_seconds": _finite_or_none(self.settle_seconds),
             "target": [float(v) for v in self.target],
         }
+
+
+def _finite_or_none(value: float) -> float | None:
+    return float(value) if np.isfinite(value) else None
 
 
 class Sink(Protocol):
@@ -342,10 +369,35 @@ def judge_frame(
     return _Judged(n, rms, sharp)
 
 
+def speed_of(first: JointReading, second: JointReading | None = None) -> float:
+    """The largest joint speed (rad/s, m/s) at ``first``: the difference to the next reading
+    ``second`` over their stamps, else ``first``'s reported velocities (``nan`` without
+    either). Positions first: reported velocities can be noisier than the motion measured."""
+    if second is not None and second.stamp > first.stamp:
+        step = np.asarray(second.q, float) - np.asarray(first.q, float)
+        return float(np.abs(step).max() / (second.stamp - first.stamp))
+    if first.dq is not None:
+        return float(np.abs(np.asarray(first.dq, float)).max())
+    return float("nan")
+
+
+def still_spread(window: Sequence[JointReading]) -> tuple[np.ndarray, float | None]:
+    """Per joint, the peak-to-peak spread ``(n,)`` of the positions over ``window`` (rad, m),
+    and the largest ``|dq|`` (rad/s, m/s) of its readings when every one reports velocities
+    (else ``None``)."""
+    values = np.array([r.q for r in window])
+    speed = None
+    if all(r.dq is not None for r in window):
+        speed = float(np.abs(np.array([r.dq for r in window])).max())
+    return np.ptp(values, axis=0), speed
+
+
 def wait_until_still(
     robot: Robot, clock: Clock, settings: CaptureSettings
-) -> tuple[list[JointReading], float]:
-    """Read the joints until they have been still for ``settle_window`` seconds.
+) -> tuple[list[JointReading], float, float]:
+    """Read the joints until they have been still for ``settle_window`` seconds: positions
+    within ``settle_threshold`` peak to peak, and with ``settle_velocity`` set, reported
+    velocities (where the driver gives them) within it.
 
     Returns
     -------
@@ -353,6 +405,8 @@ def wait_until_still(
         The readings of the still window, oldest first.
     start : float
         When the still window began (s): the stamp of its first reading.
+    returned_speed : float
+        The largest joint speed (rad/s, m/s) at the first reading (:func:`speed_of`).
 
     Raises
     ------
@@ -361,33 +415,39 @@ def wait_until_still(
     """
     begin = clock.now()
     history: list[JointReading] = []
-    first_stamp = None
-    spread = np.inf
+    first: list[JointReading] = []
+    spread, fastest = np.inf, None
+    limit = settings.settle_velocity
     while True:
         reading = robot.read()
-        q = np.asarray(reading.q, float)
-        history.append(JointReading(q, float(reading.stamp)))
-        if first_stamp is None:
-            first_stamp = reading.stamp
-        newest = reading.stamp
-        cut = newest - settings.settle_window
+        dq = None if reading.dq is None else np.asarray(reading.dq, float)
+        reading = JointReading(np.asarray(reading.q, float), float(reading.stamp), dq)
+        history.append(reading)
+        if len(first) < 2:
+            first.append(reading)
+        cut = reading.stamp - settings.settle_window
         # keep the readings of the window, and the last one before it (coverage)
         while len(history) > 2 and history[1].stamp <= cut:
             history.pop(0)
         if history[0].stamp <= cut + 1e-9:
             window = [r for r in history if r.stamp >= cut - 1e-9]
             if len(window) >= 3:
-                values = np.array([r.q for r in window])
-                spread_j = np.ptp(values, axis=0)
+                spread_j, fastest = still_spread(window)
                 spread = float(spread_j.max())
-                if np.all(spread_j <= settings.settle_threshold):
-                    return window, window[0].stamp
+                if np.all(spread_j <= settings.settle_threshold) and (
+                    limit is None or fastest is None or fastest <= limit
+                ):
+                    return window, window[0].stamp, speed_of(*first)
         if clock.now() - begin > settings.settle_timeout:
             shown = "no full window" if not np.isfinite(spread) else f"{spread / DEG:.4f} deg"
+            speed = limits = ""
+            if limit is not None and fastest is not None:
+                speed = f", speed up to {fastest / DEG:.4f} deg/s"
+                limits = f", {limit / DEG:.4f} deg/s"
             raise _Failed(
                 f"not still: joints still moving after {settings.settle_timeout:g} s "
-                f"(spread over the last {settings.settle_window:g} s: {shown}, threshold "
-                f"{settings.settle_threshold / DEG:.4f} deg)"
+                f"(spread over the last {settings.settle_window:g} s: {shown}{speed}, threshold "
+                f"{settings.settle_threshold / DEG:.4f} deg{limits})"
             )
         clock.sleep(settings.poll)
 
@@ -435,7 +495,8 @@ def attempt(
         robot.move(target, settings.move_timeout)
     except MoveFailed as exc:
         raise _Failed(f"move failed: {exc}") from None
-    window, start = wait_until_still(robot, clock, settings)
+    returned = clock.now()
+    window, start, returned_speed = wait_until_still(robot, clock, settings)
     values = np.array([r.q for r in window])
     mean = values.mean(axis=0)
     error = np.abs(mean - target)
@@ -471,6 +532,8 @@ def attempt(
         sharpness=judged.sharp,
         discarded_frames=discarded,
         joint_std=values.std(axis=0),
+        returned_speed=returned_speed,
+        settle_seconds=window[-1].stamp - returned,
     )
 
 

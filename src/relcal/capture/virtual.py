@@ -571,12 +571,15 @@ class VirtualCell:
 
     def frame_at(self, sequence: int) -> Frame:
         """Render frame ``sequence`` (exposed at ``sequence / fps``) and note its truth."""
+        stamp = sequence / self.fps
+        return self.frame_of(self.arm.at(stamp), stamp, sequence, self.hidden_at(stamp))
+
+    def frame_of(self, q_true: np.ndarray, stamp: float, sequence: int, hidden=False) -> Frame:
+        """Render the camera at true joints ``q_true`` ``(n,)`` (rad, m) as frame ``sequence``
+        exposed at ``stamp`` (s), and note its truth."""
         import time
 
-        stamp = sequence / self.fps
-        q_true = self.arm.at(stamp)
         begin = time.perf_counter()
-        hidden = self.hidden_at(stamp)
         levels, t_board_camera = self.renderer.render(q_true, hidden)
         from relcal.vision.render import finish_image
 
@@ -836,6 +839,7 @@ __all__ = [
     "SIM_CAMERA",
     "ArmDynamics",
     "Faults",
+    "FollowingCamera",
     "SceneRenderer",
     "SimCamera",
     "SimClock",
@@ -951,15 +955,167 @@ class VirtualRobot(SimRobot):
 
 
 class VirtualCamera(SimCamera):
-    """``--camera sim``: the flange camera of the virtual cell that ``--robot-driver sim`` built
-    (no options; its intrinsics are the cell's true ones)."""
+    """``--camera sim``: the virtual flange camera.
+
+    With ``--robot-driver sim`` it is the camera of the virtual cell that driver built (on its
+    simulated clock; no options). With any other driver (a real arm, or a simulator such as
+    franky-sim) it *follows the driver*: each :meth:`grab` reads the joints the driver reports
+    and renders the board the camera on that arm's flange would see, the arm taken as the robot
+    model with planted errors (as the virtual cell plants them), stamped with the reading's own
+    stamp on the loop's clock. A capture of a real or simulated controller's motion (its
+    settling, its timing) with images whose truth is known: ``relcal calibrate`` should recover
+    the planted errors. Its options then (``--camera-option``): ``seed``, ``truth``,
+    ``board_center``, ``handeye``, ``errors`` as the ``sim`` robot's.
+    """
 
     simulated = True
 
-    def __init__(self, robot=None, clock=None) -> None:
-        if not isinstance(robot, VirtualRobot):
-            raise RelcalError(
-                "--camera sim: the virtual camera belongs to the virtual cell; use it with "
-                "--robot-driver sim"
+    def __init__(
+        self,
+        robot=None,
+        clock=None,
+        model=None,
+        board=None,
+        seed: int | None = None,
+        truth: str | None = None,
+        board_center: str | None = None,
+        handeye: str | None = None,
+        errors: str | None = None,
+    ) -> None:
+        given = [
+            n
+            for n, v in (
+                ("seed", seed),
+                ("truth", truth),
+                ("board_center", board_center),
+                ("handeye", handeye),
+                ("errors", errors),
             )
-        super().__init__(robot.cell)
+            if v is not None
+        ]
+        if isinstance(robot, VirtualRobot):
+            if given:
+                raise RelcalError(
+                    f"--camera sim: option {given[0]} belongs to --robot-option when the robot "
+                    "is the virtual cell's (--robot-driver sim)"
+                )
+            super().__init__(robot.cell)
+            self.follows = None
+            return
+        if robot is None or model is None:
+            raise RelcalError("--camera sim: the virtual camera needs a robot driver to follow")
+        self.follows = robot
+        self._follower = FollowingCamera(
+            robot,
+            model,
+            board,
+            clock=clock,
+            seed=0 if seed is None else int(seed),
+            truth=truth,
+            board_center=board_center,
+            handeye=handeye,
+            errors=errors,
+        )
+        super().__init__(self._follower.cell)
+
+    def grab(self, timeout: float) -> Frame:
+        if self.follows is None:
+            return super().grab(timeout)
+        return self._follower.grab(timeout)
+
+    def close(self) -> None:
+        if self.follows is None:
+            super().close()
+        else:
+            self._follower.close()
+
+
+class FollowingCamera:
+    """A virtual flange camera on a robot driven by another driver (see :class:`VirtualCamera`).
+
+    Parameters
+    ----------
+    robot : Robot
+        The driver whose reported joints place the camera.
+    model : RobotModel
+        The nominal robot model; the truth is it with errors planted from ``seed`` (or
+        ``errors``, a ``relcal simulate --errors`` YAML).
+    board : Board or None
+    clock : Clock or None
+        The loop's clock (frames are stamped with the reading's stamp, already on it).
+    seed, truth, board_center, handeye, errors
+        As the options of :class:`VirtualRobot`; ``truth`` is written on :meth:`close`.
+    """
+
+    def __init__(
+        self,
+        robot,
+        model: RobotModel,
+        board: Board | None = None,
+        *,
+        clock=None,
+        seed: int = 0,
+        truth: str | None = None,
+        board_center: str | None = None,
+        handeye: str | None = None,
+        errors: str | None = None,
+    ) -> None:
+        flag = "--camera-option"
+        centre = (
+            None if board_center is None else _floats(board_center, (3,), f"{flag} board_center")
+        )
+        guess = None
+        if handeye is not None:
+            he = np.r_[_floats(handeye, (3, 6), f"{flag} handeye"), 0.0, 0.0, 0.0][:6]
+            guess = tf.from_xyz_rpy(he[:3], np.radians(he[3:]))
+        planted = None
+        if errors is not None:
+            from relcal.sim.scenario import load_errors
+
+            planted = load_errors(errors, make_layout(auto_hayati(model)))
+        if truth:
+            from relcal.outputset import File, check_file
+
+            check_file(File(truth, b"", f"{flag} truth"))
+        self.robot = robot
+        self.cell = make_cell(
+            model, board, seed=int(seed), board_center=centre, handeye=guess, errors=planted
+        )
+        self.truth_path = truth
+        self.sequence = 0
+
+    def grab(self, timeout: float) -> Frame:
+        """A frame of the board seen from the joints the robot reports now, stamped with that
+        reading's stamp (loop clock)."""
+        reading = self.robot.read()
+        q = np.asarray(reading.q, float)
+        if q.shape != (self.cell.truth.model.n_joints,) or not np.all(np.isfinite(q)):
+            raise CaptureError(f"--camera sim: the robot reported joints {q}")
+        frame = self.cell.frame_of(q, float(reading.stamp), self.sequence)
+        self.sequence += 1
+        return frame
+
+    def intrinsics(self) -> Intrinsics | None:
+        return self.cell.truth.camera
+
+    def close(self) -> None:
+        """Write the truth file (``truth`` option), once, and free the renderer."""
+        try:
+            if self.truth_path:
+                from relcal.io import json_text, write_text
+
+                write_text(self.truth_path, json_text(self.truth_document()), "truth")
+                self.truth_path = None
+        finally:
+            self.cell.close()
+
+    def truth_document(self) -> dict:
+        """The planted truth and the joints of every frame (as
+        :meth:`VirtualCell.truth_document`, without the virtual arm's dynamics, moves and
+        faults, which a followed driver does not have)."""
+        doc = self.cell.truth_document()
+        for key in ("dynamics", "fps", "faults", "moves_note", "moves", "joint_noise_deg"):
+            doc.pop(key, None)
+        doc["followed_driver"] = type(self.robot).__name__
+        doc["frames_note"] = "joints (rad, m) the driver reported for each frame, taken as true"
+        return doc

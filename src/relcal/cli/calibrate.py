@@ -7,6 +7,8 @@ from contextlib import nullcontext
 from pathlib import Path
 
 from relcal.cli.common import (
+    PAIRINGS,
+    PAIRS_HELP,
     holdout_fraction,
     int_at_least,
     json_arg,
@@ -194,6 +196,7 @@ def _calibrate(args, dataset, out, holdout_ids, registry) -> int:
         "selection": args.select,
         "nongeometric": args.nongeometric,
         "weightings": WEIGHTING_CHOICES[args.weighting],
+        "priors": args.priors,
     }
     cal = calibrate(
         dataset, m, holdout=args.holdout, seed=args.seed, holdout_ids=holdout_ids, **options
@@ -347,10 +350,9 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--pairing",
         "--pairs",
         dest="pairs",
-        choices=("consecutive", "star", "all"),
-        default="all",
-        help="which pairs of training samples form relative measurements (default all; "
-        "--pairs is its former name)",
+        choices=PAIRINGS,
+        default="auto",
+        help=PAIRS_HELP,
     )
     cp.add_argument("--method", choices=("lm", "published"), default="lm")
     cp.add_argument(
@@ -381,6 +383,14 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="non-geometric candidates for model selection: auto (default: joint scale, first "
         "harmonic, and compliance where the model has masses), none, or a list such as "
         "scale,harmonic",
+    )
+    cp.add_argument(
+        "--priors",
+        choices=("model", "none"),
+        default="model",
+        help="model (default): weakly determined parameters are held by the manufacturing "
+        "tolerances of the model file's priors: (1 mm, 0.5 deg, joint offsets 1 deg unless it "
+        "says otherwise), a maximum a posteriori fit; none: the plain least squares",
     )
     cp.add_argument(
         "--weighting",

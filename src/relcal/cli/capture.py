@@ -23,6 +23,8 @@ examples:
       --robot-option seed=3,truth=truth.json --robot-option 'faults=hide:p004;stale:6'
   relcal capture plan.csv --robot ur5e --robot-driver ur --robot-option host=192.168.1.10 \\
       --camera realsense --out ds --handeye 0,0.04,0.06
+  relcal capture plan.csv --robot franka_fr3 --robot-driver franka \\
+      --robot-option host=127.0.0.1 --camera sim --camera-option seed=2 --out ds
 
 For every pose of PLAN (the CSV of relcal plan): check the joint limits, move, wait until the
 joints are still over --settle-window, take a frame stamped after that (older buffered frames are
@@ -45,6 +47,7 @@ def _settings(args: argparse.Namespace):
         settle_window=args.settle_window,
         settle_threshold=args.settle_threshold * DEG,
         settle_timeout=args.settle_timeout,
+        settle_velocity=None if args.settle_velocity is None else args.settle_velocity * DEG,
         joint_tolerance=args.joint_tolerance * DEG,
         max_rms=args.max_rms,
         min_sharpness=args.min_sharpness,
@@ -122,16 +125,19 @@ def run(args: argparse.Namespace) -> int:
         clock = getattr(robot, "clock", None) or clock  # a simulated robot keeps its own time
         entry = devices.CAMERAS.get(args.camera)
         simulated = entry is not None and getattr(entry.load(), "simulated", False)
-        if getattr(robot, "simulated", False) != simulated:
+        if getattr(robot, "simulated", False) and not simulated:
             raise RelcalError(
-                "the virtual cell's robot and camera go together (simulated time): use "
-                "--robot-driver sim with --camera sim"
+                "the virtual cell's robot runs on simulated time and a real camera cannot "
+                "see it: use --robot-driver sim with --camera sim (--camera sim also follows "
+                "any other robot driver)"
             )
         camera = devices.open_camera(
             args.camera,
             devices.parse_options(args.camera_option or [], "--camera-option"),
             clock=clock,
             robot=robot,
+            model=model,
+            board=board,
         )
         if intrinsics is None:
             intrinsics = camera.intrinsics()
@@ -294,6 +300,13 @@ def register(sub: argparse._SubParsersAction) -> None:
         default=0.01,
         help="deg (mm for prismatic joints): largest peak-to-peak spread of a joint over the "
         "window (default 0.01)",
+    )
+    p.add_argument(
+        "--settle-velocity",
+        type=positive_float,
+        metavar="DEG_PER_S",
+        help="deg/s (mm/s): also require every joint velocity the driver reports (franka, ur) "
+        "to stay below this over the window (default: positions only)",
     )
     p.add_argument(
         "--settle-timeout",

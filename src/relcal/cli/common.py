@@ -311,3 +311,14 @@ def registry_arg(parser: argparse.ArgumentParser) -> None:
         help="calibration registry: a SQLite file or a SQLAlchemy URL "
         "(default $RELCAL_REGISTRY; none if unset)",
     )
+
+
+# --pairing (--pairs) of calibrate and fleet calibrate: relcal.calibration.measurement.PAIRINGS,
+# written out here so that the parsers import no NumPy
+PAIRINGS = ("auto", "all", "consecutive", "star", "board")
+PAIRS_HELP = (
+    "how relative poses are compared: auto (default: all pairs up to 300 usable samples, board "
+    "above), all (every pair: quadratic), consecutive, star, or board (each pose against the "
+    "board, its transform estimated: the information of all pairs, linear in the samples); "
+    "--pairs is its former name"
+)

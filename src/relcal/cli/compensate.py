@@ -52,6 +52,95 @@ def check_limits(path: Path, model, ids, q: np.ndarray, joint_unit: str) -> None
     )
 
 
+def covered_ranges(model_path: Path):
+    """The joint ranges the calibration covered (``joint_ranges`` of the ``results.json``
+    written beside its model file), or None when there is no such record."""
+    import json
+
+    from relcal.calibration.verify import JointRanges
+
+    doc_path = Path(model_path).parent / "results.json"
+    try:
+        doc = json.loads(doc_path.read_text())
+        return JointRanges.from_dict(doc["joint_ranges"])
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+
+
+def outside_warnings(ranges, ids, q: np.ndarray, joint_unit: str) -> list[str]:
+    """One warning per target whose joints ``q`` ``(N, n)`` (rad, m) lie beyond the ranges the
+    calibration covered (by more than their slack): its accuracy there was never validated."""
+    import numpy as np
+
+    if ranges is None or len(ranges.names) != q.shape[1]:
+        return []
+    outside = ranges.outside(q)
+    lines = []
+    for k in np.flatnonzero(outside.any(axis=1)):
+        joints = []
+        for j in np.flatnonzero(outside[k]):
+            conv, unit = (
+                (1.0, "m")
+                if ranges.prismatic[j]
+                else ((np.degrees(1.0), "deg") if joint_unit == "deg" else (1.0, "rad"))
+            )
+            joints.append(
+                f"{ranges.names[j]} = {q[k, j] * conv:.4g} {unit} (covered "
+                f"{ranges.lower[j] * conv:.4g} .. {ranges.upper[j] * conv:.4g})"
+            )
+        lines.append(
+            f"target {ids[k]}: {', '.join(joints)}: outside the joint ranges the calibration "
+            "covered; its accuracy there is not validated"
+        )
+    return lines
+
+
+def validated_error(model_path: Path) -> dict | None:
+    """The held-out error that ``results.json`` beside a ``model.yaml`` of ``relcal calibrate``
+    records for that very file (``artifacts``, matched by the SHA-256 of its content after the
+    run's comment line): ``{"position_rms_mm", "n_samples", "matches"}``; ``matches`` False when
+    the file was changed since. None without such a record."""
+    import hashlib
+    import json
+
+    from relcal.reporting.outputs import RUN_ID_PREFIX
+
+    results = model_path.parent / "results.json"
+    if model_path.name != "model.yaml" or not results.is_file():
+        return None
+    try:
+        doc = json.loads(results.read_text(encoding="utf-8"))
+        entry = {f["file"]: f for f in doc["artifacts"]["files"]}["model.yaml"]
+    except (OSError, ValueError, KeyError, TypeError):
+        return None  # not a relcal calibration set (or an older one): nothing to say
+    data = model_path.read_bytes()
+    if data.startswith(RUN_ID_PREFIX.encode()):
+        data = data.split(b"\n", 1)[1] if b"\n" in data else b""
+    held = entry.get("held_out") or {}
+    return {
+        "position_rms_mm": held.get("position_rms_mm"),
+        "n_samples": held.get("n_samples"),
+        "matches": hashlib.sha256(data).hexdigest() == entry.get("sha256"),
+    }
+
+
+def validation_note(model_path: Path, found: dict | None) -> str | None:
+    """One line on what the model file's held-out error is, for standard error."""
+    if found is None:
+        return None
+    if not found["matches"]:
+        return (
+            f"relcal: warning: {model_path} differs from the model.yaml that results.json "
+            "validated: its held-out error is unknown"
+        )
+    if found["position_rms_mm"] is None:
+        return f"relcal: {model_path}: not validated (calibrated without held-out samples)"
+    return (
+        f"relcal: {model_path}: held-out position RMS {found['position_rms_mm']:.3f} mm over "
+        f"{found['n_samples']} samples (results.json; measured on this file read back)"
+    )
+
+
 SINGULAR = 0.02  # inverse condition number (translation over 0.5 m) below which we warn
 
 
@@ -77,6 +166,7 @@ def run(args: argparse.Namespace) -> int:
     from relcal.robot.model import load_model
 
     calibrated = load_model(args.model)
+    validated = validated_error(Path(args.model))
     nominal = get_robot(args.nominal) if args.nominal else None
     if nominal is not None and nominal.n_joints != calibrated.n_joints:
         raise RelcalError(
@@ -104,6 +194,7 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         units = np.where(calibrated.prismatic, "m", args.joint_unit).tolist()
         inputs = {"model": args.model, "targets_file": args.targets, "nominal": args.nominal}
+        inputs["model_validation"] = validated
         doc = {**inputs, **compensation_document(ids, q, comp, dq, units)}
         items.append(File(args.json, json_text(doc), "--json"))
     write_set(*items)
@@ -118,6 +209,9 @@ def run(args: argparse.Namespace) -> int:
         return 1
     cond = near_singular(calibrated, comp.q)
     if not args.quiet:
+        ranges = covered_ranges(Path(args.model))
+        for line in outside_warnings(ranges, ids, comp.q, args.joint_unit):
+            print(f"relcal: warning: {line}", file=sys.stderr)
         for k in np.flatnonzero(cond < SINGULAR):
             swing = (
                 ""
@@ -137,6 +231,9 @@ def run(args: argparse.Namespace) -> int:
             )
         where = f" -> {args.out}" if args.out else ""
         print(f"relcal: {summary}{where}", file=sys.stderr)
+        note = validation_note(Path(args.model), validated)
+        if note:
+            print(note, file=sys.stderr)
     return 0
 
 

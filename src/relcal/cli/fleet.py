@@ -7,6 +7,8 @@ from datetime import UTC, datetime
 
 from relcal.cli.calibrate import WEIGHTING_CHOICES, nongeometric_terms
 from relcal.cli.common import (
+    PAIRINGS,
+    PAIRS_HELP,
     fraction,
     holdout_fraction,
     int_at_least,
@@ -212,10 +214,9 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--pairing",
         "--pairs",
         dest="pairs",
-        choices=("consecutive", "star", "all"),
-        default="all",
-        help="which pairs of training samples form relative measurements (default all; "
-        "--pairs is its former name)",
+        choices=PAIRINGS,
+        default="auto",
+        help=PAIRS_HELP,
     )
     cp.add_argument("--method", choices=("lm", "published"), default="lm")
     cp.add_argument("--loss", choices=("linear", "huber", "cauchy", "soft_l1"), default="linear")

@@ -210,6 +210,7 @@ def run(args: argparse.Namespace) -> int:
         link_radius=args.link_radius,
         camera_radius=args.camera_radius,
         obstacles=obstacles,
+        sight_grid=args.sight_lines,
     )
     noise = Noise.parse(args.noise)
     client, cluster = None, None
@@ -363,6 +364,15 @@ def register(sub: argparse._SubParsersAction) -> None:
         type=nonnegative_float,
         default=0.04,
         help="radius of the sphere about the camera for the collision checks, m (default 0.04)",
+    )
+    p.add_argument(
+        "--sight-lines",
+        type=nonnegative_int,
+        default=5,
+        metavar="N",
+        help="line of sight: N x N lines from the camera to the pattern must pass the robot's "
+        "own links (the URDF's collision geometry, else capsules of --link-radius); 0: no check "
+        "(default 5)",
     )
     p.add_argument(
         "--length-scale",

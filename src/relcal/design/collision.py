@@ -74,6 +74,9 @@ def segment_distance(p0, p1, q0, q1) -> np.ndarray:
     t = (b * s + f) / np.where(e > eps, e, 1)
     s = np.where(t < 0, np.clip(-c / np.where(a > eps, a, 1), 0, 1), s)
     s = np.where(t > 1, np.clip((b - c) / np.where(a > eps, a, 1), 0, 1), s)
+    # the second segment a point: the first's nearest point to it (the general formula's
+    # denominator vanishes and would leave s at 0)
+    s = np.where(e > eps, s, np.clip(-c / np.where(a > eps, a, 1), 0, 1))
     t = np.clip(t, 0, 1)
     s = np.where(a > eps, s, 0)
     t = np.where(e > eps, t, 0)

@@ -2,7 +2,9 @@
 solved by inverse kinematics, and kept when every constraint holds (:func:`check`): joint limits,
 the whole board in view with a margin, distance and viewing angle, away from singularities,
 clearance above the board, no self-collision and no collision with the cell's obstacles (capsules
-about the links, :mod:`relcal.design.collision`).
+about the links, :mod:`relcal.design.collision`, or the URDF's collision geometry), and a clear
+line of sight from the camera to the board past the robot's own links
+(:mod:`relcal.design.sight`).
 
 On a Dask cluster the candidate batches are tasks; each batch draws from its own stream of the
 seed (:func:`batch_seed`), so the pool does not depend on where or in which order batches run.
@@ -39,6 +41,7 @@ class Constraints:
     link_radius: float = 0.04  # m: capsules about the links' skeleton (0: no self-collision check)
     camera_radius: float = 0.04  # m: a sphere about the camera
     obstacles: tuple[tuple[float, ...], ...] = ()  # boxes (xmin, ymin, zmin, xmax, ymax, zmax), m
+    sight_grid: int = 5  # sight lines per side of the pattern (0: no line-of-sight check)
 
 
 def camera_poses(model: RobotModel, cell: Cell, q: np.ndarray) -> np.ndarray:
@@ -102,7 +105,31 @@ def check(
     }
     rest = np.logical_and.reduce(list(masks.values()))
     masks.update(collisions(model, cell, q, constraints, rest))
+    masks["line of sight"] = line_of_sight(model, cell, q, constraints, rest)
     return masks
+
+
+def line_of_sight(
+    model: RobotModel, cell: Cell, q: np.ndarray, constraints: Constraints, rest: np.ndarray
+) -> np.ndarray:
+    """Mask ``(N,)`` of configurations ``q`` whose camera sees the whole pattern past the
+    robot's own links (:mod:`relcal.design.sight`): with the URDF's collision geometry where
+    the chain has some, else capsules of ``link_radius`` about the skeleton. Checked only where
+    ``rest`` holds (elsewhere True); always True with ``sight_grid`` 0."""
+    from relcal.design.sight import sight_lines, skeleton_sight_free, urdf_sight_free
+
+    ok = np.ones(len(q), dtype=bool)
+    idx = np.flatnonzero(rest)
+    if constraints.sight_grid <= 0 or not len(idx):
+        return ok
+    cameras = camera_poses(model, cell, q[idx])
+    lines = sight_lines(cameras, cell.board_pose, cell.corners, max(constraints.sight_grid, 2))
+    geometry = urdf_geometry(model)
+    if geometry is not None:
+        ok[idx] = urdf_sight_free(geometry, q[idx], lines)
+    elif constraints.link_radius > 0:
+        ok[idx] = skeleton_sight_free(model, q[idx], cell.handeye, lines, constraints.link_radius)
+    return ok
 
 
 def collisions(

@@ -212,8 +212,8 @@ def common_parameters(a: Run, b: Run, include_handeye: bool = False) -> tuple[li
     common, left_out = [], []
     in_a = set(a.names)
     for name in [*a.names, *(n for n in b.names if n not in in_a)]:
-        if name.startswith("handeye.") and not include_handeye:
-            left_out.append(name)
+        if name.startswith("board.") or (name.startswith("handeye.") and not include_handeye):
+            left_out.append(name)  # the board moves between sessions: never compared
         elif name in usable_a and name in usable_b:
             common.append(name)
         else:
@@ -229,7 +229,9 @@ def one_sided(a: Run, b: Run, include_handeye: bool = False) -> tuple[list[str],
     estimated_a, estimated_b = _estimated(a), _estimated(b)
 
     def keep(name: str) -> bool:
-        return include_handeye or not name.startswith("handeye.")
+        return not name.startswith("board.") and (
+            include_handeye or not name.startswith("handeye.")
+        )
 
     only_a = [n for n in a.names if n in usable_a and n not in estimated_b and keep(n)]
     only_b = [n for n in b.names if n in usable_b and n not in estimated_a and keep(n)]
@@ -380,12 +382,12 @@ def _chi_square(d: np.ndarray, cov: np.ndarray) -> tuple[float, int]:
 
 
 def display(value: float, unit: str) -> tuple[float, str]:
-    """An SI value in the unit people read: mm for lengths, degrees for angles, ppm for a joint
-    scale (unit ``1``), urad/Nm and um/N for compliances."""
+    """An SI value in the unit people read: mm for lengths, degrees for angles, ppm for scales,
+    urad/Nm or um/N for compliances (never a compliance in mm)."""
     from relcal.robot.kinematics import DISPLAY_UNITS
 
-    factor, shown = DISPLAY_UNITS.get(unit, (float(np.degrees(1.0)), "deg"))
-    return float(value * factor), shown
+    factor, shown = DISPLAY_UNITS.get(unit, (1.0, unit))
+    return float(value) * factor, shown
 
 
 def consecutive(

@@ -158,6 +158,19 @@ def calibration_record(
             "chosen_model": chosen_model(cal),
             "joint_ranges": doc.get("joint_ranges"),  # what `relcal verify` checks a session by
             **_tool_points(doc),
+            "verdict": (doc.get("verdict") or {}).get("code"),
+            # URDF robots: parameters named after their joints, as the calibration showed them
+            "parameter_labels": doc.get("parameter_labels") or {},
+            # every loadable file with its own held-out error (documents.artifacts_document)
+            "artifacts": [
+                {
+                    "file": f["file"],
+                    "holds": f["holds"],
+                    "written": f["written"],
+                    "position_rms_mm": (f["held_out"] or {}).get("position_rms_mm"),
+                }
+                for f in (doc.get("artifacts") or {}).get("files", [])
+            ],
         },
         "input_hashes": input_hashes(root, cal.dataset.images),
         "converged": bool(cal.result.converged),

@@ -204,7 +204,11 @@ def _parameter_values(group: list[dict]) -> tuple[list[str], dict]:
     for e in group:
         for p in e["record"]["parameters"]:
             name = p["name"]
-            if name.startswith("handeye.") or p["value"] is None or not p["identifiable"]:
+            if (
+                name.startswith(("handeye.", "board."))
+                or p["value"] is None
+                or not p["identifiable"]
+            ):
                 continue
             if name not in points:
                 names.append(name)

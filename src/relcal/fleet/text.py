@@ -66,7 +66,8 @@ def history_text(
             ]
         )
     lines += _table(rows, {0})
-    lines += ["", "parameters (identified error, mm or deg, +- one standard deviation):"]
+    lines += ["", "parameters (identified error in its kind's unit, +- one standard deviation):"]
+    labels = runs[-1].settings.get("parameter_labels") or {}  # URDF robots: joint names
     header = ["name", "unit"] + [f"run {r.id}" for r in runs]
     table = [header]
     never: dict[str, list[str]] = {"n/i": [], "-": []}
@@ -92,9 +93,9 @@ def history_text(
             cells.append(f"{value:+.4f} +- {std:.4f}" + (" c" if combination else ""))
         shown = {c for c in cells if c}
         if shown <= {"n/i", "-"}:
-            never["n/i" if shown == {"n/i"} else "-"].append(name)
+            never["n/i" if shown == {"n/i"} else "-"].append(labels.get(name, name))
         else:
-            table.append([name, unit, *cells])
+            table.append([labels.get(name, name), unit, *cells])
     lines += _table(table, set(range(2, len(header))))
     if never["n/i"]:
         lines.append("not identifiable (n/i) in any run: " + ", ".join(never["n/i"]))

@@ -175,7 +175,7 @@ def model_from_record(run: Run, nominal: RobotModel) -> RobotModel:
         model = with_nongeometric(model, tuple(families))
     layout = make_layout(model)
     params = np.zeros(layout.size)
-    frames = ("handeye.", "instrument.", "marker.", "tool_point.", "point[")
+    frames = ("handeye.", "board.", "instrument.", "marker.", "tool_point.", "point[")
     unknown = [n for n in values if n not in layout.names and not n.startswith(frames)]
     if unknown:
         raise RelcalError(

@@ -17,6 +17,7 @@ from relcal.calibration.identifiability import Identifiability
 from relcal.calibration.outcome import Calibration
 from relcal.calibration.validate import stats
 from relcal.reporting import htmlkit as hk
+from relcal.reporting.documents import relabel
 from relcal.reporting.htmlkit import Html
 from relcal.reporting.plots import (
     PLOT_STYLE,
@@ -95,17 +96,20 @@ def _change(before: float, after: float) -> str:
 
 def _fit_cards(cal: Calibration, doc: dict) -> list[tuple[str, str, str]]:
     r = cal.result
+    ident = doc["identification"]
     return [
         (
             "identification",
             "converged" if r.converged else "NOT converged",
-            f"{r.method}, {r.iterations} iterations; weighted residual "
-            f"{r.initial_residual_norm:.3g} → {r.residual_norm:.3g}",
+            f"{r.method}, {r.iterations} iterations; weighted residual RMS "
+            f"{ident['initial_residual_rms']:.3g} → {ident['residual_rms']:.3g} "
+            f"{ident['residual_unit']}",
         ),
         (
-            "identifiable",
-            f"{r.rank} of {len(r.params)}",
-            f"parameters; {len(r.unidentifiable)} unidentifiable combination(s)",
+            "rank",
+            f"{ident['rank']} of {ident['n_params']}",
+            f"parameters (identification Jacobian); {ident['n_estimated']} estimated in the "
+            f"chosen model; {len(r.unidentifiable)} unidentifiable combination(s)",
         ),
         (
             "samples",
@@ -155,27 +159,93 @@ def _summary(cal: Calibration, doc: dict, errors: tuple) -> tuple[str, str, Html
     before, after, label, sentence = errors
     b, a = stats(before), stats(after)
     converged = cal.result.converged
+    ident = doc["identification"]
     interval = (doc.get("validation") or {}).get("ratio_to_baseline")
     if interval and "spread_mm" in interval:  # held-out placements: the spread is the position
         interval = {"position_mm": interval["spread_mm"]}
     return hk.section(
         "summary",
         "Summary",
+        _verdict(doc),
         hk.cards(_accuracy_cards(b, a, label), "wide"),
         hk.cards(_fit_cards(cal, doc)),
         hk.paragraph(sentence),
         _stats_table(b, a, interval, (doc.get("validation") or {}).get("baseline_handeye_guess")),
+        _artifacts(doc),
         _selection(doc),
         Html(
             "<p>Convergence: "
             + hk.badge(converged, "converged", "not converged")
             + hk.escape(
                 f" after {cal.result.iterations} iterations of {cal.result.method}; "
-                f"stacked residual norm {cal.result.initial_residual_norm:.4g} → "
-                f"{cal.result.residual_norm:.4g} (weighted rows)."
+                f"weighted residual RMS {ident['initial_residual_rms']:.4g} → "
+                f"{ident['residual_rms']:.4g} {ident['residual_unit']}."
             )
             + "</p>"
         ),
+    )
+
+
+def _verdict(doc: dict) -> Html:
+    """The verdict line (:mod:`relcal.calibration.verdict`) and its warnings."""
+    v = doc.get("verdict")
+    if not v:
+        return Html("")
+    warnings = "".join(f'<p class="hint">warning: {hk.escape(w)}</p>' for w in v["warnings"])
+    return Html(
+        f'<div id="verdict" class="{hk.escape(v["code"].replace(" ", "-"))}"><p><strong>'
+        f"Verdict:</strong> {hk.escape(v['text'])}</p>{warnings}</div>"
+    )
+
+
+def _artifacts(doc: dict) -> Html:
+    """Every loadable file with its own held-out RMS, measured on the file read back."""
+    art = doc.get("artifacts")
+    if not art or not art.get("files"):
+        return Html("")
+    rows = []
+    for f in art["files"]:
+        held = f["held_out"]
+        key = "position_mm"
+        if held and "spread_mm" in held["ratio_to_baseline"]:
+            key = "spread_mm"
+        ratio = held["ratio_to_baseline"][key] if held else None
+        rows.append(
+            [
+                Html(f"<code>{hk.escape(f['file'])}</code>"),
+                f["holds"],
+                f["model"],
+                hk.fmt(held["position_rms_mm"] if held else None, ".3f"),
+                hk.fmt(ratio["after_over_before"] if ratio else None, ".3f"),
+                f"{ratio['ci95'][0]:.3f} – {ratio['ci95'][1]:.3f}" if ratio else "–",
+                "written" if f["written"] else f"not written: {f['refused']}",
+            ]
+        )
+    head = [
+        "file",
+        "holds",
+        "model",
+        "held-out RMS (mm)",
+        "RMS / baseline",
+        "95 % interval",
+        "",
+    ]
+    note = (
+        "Each file was read back as written and its own forward kinematics evaluated on the "
+        "held-out samples of the validation. "
+        + (
+            "The geometry-only files hold the validated model itself (no non-geometric term "
+            "chosen)."
+            if art["geometry_is_validated_model"]
+            else "The geometry-only files cannot hold the chosen model's non-geometric terms: "
+            "they hold the geometry refitted without them; model.yaml (and relcal compensate) "
+            "carries the validated accuracy."
+        )
+    )
+    return Html(
+        '<div id="artifacts"><h3>Exported files, each validated on its own</h3>'
+        + hk.table(head, rows, "num")
+        + f'<p class="hint">{hk.escape(note)}</p></div>'
     )
 
 
@@ -188,7 +258,7 @@ def _parameter_table(cal: Calibration, doc: dict) -> tuple[Html, str]:
     )
     body = [
         [
-            Html(f"<code>{hk.escape(row['name'])}</code>"),
+            Html(f"<code>{hk.escape(row.get('label', row['name']))}</code>"),
             row["unit"],
             hk.fmt(row["nominal"], ".3f"),
             hk.fmt(row["error"], "+.4f"),
@@ -274,7 +344,7 @@ def _held_at_nominal(doc: dict) -> Html:
         ("unidentifiable", "Unidentifiable (the data cannot determine them)"),
         ("not supported", "Not supported by model selection (left out of the chosen model)"),
     ):
-        names = [r["name"] for r in doc["parameters"] if r["status"] == status]
+        names = [r.get("label", r["name"]) for r in doc["parameters"] if r["status"] == status]
         if names:
             parts.append(f"{why}, nominal kept: {hk.compact_names(names)}.")
     if not parts:
@@ -297,15 +367,29 @@ def _parameter_plot(cal: Calibration, doc: dict) -> Html:
     )
 
 
+def _frames_sentence(formulation: str) -> str:
+    """What the nuisance rows of the parameter table are."""
+    if formulation == "tracker":
+        return (
+            "instrument.* and marker.* are corrections to the guesses of the instrument "
+            "transform and of the marker position"
+        )
+    if formulation == "coincidence":
+        return "tool_point.* and the group points are corrections to their guesses"
+    return "handeye.* are corrections to the hand-eye guess"
+
+
 def _parameters(cal: Calibration, doc: dict) -> tuple[str, str, Html]:
     table, source = _parameter_table(cal, doc)
+    ident = doc["identification"]
     return hk.section(
         "parameters",
         "Parameters",
         hk.paragraph(
-            "Identified errors are corrections to the nominal model (lengths in mm, angles in "
-            "degrees); handeye.* are corrections to the hand-eye guess (in the table, not the "
-            "plot). Unidentifiable parameters keep their nominal value."
+            "Identified errors are corrections to the nominal model, each in the unit of its "
+            f"kind (lengths in mm, angles in degrees, non-geometric terms in their own units); "
+            f"{_frames_sentence(cal.problem.formulation)} (in the table, not the plot). "
+            "Unidentifiable parameters keep their nominal value."
         ),
         _parameter_plot(cal, doc),
         _held_at_nominal(doc),
@@ -313,7 +397,17 @@ def _parameters(cal: Calibration, doc: dict) -> tuple[str, str, Html]:
         Html(f'<p class="hint">{hk.escape(source)}</p>'),
         Html("<h3>Unidentifiable combinations, with the reason</h3>"),
         hk.bullet_list(
-            doc["identification"]["unidentifiable"], "none: every parameter is identifiable"
+            [relabel(t, doc.get("parameter_labels") or {}) for t in ident["unidentifiable"]],
+            "none: every parameter is identifiable",
+        ),
+        Html("<h3>Weakly determined directions, held (by priors or at nominal)</h3>"),
+        hk.bullet_list(
+            doc["identification"].get("weak_directions", [])
+            + [
+                f"candidates dropped: {t}"
+                for t in doc["identification"].get("dropped_candidates", [])
+            ],
+            "none: the data determine every estimated parameter more than its prior does",
         ),
         Html("<h3>Hand-eye transform</h3>"),
         _handeye_table(doc),
@@ -378,6 +472,10 @@ def calibration_report(cal: Calibration, doc: dict) -> str:
     """The HTML report of a calibration; ``doc`` is :func:`documents.results_document`."""
     errors = _error_sets(cal)
     before, after, label, sentence = errors
+    unit, kind = {
+        "held-out points": ("point", "Absolute position"),
+        "held-out placements": ("sample", "Spread"),
+    }.get(label, ("pair", "Relative pose"))
     with matplotlib.rc_context(PLOT_STYLE):
         sections = [
             _summary(cal, doc, errors),
@@ -393,17 +491,17 @@ def calibration_report(cal: Calibration, doc: dict) -> str:
                 hk.paragraph(sentence),
                 hk.figure_html(
                     "plot-residuals",
-                    f"Histograms of the relative pose errors of {label} before and after "
+                    f"Histograms of the {kind.lower()} errors of {label} before and after "
                     "calibration (logarithmic bins)",
                     histogram_figure(before, after, label),
                 ),
             ),
             hk.section(
                 "per-pair",
-                "Errors per pair, before and after",
+                f"Errors per {unit}, before and after",
                 hk.figure_html(
                     "plot-per-pair",
-                    f"Relative pose error of each of the {len(before)} {label} before (grey) and "
+                    f"{kind} error of each of the {len(before)} {label} before (grey) and "
                     "after (blue) calibration, log scale",
                     per_pair_figure(before, after, label),
                 ),

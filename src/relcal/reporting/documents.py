@@ -6,11 +6,15 @@ deg). The domain modules return dataclasses; only this module turns them into di
 
 from __future__ import annotations
 
+import hashlib
+import re
 from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
 
+from relcal.calibration.artifacts import Artifact
+from relcal.calibration.artifacts import frames as artifact_frames
 from relcal.calibration.compensate import Compensation
 from relcal.calibration.identifiability import INDEX_NAMES, NUISANCE_KINDS, Indices
 from relcal.calibration.measurement import tracker_frames
@@ -23,6 +27,7 @@ from relcal.calibration.validate import (
     ratio_interval,
     stats,
 )
+from relcal.calibration.verdict import Verdict, verdict
 from relcal.calibration.verify import FROZEN, Assessment, JointRanges, Verification
 from relcal.data.dataset import Dataset
 from relcal.data.imaging import Measurements
@@ -76,6 +81,41 @@ def parameter_status(cal: Calibration) -> list[str]:
     return out
 
 
+_INDEXED = re.compile(r"\b([a-z_]+)\[(\d+)\]")
+
+
+def parameter_labels(cal: Calibration) -> dict[str, str]:
+    """For a robot loaded from a URDF, each joint parameter's name with its joint's name
+    (``theta_off[3]`` -> ``theta_off[arm_right_2_joint]``), the way a person reads the URDF;
+    empty for other robots (their joints are numbered)."""
+    model = cal.dataset.model
+    if model.urdf is None:
+        return {}
+    out = {}
+    for name in cal.problem.full_layout.names:
+        m = _INDEXED.fullmatch(name)
+        if m and 1 <= int(m.group(2)) <= model.n_joints:
+            out[name] = f"{m.group(1)}[{model.joint_names[int(m.group(2)) - 1]}]"
+    return out
+
+
+def relabel(text: str, labels: dict[str, str]) -> str:
+    """``text`` with every parameter name of ``labels`` (``kind[i]``) replaced by its label."""
+    if not labels:
+        return text
+    return _INDEXED.sub(lambda m: labels.get(m.group(0), m.group(0)), text)
+
+
+def residual_unit(cal: Calibration) -> str:
+    """The unit of the weighted residual rows the fit minimised: learned noise standard
+    deviations (whitened rows), or metres (relative poses weighted plainly: translation in m,
+    rotation in rad times 0.1 m/rad)."""
+    problem = cal.problem
+    if problem.formulation in POINT_FORMULATIONS or problem.pair_weights is not None:
+        return "noise standard deviations (rows whitened by the learned noise)"
+    return "m (rows: translation in m, rotation in rad x 0.1 m/rad)"
+
+
 def parameter_rows(cal: Calibration) -> list[dict]:
     """One row per parameter: name, unit, nominal value, identified error, standard deviation
     (predicted, and from a bootstrap over training samples), significance (error / std) and
@@ -87,6 +127,7 @@ def parameter_rows(cal: Calibration) -> list[dict]:
     factors, units = layout.display()
     std, boot = cal.std, cal.bootstrap_std
     model = cal.problem.model
+    labels = parameter_labels(cal)
     rows = []
     for k, ((kind, index), status) in enumerate(zip(layout, parameter_status(cal), strict=True)):
         nominal = float(model.geometric(kind)[index]) if kind in KINDS + NONGEOMETRIC_KINDS else 0.0
@@ -98,6 +139,7 @@ def parameter_rows(cal: Calibration) -> list[dict]:
         rows.append(
             {
                 "name": layout.names[k],
+                "label": labels.get(layout.names[k], layout.names[k]),
                 "unit": units[k],
                 "nominal": nominal * scale,
                 "error": value * scale if ok else None,
@@ -280,7 +322,28 @@ def cross_validation_document(folds: Sequence[Calibration]) -> dict:
         "folds": [validation_document(f.validation) if f.validation else None for f in folds],
         "chosen": [f.selection[f.chosen].candidate.name for f in folds],
         "pooled": validation_document(pooled(done)),
+        "artifacts": pooled_artifacts(folds),
     }
+
+
+def pooled_artifacts(folds: Sequence[Calibration]) -> dict[str, dict]:
+    """Each loadable file's own held-out errors pooled over the folds (every fold's file read
+    back and validated on that fold's held-out samples): ``{file: {"holds", "position_rms_mm",
+    "ratio_to_baseline", "refused_in_folds"}}``; files not validated in every fold left out."""
+    out = {}
+    for name in [a.name for a in folds[0].artifacts] if folds else []:
+        mine = [a for f in folds for a in f.artifacts if a.name == name]
+        vals = [a.validation for a in mine if a.validation is not None]
+        if len(vals) != len(folds):
+            continue
+        both = pooled(vals)
+        out[name] = {
+            "holds": mine[0].holds,
+            "position_rms_mm": both.rms("calibrated"),
+            "ratio_to_baseline": both.ratio(),
+            "refused_in_folds": sum(not a.written for a in mine),
+        }
+    return out
 
 
 def _nuisance_frames(cal: Calibration) -> dict:
@@ -347,10 +410,17 @@ def results_document(cal: Calibration) -> dict:
             "n_params": len(r.params),
             "initial_residual_rms": r.initial_residual_norm / np.sqrt(r.n_residuals),
             "residual_rms": r.residual_norm / np.sqrt(r.n_residuals),
-            "residual_unit": "standard deviations of the measurement noise (rows weighted)",
+            "residual_unit": residual_unit(cal),
+            "n_estimated": int(
+                sum(s in ("estimated", "combination") for s in parameter_status(cal))
+            ),
             "seconds": r.seconds,
             "singular_values": [float(s) for s in r.identifiability.singular_values],
             "unidentifiable": r.unidentifiable,
+            # issue 18: held by priors or at nominal, and candidates the data do not determine
+            "weak_directions": [w["text"] for w in cal.settings.get("weak_directions", [])],
+            "dropped_candidates": [d["reason"] for d in cal.settings.get("dropped_candidates", [])],
+            "plausibility_warnings": list(getattr(cal, "warnings", ())),
         },
         "parameters": parameter_rows(cal),
         "identifiable_combinations": combination_rows(cal),
@@ -367,8 +437,73 @@ def results_document(cal: Calibration) -> dict:
         "validation": (
             validation_document(cal.validation, cal.dataset.ids) if cal.validation else None
         ),
+        "verdict": verdict_document(verdict(cal.validation, cal.exported, cal.problem.formulation)),
+        "artifacts": artifacts_document(cal),
+        "parameter_labels": parameter_labels(cal),
         "calibrated_model": model_to_dict(cal.model),
         "joint_ranges": JointRanges.of(cal.dataset.model, cal.dataset.q[cal.train]).to_dict(),
+    }
+
+
+def verdict_document(v: Verdict) -> dict:
+    """The verdict: ``code``, ``text`` (the line a person reads), ``factor`` (baseline RMS over
+    calibrated RMS, > 1 better) with its 95 % ``interval``, ``n_held_out`` samples and
+    ``warnings``."""
+    return {
+        "code": v.code,
+        "text": v.text,
+        "factor": v.factor,
+        "interval": None if v.interval is None else list(v.interval),
+        "n_held_out": v.n_held_out,
+        "warnings": list(v.warnings),
+    }
+
+
+def artifact_document(cal: Calibration, a: Artifact) -> dict:
+    """One loadable file: what it holds, whether it was written (or why not), and its own
+    held-out errors measured on the file read back (position mm, orientation deg; the spread for
+    coincidences), its ratio to the baseline, and the measurement frames it was validated with
+    (SI)."""
+    val = a.validation
+    doc: dict = {
+        "file": a.name,
+        "holds": a.holds,
+        "model": "geometry-only refit" if a.refit else "the validated model",
+        "written": a.written,
+        "refused": a.refused,
+        "sha256": hashlib.sha256(a.content).hexdigest(),
+        "frames": artifact_frames(cal, a.fit),
+    }
+    if val is None:
+        doc["held_out"] = None
+        return doc
+    if isinstance(val, PlacementValidation):
+        doc["held_out"] = {
+            "n_samples": len(val.samples),
+            "calibrated": val.calibrated.summary(),
+            "ratio_to_baseline": {"spread_mm": val.ratio()},
+        }
+    else:
+        doc["held_out"] = {
+            "n_samples": len(np.unique(val.pairs)),
+            "n_pairs": len(val.pairs),
+            "calibrated": stats(val.calibrated),
+            "ratio_to_baseline": ratio_interval(val.pairs, val.before, val.calibrated),
+        }
+    doc["held_out"]["position_rms_mm"] = val.rms("calibrated")
+    return doc
+
+
+def artifacts_document(cal: Calibration) -> dict:
+    """Every file a user can load, validated on its own (:attr:`Calibration.artifacts`), and
+    whether the geometry-only files hold the validated model (``geometry_is_validated_model``:
+    no non-geometric term chosen, nothing refitted)."""
+    return {
+        "geometry_is_validated_model": cal.geometry is None,
+        "measured_on": "each file as written, read back (model.yaml by relcal's model loader, "
+        "URDF by relcal's URDF loader, vendor files written into the nominal URDF's joint "
+        "origins), on the held-out samples of the validation",
+        "files": [artifact_document(cal, a) for a in cal.artifacts],
     }
 
 

@@ -16,8 +16,7 @@ from relcal.data.imaging import Measurements
 from relcal.io import json_text, yaml_text
 from relcal.outputset import File, Folder, Journal, new_run_id, write_set
 from relcal.reporting.documents import measurements_document, results_document
-from relcal.robot.export import parameter_csv, robot_files
-from relcal.robot.model import dump_model
+from relcal.robot.export import parameter_csv
 
 RUN_ID_PREFIX = "# relcal run "  # first line of model.yaml: the run that wrote it
 
@@ -27,14 +26,28 @@ def calibration_files(cal: Calibration, doc: dict, run_id: str) -> dict[str, str
     run), the robot's files (``robot.urdf``; for URDF robots also the origin corrections and the
     UR or Franka files, :func:`relcal.robot.export.robot_files`), ``parameters.csv``,
     ``results.json`` (with ``run_id``) and, when the intrinsics were calibrated from the images,
-    ``camera.yaml`` (usable as a dataset's camera)."""
-    model = cal.model  # the chosen model
-    files: dict[str, str | bytes] = {
-        "model.yaml": f"{RUN_ID_PREFIX}{run_id}\n{dump_model(model)}",
-        **robot_files(model),
-        "parameters.csv": parameter_csv(doc["parameters"]),
-        "results.json": json_text({**doc, "run_id": run_id}),
-    }
+    ``camera.yaml`` (usable as a dataset's camera).
+
+    The model files are the bytes that were read back and validated
+    (:attr:`relcal.Calibration.artifacts`): ``model.yaml`` holds the chosen model, the robot's
+    files the best geometry-only model (the chosen one when it has no non-geometric term); a
+    file refused there (worse than the baseline, or unmeasured) is not written."""
+    files: dict[str, str | bytes] = {}
+    for artifact in cal.artifacts:
+        if not artifact.written:
+            continue
+        if artifact.name == "model.yaml":  # the run's comment first: YAML ignores it
+            files["model.yaml"] = (
+                RUN_ID_PREFIX.encode() + run_id.encode() + b"\n" + artifact.content
+            )
+        else:
+            files[artifact.name] = artifact.content
+    files.update(
+        {
+            "parameters.csv": parameter_csv(doc["parameters"]),
+            "results.json": json_text({**doc, "run_id": run_id}),
+        }
+    )
     camera = cal.measurements.camera
     if cal.dataset.camera == "calibrate" and camera is not None:
         files["camera.yaml"] = yaml_text(camera.to_dict())

@@ -406,7 +406,7 @@ def calibration_parameter_figure(rows: Sequence[dict], kinds: Sequence[str]) -> 
         ax.axhline(0, color="#444", lw=0.8, zorder=1)
         ax.set_xticks(
             x,
-            [row["name"] for row in group],
+            [row.get("label", row["name"]) for row in group],
             rotation=45,
             ha="right",
             rotation_mode="anchor",

@@ -14,7 +14,7 @@ from relcal.design.criteria import Quality
 from relcal.design.observability import Report
 from relcal.design.plan import PlanResult
 from relcal.geometry import DEG, MM
-from relcal.reporting.documents import accuracy_document
+from relcal.reporting.documents import accuracy_document, relabel
 from relcal.robot.kinematics import DISPLAY_UNITS, Layout
 from relcal.sim.simulate import Simulation
 from relcal.sim.study import StudyResult, worst
@@ -351,7 +351,7 @@ def _parameter_table(plan_q: Quality, random_q: Quality, n_sets: int) -> list[st
         f"   (predicted std; random = the median of {n_sets} sets)"
     ]
     for p in a.subset:
-        scale, unit = (np.degrees(1.0), "deg") if a.is_angle[p] else (1e3, "mm")
+        scale, unit = _unit(bool(a.is_angle[p]), a.units[p] if a.units else None)
         sa, sb = a.crb_std[p], b.crb_std[p]
         lines.append(
             f"{a.names[p]:<14s} {unit:>4s} {sa * scale:>10.4g} {sb * scale:>10.4g} {sb / sa:>6.2f}"
@@ -372,7 +372,8 @@ def format_study(res: StudyResult, length_scale: float = 0.5) -> str:
     ]
     for k, p in enumerate(res.subset):
         angle = bool(res.is_angle[p])
-        scale, unit = (np.degrees(1.0), "deg") if angle else (1e3, "mm")
+        units = res.predicted.units
+        scale, unit = _unit(angle, units[p] if units else None)  # urad/Nm, ppm: never mm
         flag = "" if lo <= res.ratio[k] <= hi else "  outside 95% interval"
         if not res.predicted.identifiable[p]:
             flag += "  (absorbs an unidentifiable combination)"
@@ -476,11 +477,7 @@ def calibration_summary(doc: dict) -> str:
                 "  the data support no kinematic correction: the exported model is the nominal "
                 f"kinematics with {frames} fitted"
             )
-    lines.append(
-        f"identification: rank {ident['rank']} of {ident['n_params']}, "
-        f"{'converged' if ident['converged'] else 'NOT converged'}, residual RMS "
-        f"{ident['initial_residual_rms']:.3g} -> {ident['residual_rms']:.3g} (weighted rows)"
-    )
+    lines.append(identification_line(ident))
     val = doc["validation"]
     if val and val.get("held_out") == "placements":
         lines += placement_lines(val, "held-out placements " + ", ".join(val["placements"]))
@@ -505,6 +502,8 @@ def calibration_summary(doc: dict) -> str:
                 f"{unit} ({_ratio_text(val['ratio_to_baseline'][key])} of the baseline)"
             )
     shown = [r for r in doc["parameters"] if r["status"] in ("estimated", "combination")]
+    labels = doc.get("parameter_labels") or {}
+    width = max([14, *(len(r.get("label", r["name"])) for r in shown)])
     if shown:
         lines.append("parameters (error from nominal +- std; bootstrap std; |error| / std):")
         for r in shown:
@@ -513,12 +512,13 @@ def calibration_summary(doc: dict) -> str:
             sig = f"{r['significance']:.1f}" if r["significance"] is not None else "-"
             note = "  (carries a combination)" if r["status"] == "combination" else ""
             lines.append(
-                f"  {r['name']:<14} {r['error']:+.4g} +- {std} {r['unit']}  bootstrap {boot}  "
-                f"z {sig}{note}"
+                f"  {r.get('label', r['name']):<{width}} {r['error']:+.4g} +- {std} {r['unit']}"
+                f"  bootstrap {boot}  z {sig}{note}"
             )
     for c in doc.get("identifiable_combinations", []):
         std = f" +- {c['std']:.3g}" if c["std"] is not None else ""
-        lines.append(f"  {c['text']} = {c['value']:+.4g}{std} {c['unit']} (identifiable sum)")
+        text = relabel(c["text"], labels)
+        lines.append(f"  {text} = {c['value']:+.4g}{std} {c['unit']} (identifiable sum)")
     noise = doc.get("noise_model")
     if noise:
         mm, deg, rho = pose_noise_parts(noise)
@@ -530,9 +530,9 @@ def calibration_summary(doc: dict) -> str:
         lines.append(f"rejected frames ({len(doc['rejected'])}):")
         lines.extend(f"  {r['id']}: {r['reason']}" for r in doc["rejected"])
     if doc["outliers"]:
+        fit = "they fit badly" if points else "their pairs fit badly"
         lines.append(
-            "outliers (their pairs fit badly; left out unless --keep-outliers): "
-            + ", ".join(doc["outliers"])
+            f"outliers ({fit}; left out unless --keep-outliers): " + ", ".join(doc["outliers"])
         )
     if doc.get("held_out_outliers"):
         lines.append(
@@ -555,9 +555,79 @@ def calibration_summary(doc: dict) -> str:
             f"({_ratio_text(pooled['ratio_to_baseline']['position_mm'])}); chosen per fold: "
             + ", ".join(cv["chosen"])
         )
+    for name, entry in ((cv or {}).get("artifacts") or {}).items():
+        lines.append(
+            f"  {name} ({entry['holds']}) over the folds: {entry['position_rms_mm']:.3f} mm "
+            f"({_ratio_text(entry['ratio_to_baseline'])} of the baseline)"
+        )
     for text in ident["unidentifiable"]:
-        lines.append(f"  not identifiable: {text}")
+        lines.append(f"  not identifiable: {relabel(text, labels)}")
+    for text in ident.get("weak_directions", []):
+        lines.append(f"  weakly determined: {text}")
+    for text in ident.get("dropped_candidates", []):
+        lines.append(f"  candidates dropped: {text}")
+    for text in ident.get("plausibility_warnings", []):
+        lines.append(f"  plausibility warning: {text}")
+    lines += artifact_lines(doc.get("artifacts"))
+    lines += verdict_lines(doc.get("verdict"))
     return "\n".join(lines)
+
+
+def identification_line(ident: dict) -> str:
+    """The identification in one line: the rank of the identification Jacobian (the one rank
+    figure every output shows), how many parameters the chosen model estimates, convergence and
+    the weighted residual RMS with its unit."""
+    estimated = ident.get("n_estimated")
+    chosen = f", {estimated} estimated in the chosen model" if estimated is not None else ""
+    unit = ident.get("residual_unit", "weighted rows")
+    return (
+        f"identification: rank {ident['rank']} of {ident['n_params']} parameters{chosen}; "
+        f"{'converged' if ident['converged'] else 'NOT converged'}; weighted residual RMS "
+        f"{ident['initial_residual_rms']:.3g} -> {ident['residual_rms']:.3g} {unit}"
+    )
+
+
+def artifact_text(entry: dict) -> str:
+    """One loadable file and its own held-out error: ``robot.urdf (geometry only, refitted):
+    12.0 mm (x0.39 of the baseline)``, or why it was not written."""
+    what = entry["holds"] + (", refitted" if entry["model"] == "geometry-only refit" else "")
+    held = entry["held_out"]
+    if held is None:
+        shown = "no held-out error (no held-out samples)"
+    else:
+        key = "spread_mm" if "spread_mm" in held["ratio_to_baseline"] else "position_mm"
+        ratio = held["ratio_to_baseline"][key]
+        shown = f"{held['position_rms_mm']:.3f} mm ({_ratio_text(ratio)} of the baseline)"
+    if not entry["written"]:
+        shown += f"; NOT WRITTEN: {entry['refused']}"
+    return f"{entry['file']} ({what}): {shown}"
+
+
+def artifact_lines(doc: dict | None) -> list[str]:
+    """Every loadable file with its own held-out RMS, measured on the file read back."""
+    if not doc or not doc.get("files"):
+        return []
+    lines = ["each file's own held-out RMS (measured on its bytes read back by a loader):"]
+    lines += [f"  {artifact_text(f)}" for f in doc["files"]]
+    if doc.get("geometry_is_validated_model"):
+        lines.append(
+            "  the geometry-only files hold the validated model itself (no non-geometric term "
+            "chosen; nothing refitted)"
+        )
+    else:
+        lines.append(
+            "  the geometry-only files cannot hold the chosen model's non-geometric terms: they "
+            "hold the geometry refitted without them; use model.yaml (relcal compensate) for the "
+            "validated accuracy"
+        )
+    return lines
+
+
+def verdict_lines(v: dict | None) -> list[str]:
+    """The verdict last, after its warnings."""
+    if not v:
+        return []
+    return [f"warning: {w}" for w in v["warnings"]] + [f"verdict: {v['text']}"]
 
 
 # --- compensation ---------------------------------------------------------------------------------

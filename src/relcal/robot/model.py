@@ -34,6 +34,7 @@ import pydantic
 from relcal import geometry as tf
 from relcal.checks import check_instance, check_path, describe
 from relcal.errors import ArgumentError, RelcalError
+from relcal.robot.priors import Priors
 
 KINDS = ("theta_off", "a", "d", "alpha", "beta")
 ANGLE_KINDS = ("theta_off", "alpha", "beta")
@@ -150,6 +151,9 @@ class RobotModel:
         calibration parameters; empty tuples by default.
     loads : Loads or None
         Link masses and payload that gravity pulls on (for compliance), or None.
+    priors : Priors
+        Manufacturing tolerances per parameter kind that hold weakly determined directions
+        (``priors:`` of the model file; :class:`relcal.robot.priors.Priors`).
 
     Raises
     ------
@@ -182,6 +186,8 @@ class RobotModel:
     harmonic_s: np.ndarray | None = None
     nongeometric: tuple[tuple[str, ...], ...] = ()  # per joint, the terms calibrated (or ())
     loads: Loads | None = None
+    # Manufacturing tolerances that hold weakly determined directions (``priors:``).
+    priors: Priors = field(default_factory=Priors)
 
     def __post_init__(self) -> None:
         # Zeros where not given; also when a copy changes the number of joints (``replace``
@@ -368,6 +374,23 @@ class _Payload(_Strict):
     com: tuple[Number, Number, Number] = (0.0, 0.0, 0.0)
 
 
+class _ReferenceJoint(_Strict):
+    theta_off: Number = 0.0
+    d: Number = 0.0
+    a: Number = 0.0
+    alpha: Number = 0.0
+    beta: Number = 0.0
+
+
+class _GravityReference(_Strict):
+    """The geometry the gravity torques of compliance are computed with, when it is not the
+    model's own (a calibrated model keeps the nominal geometry its compliance was fitted with)."""
+
+    joints: list[_ReferenceJoint] = pydantic.Field(min_length=1)
+    base: _Transform = _Transform()
+    tool: _Transform = _Transform()
+
+
 class _Robot(_Strict):
     name: str
     source: str = ""
@@ -378,6 +401,17 @@ class _Robot(_Strict):
     tool: _Transform = _Transform()
     payload: _Payload | None = None
     gravity: tuple[Number, Number, Number] = GRAVITY
+    priors: str | dict[str, Number] | None = None  # relcal.robot.priors.Priors.parse
+    gravity_reference: _GravityReference | None = None
+
+    @pydantic.model_validator(mode="after")
+    def _reference_joints(self) -> _Robot:
+        ref = self.gravity_reference
+        if ref is not None and len(ref.joints) != len(self.joints):
+            raise ValueError(
+                f"gravity_reference has {len(ref.joints)} joints, the model {len(self.joints)}"
+            )
+        return self
 
     @pydantic.model_validator(mode="after")
     def _masses_for_compliance(self) -> _Robot:
@@ -539,6 +573,7 @@ def model_from_dict(data: object, path: str | Path = "<robot>", node: object = N
         base=frame(spec.base),
         tool=frame(spec.tool),
         source=spec.source,
+        priors=Priors.parse(spec.priors, f"{path}: priors"),
     )
     masses = [j.mass for j in joints]
     if any(masses) or spec.payload is not None:
@@ -551,6 +586,19 @@ def model_from_dict(data: object, path: str | Path = "<robot>", node: object = N
             payload_com=np.array(payload.com),
             gravity=np.array(spec.gravity),
         )
+        if spec.gravity_reference is not None:
+            ref = spec.gravity_reference
+            geometry = replace(
+                model.loads.reference,
+                theta_off=np.array([ang(j.theta_off) for j in ref.joints]),
+                d=np.array([j.d for j in ref.joints], dtype=float),
+                a=np.array([j.a for j in ref.joints], dtype=float),
+                alpha=np.array([ang(j.alpha) for j in ref.joints]),
+                beta=np.array([ang(j.beta) for j in ref.joints]),
+                base=frame(ref.base),
+                tool=frame(ref.tool),
+            )
+            model = replace(model, loads=replace(model.loads, reference=geometry))
     if any(j.nongeometric for j in joints) or any(
         j.scale or j.compliance or any(j.harmonic) for j in joints
     ):
@@ -661,7 +709,45 @@ def model_to_dict(model: RobotModel) -> dict:
             }
         if tuple(model.loads.gravity) != GRAVITY:
             out["gravity"] = [float(v) for v in model.loads.gravity]
+        reference = _gravity_reference(model)
+        if reference is not None:
+            out["gravity_reference"] = reference
+    if model.priors != Priors():
+        out["priors"] = model.priors.to_dict()
     return out
+
+
+_GEOMETRY = ("theta_off", "d", "a", "alpha", "beta", "base", "tool")
+
+
+def _gravity_reference(model: RobotModel) -> dict | None:
+    """The YAML form of the geometry the gravity torques are computed with (degrees), when it
+    is not the model's own (a calibrated model with compliance: its compliance was fitted with
+    the torques of the nominal geometry, and a reloaded file must give the same kinematics)."""
+    if model.loads is None:
+        return None
+    ref = model.loads.reference
+    if all(np.array_equal(getattr(ref, k), getattr(model, k)) for k in _GEOMETRY):
+        return None
+
+    def deg(x: float) -> float:
+        return float(np.degrees(x))
+
+    def frame(t: np.ndarray) -> dict:
+        xyz, rpy = tf.to_xyz_rpy(t)
+        return {"xyz": [float(v) for v in xyz], "rpy": [deg(v) for v in rpy]}
+
+    joints = [
+        {
+            "theta_off": deg(ref.theta_off[i]),
+            "d": float(ref.d[i]),
+            "a": float(ref.a[i]),
+            "alpha": deg(ref.alpha[i]),
+            "beta": deg(ref.beta[i]),
+        }
+        for i in range(ref.n_joints)
+    ]
+    return {"joints": joints, "base": frame(ref.base), "tool": frame(ref.tool)}
 
 
 def dump_model(model: RobotModel) -> str:

@@ -84,7 +84,7 @@ class MeasurementKind:
 
     dataset: Dataset
     measurements: Measurements
-    pairing: PairStrategy = "all"
+    pairing: PairStrategy = "auto"
 
     formulation: ClassVar[str]  # of measurement.residuals
     measure: ClassVar[str]  # "pose" or "position"
@@ -190,6 +190,26 @@ class MeasurementKind:
     def check_result(self, training: Training, result: Result) -> None:
         """Refuse corrections too large to be a calibration."""
         raise NotImplementedError
+
+    def check_model(
+        self,
+        training: Training,
+        result: Result,
+        baseline: Result | None = None,
+        bootstrap: np.ndarray | None = None,
+    ) -> list[str]:
+        """The plausibility gate before a model is written, the same for every kind: the kind's
+        own :meth:`check_result` (which frames are free), then
+        :func:`relcal.calibration.plausibility.check_calibration` (non-geometric bounds, frames
+        against ``baseline``, joint limits, predicted against ``bootstrap`` standard
+        deviations). Raises on refusal; returns the warnings."""
+        from relcal.calibration.plausibility import check_calibration
+
+        self.check_result(training, result)
+        q = self.dataset.q[training.samples]
+        return check_calibration(
+            self.dataset, training.problem, result, baseline, bootstrap, q=q, links=False
+        )
 
     def validate(
         self,

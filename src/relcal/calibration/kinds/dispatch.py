@@ -13,7 +13,7 @@ from relcal.data.imaging import Measurements
 
 
 def kind_of(
-    dataset: Dataset, measurements: Measurements, pairing: PairStrategy = "all"
+    dataset: Dataset, measurements: Measurements, pairing: PairStrategy = "auto"
 ) -> MeasurementKind:
     """The measurement kind of ``dataset``: coincidence groups, position-only points, or poses."""
     if dataset.measured == "coincidence":

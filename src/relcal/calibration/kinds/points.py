@@ -73,7 +73,7 @@ class PointKind(MeasurementKind):
         (non-geometric terms are small there and enter the candidates only); guesses and the
         analysis are those of ``train`` alone."""
         problem = self.problem_on(train)
-        ident = check_pose_set(problem, str(self.dataset.spec_path))
+        ident = check_pose_set(problem, str(self.dataset.spec_path), refuse=False)
         geometric = geometric_columns(problem, ident.subset)
         first = identify(problem, SolverOptions(), replace(ident, subset=geometric))
         sigma = float(robust_sigma(pair_errors(problem, first.params))[0])

@@ -1,6 +1,9 @@
 """Relative poses (a camera looking at a board, a motion-capture rigid body): the frame-invariant
 formulation ``M_ij = C_i^-1 C_j`` against ``X^-1 F_i^-1 F_j X``, with the hand-eye transform ``X``
-estimated with the geometry.
+estimated with the geometry; or, for large sets (pairing ``board``, which ``auto`` picks above
+:data:`~relcal.calibration.measurement.AUTO_ALL_PAIRS` usable samples), each camera pose against
+``W F(q_k) X`` with the board transform ``W`` estimated too: one residual block per sample, the
+same information as all pairs, in time and memory linear in the samples.
 
 What the kind supplies to the skeleton: the hand-eye guess (``handeye:`` in dataset.yaml, else
 :func:`~relcal.calibration.handeye.solve_handeye` on the training samples, kept once outliers are
@@ -10,7 +13,9 @@ errors in units of their robust noise, a 6x6 pose noise learned from the pair re
 (:func:`~relcal.calibration.noise.estimate_pose_noise`) with two row weightings (``plain``:
 translation in m, rotation x 0.1 m/rad; ``noise model``: each pair whitened by its learned
 covariance), one linearisation at the geometric fit shared by every candidate of model
-selection, and validation on the pairs among held-out samples.
+selection, and validation on the pairs among held-out samples (at most
+:data:`~relcal.calibration.measurement.VALIDATION_PAIRS` of them, drawn at random, when the
+board formulation is used).
 """
 
 from __future__ import annotations
@@ -24,7 +29,16 @@ from relcal.calibration.handeye import solve_handeye
 from relcal.calibration.identifiability import check_pose_set
 from relcal.calibration.identify import Result
 from relcal.calibration.kinds import MeasurementKind, NoiseModel, Training
-from relcal.calibration.measurement import Problem, make_pairs, pair_errors, residuals
+from relcal.calibration.measurement import (
+    VALIDATION_PAIRS,
+    Problem,
+    board_guess,
+    board_lever,
+    make_pairs,
+    pair_errors,
+    residuals,
+    resolve_pairing,
+)
 from relcal.calibration.noise import (
     estimate_pose_noise,
     pair_whiteners,
@@ -52,37 +66,45 @@ class PoseKind(MeasurementKind):
     shared_linearisation = True
     refit_from_nominal = False
 
-    def problem_on(self, samples: np.ndarray, handeye: np.ndarray) -> Problem:
-        """The frame-invariant problem of ``samples`` (paired as the kind's ``pairing``)."""
+    @property
+    def strategy(self) -> str:
+        """The pairing used: the kind's ``pairing`` with ``auto`` resolved by the number of usable
+        samples (:func:`~relcal.calibration.measurement.resolve_pairing`)."""
+        return resolve_pairing(self.pairing, len(self.usable()))
+
+    def problem_on(
+        self, samples: np.ndarray, handeye: np.ndarray, board: np.ndarray | None = None
+    ) -> Problem:
+        """The problem of ``samples``: frame-invariant (paired as :attr:`strategy` says), or, for
+        the ``board`` strategy, each pose against ``W F X`` with the board guess ``board`` (default:
+        :func:`~relcal.calibration.measurement.board_guess` from these samples)."""
         ds = self.dataset
-        return Problem(
-            ds.model,
-            make_layout(ds.model),
-            ds.q[samples],
-            self.measurements.poses[samples],
-            "invariant",
-            "pose",
-            make_pairs(len(samples), self.pairing),
-            handeye,
-        )
+        q, poses = ds.q[samples], self.measurements.poses[samples]
+        layout = make_layout(ds.model)
+        if self.strategy == "board":
+            if board is None:
+                board = board_guess(fk(ds.model, q), poses, handeye)
+            return Problem(ds.model, layout, q, poses, "board", "pose", None, handeye, board=board)
+        pairs = make_pairs(len(samples), self.strategy)
+        return Problem(ds.model, layout, q, poses, "invariant", "pose", pairs, handeye)
 
     def check_inputs(self, train: np.ndarray) -> dict:
         ds = self.dataset
         n_params = make_layout(ds.model).size + 6
         # all pairs are quadratic: refused before they are formed
-        check_calibration_memory(len(ds.ids), self.pairing, n_params, str(ds.root), len(train))
+        check_calibration_memory(len(ds.ids), self.strategy, n_params, str(ds.root), len(train))
         return check_dataset(ds, self.measurements)  # a wrong unit, order or board
 
     def training(self, train: np.ndarray, previous: Training | None = None) -> Training:
-        if previous is not None:  # the hand-eye guess and the analysis of the first training set
-            problem = self.problem_on(train, previous.problem.handeye)
+        if previous is not None:  # the frame guesses and the analysis of the first training set
+            problem = self.problem_on(train, previous.problem.handeye, previous.problem.board)
             return replace(previous, samples=train, problem=problem)
         ds = self.dataset
         handeye = ds.handeye
         if handeye is None:
             handeye = solve_handeye(fk(ds.model, ds.q[train]), self.measurements.poses[train])
         problem = self.problem_on(train, handeye)
-        ident = check_pose_set(problem, str(ds.spec_path))
+        ident = check_pose_set(problem, str(ds.spec_path), refuse=False)
         return Training(train, problem, ident, geometric_columns(problem, ident.subset))
 
     def weighted(
@@ -101,17 +123,17 @@ class PoseKind(MeasurementKind):
         their pairs), the errors in units of their robust noise levels."""
         problem = training.problem
         errors = pair_errors(problem, detection.params)
-        return outlier_samples(errors / robust_sigma(errors), problem.pairs)
+        return outlier_samples(errors / robust_sigma(errors), problem.pair_indices())
 
     def learn_noise(self, training: Training, full: Result, lin) -> NoiseModel:
         """The full 6x6 pose noise from the pair residuals of the geometric fit, and the row
         whitening of both weightings."""
         problem = training.problem
         left = pair_left_maps(problem)
-        fitted = (lin.pairs, lin.jac[:, :, training.geometric], np.diag(plain_whiteners(1)[0]))
+        fitted = (lin.pairs, lin.jac[:, :, training.geometric], plain_rows(problem))
         noise = estimate_pose_noise(pair_errors(problem, full.params), left, fitted)
         whiteners = {
-            "plain": plain_whiteners(len(left)),
+            "plain": np.broadcast_to(np.diag(plain_rows(problem)), (len(left), 6, 6)),
             "noise model": pair_whiteners(noise.covariance, left),
         }
         return NoiseModel(noise, whiteners)
@@ -127,12 +149,43 @@ class PoseKind(MeasurementKind):
         test: np.ndarray,
         screen: bool = False,
     ):
-        """Relative pose errors of the pairs among the held-out samples (at least two)."""
+        """Relative pose errors of the pairs among the held-out samples (at least two); with the
+        board formulation, of at most
+        :data:`~relcal.calibration.measurement.VALIDATION_PAIRS` of those pairs, and of the
+        relative poses only (the board estimate of the training samples is not used)."""
         if len(test) < 2:
             return None
-        everything = self.problem_on(np.arange(len(self.dataset.ids)), training.problem.handeye)
+        ds = self.dataset
+        everything = Problem(
+            ds.model,
+            make_layout(ds.model),
+            ds.q,
+            self.measurements.poses,
+            "invariant",
+            "pose",
+            None,
+            training.problem.handeye,
+        )
         train = training.samples if screen else None
-        return held_out(everything, result, test, baseline=baseline, train=train)
+        if self.strategy != "board":
+            return held_out(everything, result, test, baseline=baseline, train=train)
+        size = everything.full_layout.size  # the geometry and the hand-eye, not the board
+
+        def relative(fit: Result) -> Result:
+            return replace(fit, params=fit.params[:size])
+
+        return held_out(
+            everything,
+            relative(result),
+            test,
+            baseline=relative(baseline),
+            train=train,
+            max_pairs=VALIDATION_PAIRS,
+        )
+
+    def settings(self, training: Training) -> dict:
+        """The pairing used (``auto`` resolved)."""
+        return {"pairing": self.strategy}
 
 
 def weighted_problem(
@@ -141,11 +194,26 @@ def weighted_problem(
     """``problem`` with the rows weighted as ``weighting`` says (the plain weighting is diagonal:
     row factors, no per-pair blocks)."""
     if weighting == "plain":
-        return replace(problem, weights=np.diag(plain_whiteners(1)[0]), pair_weights=None)
+        return replace(problem, weights=plain_rows(problem), pair_weights=None)
     return replace(problem, weights=None, pair_weights=whiteners[weighting])
+
+
+def plain_rows(problem: Problem) -> np.ndarray:
+    """The plain weighting's row factors ``(6,)``: translation rows in m, rotation rows times
+    0.1 m/rad for pairs (:func:`~relcal.calibration.selection.plain_whiteners`); for the board
+    formulation times the median distance (m) of the camera from the board's origin, the lever
+    arm by which a camera's rotation error moves what it sees (a relative pose carries it in its
+    translation; a pose against the board only in its rotation rows)."""
+    rows = np.diag(plain_whiteners(1)[0]).copy()
+    if problem.formulation == "board":
+        rows[3:] = board_lever(problem.poses)
+    return rows
 
 
 def pair_left_maps(problem: Problem) -> np.ndarray:
     """``-Ad(M_ij^-1)`` ``(P, 6, 6)`` of the measured relative motions: how pose i's error enters
-    pair (i, j)'s residual (pose j's enters as itself)."""
+    pair (i, j)'s residual (pose j's enters as itself). Zero for the board formulation, whose
+    measurements ``(k, k)`` carry one pose's error each."""
+    if problem.formulation == "board":
+        return np.zeros((len(problem.q), 6, 6))
     return -tf.adjoint(tf.invert(problem.measured_motions))

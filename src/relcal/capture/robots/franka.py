@@ -5,7 +5,8 @@ A move is one :class:`franky.JointWaypointMotion` to the target, executed asynch
 joined with the timeout; franky's trajectory generator ends the motion when the *commanded*
 trajectory reaches the target, while the arm is still moving by a few mrad under the joint
 impedance controller: the loop's settle check is what decides when it is still. Joint readings
-are ``RobotState.q`` stamped with ``RobotState.time`` (the controller's clock) mapped to the loop
+are ``RobotState.q`` and ``RobotState.dq`` (the velocities the settle check uses) stamped with
+``RobotState.time`` (the controller's clock) mapped to the loop
 clock (:class:`~relcal.capture.timesync.ClockMap`).
 """
 
@@ -73,13 +74,14 @@ class FrankaRobot:
             ) from None
 
     def read(self) -> JointReading:
-        """The measured joint angles ``(7,)`` (rad) and the controller's time of that state."""
+        """The measured joint angles ``(7,)`` (rad) and velocities ``(7,)`` (rad/s), stamped with
+        the controller's time of that state."""
         try:
             state = self._robot.state
         except self._franky.Exception as exc:
             raise CaptureError(f"franka: lost the robot state: {exc}") from None
         stamp = self._map.observe(state.time.to_sec())
-        return JointReading(np.array(state.q, dtype=float), stamp)
+        return JointReading(np.array(state.q, dtype=float), stamp, np.array(state.dq, dtype=float))
 
     def move(self, q: np.ndarray, timeout: float) -> None:
         """Move to ``q`` ``(7,)`` (rad); returns when franky reports the motion finished.

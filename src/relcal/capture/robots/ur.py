@@ -77,12 +77,14 @@ class URRobot:
             ) from None
 
     def read(self) -> JointReading:
-        """The measured joint angles ``(6,)`` (rad), stamped with the controller's time."""
+        """The measured joint angles ``(6,)`` (rad) and velocities ``(6,)`` (rad/s), stamped with
+        the controller's time."""
         if not self._receive.isConnected():
             raise CaptureError("ur: the RTDE receive connection is lost")
         device_time = float(self._receive.getTimestamp())
         q = np.array(self._receive.getActualQ(), dtype=float)
-        return JointReading(q, self._map.observe(device_time))
+        dq = np.array(self._receive.getActualQd(), dtype=float)
+        return JointReading(q, self._map.observe(device_time), dq)
 
     def _check_safety(self) -> None:
         if self._receive.isProtectiveStopped() or self._receive.isEmergencyStopped():

@@ -1,0 +1,118 @@
+"""The verdict on a calibration: deploy it or not, from the held-out evidence alone.
+
+The verdict reads the 95 % interval of the held-out RMS ratio (calibrated over baseline, from the
+bootstrap over held-out samples of :func:`relcal.calibration.validate.ratio_interval`) and the
+number of held-out samples:
+
+- ``deploy``: the whole interval lies below 1 (better than the baseline beyond sampling doubt);
+- ``collect more samples``: the interval spans 1 (the held-out samples cannot tell);
+- ``do not deploy``: the whole interval lies above 1, or the data support no kinematic
+  correction (the exported model is the baseline);
+- ``not validated``: no held-out samples (``--holdout 0``).
+
+Fewer than :data:`MIN_HELD_OUT` held-out samples add a warning: a bootstrap over so few samples
+gives a rough interval.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+
+from relcal.calibration.validate import PlacementValidation, Validation
+
+MIN_HELD_OUT = 10  # held-out samples below which the verdict warns
+Code = Literal["deploy", "collect more samples", "do not deploy", "not validated"]
+
+
+@dataclass(frozen=True)
+class Verdict:
+    """``code`` (see the module docstring) and ``text``, the one line a person reads;
+    ``factor``: baseline RMS over calibrated RMS (how many times better, > 1 is better) with its
+    95 % ``interval``; ``n_held_out``: held-out samples (points, pose samples or coincidence
+    samples) the evidence rests on; ``warnings``."""
+
+    code: Code
+    text: str
+    factor: float | None
+    interval: tuple[float, float] | None
+    n_held_out: int
+    warnings: tuple[str, ...] = ()
+
+
+def times(factor: float) -> str:
+    """A factor as people say it: ``5.8x``, ``48x``, ``110x`` (two significant digits below 10,
+    whole numbers above)."""
+    return f"{factor:.2g}x" if factor < 10 else f"{factor:.0f}x"
+
+
+def held_out_what(validation: Validation | PlacementValidation, formulation: str) -> str:
+    """How the held-out evidence is named: ``points`` (one point per sample), ``pairs of
+    poses`` (relative poses) or ``placements`` (coincidences)."""
+    if isinstance(validation, PlacementValidation):
+        return "placements"
+    return "points" if formulation in ("tracker", "absolute") else "pairs of poses"
+
+
+def n_held_out(validation: Validation | PlacementValidation) -> int:
+    """The number of held-out samples the validation rests on."""
+    if isinstance(validation, PlacementValidation):
+        return len(validation.samples)
+    return len(np.unique(validation.pairs))
+
+
+def verdict(
+    validation: Validation | PlacementValidation | None,
+    exported: str = "calibrated",
+    formulation: str = "invariant",
+) -> Verdict:
+    """The verdict on the exported model from its ``validation`` (see the module docstring);
+    ``exported``: ``calibrated`` or ``baseline`` (the data supported no correction);
+    ``formulation``: names the evidence (points, pairs of poses, placements)."""
+    if validation is None:
+        return Verdict(
+            "not validated",
+            "not validated: no held-out samples (--holdout 0); measure it with --kfold or "
+            "relcal verify before deploying",
+            None,
+            None,
+            0,
+        )
+    n = n_held_out(validation)
+    warnings: tuple[str, ...] = ()
+    if n < MIN_HELD_OUT:
+        warnings = (
+            f"the validation rests on {n} held-out samples (fewer than {MIN_HELD_OUT}): its "
+            "interval is rough; hold out more (--holdout) or cross-validate (--kfold)",
+        )
+    what = held_out_what(validation, formulation)
+    if exported == "baseline":
+        return Verdict(
+            "do not deploy",
+            "do not deploy a correction: the data support none (the exported model is the "
+            "baseline, nominal kinematics with the measurement frames fitted)",
+            None,
+            None,
+            n,
+            warnings,
+        )
+    ratio = validation.ratio()
+    r, (lo, hi) = ratio["after_over_before"], ratio["ci95"]
+    factor = 1.0 / max(r, 1e-300)
+    interval = (1.0 / max(hi, 1e-300), 1.0 / max(lo, 1e-300))
+    span = f"95% interval {times(interval[0])}..{times(interval[1])}, {n} held-out samples"
+    if hi < 1.0:
+        code: Code = "deploy"
+        text = f"deploy: {times(factor)} better on held-out {what} ({span})"
+    elif lo > 1.0:
+        code = "do not deploy"
+        text = f"do not deploy: {times(r)} worse than the baseline on held-out {what} ({span})"
+    else:
+        code = "collect more samples"
+        text = (
+            f"collect more samples: the interval spans 1 ({times(factor)} better on held-out "
+            f"{what}, {span})"
+        )
+    return Verdict(code, text, factor, interval, n, warnings)

@@ -1,0 +1,41 @@
+"""A simulated UR5e with first harmonics planted on its joints, as a poses dataset folder."""
+
+import numpy as np
+from conftest import random_q
+from helpers_sim import BOARD, HANDEYE
+
+from relcal import geometry as tf
+from relcal.data.dataset import write_samples
+from relcal.robot.kinematics import apply_errors, fk, make_layout
+from relcal.robot.loading import get_robot
+from relcal.robot.model import dump_model, with_nongeometric
+
+
+def ur5e_with_harmonics(root, n: int = 48, seed: int = 5, noise=(2e-5, 3.5e-5)):
+    """``n`` camera poses of a UR5e whose joints carry first harmonics of 0.02..0.06 deg and
+    whose links are off by 0.1..0.5 mm and 0.01..0.1 deg; pose noise ``(m, rad)``. The
+    dataset's robot (``robot.yaml``) offers harmonics to model selection. Returns the true
+    model."""
+    rng = np.random.default_rng(seed)
+    model = with_nongeometric(get_robot("ur5e"), ["harmonic"])
+    layout = make_layout(model)
+    kinds = np.array(layout.kinds)
+    size = np.where(layout.is_angle(), np.radians(rng.uniform(0.01, 0.1, layout.size)), 0.0)
+    size = np.where(layout.is_angle(), size, rng.uniform(1e-4, 5e-4, layout.size))
+    harmonic = np.isin(kinds, ("harmonic_c", "harmonic_s"))
+    size[harmonic] = np.radians(rng.uniform(0.02, 0.06, harmonic.sum()))
+    truth = size * rng.choice([-1.0, 1.0], layout.size)
+    true_model = apply_errors(model, layout, truth)
+    q = random_q(model, n, rng, scale=0.8)
+    poses = BOARD @ fk(true_model, q) @ HANDEYE
+    delta = np.concatenate([rng.normal(0, noise[0], (n, 3)), rng.normal(0, noise[1], (n, 3))], 1)
+    poses = poses @ tf.from_vector(delta)
+    root.mkdir(parents=True, exist_ok=True)
+    (root / "robot.yaml").write_text(dump_model(model))
+    (root / "dataset.yaml").write_text(
+        "robot: robot.yaml\njoint_unit: deg\nhandeye: {xyz: [0, 0.04, 0.06]}\n"
+    )
+    ids = [f"s{k:03d}" for k in range(n)]
+    text = write_samples(root / "samples.csv", ids, np.degrees(q), poses=poses)
+    (root / "samples.csv").write_text(text)
+    return true_model
