@@ -300,6 +300,10 @@ MISUSE.update(
             lambda a: relcal.measure(a["dataset"], progress="no"),
             ("progress", "True or False"),
         ),
+        "calibrate-priors-unknown": (
+            lambda a: relcal.calibrate(a["dataset"], priors="flat"),
+            ("priors", "flat", "'model', 'none'"),
+        ),
         "calibrate-keep-outliers-a-string": (
             lambda a: relcal.calibrate(a["dataset"], keep_outliers="no"),
             ("keep_outliers", "True or False"),

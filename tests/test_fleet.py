@@ -330,8 +330,10 @@ def test_fleet_command_passes_kfold_and_weighting_to_every_session(tmp_path, mon
 
     monkeypatch.setattr(runner, "run_fleet", fake_run_fleet)
     argv = ["fleet", "calibrate", str(root), "--quiet"]
-    assert main([*argv, "--kfold", "3", "--weighting", "both"]) == 0
+    assert main([*argv, "--kfold", "3", "--weighting", "both", "--priors", "none"]) == 0
     assert main(argv) == 0
     assert seen[0]["kfold"] == 3 and seen[0]["weightings"] == ("plain", "noise model")
     assert seen[1]["kfold"] is None and seen[1]["weightings"] == ("plain",)
+    assert seen[0]["priors"] == "none" and seen[1]["priors"] == "model"
     assert main([*argv, "--kfold", "1"]) == 2 and main([*argv, "--weighting", "robust"]) == 2
+    assert main([*argv, "--priors", "flat"]) == 2

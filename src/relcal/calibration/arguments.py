@@ -27,6 +27,7 @@ def check_calibrate(
     nongeometric: Any = "auto",
     weightings: Any = ("plain",),
     keep_outliers: Any = False,
+    priors: Any = "model",
 ) -> None:
     """The arguments of :func:`relcal.calibrate`."""
     check_dataset(dataset)
@@ -56,3 +57,4 @@ def check_calibrate(
         check_names(nongeometric, "nongeometric", NONGEOMETRIC, "['scale']", empty=True)
     check_names(weightings, "weightings", WEIGHTINGS, "['plain']")
     check_flag(keep_outliers, "keep_outliers")
+    check_choice(priors, "priors", ("model", "none"))

@@ -196,7 +196,7 @@ def calibrate(
     reject_outliers = not keep_outliers  # the settings key of results.json and the registry
     check_calibrate(
         dataset, measurements, holdout, seed, pairing, method, loss, holdout_ids, select_folds,
-        selection, nongeometric, weightings, keep_outliers,
+        selection, nongeometric, weightings, keep_outliers, priors,
     )  # fmt: skip
     unknown = sorted(set(weightings) - set(WEIGHTINGS))
     if unknown or not weightings:

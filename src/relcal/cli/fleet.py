@@ -74,6 +74,7 @@ def _fleet(args: argparse.Namespace, sessions, registry) -> int:
         "selection": args.select,
         "nongeometric": args.nongeometric,
         "weightings": WEIGHTING_CHOICES[args.weighting],
+        "priors": args.priors,
         "kfold": args.kfold,
     }
     started = datetime.now(UTC)
@@ -237,6 +238,13 @@ def register(sub: argparse._SubParsersAction) -> None:
         metavar="auto|none|TERMS",
         help="non-geometric candidates, as `relcal calibrate --nongeometric` (default auto; "
         "none: every unit on the geometry alone, so that their corrections compare)",
+    )
+    cp.add_argument(
+        "--priors",
+        choices=("model", "none"),
+        default="model",
+        help="as `relcal calibrate --priors` (default model: weakly determined parameters held "
+        "by the model file's tolerances; none: plain least squares)",
     )
     cp.add_argument(
         "--weighting",
