@@ -414,3 +414,23 @@ def test_every_robot_file_reads_back_to_its_model(robot, tmp_path):
         folder.mkdir()
         loaded = read_back(name, content, nominal, folder)
         np.testing.assert_allclose(fk(loaded, q), fk(model, q), rtol=0, atol=1e-9, err_msg=name)
+
+
+def test_board_pairing_files_are_validated_on_the_validations_own_pairs(tmp_path):
+    """With ``pairing="board"`` the validation is of relative poses on capped pairs of the
+    held-out samples (PoseKind.validate); each file's held-out errors are computed on those
+    same pairs with the hand-eye (not the board), so the model files, read back, give the
+    validation's own errors (they were refused as self-pairs (k, k) before)."""
+    from helpers_dataset import synthetic_dataset
+
+    import relcal
+
+    root = synthetic_dataset(tmp_path / "d", n=60).root
+    cal = relcal.calibrate(relcal.load_dataset(root), nongeometric="none", pairing="board")
+    assert cal.problem.formulation == "board"
+    want = cal.validation.rms("calibrated")
+    assert want < 0.2 * cal.validation.rms("before")
+    for artifact in cal.artifacts:
+        assert artifact.written and artifact.validation is not None, artifact.name
+        assert np.array_equal(artifact.validation.pairs, cal.validation.pairs)
+        assert artifact.validation.rms("calibrated") == pytest.approx(want, rel=1e-6)
