@@ -82,7 +82,8 @@ class Noise:
             values = []
         if not 2 <= len(values) <= 3 or any(not np.isfinite(v) or v < 0 for v in values):
             raise RelcalError(
-                f"noise levels '{text}': expected POS_MM,ORI_DEG[,JOINT_DEG] as non-negative numbers"
+                f"noise levels '{text}': expected POS_MM,ORI_DEG[,JOINT_DEG] as non-negative "
+                "numbers"
             )
         values += [0.0] * (3 - len(values))
         return cls(values[0] * MM, values[1] * DEG, values[2] * DEG)
