@@ -44,7 +44,7 @@ def _files(doc: dict) -> dict:
     return {f["file"]: f for f in doc["artifacts"]["files"]}
 
 
-# --- TIAGo Pro positions, compliance chosen (--select conservative) ---------------------------
+# --- TIAGo Pro positions, compliance chosen (--selection conservative) ------------------------
 
 
 @pytest.fixture(scope="module")
@@ -52,7 +52,7 @@ def tiago(tmp_path_factory):
     if not (DATA / "tiago_pro").is_dir():
         pytest.skip("real data not available")
     out = tmp_path_factory.mktemp("tiago")
-    args = ["calibrate", str(POSITIONS), "--select", "conservative", "--out", str(out / "cal")]
+    args = ["calibrate", str(POSITIONS), "--selection", "conservative", "--out", str(out / "cal")]
     args += ["--json", str(out / "r.json"), "--report", str(out / "r.html")]
     buf = io.StringIO()  # a module fixture cannot take capsys
     with contextlib.redirect_stdout(buf):

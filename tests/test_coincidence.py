@@ -375,7 +375,7 @@ def test_calibrate_command_holds_out_each_placement_as_the_kind_did(mukca_sets, 
     k = len(dict.fromkeys(placement_of(g) for g in ds.groups))
     argv = ["calibrate", str(ds.root), "--out", str(tmp_path / "c"), "--quiet", "--kfold", str(k)]
     # the plain least squares the kind fitted then (priors came later, issue 18)
-    argv += ["--nongeometric", "none", "--keep-outliers", "--select", "all", "--priors", "none"]
+    argv += ["--nongeometric", "none", "--keep-outliers", "--selection", "all", "--priors", "none"]
     assert main([*argv, "--json", str(tmp_path / "r.json")]) == 0
     pooled_doc = json.loads((tmp_path / "r.json").read_text())["cross_validation"]["pooled"]
     for which, numbers in zip(("baseline", "calibrated"), BEFORE_SKELETON[name], strict=True):

@@ -42,7 +42,7 @@ MUKCA = DATA / "mukca"
 PANDA = MUKCA / "urdf" / "panda.urdf"
 IIWA = MUKCA / "urdf" / "iiwa14.urdf"
 # every unit on the geometry alone, all of it, no sample left out: corrections that compare
-SAME_MODEL = ["--nongeometric", "none", "--select", "all", "--keep-outliers"]
+SAME_MODEL = ["--nongeometric", "none", "--selection", "all", "--keep-outliers"]
 PLANTED = ("theta_off[4]", 0.1)  # deg, on one Panda unit
 
 

@@ -229,7 +229,7 @@ def test_points_conservative_keeps_only_significant_link_parameters(tmp_path, rn
     assert np.all(z >= 3.0) and len(links) < len(
         [k for k in np.flatnonzero(np.isfinite(cv.result.std)) if kinds[k] in KINDS]
     )
-    assert "dropped (--select conservative)" in cal.reason
+    assert "dropped (--selection conservative)" in cal.reason
 
 
 def test_points_in_millimetres_are_not_a_calibration(tmp_path, rng):

@@ -119,7 +119,7 @@ def test_selection_keeps_the_baseline_when_nothing_is_planted(tmp_path):
 
 
 def test_calibration_that_hurts_exits_1_and_writes_nothing(tmp_path, capsys):
-    """Force every parameter in (--select all) on 12 samples with no error: when the held-out
+    """Force every parameter in (--selection all) on 12 samples with no error: when the held-out
     error exceeds the baseline's beyond its interval, the command fails and leaves no outputs;
     when it exceeds it within the interval, it says so and writes."""
     out = tmp_path / "out"
@@ -127,7 +127,7 @@ def test_calibration_that_hurts_exits_1_and_writes_nothing(tmp_path, capsys):
         syn = synthetic_dataset(
             tmp_path / f"d{seed}", n=12, noise=(3e-4, 5e-4), seed=seed, errors=0
         )
-        argv = ["calibrate", str(syn.root), "--out", str(out), "--select", "all", "--seed", "0"]
+        argv = ["calibrate", str(syn.root), "--out", str(out), "--selection", "all", "--seed", "0"]
         code = main([*argv, "--json", str(tmp_path / f"r{seed}.json")])
         captured = capsys.readouterr()
         if code == 1:

@@ -47,7 +47,7 @@ def _tiago(folder: Path, samples: str) -> Path:
 
 @pytest.mark.skipif(not TIAGO.is_dir(), reason="real data not available")
 def test_real_tiago_calibration_verified_on_the_other_session(tmp_path):
-    """Kinematics calibrated on the 94 positions of 2026-07-02 (``--select conservative``),
+    """Kinematics calibrated on the 94 positions of 2026-07-02 (``--selection conservative``),
     verified on the positions of the 48 poses of
     2026-08-05 (another session, another marker: ``T`` and ``m`` refitted). It beats the nominal
     URDF there, but predicts it about 3.5 times worse than its own held-out points: the numbers
@@ -56,7 +56,7 @@ def test_real_tiago_calibration_verified_on_the_other_session(tmp_path):
     first = _tiago(tmp_path / "tiago-0702", "mocap_position_20260702.csv")
     second = _tiago(tmp_path / "tiago-0805", "mocap_pose_20260805.csv")
     cal = tmp_path / "cal"
-    argv = ["calibrate", str(first), "--select", "conservative", "--out", str(cal), "--quiet"]
+    argv = ["calibrate", str(first), "--selection", "conservative", "--out", str(cal), "--quiet"]
     assert main(argv) == 0
     assert "joint_ranges" in json.loads((cal / "results.json").read_text())
     code, doc = _verify(tmp_path, cal, second)

@@ -74,7 +74,7 @@ def local_cluster(workers: int):
     from distributed import LocalCluster
 
     if workers < 1:
-        raise RelcalError(f"--workers {workers}: expected at least 1 worker process")
+        raise RelcalError(f"workers={workers}: expected at least 1 worker process")
     with dask.config.set({"distributed.worker.profile.enabled": False}):
         return LocalCluster(
             n_workers=workers,

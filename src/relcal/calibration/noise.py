@@ -80,7 +80,7 @@ class Noise:
 
     @classmethod
     def parse(cls, text: str) -> Noise:
-        """The noise levels of the command line's ``--noise`` text.
+        """Noise levels from text (as the command line's noise option takes them).
 
         Parameters
         ----------
@@ -103,7 +103,8 @@ class Noise:
             values = []
         if not 2 <= len(values) <= 3 or any(not np.isfinite(v) or v < 0 for v in values):
             raise RelcalError(
-                f"--noise '{text}': expected POS_MM,ORI_DEG[,JOINT_DEG] as non-negative numbers"
+                f"noise levels '{text}': expected POS_MM,ORI_DEG[,JOINT_DEG] as non-negative "
+                "numbers"
             )
         values += [0.0] * (3 - len(values))
         return cls(values[0] * MM, values[1] * DEG, values[2] * DEG)

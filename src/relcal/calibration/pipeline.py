@@ -318,7 +318,7 @@ def calibrate(
 
             result = significant_fit(training.problem, result, columns, refit)
     if selection == "conservative" and pick.name not in BASELINE_CANDIDATES:
-        reason += "; parameters below 3 standard deviations dropped (--select conservative)"
+        reason += "; parameters below 3 standard deviations dropped (--selection conservative)"
     if dropped:
         reason += "; dropped (not determined by these samples): " + "; ".join(
             f"candidates with {d['family']} terms" for d in dropped

@@ -304,11 +304,11 @@ def choose(scores: list[Score], n_se: float = STANDARD_ERRORS) -> tuple[int, str
 
 def choose_all(scores: list[Score]) -> tuple[int, str]:
     """Index of the candidate with the most parameters (under its best-scoring weighting) and
-    why: ``--select all``."""
+    why: ``--selection all``."""
     size = max(len(s.candidate.columns) for s in scores)
     largest = [k for k, s in enumerate(scores) if len(s.candidate.columns) == size]
     chosen = min(largest, key=lambda k: np.mean(scores[k].per_sample))
-    return chosen, "all identifiable parameters (--select all)"
+    return chosen, "all identifiable parameters (--selection all)"
 
 
 def score_each(
@@ -370,7 +370,7 @@ def significant_columns(
 def significant_fit(problem: Problem, result, columns: np.ndarray, refit, z_min: float = 3.0):
     """``result`` (the fit of ``columns``) refitted by ``refit(columns)`` without the link
     parameters whose estimate is below ``z_min`` standard deviations (the frames always stay),
-    until none is: ``--select conservative`` of the kinds that fit every candidate."""
+    until none is: ``--selection conservative`` of the kinds that fit every candidate."""
     kinds = problem.full_layout.kinds
     cols = np.asarray(columns)
     while True:

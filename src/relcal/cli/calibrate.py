@@ -7,13 +7,12 @@ from contextlib import nullcontext
 from pathlib import Path
 
 from relcal.cli.common import (
-    PAIRINGS,
-    PAIRS_HELP,
     holdout_fraction,
     int_at_least,
     json_arg,
     output_file,
     output_folder,
+    pairing_arg,
     positive_float,
     positive_int,
     registry_arg,
@@ -346,14 +345,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="also run K-fold cross-validation (results.json); 2 <= K <= samples / 2 (for "
         "coincidence samples, K <= placements: K = placements leaves each one out in turn)",
     )
-    cp.add_argument(
-        "--pairing",
-        "--pairs",
-        dest="pairs",
-        choices=PAIRINGS,
-        default="auto",
-        help=PAIRS_HELP,
-    )
+    pairing_arg(cp)
     cp.add_argument("--method", choices=("lm", "published"), default="lm")
     cp.add_argument(
         "--loss",

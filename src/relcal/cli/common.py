@@ -322,3 +322,19 @@ PAIRS_HELP = (
     "board, its transform estimated: the information of all pairs, linear in the samples); "
     "--pairs is its former name"
 )
+
+
+def pairing_arg(parser: argparse.ArgumentParser, calibration: bool = True) -> None:
+    """``--pairing`` (``--pairs`` its former name): which samples form relative measurements;
+    a calibration's choices (``auto`` by default), or a simulation's (consecutive by default)."""
+    if calibration:
+        choices, default, help_ = PAIRINGS, "auto", PAIRS_HELP
+    else:
+        choices, default = ("consecutive", "star", "all"), "consecutive"
+        help_ = (
+            "which pairs of poses form relative measurements (default consecutive; --pairs is "
+            "its former name)"
+        )
+    parser.add_argument(
+        "--pairing", "--pairs", dest="pairs", choices=choices, default=default, help=help_
+    )

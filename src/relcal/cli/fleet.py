@@ -7,14 +7,13 @@ from datetime import UTC, datetime
 
 from relcal.cli.calibrate import WEIGHTING_CHOICES, nongeometric_terms
 from relcal.cli.common import (
-    PAIRINGS,
-    PAIRS_HELP,
     fraction,
     holdout_fraction,
     int_at_least,
     json_arg,
     output_file,
     output_folder,
+    pairing_arg,
     positive_float,
     positive_int,
     registry_arg,
@@ -211,14 +210,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--holdout", type=holdout_fraction, default=0.25, help="held-out share (default 0.25)"
     )
     cp.add_argument("--seed", type=seed, default=0, help="seed of the held-out split")
-    cp.add_argument(
-        "--pairing",
-        "--pairs",
-        dest="pairs",
-        choices=PAIRINGS,
-        default="auto",
-        help=PAIRS_HELP,
-    )
+    pairing_arg(cp)
     cp.add_argument("--method", choices=("lm", "published"), default="lm")
     cp.add_argument("--loss", choices=("linear", "huber", "cauchy", "soft_l1"), default="linear")
     cp.add_argument(

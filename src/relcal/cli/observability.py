@@ -14,6 +14,7 @@ from relcal.cli.common import (
     load_robot,
     noise_levels,
     nonnegative_int,
+    pairing_arg,
     robot_args,
     seed,
 )
@@ -131,15 +132,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         default="estimated",
         help="frame-invariant formulation: estimate the hand-eye transform or take it as known",
     )
-    p.add_argument(
-        "--pairing",
-        "--pairs",
-        dest="pairs",
-        choices=("consecutive", "star", "all"),
-        default="consecutive",
-        help="which pairs of poses form relative measurements (default consecutive; --pairs is "
-        "its former name)",
-    )
+    pairing_arg(p, calibration=False)
     add_noise_arg(p)
     p.add_argument(
         "--estimator",

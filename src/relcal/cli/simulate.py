@@ -13,6 +13,7 @@ from relcal.cli.common import (
     nonnegative_float,
     output_file,
     output_folder,
+    pairing_arg,
     positive_float,
     robot_args,
     seed,
@@ -214,15 +215,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     sim.add_argument("--measure", choices=("position", "pose"), help="one run only (default both)")
     sim.add_argument("--formulation", choices=("published", "invariant"), default="published")
     sim.add_argument("--method", choices=("published", "lm"), default="published")
-    sim.add_argument(
-        "--pairing",
-        "--pairs",
-        dest="pairs",
-        choices=("consecutive", "star", "all"),
-        default="consecutive",
-        help="which pairs of poses form relative measurements (default consecutive; --pairs is "
-        "its former name)",
-    )
+    pairing_arg(sim, calibration=False)
     sim.add_argument(
         "--n-poses",
         "--poses",

@@ -9,6 +9,7 @@ from relcal.cli.common import (
     int_at_least,
     json_arg,
     load_robot,
+    pairing_arg,
     positive_float,
     positive_int,
     robot_args,
@@ -141,15 +142,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--sampling", choices=("random", "matched"), default="random")
     p.add_argument("--formulation", choices=("invariant", "published"), default="invariant")
     p.add_argument("--measure", choices=("pose", "position"), default="pose")
-    p.add_argument(
-        "--pairing",
-        "--pairs",
-        dest="pairs",
-        choices=("consecutive", "star", "all"),
-        default="consecutive",
-        help="which pairs of poses form relative measurements (default consecutive; --pairs is "
-        "its former name)",
-    )
+    pairing_arg(p, calibration=False)
     p.add_argument("--errors", help="YAML file of true errors (default: random, seeded)")
     p.add_argument(
         "--length-scale",

@@ -26,7 +26,7 @@ parameters are then estimates within different models, and their difference is p
 difference of models. So when the runs' chosen models differ in their non-geometric families,
 the run(s) with more are refitted (the dataset read again and checked against the recorded
 hashes, calibrated with the recorded settings) on the **common candidate**: the geometric model
-with the families both chose, every identifiable parameter of it estimated (``--select all``, or
+with the families both chose, every identifiable parameter of it estimated (``--selection all``, or
 the run's own selection when that one is not determined). Measured on 12 pairs of sessions of a
 synthetic A465 with a planted joint scale of 1000 ppm on two joints, one run choosing geometry +
 scale and the other geometry alone: compared as recorded, 5 of 12 were flagged; on the common
