@@ -228,7 +228,7 @@ def calibrate(
     detection = _fit(kind, training, training.geometric, "plain", method, kind.detection_loss)
     prior = None
     if with_priors:  # the noise level of the rows from the plain fit, then the MAP fit
-        prior = _prior(kind, training, "plain", None, detection.params, std)
+        prior = _plain_prior(kind, training, method, detection, std)
         detection = _fit(
             kind, training, training.geometric, "plain", method, kind.detection_loss, prior=prior
         )
@@ -241,7 +241,7 @@ def calibrate(
         detection = without
     full = detection  # the geometry fitted with ``loss`` on the final training samples
     if with_priors and removed:  # the rows' noise level without the outliers
-        prior = _prior(kind, training, "plain", None, detection.params, std)
+        prior = _plain_prior(kind, training, method, detection, std)
     if removed or loss != kind.detection_loss:
         start = None if kind.refit_from_nominal else detection.params
         full = _fit(
@@ -484,6 +484,26 @@ def _prior(
     """The prior rows' weights ``(P,)`` of the training problem weighted as ``weighting`` says,
     the rows' noise level measured at ``params`` (:func:`priors.problem_weights`)."""
     return problem_weights(kind.weighted(training, weighting, whiteners), params, std)
+
+
+def _plain_prior(
+    kind: MeasurementKind, training: Training, method: str, fitted: Result, std: np.ndarray
+) -> np.ndarray | None:
+    """The prior rows' weights of the plain weighting, the rows' noise level measured at the
+    geometry's ``fitted`` (the detection fit) and, when that fit had a robust loss, at a linear
+    fit too, the lower level kept: a robust loss bends at the noise level, so on nearly
+    noise-free rows it is an L1 fit that can stop far from the optimum, and its residuals would
+    overstate the noise (priors far too strong: a noise-free simulation's estimate biased by
+    0.1 mm). The weights are proportional to the level; None (no prior rows) when a fit leaves
+    no noise at all."""
+    prior = _prior(kind, training, "plain", None, fitted.params, std)
+    if kind.detection_loss == "linear" or prior is None:
+        return prior
+    linear = _fit(kind, training, training.geometric, "plain", method, "linear", fitted.params)
+    other = _prior(kind, training, "plain", None, linear.params, std)
+    if other is None:
+        return None
+    return prior if np.max(prior) <= np.max(other) else other
 
 
 def _drop_undetermined(
