@@ -240,6 +240,9 @@ def test_real_panda_units_are_compared_as_their_own_calibrations_say(real_units)
     own = {}
     for unit in m["robots"]:
         res = json.loads((root / unit / "session" / "calibration" / "results.json").read_text())
+        # placements are clusters: the std carry the placements' design effect (> 1 here)
+        assert res["settings"]["covariance"]["method"] == "placement design effect"
+        assert res["settings"]["covariance"]["inflation"] > 1.0
         own[unit] = {
             p["name"]: p
             for p in res["parameters"]
@@ -256,7 +259,10 @@ def test_real_panda_units_are_compared_as_their_own_calibrations_say(real_units)
             label = name.replace("[", "[panda_joint")
             expected |= {("panda_1", label, z > 0), ("panda_2", label, z < 0)}
     got = {(o["unit"], o["label"], o["difference"] > 0) for o in m["off"]}
-    assert got == expected and expected  # the two units do differ somewhere
+    # With the placements as clusters no difference of the two units stands out (before, with
+    # independent samples, four parameters were named at 4.0 to 6.8 std: what panda_2 split
+    # in two also showed, 4.5 std, and no real difference)
+    assert got == expected
     assert m["z_threshold"] == pytest.approx(norm.isf(0.01 / (2 * 2 * len(common))))
     assert any("which one is off needs a third unit" in n for n in m["notes"])
     print(f"real units: {seconds:.1f} s; off: {[o['text'] for o in m['off']]}")

@@ -184,6 +184,31 @@ def restricted(problem: Problem, samples: np.ndarray) -> Problem:
     )
 
 
+def row_placements(problem: Problem) -> np.ndarray:
+    """The placement of each residual row ``(3 N + D,)`` (indices into
+    :meth:`Coincidence.placement_names`): a sample's three rows its group's, a known distance's
+    row its first group's (a distance between two placements' groups is counted with the
+    first)."""
+    c = problem.coincidence
+    lookup = {p: k for k, p in enumerate(c.placement_names())}
+    of_group = np.array([lookup[p] for p in c.placements], dtype=int)
+    samples = np.repeat(of_group[c.index], 3)
+    return np.concatenate([samples, of_group[c.pairs[:, 0]]]).astype(int)
+
+
+def placement_covariance(problem: Problem, params: np.ndarray, subset: np.ndarray):
+    """The covariance of the estimate at ``params`` (the estimated ``subset``) honest for
+    placements: the samples of one placement share its systematic errors (the plate's
+    flatness and socket machining, its temperature, what the geometry does not model as it
+    shows at that placement's configurations), so the independent-samples covariance is scaled
+    by the placements' design effect
+    (:func:`relcal.calibration.uncertainty.clustered_covariance`)."""
+    from relcal.calibration.uncertainty import clustered_covariance
+
+    r, a = residuals(problem, params)
+    return clustered_covariance(a, r, subset, row_placements(problem))
+
+
 def split_params(problem: Problem, params: np.ndarray):
     """The model with the errors applied, the tool point ``(3,)`` and the group points
     ``(G, 3)`` at ``params``."""

@@ -467,7 +467,8 @@ def held_dependence(
         # axis sits a fraction of a millimetre off it at the estimate: a held parameter moving
         # by 1 mm or 1 deg then moves others by a few thousandths of a millimetre. Below a
         # tenth of their standard deviation that is lost in the noise, not a dependence.
-        std = np.sqrt(np.abs(np.diagonal(result_covariance(problem, params, ident, whiten))))
+        cov = result_covariance(problem, params, ident, whiten, independent=True)
+        std = np.sqrt(np.abs(np.diagonal(cov)))
         with np.errstate(invalid="ignore", divide="ignore"):
             moves &= ~(np.abs(refit.params - params) <= COINCIDENCE_DEPENDENCE * std)
     return moves & ~involved
@@ -479,12 +480,19 @@ def result_covariance(
     ident: Identifiability,
     whiten: np.ndarray | None = None,
     noise: Noise | None = None,
+    independent: bool = False,
 ) -> np.ndarray:
     """The covariance ``(P, P)`` of :attr:`Result.covariance` (NaN outside the subset); the pose
-    ``noise`` is estimated from the residuals (robust, isotropic) when not given."""
+    ``noise`` is estimated from the residuals (robust, isotropic) when not given. Coincidence
+    samples are clustered by placement
+    (:func:`relcal.calibration.coincidence.placement_covariance`) unless ``independent``."""
     r, a = residuals(problem, params)
     if whiten is not None:
         return least_squares_covariance(whiten @ a, whiten @ r, ident.subset)
+    if problem.formulation == "coincidence" and not independent:  # placements are clusters
+        from relcal.calibration.coincidence import placement_covariance
+
+        return placement_covariance(problem, params, ident.subset).covariance
     if problem.formulation in ("absolute", "tracker", "coincidence"):  # independent samples
         return least_squares_covariance(a, r, ident.subset)
     if noise is None:

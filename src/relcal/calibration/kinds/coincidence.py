@@ -29,6 +29,7 @@ from relcal.calibration.coincidence import (
     dataset_problem,
     make_coincidence,
     nuisance_columns,
+    placement_covariance,
     placement_of,
 )
 from relcal.calibration.identifiability import analyse_problem
@@ -138,6 +139,14 @@ class CoincidenceKind(PointKind):
         held = make_coincidence(ds.model, ds.q[test], groups, ds.distances, np.zeros(3))
         params = (result.params, baseline.params)
         return held_out_placements(training.problem, *params, ds.q[test], held, test)
+
+    def result_settings(self, training: Training, result: Result) -> dict:
+        """How the covariance was computed: placements as clusters
+        (:func:`~relcal.calibration.coincidence.placement_covariance`), the method, the number of
+        placements, the inflation of the variances over independent samples and its degrees of
+        freedom."""
+        unc = placement_covariance(result.problem, result.params, result.identifiability.subset)
+        return {"covariance": unc.settings()}
 
     def settings(self, training: Training) -> dict:
         return {
