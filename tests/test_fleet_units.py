@@ -199,6 +199,15 @@ def test_the_unit_planted_off_is_named_with_its_joint_and_no_other(simulated_fle
     assert off["difference"] == pytest.approx(PLANTED[1], abs=0.02)  # deg
     assert off["text"].startswith(f"panda_1: theta_off[panda_joint4] +{off['difference']:.3g} deg")
     assert iiwa["off"] == [], iiwa["off"]  # none off: none named
+    for m in (panda, iiwa):  # the margins, for the fleet tutorial
+        zs = [
+            (abs(u["z"]), r, row["name"])
+            for row in m["parameters"]
+            for r, u in row["units"].items()
+        ]
+        others = max(z for z, r, n in zs if (r, n) != ("panda_1", "theta_off[4]"))
+        top, limit = max(zs)[0], m["z_threshold"]
+        print(f"{m['model']}: max |z| {top:.2f}, others {others:.2f}, threshold {limit:.2f}")
     html = (root / "fleet.html").read_text()
     assert 'id="units-panda' in html and 'id="units-iiwa14' in html
     assert "panda_1: theta_off[panda_joint4]" in html

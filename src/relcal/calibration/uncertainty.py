@@ -587,6 +587,11 @@ def design_effect(
         (``E0[Q]^2 / (Var0[Q] / 2)``).
     s2 : float
         The residual variance ``s^2``.
+
+    Raises
+    ------
+    RelcalError
+        When ``jac``, ``r`` and ``clusters`` do not have one row each.
     """
     jac = np.asarray(jac, dtype=float)
     r = np.asarray(r, dtype=float)
