@@ -5,6 +5,7 @@ planted off in one joint (named, with the joint) beside units of another model w
 calibrations, and the coincidence kind's exports, ``relcal verify`` and ``relcal history``."""
 
 import json
+import re
 import time
 from pathlib import Path
 
@@ -370,6 +371,15 @@ def test_verify_and_history_of_a_coincidence_calibration(panda_2_halves, capsys)
     text = capsys.readouterr().out
     assert "tool_point.x" in text and "point[" not in text
     assert "not compared: the group points (12, each session's own)" in text  # 8 + 4 trained
+    # one unit, nothing changed: the two sets of placements agree once placements are clusters
+    # (with independent samples: DRIFT, chi-square 117.0 on 19, p 3e-10, tool_point.x 5.9 std)
+    assert "the two calibrations agree" in text, text
+    chi2, k, nu, p = re.search(
+        r"chi-square ([0-9.]+) over the (\d+) .* F test on \(\d+, (\d+)\) .*p = ([0-9.e+-]+)", text
+    ).groups()
+    print(f"panda_2 six vs three placements: chi-square {chi2} on {k}, F dof {nu}, p {p}")
+    assert float(p) > 0.05 and float(chi2) < 2 * int(k)
+    assert int(nu) < 60  # the design effects' degrees of freedom (105 from the rows alone)
     # the record's noise rows: 3 per training sample and one per distance of the 4 training
     # placements (2 of the 6 held out), not 6 per sample as for relative poses
     from relcal.fleet.registry import open_registry
