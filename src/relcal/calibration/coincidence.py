@@ -184,6 +184,18 @@ def restricted(problem: Problem, samples: np.ndarray) -> Problem:
     )
 
 
+def row_placements(problem: Problem) -> np.ndarray:
+    """The placement of each residual row ``(3 N + D,)`` (indices into
+    :meth:`Coincidence.placement_names`): a sample's three rows its group's, a known distance's
+    row its first group's (a distance between two placements' groups is counted with the
+    first)."""
+    c = problem.coincidence
+    lookup = {p: k for k, p in enumerate(c.placement_names())}
+    of_group = np.array([lookup[p] for p in c.placements], dtype=int)
+    samples = np.repeat(of_group[c.index], 3)
+    return np.concatenate([samples, of_group[c.pairs[:, 0]]]).astype(int)
+
+
 def split_params(problem: Problem, params: np.ndarray):
     """The model with the errors applied, the tool point ``(3,)`` and the group points
     ``(G, 3)`` at ``params``."""
@@ -585,5 +597,10 @@ def _problem_layout(problem: Problem) -> Layout:
 
 register_formulation(
     "coincidence",
-    FormulationHooks(full_layout=_problem_layout, residuals=residuals, sample_errors=sample_errors),
+    FormulationHooks(
+        full_layout=_problem_layout,
+        residuals=residuals,
+        sample_errors=sample_errors,
+        row_clusters=row_placements,
+    ),
 )

@@ -23,9 +23,21 @@ from relcal.calibration.identifiability import (
     analyse_problem,
     scaled,
 )
-from relcal.calibration.measurement import Problem, check_measured, pair_errors, residuals
+from relcal.calibration.measurement import (
+    Problem,
+    check_measured,
+    pair_errors,
+    residuals,
+    row_clusters,
+)
 from relcal.calibration.noise import Noise, robust_sigma
-from relcal.calibration.uncertainty import noise_factor, parameter_covariance, whitener
+from relcal.calibration.uncertainty import (
+    clustered_covariance,
+    least_squares_covariance,
+    noise_factor,
+    parameter_covariance,
+    whitener,
+)
 from relcal.errors import ArgumentError, RelcalError
 from relcal.robot.kinematics import Layout, apply_errors
 
@@ -467,7 +479,8 @@ def held_dependence(
         # axis sits a fraction of a millimetre off it at the estimate: a held parameter moving
         # by 1 mm or 1 deg then moves others by a few thousandths of a millimetre. Below a
         # tenth of their standard deviation that is lost in the noise, not a dependence.
-        std = np.sqrt(np.abs(np.diagonal(result_covariance(problem, params, ident, whiten))))
+        cov = result_covariance(problem, params, ident, whiten, independent=True)
+        std = np.sqrt(np.abs(np.diagonal(cov)))
         with np.errstate(invalid="ignore", divide="ignore"):
             moves &= ~(np.abs(refit.params - params) <= COINCIDENCE_DEPENDENCE * std)
     return moves & ~involved
@@ -479,12 +492,18 @@ def result_covariance(
     ident: Identifiability,
     whiten: np.ndarray | None = None,
     noise: Noise | None = None,
+    independent: bool = False,
 ) -> np.ndarray:
     """The covariance ``(P, P)`` of :attr:`Result.covariance` (NaN outside the subset); the pose
-    ``noise`` is estimated from the residuals (robust, isotropic) when not given."""
+    ``noise`` is estimated from the residuals (robust, isotropic) when not given. Coincidence
+    samples are clustered by placement (:func:`relcal.calibration.measurement.row_clusters`,
+    :func:`relcal.calibration.uncertainty.clustered_covariance`) unless ``independent``."""
     r, a = residuals(problem, params)
     if whiten is not None:
         return least_squares_covariance(whiten @ a, whiten @ r, ident.subset)
+    clusters = None if independent else row_clusters(problem)
+    if clusters is not None:  # rows correlated within clusters (coincidence: placements)
+        return clustered_covariance(a, r, ident.subset, clusters).covariance
     if problem.formulation in ("absolute", "tracker", "coincidence"):  # independent samples
         return least_squares_covariance(a, r, ident.subset)
     if noise is None:
@@ -495,20 +514,6 @@ def result_covariance(
     unc = parameter_covariance(problem, noise, ident, params=params)
     cov = np.full((len(params), len(params)), np.nan)
     cov[np.ix_(unc.subset, unc.subset)] = unc.least_squares
-    return cov
-
-
-def least_squares_covariance(jac: np.ndarray, r: np.ndarray, subset: np.ndarray) -> np.ndarray:
-    """``s^2 (A^T A)^-1`` of the columns ``subset`` of ``jac`` ``(M, P)``, with ``s^2 = |r|^2 /
-    (M - k)``, embedded in a ``(P, P)`` matrix that is NaN outside the subset."""
-    n = jac.shape[1]
-    cov = np.full((n, n), np.nan)
-    if len(subset) == 0:
-        return cov
-    unit, norms = scaled(jac[:, subset])
-    s2 = float(r @ r) / max(len(r) - len(subset), 1)
-    inv = np.linalg.pinv(unit.T @ unit, hermitian=True)
-    cov[np.ix_(subset, subset)] = s2 * inv / np.outer(norms, norms)
     return cov
 
 

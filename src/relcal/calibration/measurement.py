@@ -108,12 +108,16 @@ class FormulationHooks:
     ``full_layout(problem)``: the parameter layout with the formulation's nuisance parameters;
     ``residuals(problem, params, jacobian)``: the residual ``(M,)`` and its Jacobian
     ``(M, P)`` (or None), as :func:`residuals`; ``sample_errors(problem, params)``: the
-    position error of each sample ``(N, 3)``, m.
+    position error of each sample ``(N, 3)``, m; ``row_clusters(problem)``: the cluster of each
+    residual row ``(M,)`` when rows are correlated within clusters (optional).
     """
 
     full_layout: Callable[[Problem], Layout]
     residuals: Callable[..., tuple[np.ndarray, np.ndarray | None]]
     sample_errors: Callable[[Problem, np.ndarray], np.ndarray]
+    # the cluster of each residual row (rows of one cluster share errors: their covariance is
+    # scaled by the clusters' design effect), or None: independent rows
+    row_clusters: Callable[[Problem], np.ndarray] | None = None
 
 
 _FORMULATIONS: dict[str, FormulationHooks] = {}
@@ -140,6 +144,15 @@ def formulation_hooks(name: str) -> FormulationHooks:
             f"formulation {name!r}: its module is not loaded (build its problem through it, "
             "e.g. relcal.calibration.coincidence.coincidence_problem)"
         ) from None
+
+
+def row_clusters(problem: Problem) -> np.ndarray | None:
+    """The cluster of each residual row ``(M,)`` of ``problem`` when its formulation's rows are
+    correlated within clusters (coincidence: the placements), else None (independent rows)."""
+    hooks = _FORMULATIONS.get(problem.formulation)
+    if hooks is None or hooks.row_clusters is None:
+        return None
+    return hooks.row_clusters(problem)
 
 
 def make_pairs(

@@ -362,6 +362,7 @@ def calibrate(
         **({} if plausibility is None else {"plausibility": plausibility}),
         **noise.settings,
         **kind.settings(training),
+        **kind.result_settings(training, result),
     }
     return Calibration(
         dataset=dataset,

@@ -30,7 +30,7 @@ import scipy.sparse
 import scipy.sparse.csgraph
 
 from relcal import geometry as tf
-from relcal.calibration.identifiability import Identifiability
+from relcal.calibration.identifiability import Identifiability, scaled
 from relcal.calibration.measurement import (
     PairStrategy,
     Problem,
@@ -517,4 +517,167 @@ def predicted_accuracy(
         pairs=pairs,
         position=np.sqrt(diag[:, :3].sum(axis=1)),
         orientation=np.sqrt(diag[:, 3:].sum(axis=1)),
+    )
+
+
+# --- clustered samples (coincidence placements) --------------------------------------------------
+
+INDEPENDENT = "independent samples"
+DESIGN_EFFECT = "placement design effect"
+
+
+@dataclass(frozen=True)
+class ClusteredCovariance:
+    """Covariance of a least-squares estimate whose residuals are correlated within clusters
+    (the samples of one placement of a coincidence plate share its systematic errors).
+
+    ``covariance`` and ``independent`` are ``(P, P)`` (SI units, NaN outside the estimated
+    subset): the clustered one and ``s^2 (A^T A)^-1`` of independent samples. ``inflation`` is
+    their ratio (``>= 1``), ``estimated`` the design effect before it was floored at 1, ``dof``
+    the degrees of freedom of that estimate (Satterthwaite; ``inf`` when nothing is estimated),
+    ``clusters`` the number of clusters and ``method`` which covariance it is
+    (:data:`DESIGN_EFFECT`, or :data:`INDEPENDENT` with fewer than two clusters).
+    """
+
+    covariance: np.ndarray
+    independent: np.ndarray
+    method: str
+    inflation: float
+    estimated: float
+    dof: float
+    clusters: int
+
+    def settings(self) -> dict:
+        """What ``results.json`` and the registry record say about it (``settings.covariance``)."""
+        return {
+            "method": self.method,
+            "clusters": self.clusters,
+            "inflation": float(self.inflation),
+            "design_effect": float(self.estimated) if np.isfinite(self.estimated) else None,
+            "dof": float(self.dof) if np.isfinite(self.dof) else None,
+        }
+
+
+def design_effect(
+    jac: np.ndarray, r: np.ndarray, clusters: np.ndarray
+) -> tuple[float, float, float]:
+    """The placement design effect of a least-squares fit: how much the clusters' scores vary
+    beyond what independent residuals of the same size would give.
+
+    Parameters
+    ----------
+    jac : (M, k) ndarray
+        Jacobian of the (weighted) residual rows on the estimated parameters (any units: the
+        columns are scaled to unit norm inside).
+    r : (M,) ndarray
+        The residuals at the estimate (the fit's normal equations hold: ``jac^T r ~ 0``).
+    clusters : (M,) ndarray of int
+        The cluster of each row (e.g. the placement of its sample).
+
+    Returns
+    -------
+    effect : float
+        ``Q / E0[Q]`` with ``Q = sum_c g_c^T H^-1 g_c`` (``g_c = A_c^T r_c`` the cluster's score,
+        ``H = A^T A``) and ``E0[Q] = s^2 sum_c tr(H^-1 (H_c - H_c H^-1 H_c))`` its exact mean for
+        independent rows of variance ``s^2 = |r|^2 / (M - k)`` (``H_c = A_c^T A_c``): 1 on
+        average for independent samples, the average variance ratio of the estimate over the
+        parameter directions when rows are correlated within clusters.
+    dof : float
+        Satterthwaite degrees of freedom of ``Q`` for independent Gaussian rows
+        (``E0[Q]^2 / (Var0[Q] / 2)``).
+    s2 : float
+        The residual variance ``s^2``.
+
+    Raises
+    ------
+    RelcalError
+        When ``jac``, ``r`` and ``clusters`` do not have one row each.
+    """
+    jac = np.asarray(jac, dtype=float)
+    r = np.asarray(r, dtype=float)
+    m, k = jac.shape
+    if len(r) != m or len(clusters) != m:
+        raise RelcalError(f"{m} Jacobian rows, {len(r)} residuals, {len(clusters)} clusters")
+    norms = np.linalg.norm(jac, axis=0)
+    unit = jac / np.where(norms > 0, norms, 1.0)
+    h_inv = np.linalg.pinv(unit.T @ unit, hermitian=True)
+    s2 = float(r @ r) / max(m - k, 1)
+    labels = np.unique(clusters)
+    parts = [
+        (unit[clusters == c].T @ unit[clusters == c], unit[clusters == c].T @ r[clusters == c])
+        for c in labels
+    ]
+    q = sum(float(g @ h_inv @ g) for _, g in parts)
+    hh = [h_inv @ hc for hc, _ in parts]  # H^-1 H_c
+    mean = sum(float(np.trace(x) - np.trace(x @ x)) for x in hh)
+    # Var0[Q] = 2 s^4 tr((B Sigma)^2), Sigma_cd = delta_cd H_c - H_c H^-1 H_d, B = diag(H^-1):
+    # (B Sigma)_cd = delta_cd X_c - X_c X_d with X_c = H^-1 H_c.
+    square = 0.0
+    for c, xc in enumerate(hh):
+        for d, xd in enumerate(hh):
+            t_cd = (xc if c == d else 0.0) - xc @ xd
+            t_dc = (xd if c == d else 0.0) - xd @ xc
+            square += float(np.trace(t_cd @ t_dc))
+    if mean <= 0 or s2 <= 0:
+        return 1.0, float("inf"), s2
+    dof = mean**2 / square if square > 0 else float("inf")
+    return q / (s2 * mean), dof, s2
+
+
+def least_squares_covariance(jac: np.ndarray, r: np.ndarray, subset: np.ndarray) -> np.ndarray:
+    """``s^2 (A^T A)^-1`` of the columns ``subset`` of ``jac`` ``(M, P)``, with ``s^2 = |r|^2 /
+    (M - k)``, embedded in a ``(P, P)`` matrix that is NaN outside the subset."""
+    n = jac.shape[1]
+    cov = np.full((n, n), np.nan)
+    if len(subset) == 0:
+        return cov
+    unit, norms = scaled(jac[:, subset])
+    s2 = float(r @ r) / max(len(r) - len(subset), 1)
+    inv = np.linalg.pinv(unit.T @ unit, hermitian=True)
+    cov[np.ix_(subset, subset)] = s2 * inv / np.outer(norms, norms)
+    return cov
+
+
+def clustered_covariance(
+    jac: np.ndarray, r: np.ndarray, subset: np.ndarray, clusters: np.ndarray
+) -> ClusteredCovariance:
+    """Covariance of a least-squares estimate from rows correlated within ``clusters``.
+
+    The independent-samples covariance ``s^2 (A^T A)^-1`` (:func:`least_squares_covariance`
+    form) scaled by the clusters' design effect (:func:`design_effect`), floored at 1 (fewer
+    than two clusters: nothing to estimate it from, the independent covariance is kept).
+
+    A per-direction estimate (the cluster-robust sandwich ``H^-1 (sum_c g_c g_c^T) H^-1``, or
+    the jackknife over clusters) has rank at most ``G - 1`` with ``G`` clusters: with the 3 to 9
+    placements of a coincidence calibration and its 20 to 30 shared parameters it leaves most
+    directions without any variance, so one factor for every direction, estimated from all
+    clusters' scores at once, is what such data support.
+
+    Parameters
+    ----------
+    jac : (M, P) ndarray
+        Jacobian of the weighted residual rows (relcal's sign), SI units per parameter.
+    r : (M,) ndarray
+        Weighted residuals at the estimate.
+    subset : (k,) ndarray of int
+        The estimated parameters (columns of ``jac``).
+    clusters : (M,) ndarray of int
+        The cluster of each row.
+
+    Returns
+    -------
+    ClusteredCovariance
+    """
+    subset = np.asarray(subset, dtype=int)
+    clusters = np.asarray(clusters)
+    independent = least_squares_covariance(jac, r, subset)
+    count = len(np.unique(clusters))
+    if count < 2 or len(subset) == 0:
+        return ClusteredCovariance(
+            independent, independent, INDEPENDENT, 1.0, float("nan"), float("inf"), count
+        )
+    effect, dof, _ = design_effect(jac[:, subset], r, clusters)
+    inflation = max(effect, 1.0)
+    return ClusteredCovariance(
+        independent * inflation, independent, DESIGN_EFFECT, inflation, effect, dof, count
     )

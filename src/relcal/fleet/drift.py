@@ -7,7 +7,10 @@ data, so their difference ``d = p_B - p_A`` over the parameters both determine h
 that session's residuals (the MAD of the translation and of the rotation rows), which is itself
 uncertain: with ``r`` residual degrees of freedom (6 per training sample but one, less the
 estimated parameters) each level carries about ``0.37 r / 2`` degrees of freedom (the MAD's
-efficiency), and the two sessions together ``nu`` (Welch-Satterthwaite). Two tests, each at
+efficiency), and the two sessions together ``nu`` (Welch-Satterthwaite). A coincidence
+calibration's covariance is scaled by its placements' design effect (placements are clusters,
+:func:`relcal.calibration.uncertainty.clustered_covariance`): its degrees of freedom are that
+estimate's (``settings.covariance.dof`` of the record, far fewer than the rows'). Two tests, each at
 level ``alpha`` (default 0.01):
 
 - over the common identifiable subset, ``T^2 = d^T C^+ d`` with ``k`` the rank of ``C``:
@@ -46,6 +49,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.stats
 
+from relcal.calibration.uncertainty import DESIGN_EFFECT
 from relcal.errors import RelcalError
 from relcal.fleet import ALPHA
 from relcal.fleet.registry import Run
@@ -363,12 +367,16 @@ def _estimated_covariance(run: Run, names: list[str]) -> tuple[np.ndarray, float
 
     (Scaling the covariance up for the fit's shrinkage of the residuals, ``rows / (rows - k)``,
     made noise-only comparisons too conservative on the synthetic fleets: p-values piled up
-    near 1. The records keep ``noise_rows`` for that question.)"""
+    near 1. The records keep ``noise_rows`` for that question.) A covariance scaled by the
+    placements' design effect has that estimate's degrees of freedom, when fewer."""
     cov = run.covariance_of(names)
     dof = run.covariance.get("residual_dof")
-    if not dof or dof <= 0:
-        return cov, np.inf
-    return cov, max(MAD_EFFICIENCY * dof / 2, 1.0)
+    nu = np.inf if not dof or dof <= 0 else max(MAD_EFFICIENCY * dof / 2, 1.0)
+    clustered = (run.settings or {}).get("covariance") or {}
+    if clustered.get("method") == DESIGN_EFFECT and clustered.get("dof"):
+        # the variances rest on the placements' design effect, estimated from few clusters
+        nu = min(nu, max(float(clustered["dof"]), 1.0))
+    return cov, nu
 
 
 def _chi_square(d: np.ndarray, cov: np.ndarray) -> tuple[float, int]:

@@ -227,3 +227,8 @@ class MeasurementKind:
     def settings(self, training: Training) -> dict:
         """What the record's settings say of this kind beyond the skeleton's."""
         return {}
+
+    def result_settings(self, training: Training, result: Result) -> dict:
+        """What the record's settings say of the chosen fit beyond the skeleton's (e.g. how its
+        covariance was computed)."""
+        return {}

@@ -30,12 +30,14 @@ from relcal.calibration.coincidence import (
     make_coincidence,
     nuisance_columns,
     placement_of,
+    row_placements,
 )
 from relcal.calibration.identifiability import analyse_problem
 from relcal.calibration.identify import Result, identify_lm
 from relcal.calibration.kinds import Training
 from relcal.calibration.kinds.points import PointKind
-from relcal.calibration.measurement import Problem
+from relcal.calibration.measurement import Problem, residuals
+from relcal.calibration.uncertainty import clustered_covariance
 from relcal.calibration.validate import folds, held_out_placements
 from relcal.errors import RelcalError
 
@@ -138,6 +140,18 @@ class CoincidenceKind(PointKind):
         held = make_coincidence(ds.model, ds.q[test], groups, ds.distances, np.zeros(3))
         params = (result.params, baseline.params)
         return held_out_placements(training.problem, *params, ds.q[test], held, test)
+
+    def result_settings(self, training: Training, result: Result) -> dict:
+        """How the covariance was computed: placements as clusters (the samples of one placement
+        share its systematic errors: the plate's flatness and socket machining, its
+        temperature, what the geometry does not model as it shows at that placement's
+        configurations; :func:`~relcal.calibration.uncertainty.clustered_covariance`), the
+        method, the number of placements, the inflation of the variances over independent
+        samples and its degrees of freedom."""
+        r, a = residuals(result.problem, result.params)
+        subset = result.identifiability.subset
+        unc = clustered_covariance(a, r, subset, row_placements(result.problem))
+        return {"covariance": unc.settings()}
 
     def settings(self, training: Training) -> dict:
         return {
