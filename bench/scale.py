@@ -6,9 +6,10 @@ Synthetic A465 sets of 1000, 3000 and 10,000 samples (Hayati's beta, planted geo
 and 1 deg, no hand-eye guess given) are calibrated by ``relcal calibrate DATASET --quiet`` with the
 default pairing (``auto``: the board formulation above 300 usable samples), each in a fresh
 process: its CPU time (user + system, one BLAS thread) and its peak resident memory (the
-kernel's high-water mark, ``ru_maxrss`` of the child) are measured, and the time is compared with
-the 1000-sample row scaled linearly. Goals: within 1.5x of linear time, and peak memory below
-the 2 GB limit of ``RELCAL_MAX_MEMORY_MB`` (all pairs of 10,000 samples would be 50 million).
+kernel's high-water mark, ``ru_maxrss`` of the child) are measured, the time is compared with
+the 1000-sample row scaled linearly and the memory with the 1000-sample row's. Goals: within
+1.5x of linear time, and peak memory below the 2 GB limit of ``RELCAL_MAX_MEMORY_MB`` (all pairs
+of 10,000 samples would be 50 million).
 
 ``python bench/scale.py`` prints the rows alone; ``bench/run.py`` (``make bench``) puts them in
 its table.
@@ -99,7 +100,7 @@ def run(sizes: tuple[int, ...] = SIZES) -> list[dict]:
             if got["rc"] != 0:
                 rows.append({"task": task, "note": f"failed ({got['rc']}): {got['err']}"})
                 continue
-            first = first or (n, got["cpu"])
+            first = first or (n, got["cpu"], got["peak_mb"])
             linear = first[1] * n / first[0]  # the first row's time, scaled to n samples
             rows.append(
                 {
@@ -120,6 +121,8 @@ def run(sizes: tuple[int, ...] = SIZES) -> list[dict]:
                     "task": f"peak memory of that calibration ({n:,} samples)",
                     "value": got["peak_mb"],
                     "unit": "MB",
+                    "peer": first[2],
+                    "peer_name": f"{first[0]:,}-sample row (ratio: x its memory)",
                     "goal": f"< {MEMORY_GOAL_MB:g} MB",
                     "met": got["peak_mb"] < MEMORY_GOAL_MB,
                     "note": "VmHWM of the child process (ru_maxrss)",

@@ -44,3 +44,45 @@ def test_interval_reflects_how_many_samples_there_are():
         assert lo < r["after_over_before"] < hi
         widths.append(hi - lo)
     assert widths[1] < 0.7 * widths[0]
+
+
+@pytest.mark.parametrize("chunk", [None, 7])
+def test_bootstrap_sums_match_the_draws_one_by_one(monkeypatch, chunk):
+    """The paired bootstrap's sums (several values per pair at once, the draws built once and
+    reused for the same pairs, taken in chunks when large) against each draw's samples counted
+    one by one, and ratio_interval against the percentile of those ratios."""
+    from relcal.calibration import validate
+
+    if chunk is not None:  # several chunks of draws: 7 * P numbers each
+        monkeypatch.setattr(validate, "RESAMPLE_CHUNK", 7 * 45)
+    monkeypatch.setattr(validate, "_LAST_RESAMPLER", ())
+    rng = np.random.default_rng(3)
+    pairs = make_pairs(10, "all") + 100  # sample numbers need not start at 0
+    values = rng.uniform(0, 1, (len(pairs), 3))
+    n_boot, seed = 50, 4
+    resampled, drawn = validate._resampler(pairs, n_boot, seed)
+    draws = np.random.default_rng(seed).integers(0, 10, (n_boot, 10))
+    expected = np.zeros((n_boot, 3))
+    for b, draw in enumerate(draws):
+        counts = np.bincount(draw, minlength=10)
+        expected[b] = (counts[pairs[:, 0] - 100] * counts[pairs[:, 1] - 100]) @ values
+    np.testing.assert_allclose(resampled(values), expected, rtol=1e-12)
+    np.testing.assert_allclose(resampled(values[:, 1]), expected[:, 1], rtol=1e-12)
+    np.testing.assert_array_equal(drawn, expected[:, 0] > 0)
+    again = validate._resampler(pairs.copy(), n_boot, seed)[0]
+    # reused when its draw counts are small (n_boot x 10 numbers), rebuilt otherwise
+    assert (again is resampled) == (chunk is None)
+    np.testing.assert_array_equal(again(values), resampled(values))
+    assert validate._resampler(pairs, n_boot, seed + 1)[0] is not resampled
+
+    before = rng.normal(0, 1e-3, (len(pairs), 6))
+    after = before * rng.uniform(0.2, 1.0, (len(pairs), 1))
+    got = ratio_interval(pairs, before, after, n_boot=n_boot, seed=seed)["position_mm"]
+    b2, a2 = (np.linalg.norm(e[:, :3] * 1e3, axis=1) ** 2 for e in (before, after))
+    per_draw = []
+    for draw in draws:
+        counts = np.bincount(draw, minlength=10)
+        w = counts[pairs[:, 0] - 100] * counts[pairs[:, 1] - 100]
+        if w.sum() > 0:
+            per_draw.append(np.sqrt((w @ a2) / (w @ b2)))
+    np.testing.assert_allclose(got["ci95"], np.percentile(per_draw, [2.5, 97.5]), rtol=1e-12)

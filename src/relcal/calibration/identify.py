@@ -225,15 +225,24 @@ class Result:
         )
 
     @functools.cached_property
-    def covariance(self) -> np.ndarray:
-        """Covariance ``(P, P)`` of the estimate (m, rad; NaN for parameters held at nominal):
-        the data's, combined with the priors when the fit had them (maximum a posteriori)."""
-        data = result_covariance(
+    def data_covariance(self) -> np.ndarray:
+        """Covariance ``(P, P)`` of the estimate from the data alone, as if the fit had no
+        priors (m, rad; NaN for parameters held at nominal): :attr:`covariance` without the
+        prior rows. Computed once: :attr:`covariance` and the weak-direction check share it."""
+        return result_covariance(
             self.problem, self.params, self.identifiability, self.whiten, self.noise
         )
+
+    @functools.cached_property
+    def covariance(self) -> np.ndarray:
+        """Covariance ``(P, P)`` of the estimate (m, rad; NaN for parameters held at nominal):
+        the data's (:attr:`data_covariance`), combined with the priors when the fit had them
+        (maximum a posteriori)."""
         if self.prior_std is None:
-            return data
-        return posterior_covariance(data, self.prior_std, self.identifiability.subset)
+            return self.data_covariance
+        return posterior_covariance(
+            self.data_covariance, self.prior_std, self.identifiability.subset
+        )
 
     @property
     def unidentifiable(self) -> list[str]:

@@ -576,7 +576,7 @@ def _weak(training: Training, result: Result, std: np.ndarray | None, q: np.ndar
     if std is None or result.prior_std is None:
         return out
     post = result.covariance
-    data = replace(result, prior_std=None).covariance
+    data = result.data_covariance  # the data's part of post, computed with it
     subset = result.identifiability.subset
     for w in weak_directions(training.problem, subset, data, post, std, q):
         out.append({**w.to_dict(), "held": "by its prior"})

@@ -35,7 +35,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from relcal import geometry as tf
-from relcal.calibration.handeye import align_rotations
+from relcal.calibration.handeye import align_rotations, rotation_vectors
 from relcal.errors import RelcalError
 from relcal.geometry import relative
 
@@ -493,20 +493,36 @@ class _Evaluation:
     wrong: np.ndarray  # samples left out: their pairs misfit far more than the others'
 
 
-def _evaluate(label, flange, measured, pairs, tolerance) -> _Evaluation:
+@dataclass(frozen=True)
+class _Motions:
+    """The relative motions ``(P, 4, 4)`` of one reading over the pairs and their rotation
+    vectors ``(P, 3)`` (rad): computed once per reading, shared by every combination of
+    readings :func:`diagnose_readings` tries."""
+
+    transforms: np.ndarray
+    rotvecs: np.ndarray
+
+
+def _motions(poses: np.ndarray, pairs: np.ndarray) -> _Motions:
+    rel = relative(poses, pairs)
+    return _Motions(rel, rotation_vectors(rel))
+
+
+def _evaluate(label, flange: _Motions, measured: _Motions, pairs, tolerance) -> _Evaluation:
     """How well one reading fits: rotations (median over the pairs), then translations after
     the best hand-eye transform; the samples that misfit far more than the rest (a few wrong
     rows) are left out and the fit repeated, so that they do not pass for a wrong reading of
-    all samples."""
-    a, b = relative(flange, pairs), relative(measured, pairs)
-    rx = align_rotations(a, b)
+    all samples. ``R_X`` as :func:`handeye.align_rotations` finds it, from the rotation
+    vectors."""
+    a, b = flange.transforms, measured.transforms
+    rx = tf.kabsch(flange.rotvecs, measured.rotvecs)
     angles = _pair_angles(a, b, rx)
     wrong = _wrong_samples(pairs, angles) if len(pairs) >= 10 else np.zeros(0, dtype=int)
     if wrong.size:
         keep = ~np.isin(pairs, wrong).any(axis=1)
         if keep.sum() >= 6:
             a, b, pairs = a[keep], b[keep], pairs[keep]
-            rx = align_rotations(a, b)
+            rx = tf.kabsch(flange.rotvecs[keep], measured.rotvecs[keep])
             angles = _pair_angles(a, b, rx)
         else:
             wrong = np.zeros(0, dtype=int)
@@ -553,26 +569,31 @@ def diagnose_readings(
     tol, tol_t = tolerances.rotation, tolerances.translation
     flange = fk(q) if given_valid else None
     evaluation = None
+    given_motions = _motions(poses, pairs)
     if flange is not None:
-        evaluation = _evaluate("", flange, poses, pairs, tol)
+        evaluation = _evaluate("", _motions(flange, pairs), given_motions, pairs, tol)
         given = evaluation.fit
         if given.misfit <= tol / 5 and given.translation <= tol_t / 2:
             return None, evaluation  # the right data: nothing else to try
     else:
         given = _Fit("", np.inf, np.inf)
     fits: list[_Fit] = []
-    flanges = {None: flange}
+    reads: dict = {None: given_motions}  # each reading's motions, computed once
     for jr in [None, *joints]:
-        if jr is not None:
-            flanges[jr] = fk(jr.joints(q))
+        flange_jr = flange if jr is None else fk(jr.joints(q))
+        if flange_jr is None:
+            continue
+        moved = None
         for pr in [None, *measured]:
-            if (jr is None and pr is None) or flanges[jr] is None:
+            if jr is None and pr is None:
                 continue
             if jr is not None and pr is not None and "position columns" in pr.label:
                 continue  # one mix-up of the positions at a time
             label = " and ".join(r.label for r in (jr, pr) if r is not None)
-            read = pr.poses(poses) if pr is not None else poses  # type: ignore[misc]
-            fits.append(_evaluate(label, flanges[jr], read, pairs, tol).fit)
+            if pr not in reads:
+                reads[pr] = _motions(pr.poses(poses), pairs)  # type: ignore[union-attr]
+            moved = moved or _motions(flange_jr, pairs)
+            fits.append(_evaluate(label, moved, reads[pr], pairs, tol).fit)
     fitting = [f for f in fits if f.misfit <= tol]
     best = min(fitting, key=lambda f: (f.translation, f.misfit), default=None)
     if best is not None:

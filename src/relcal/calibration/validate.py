@@ -11,6 +11,7 @@ predicted points of each group and the error of the known distances.
 
 from __future__ import annotations
 
+import hashlib
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -54,32 +55,66 @@ def stats(errors: np.ndarray) -> dict[str, dict[str, float]]:
 
 RESAMPLE_CHUNK = 2**21  # numbers of one chunk of the bootstrap's per-pair weights (16 MB)
 
+#: The last ``(key, (resampled, drawn))`` of :func:`_resampler`: one calibration's documents
+#: bootstrap the same held-out pairs several times (the validation, the verdict, each exported
+#: file), and the draws depend on the pairs, ``n_boot`` and the seed alone. One entry, kept only
+#: when its draw counts ``(n_boot, n)`` hold at most ``RESAMPLE_CHUNK`` numbers.
+_LAST_RESAMPLER: tuple = ()
+
 
 def _resampler(pairs: np.ndarray, n_boot: int, seed: int):
     """The paired bootstrap over the *samples* of ``pairs`` ``(P, 2)``: a function mapping a value
     per pair ``(P,)`` to its sum in each of ``n_boot`` draws (a pair counts as often as both its
     samples are drawn; per-sample values, pairs ``(k, k)``, once per draw of their sample), and
-    the mask of draws holding at least one pair."""
+    the mask of draws holding at least one pair. The same pairs, ``n_boot`` and ``seed`` give
+    the same function (the last one is reused, not rebuilt)."""
+    global _LAST_RESAMPLER
+    pairs = np.ascontiguousarray(pairs)
+    digest = hashlib.blake2b(pairs.tobytes(), digest_size=16).digest()
+    key = (pairs.shape, pairs.dtype.str, digest, int(n_boot), seed)
+    last = _LAST_RESAMPLER
+    if last and last[0] == key:
+        return last[1]
+    made = _make_resampler(pairs, n_boot, seed)
+    if n_boot * len(np.unique(pairs)) <= RESAMPLE_CHUNK:
+        _LAST_RESAMPLER = (key, made)
+    return made
+
+
+def _draw_counts(n: int, n_boot: int, seed: int) -> np.ndarray:
+    """``(n_boot, n)``: how often each of ``n`` samples is drawn in each of ``n_boot`` draws of
+    ``n`` samples with replacement (whole numbers, as floats)."""
+    draws = np.random.default_rng(seed).integers(0, n, (n_boot, n))
+    flat = (np.arange(n_boot)[:, None] * n + draws).ravel()
+    return np.bincount(flat, minlength=n_boot * n).reshape(n_boot, n).astype(float)
+
+
+def _make_resampler(pairs: np.ndarray, n_boot: int, seed: int):
+    """:func:`_resampler`, built. Its function also takes several values per pair ``(P, k)``
+    and returns ``(n_boot, k)``: the draws' per-pair weights ``counts[i] counts[j]`` are formed
+    once per chunk of draws for all ``k`` columns (forming them is what costs)."""
     samples, index = np.unique(pairs, return_inverse=True)
     i, j = index.reshape(pairs.shape).T
     per_sample = bool(np.all(i == j))
     n = len(samples)
-    draws = np.random.default_rng(seed).integers(0, n, (n_boot, n))
-    counts = np.zeros((n_boot, n))
-    np.add.at(counts, (np.arange(n_boot)[:, None], draws), 1.0)
+    counts = _draw_counts(n, n_boot, seed)
 
     chunk = max(1, min(n_boot, RESAMPLE_CHUNK // max(len(pairs), 1)))
 
     def resampled(values: np.ndarray) -> np.ndarray:
         """``sum_p counts[i_p] counts[j_p] values_p`` per draw: ``O(n_boot P)`` time, draws
         taken a chunk at a time (an ``(n, n)`` table would cost ``n_boot n^2``)."""
+        columns = np.ascontiguousarray(values.reshape(len(values), -1).T)  # one row per value
         if per_sample:
-            return counts @ np.bincount(i, values, minlength=n)
-        out = np.empty(n_boot)
-        for start in range(0, n_boot, chunk):
-            c = counts[start : start + chunk]
-            out[start : start + chunk] = (c[:, i] * c[:, j]) @ values
-        return out
+            out = np.stack([counts @ np.bincount(i, v, minlength=n) for v in columns], axis=1)
+        else:
+            out = np.empty((n_boot, len(columns)))
+            for start in range(0, n_boot, chunk):
+                c = counts[start : start + chunk]
+                weights = c[:, i] * c[:, j]
+                for k, v in enumerate(columns):
+                    out[start : start + chunk, k] = weights @ v
+        return out.reshape((n_boot, *values.shape[1:]))
 
     return resampled, resampled(np.ones(len(pairs))) > 0
 
@@ -99,12 +134,17 @@ def ratio_interval(
     tracker formulations) come as pairs ``(k, k)`` and count once per draw of their sample.
     """
     resampled, drawn = _resampler(pairs, n_boot, seed)
-    out = {}
+    kinds = []
     for key, cols, scale in _KINDS:
         b2, a2 = _norms(before, cols, scale) ** 2, _norms(after, cols, scale) ** 2
-        if np.all(np.isnan(b2)) or len(b2) == 0:
-            continue
-        boot = np.sqrt(resampled(a2)[drawn] / np.maximum(resampled(b2)[drawn], 1e-300))
+        if not (np.all(np.isnan(b2)) or len(b2) == 0):
+            kinds.append((key, a2, b2))
+    if not kinds:
+        return {}
+    sums = resampled(np.stack([v for _, a2, b2 in kinds for v in (a2, b2)], axis=1))[drawn]
+    out = {}
+    for k, (key, a2, b2) in enumerate(kinds):
+        boot = np.sqrt(sums[:, 2 * k] / np.maximum(sums[:, 2 * k + 1], 1e-300))
         lo, hi = np.percentile(boot, [2.5, 97.5])
         ratio = np.sqrt(a2.sum() / max(b2.sum(), 1e-300))
         out[key] = {"after_over_before": float(ratio), "ci95": [float(lo), float(hi)]}
@@ -118,14 +158,14 @@ def rms_draws(
     ``pairs`` that :func:`ratio_interval` uses (the same draws for the same ``seed``), per kind
     (``position_mm``, ``orientation_deg``; kinds without values left out)."""
     resampled, drawn = _resampler(pairs, n_boot, seed)
-    weight = resampled(np.ones(len(pairs)))[drawn]
-    out = {}
+    kinds = []
     for key, cols, scale in _KINDS:
         e2 = _norms(errors, cols, scale) ** 2
-        if len(e2) == 0 or np.all(np.isnan(e2)):
-            continue
-        out[key] = np.sqrt(resampled(e2)[drawn] / weight)
-    return out
+        if not (len(e2) == 0 or np.all(np.isnan(e2))):
+            kinds.append((key, e2))
+    columns = [np.ones(len(pairs))] + [e2 for _, e2 in kinds]
+    sums = resampled(np.stack(columns, axis=1))[drawn]
+    return {key: np.sqrt(sums[:, k + 1] / sums[:, 0]) for k, (key, _) in enumerate(kinds)}
 
 
 def rms_interval(
