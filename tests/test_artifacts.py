@@ -23,7 +23,7 @@ from urdf_helpers import TIAGO_CHAIN, TIAGO_JOINTS, pin_fk
 from relcal import geometry as tf
 from relcal.calibration.artifacts import _refusal
 from relcal.calibration.validate import Validation
-from relcal.calibration.verdict import MIN_HELD_OUT, verdict
+from relcal.calibration.verdict import MIN_HELD_OUT, MIN_JUDGED, verdict
 from relcal.cli import main
 from relcal.data.dataset import load_dataset
 from relcal.data.imaging import measure
@@ -304,6 +304,13 @@ def test_verdict_reads_the_interval_and_the_count():
     assert few.warnings and f"{MIN_HELD_OUT - 1} held-out samples" in few.warnings[0]
     assert "pairs of poses" in few.text
     assert not verdict(_points(before[:MIN_HELD_OUT], before[:MIN_HELD_OUT] / 4)).warnings
+    # a handful of held-out samples (two: one pair, a bootstrap without spread): no deploy
+    for k in (2, MIN_JUDGED - 1):
+        tiny = verdict(_points(before[:k], before[:k] / 60))
+        assert tiny.code == "collect more samples" and "too few to judge" in tiny.text, k
+    scatter = rng.uniform(0.01, 0.03, MIN_JUDGED)
+    five = verdict(_points(before[:MIN_JUDGED], before[:MIN_JUDGED] * scatter))
+    assert five.code == "deploy" and five.interval[0] < five.interval[1]
     assert verdict(_points(before, before / 4), exported="baseline").code == "do not deploy"
     assert verdict(None).code == "not validated"
 

@@ -507,6 +507,10 @@ def _plain_prior(
     return prior if np.max(prior) <= np.max(other) else other
 
 
+SHOWN_MEMBERS = 6  # of a combination named in a dropped candidate's reason
+SHOWN_COMBINATIONS = 3  # combinations named in one reason
+
+
 def _drop_undetermined(
     kind: MeasurementKind, training: Training, train: np.ndarray
 ) -> tuple[MeasurementKind, Training, list[dict]]:
@@ -531,7 +535,9 @@ def _drop_undetermined(
                 if abs(c) >= 0.1 * lead
             ]
             fams = {family(kind_of_name[n]) for n in members}
-            named = " with ".join(members)
+            named = " with ".join(members[:SHOWN_MEMBERS]) + (
+                f" and {len(members) - SHOWN_MEMBERS} more" if len(members) > SHOWN_MEMBERS else ""
+            )
             if fams == {"frames"}:
                 raise RelcalError(
                     f"{kind.dataset.spec_path}: these samples do not determine even the "
@@ -550,7 +556,13 @@ def _drop_undetermined(
                     "family": f,
                     "reason": f"{f} terms are not determined by these samples (the joints "
                     "vary too little to tell them from the other parameters): one combination "
-                    "of " + "; one of ".join(combos) + " is left undetermined",
+                    "of " + "; one of ".join(combos[:SHOWN_COMBINATIONS]) + " is left "
+                    "undetermined"
+                    + (
+                        f" (and {len(combos) - SHOWN_COMBINATIONS} more combinations)"
+                        if len(combos) > SHOWN_COMBINATIONS
+                        else ""
+                    ),
                 }
             )
         dataset = replace(kind.dataset, model=replace(model, nongeometric=flags))

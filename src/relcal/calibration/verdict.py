@@ -5,7 +5,9 @@ bootstrap over held-out samples of :func:`relcal.calibration.validate.ratio_inte
 number of held-out samples:
 
 - ``deploy``: the whole interval lies below 1 (better than the baseline beyond sampling doubt);
-- ``collect more samples``: the interval spans 1 (the held-out samples cannot tell);
+- ``collect more samples``: the interval spans 1 (the held-out samples cannot tell), or fewer
+  than :data:`MIN_JUDGED` held-out samples leave no interval worth reading (a bootstrap over
+  two samples, one pair of poses, has none);
 - ``do not deploy``: the whole interval lies above 1, or the data support no kinematic
   correction (the exported model is the baseline);
 - ``not validated``: no held-out samples (``--holdout 0``).
@@ -24,6 +26,7 @@ import numpy as np
 from relcal.calibration.validate import PlacementValidation, Validation
 
 MIN_HELD_OUT = 10  # held-out samples below which the verdict warns
+MIN_JUDGED = 5  # held-out samples below which the verdict cannot be "deploy"
 Code = Literal["deploy", "collect more samples", "do not deploy", "not validated"]
 
 
@@ -103,8 +106,14 @@ def verdict(
     factor = 1.0 / max(r, 1e-300)
     interval = (1.0 / max(hi, 1e-300), 1.0 / max(lo, 1e-300))
     span = f"95% interval {times(interval[0])}..{times(interval[1])}, {n} held-out samples"
-    if hi < 1.0:
-        code: Code = "deploy"
+    if n < MIN_JUDGED:
+        code: Code = "collect more samples"
+        text = (
+            f"collect more samples: {n} held-out samples are too few to judge ({times(factor)} "
+            f"better on held-out {what} in this split, no interval to read)"
+        )
+    elif hi < 1.0:
+        code = "deploy"
         text = f"deploy: {times(factor)} better on held-out {what} ({span})"
     elif lo > 1.0:
         code = "do not deploy"
