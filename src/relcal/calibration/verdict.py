@@ -46,8 +46,11 @@ class Verdict:
 
 
 def times(factor: float) -> str:
-    """A factor as people say it: ``5.8x``, ``48x``, ``110x`` (two significant digits below 10,
-    whole numbers above)."""
+    """A factor as people say it: ``1.04x``, ``5.8x``, ``48x``, ``110x`` (three significant
+    digits below 2, so that a bound near 1 does not read as 1; two below 10; whole numbers
+    above)."""
+    if factor < 2:
+        return f"{factor:.3g}x"
     return f"{factor:.2g}x" if factor < 10 else f"{factor:.0f}x"
 
 
