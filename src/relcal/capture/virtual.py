@@ -855,6 +855,19 @@ __all__ = [
 # ------------------------------------------------------------------ the drivers of the registry
 
 
+def _cell_options(
+    board_center: str | None, handeye: str | None, flag: str
+) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """The board centre ``(3,)`` (m) and the hand-eye guess ``(4, 4)`` of the driver options
+    ``board_center`` (``x,y,z``) and ``handeye`` (``x,y,z[,roll,pitch,yaw]``, m and deg), each
+    None when not given; ``flag`` names the option in errors."""
+    centre = None if board_center is None else _floats(board_center, (3,), f"{flag} board_center")
+    if handeye is None:
+        return centre, None
+    he = np.r_[_floats(handeye, (3, 6), f"{flag} handeye"), 0.0, 0.0, 0.0][:6]
+    return centre, tf.from_xyz_rpy(he[:3], np.radians(he[3:]))
+
+
 def _floats(text: str, counts: tuple[int, ...], what: str) -> np.ndarray:
     try:
         values = np.array([float(v) for v in text.split(",")])
@@ -904,13 +917,7 @@ class VirtualRobot(SimRobot):
         if model is None:
             raise RelcalError("--robot-driver sim: the virtual cell needs the robot model")
         flag = "--robot-option"
-        centre = (
-            None if board_center is None else _floats(board_center, (3,), f"{flag} board_center")
-        )
-        guess = None
-        if handeye is not None:
-            he = np.r_[_floats(handeye, (3, 6), f"{flag} handeye"), 0.0, 0.0, 0.0][:6]
-            guess = tf.from_xyz_rpy(he[:3], np.radians(he[3:]))
+        centre, guess = _cell_options(board_center, handeye, flag)
         terms = tuple(t for t in nongeometric.replace(" ", "").split(",") if t)
         if joint_noise < 0:
             raise RelcalError(f"{flag} joint_noise: expected a standard deviation >= 0 deg")
@@ -1061,13 +1068,7 @@ class FollowingCamera:
         errors: str | None = None,
     ) -> None:
         flag = "--camera-option"
-        centre = (
-            None if board_center is None else _floats(board_center, (3,), f"{flag} board_center")
-        )
-        guess = None
-        if handeye is not None:
-            he = np.r_[_floats(handeye, (3, 6), f"{flag} handeye"), 0.0, 0.0, 0.0][:6]
-            guess = tf.from_xyz_rpy(he[:3], np.radians(he[3:]))
+        centre, guess = _cell_options(board_center, handeye, flag)
         planted = None
         if errors is not None:
             from relcal.sim.scenario import load_errors
