@@ -98,6 +98,11 @@ def held_out_errors(
         spread = spread_of(model, ds.q[samples], held, tool)
         return replace(val, calibrated=spread)
     problem = _everything(cal, model, layout)
+    if problem.formulation == "board":  # validated on relative poses, as PoseKind.validate
+        relative = replace(problem, formulation="invariant", pairs=val.pairs)
+        nuisance = nuisance[: relative.full_layout.size - layout.size]  # the hand-eye
+        errors = pair_errors(relative, np.concatenate([np.zeros(layout.size), nuisance]))
+        return replace(val, calibrated=errors)
     samples = np.unique(val.pairs)
     pairing = cal.settings.get("pairing") or "all"
     test = subset(problem, samples, pairing)
