@@ -423,21 +423,43 @@ def test_every_robot_file_reads_back_to_its_model(robot, tmp_path):
         np.testing.assert_allclose(fk(loaded, q), fk(model, q), rtol=0, atol=1e-9, err_msg=name)
 
 
-def test_board_pairing_files_are_validated_on_the_validations_own_pairs(tmp_path):
-    """With ``pairing="board"`` the validation is of relative poses on capped pairs of the
-    held-out samples (PoseKind.validate); each file's held-out errors are computed on those
-    same pairs with the hand-eye (not the board), so the model files, read back, give the
-    validation's own errors (they were refused as self-pairs (k, k) before)."""
-    from helpers_dataset import synthetic_dataset
+def test_board_formulation_files_are_validated_on_the_validation_pairs(tmp_path):
+    """Above 300 samples ``auto`` fits the board formulation and validates on relative poses:
+    each written file is scored on the same held-out pairs of poses, with its errors those of
+    the validation (the files hold the validated geometry). It was refused: the board's
+    per-sample pairs (k, k) were handed to the relative formulation."""
+    rng = np.random.default_rng(5)
+    model = get_robot("a465")
+    layout = make_layout(model)
+    truth = rng.normal(0, 3e-4, layout.size)  # m and rad
+    n = 60
+    q = random_q(model, n, rng) * 0.8
+    handeye = tf.from_vector(np.array([0.0, 0.04, 0.06, 0.01, -0.02, 0.0]))
+    board = tf.from_vector(np.array([0.5, 0.1, -0.2, 3.0, 0.1, 0.4]))
+    noise = np.c_[rng.normal(0, 5e-5, (n, 3)), rng.normal(0, np.radians(0.01), (n, 3))]
+    poses = board @ fk(apply_errors(model, layout, truth), q) @ handeye @ tf.from_vector(noise)
+    root = tmp_path / "board"
+    root.mkdir()
+    (root / "dataset.yaml").write_text(
+        "robot: a465\njoint_unit: deg\nhandeye: {xyz: [0, 0.04, 0.06]}\n"
+    )
+    from relcal.calibration.pipeline import calibrate
+    from relcal.data.dataset import write_samples
 
-    import relcal
-
-    root = synthetic_dataset(tmp_path / "d", n=60).root
-    cal = relcal.calibrate(relcal.load_dataset(root), nongeometric="none", pairing="board")
+    ids = [f"s{k:03d}" for k in range(n)]
+    (root / "samples.csv").write_text(
+        write_samples(root / "samples.csv", ids, np.degrees(q), poses=poses)
+    )
+    dataset = load_dataset(root)
+    cal = calibrate(dataset, measure(dataset, progress=False), pairing="board", seed=0)
     assert cal.problem.formulation == "board"
-    want = cal.validation.rms("calibrated")
-    assert want < 0.2 * cal.validation.rms("before")
-    for artifact in cal.artifacts:
-        assert artifact.written and artifact.validation is not None, artifact.name
-        assert np.array_equal(artifact.validation.pairs, cal.validation.pairs)
-        assert artifact.validation.rms("calibrated") == pytest.approx(want, rel=1e-6)
+    val = cal.validation
+    assert len(val.pairs) and np.all(val.pairs[:, 0] != val.pairs[:, 1])  # relative poses
+    assert cal.geometry is None  # the geometric model chosen: every file holds it
+    assert len(cal.artifacts) >= 2
+    for art in cal.artifacts:
+        assert art.refused is None, art.refused
+        np.testing.assert_array_equal(art.validation.pairs, val.pairs)
+        np.testing.assert_allclose(art.validation.calibrated, val.calibrated, atol=1e-9)
+        assert art.rms() == pytest.approx(val.rms("calibrated"), rel=1e-6)
+        assert art.rms() < 0.5 * val.rms("before")

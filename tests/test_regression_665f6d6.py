@@ -11,7 +11,8 @@ cross-validated score, the parameters with their standard deviations, the baseli
 the learned noise and the settings; a refused run records its message.
 
 Recorded with ``python tests/test_regression_665f6d6.py`` (run at that commit); the test asserts
-the same numbers to 1e-6 relative, except where the skeleton fixed a number (:data:`FIXED`).
+the same numbers to 1e-6 relative (1e-4 for the image sets), except where the skeleton fixed a
+number (:data:`FIXED`).
 """
 
 from __future__ import annotations
@@ -32,6 +33,12 @@ RECORD = Path(__file__).resolve().parent / "regression_665f6d6.json"
 # (OpenBLAS picks its kernels by instruction set): iterative fits and the bootstrap carry such
 # differences up to about 1e-7 (seen: bootstrap std 6.5e-8 apart on another machine).
 RTOL = 1e-6
+# The image sets' poses come from OpenCV's corner detection and PnP, whose releases differ in
+# the last digits (opencv-python-headless 5.0.0.93 and 5.1.0.95: learned noise 5e-6, std 2.4e-5
+# relative): compared to 1e-4 relative (of an array's largest entry, for entries that nearly
+# cancel, such as a covariance's), still far below anything shown.
+RTOL_IMAGES = 1e-4
+IMAGE_SETS = ("charuco", "circle grid")
 # Absolute floor per quantity, far below anything shown: parameters and their std (SI units),
 # costs and RMS values (their own units). Values that are round-off around zero compare to it.
 ATOL = 1e-13
@@ -204,6 +211,10 @@ def run(name: str, key: str, options: dict, datasets: dict, root: Path) -> dict:
         return {"refused": str(exc).replace(str(root), "ROOT")}
 
 
+def _rtol(where: str) -> float:
+    return RTOL_IMAGES if where.startswith(IMAGE_SETS) else RTOL
+
+
 def _atol(where: str) -> float:
     return ATOL_PARAMETERS if where.rsplit(".", 1)[-1] in PARAMETER_KEYS else ATOL
 
@@ -219,14 +230,17 @@ def compare(got, want, where: str = "") -> None:
         if want and all(isinstance(v, (int, float)) or v is None for v in want + got):
             a = np.array([np.nan if v is None else v for v in got], float)
             b = np.array([np.nan if v is None else v for v in want], float)
+            atol = _atol(where)
+            if where.startswith(IMAGE_SETS) and np.isfinite(b).any():  # relative to the largest
+                atol = max(atol, RTOL_IMAGES * float(np.nanmax(np.abs(b))))
             np.testing.assert_allclose(
-                a, b, rtol=RTOL, atol=_atol(where), equal_nan=True, err_msg=where
+                a, b, rtol=_rtol(where), atol=atol, equal_nan=True, err_msg=where
             )
         else:
             for k, (g, w) in enumerate(zip(got, want, strict=True)):
                 compare(g, w, f"{where}[{k}]")
     elif isinstance(want, float) and not isinstance(want, bool):
-        np.testing.assert_allclose(got, want, rtol=RTOL, atol=ATOL, err_msg=where)
+        np.testing.assert_allclose(got, want, rtol=_rtol(where), atol=ATOL, err_msg=where)
     else:
         assert got == want, (where, got, want)
 

@@ -53,8 +53,9 @@ def test_bootstrap_sums_match_the_draws_one_by_one(monkeypatch, chunk):
     one by one, and ratio_interval against the percentile of those ratios."""
     from relcal.calibration import validate
 
-    if chunk is not None:  # several chunks of draws: 7 * P numbers each
+    if chunk is not None:  # several chunks of draws (7 * P numbers each), and none kept
         monkeypatch.setattr(validate, "RESAMPLE_CHUNK", 7 * 45)
+        monkeypatch.setattr(validate, "RESAMPLE_KEEP_BYTES", 100)
     monkeypatch.setattr(validate, "_LAST_RESAMPLER", ())
     rng = np.random.default_rng(3)
     pairs = make_pairs(10, "all") + 100  # sample numbers need not start at 0
@@ -70,7 +71,7 @@ def test_bootstrap_sums_match_the_draws_one_by_one(monkeypatch, chunk):
     np.testing.assert_allclose(resampled(values[:, 1]), expected[:, 1], rtol=1e-12)
     np.testing.assert_array_equal(drawn, expected[:, 0] > 0)
     again = validate._resampler(pairs.copy(), n_boot, seed)[0]
-    # reused when its draw counts are small (n_boot x 10 numbers), rebuilt otherwise
+    # reused when its draw counts are small (n_boot x 10 bytes), rebuilt otherwise
     assert (again is resampled) == (chunk is None)
     np.testing.assert_array_equal(again(values), resampled(values))
     assert validate._resampler(pairs, n_boot, seed + 1)[0] is not resampled

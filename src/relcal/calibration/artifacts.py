@@ -98,10 +98,10 @@ def held_out_errors(
         spread = spread_of(model, ds.q[samples], held, tool)
         return replace(val, calibrated=spread)
     problem = _everything(cal, model, layout)
-    if problem.formulation == "board":  # validated on relative poses (PoseKind.validate): the
-        # hand-eye of params (not the board) on the validation's own pairs (capped at random)
+    if problem.formulation == "board":  # validated on relative poses, as PoseKind.validate
         relative = replace(problem, formulation="invariant", pairs=val.pairs)
-        errors = pair_errors(relative, np.concatenate([np.zeros(layout.size), nuisance[:6]]))
+        nuisance = nuisance[: relative.full_layout.size - layout.size]  # the hand-eye
+        errors = pair_errors(relative, np.concatenate([np.zeros(layout.size), nuisance]))
         return replace(val, calibrated=errors)
     samples = np.unique(val.pairs)
     pairing = cal.settings.get("pairing") or "all"

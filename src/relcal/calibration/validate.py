@@ -58,8 +58,9 @@ RESAMPLE_CHUNK = 2**21  # numbers of one chunk of the bootstrap's per-pair weigh
 #: The last ``(key, (resampled, drawn))`` of :func:`_resampler`: one calibration's documents
 #: bootstrap the same held-out pairs several times (the validation, the verdict, each exported
 #: file), and the draws depend on the pairs, ``n_boot`` and the seed alone. One entry, kept only
-#: when its draw counts ``(n_boot, n)`` hold at most ``RESAMPLE_CHUNK`` numbers.
+#: when its draw counts ``(n_boot, n)`` take at most ``RESAMPLE_KEEP_BYTES``.
 _LAST_RESAMPLER: tuple = ()
+RESAMPLE_KEEP_BYTES = 2**25  # 32 MB: the counts of 2000 draws of up to 8000 samples
 
 
 def _resampler(pairs: np.ndarray, n_boot: int, seed: int):
@@ -76,17 +77,27 @@ def _resampler(pairs: np.ndarray, n_boot: int, seed: int):
     if last and last[0] == key:
         return last[1]
     made = _make_resampler(pairs, n_boot, seed)
-    if n_boot * len(np.unique(pairs)) <= RESAMPLE_CHUNK:
+    n = len(np.unique(pairs))
+    if n_boot * n * _count_dtype(n).itemsize <= RESAMPLE_KEEP_BYTES:
         _LAST_RESAMPLER = (key, made)
     return made
 
 
+def _count_dtype(n: int) -> np.dtype:
+    """The smallest unsigned integer type that holds any count of ``n`` draws (at most ``n``)."""
+    for dtype in (np.uint8, np.uint16, np.uint32):
+        if n <= np.iinfo(dtype).max:
+            return np.dtype(dtype)
+    return np.dtype(np.uint64)
+
+
 def _draw_counts(n: int, n_boot: int, seed: int) -> np.ndarray:
     """``(n_boot, n)``: how often each of ``n`` samples is drawn in each of ``n_boot`` draws of
-    ``n`` samples with replacement (whole numbers, as floats)."""
+    ``n`` samples with replacement (:func:`_count_dtype`: whole numbers, exact as floats)."""
     draws = np.random.default_rng(seed).integers(0, n, (n_boot, n))
     flat = (np.arange(n_boot)[:, None] * n + draws).ravel()
-    return np.bincount(flat, minlength=n_boot * n).reshape(n_boot, n).astype(float)
+    counts = np.bincount(flat, minlength=n_boot * n).reshape(n_boot, n)
+    return counts.astype(_count_dtype(n))
 
 
 def _make_resampler(pairs: np.ndarray, n_boot: int, seed: int):
@@ -106,11 +117,12 @@ def _make_resampler(pairs: np.ndarray, n_boot: int, seed: int):
         taken a chunk at a time (an ``(n, n)`` table would cost ``n_boot n^2``)."""
         columns = np.ascontiguousarray(values.reshape(len(values), -1).T)  # one row per value
         if per_sample:
-            out = np.stack([counts @ np.bincount(i, v, minlength=n) for v in columns], axis=1)
+            c = counts.astype(float)
+            out = np.stack([c @ np.bincount(i, v, minlength=n) for v in columns], axis=1)
         else:
             out = np.empty((n_boot, len(columns)))
             for start in range(0, n_boot, chunk):
-                c = counts[start : start + chunk]
+                c = counts[start : start + chunk].astype(float)
                 weights = c[:, i] * c[:, j]
                 for k, v in enumerate(columns):
                     out[start : start + chunk, k] = weights @ v
