@@ -300,3 +300,16 @@ def test_real_tiago_through_the_urdf(tmp_path, which):
         assert np.degrees(np.linalg.norm(tf.to_vector(instrument)[3:])) < 2.0
     else:
         assert any("hand-eye transform X" in t for t in texts)
+
+
+def test_the_report_names_what_the_fit_compared(tmp_path, rng):
+    """The HTML report's settings count training points for points, not pairs of poses."""
+    from relcal.reporting.calibration_report import calibration_report
+    from relcal.reporting.documents import results_document
+
+    _point_dataset(tmp_path / "d", 40, 50e-6, rng)
+    ds = load_dataset(tmp_path / "d")
+    cal = calibrate(ds, measure(ds, progress=False), nongeometric="none")
+    html = calibration_report(cal, results_document(cal))
+    assert f"<td>training points</td><td>{len(cal.train) - len(cal.outliers)}</td>" in html
+    assert "training pairs" not in html

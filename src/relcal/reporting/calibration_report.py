@@ -453,6 +453,21 @@ def _rejected(doc: dict) -> tuple[str, str, Html]:
     return hk.section("rejected", "Rejected images", *parts)
 
 
+def _training_measurements(cal: Calibration) -> tuple[str, str]:
+    """The settings row of what the fit compared: pairs of poses for relative poses, else one
+    measurement per training sample (poses against the board, points, seated samples)."""
+    problem = cal.problem
+    named = {
+        "board": "training poses (each against the board)",
+        "tracker": "training points",
+        "absolute": "training poses",
+        "coincidence": "training samples (seated tool points)",
+    }
+    if problem.formulation in named:
+        return named[problem.formulation], str(len(problem.q))
+    return "training pairs of poses", str(len(problem.pair_indices()))
+
+
 def _settings(cal: Calibration, doc: dict) -> tuple[str, str, Html]:
     rows = [
         ("robot", doc["robot"]),
@@ -462,7 +477,7 @@ def _settings(cal: Calibration, doc: dict) -> tuple[str, str, Html]:
             "rank tolerance (relative to the largest singular value)",
             f"{cal.result.identifiability.rcond:g}",
         ),
-        ("training pairs", str(len(cal.problem.pair_indices()))),
+        _training_measurements(cal),
     ]
     rows += hk.flatten(doc["settings"])
     return hk.section("settings", "Settings", hk.table(["setting", "value"], rows))
