@@ -12,6 +12,9 @@ from relcal.data.imaging import check_measurements
 from relcal.errors import ArgumentError
 from relcal.robot.model import NONGEOMETRIC
 
+SELECTIONS = ("cv", "conservative", "all")
+PRIORS = ("model", "none")  # the model file's priors, or plain least squares
+
 
 def check_calibrate(
     dataset: Any,
@@ -38,7 +41,7 @@ def check_calibrate(
     check_choice(pairing, "pairing", ("auto", "consecutive", "star", "all", "board"))
     check_choice(method, "method", ("lm", "published"))
     check_choice(loss, "loss", ("linear", "huber", "cauchy", "soft_l1"))
-    check_choice(selection, "selection", ("cv", "conservative", "all"))
+    check_choice(selection, "selection", SELECTIONS)
     check_number(select_folds, "select_folds", 2, integer=True)
     if holdout_ids is not None:
         if isinstance(holdout_ids, str) or not all(isinstance(i, str) for i in holdout_ids):
@@ -57,4 +60,4 @@ def check_calibrate(
         check_names(nongeometric, "nongeometric", NONGEOMETRIC, "['scale']", empty=True)
     check_names(weightings, "weightings", WEIGHTINGS, "['plain']")
     check_flag(keep_outliers, "keep_outliers")
-    check_choice(priors, "priors", ("model", "none"))
+    check_choice(priors, "priors", PRIORS)

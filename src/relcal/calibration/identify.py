@@ -32,6 +32,7 @@ from relcal.calibration.measurement import (
 )
 from relcal.calibration.noise import Noise, robust_sigma
 from relcal.calibration.uncertainty import (
+    ClusteredCovariance,
     clustered_covariance,
     least_squares_covariance,
     noise_factor,
@@ -225,10 +226,24 @@ class Result:
         )
 
     @functools.cached_property
+    def clustered(self) -> ClusteredCovariance | None:
+        """The covariance of rows correlated within clusters (coincidence: the placements) and
+        how it was computed (:func:`relcal.calibration.uncertainty.clustered_covariance`); None
+        for independent rows. Computed once: :attr:`data_covariance` and the record's settings
+        share it."""
+        clusters = None if self.whiten is not None else row_clusters(self.problem)
+        if clusters is None:
+            return None
+        r, a = residuals(self.problem, self.params)
+        return clustered_covariance(a, r, self.identifiability.subset, clusters)
+
+    @functools.cached_property
     def data_covariance(self) -> np.ndarray:
         """Covariance ``(P, P)`` of the estimate from the data alone, as if the fit had no
         priors (m, rad; NaN for parameters held at nominal): :attr:`covariance` without the
         prior rows. Computed once: :attr:`covariance` and the weak-direction check share it."""
+        if self.clustered is not None:
+            return self.clustered.covariance
         return result_covariance(
             self.problem, self.params, self.identifiability, self.whiten, self.noise
         )

@@ -28,7 +28,6 @@ from relcal.calibration.outcome import Calibration
 from relcal.calibration.priors import layout_prior_std, problem_weights, weak_directions
 from relcal.calibration.selection import (
     BASELINE_CANDIDATES,
-    WEIGHTINGS,
     bootstrap_std,
     candidate_model,
     candidates,
@@ -47,9 +46,6 @@ from relcal.data.imaging import Measurements, measure
 from relcal.errors import RelcalError
 from relcal.robot.model import NONGEOMETRIC
 from relcal.robot.priors import Priors
-
-SELECTIONS = ("cv", "conservative", "all")
-PRIORS = ("model", "none")
 
 
 def cross_validate(
@@ -198,15 +194,8 @@ def calibrate(
         dataset, measurements, holdout, seed, pairing, method, loss, holdout_ids, select_folds,
         selection, nongeometric, weightings, keep_outliers, priors,
     )  # fmt: skip
-    unknown = sorted(set(weightings) - set(WEIGHTINGS))
-    if unknown or not weightings:
-        raise RelcalError(f"weightings {list(weightings)}: use {' and/or '.join(WEIGHTINGS)}")
     if measurements is None:
         measurements = measure(dataset)
-    if selection not in SELECTIONS:
-        raise RelcalError(f"unknown selection '{selection}': use cv, conservative or all")
-    if priors not in PRIORS:
-        raise RelcalError(f"unknown priors '{priors}': use model (the model file's) or none")
     kind = kind_of(dataset, measurements, pairing)
     train, test = kind.split(holdout, seed, holdout_ids)
     dataset = replace(dataset, model=candidate_model(dataset.model, nongeometric))

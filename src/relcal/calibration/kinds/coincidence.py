@@ -30,14 +30,12 @@ from relcal.calibration.coincidence import (
     make_coincidence,
     nuisance_columns,
     placement_of,
-    row_placements,
 )
 from relcal.calibration.identifiability import analyse_problem
 from relcal.calibration.identify import Result, identify_lm
 from relcal.calibration.kinds import Training
 from relcal.calibration.kinds.points import PointKind
-from relcal.calibration.measurement import Problem, residuals
-from relcal.calibration.uncertainty import clustered_covariance
+from relcal.calibration.measurement import Problem
 from relcal.calibration.validate import folds, held_out_placements
 from relcal.errors import RelcalError
 
@@ -147,11 +145,9 @@ class CoincidenceKind(PointKind):
         temperature, what the geometry does not model as it shows at that placement's
         configurations; :func:`~relcal.calibration.uncertainty.clustered_covariance`), the
         method, the number of placements, the inflation of the variances over independent
-        samples and its degrees of freedom."""
-        r, a = residuals(result.problem, result.params)
-        subset = result.identifiability.subset
-        unc = clustered_covariance(a, r, subset, row_placements(result.problem))
-        return {"covariance": unc.settings()}
+        samples and its degrees of freedom (:attr:`Result.clustered`, computed once with the
+        covariance)."""
+        return {"covariance": result.clustered.settings()}
 
     def settings(self, training: Training) -> dict:
         return {
