@@ -22,6 +22,7 @@ from relcal.calibration.uncertainty import (
     pose_rows,
     predicted_accuracy,
 )
+from relcal.errors import RelcalError
 from relcal.geometry import DEG, MM
 from relcal.reporting.documents import accuracy_document
 from relcal.robot.model import auto_hayati
@@ -205,6 +206,27 @@ def test_covariances_from_the_image_pipeline_replace_the_isotropic_noise(hayati,
     # Doubling the image noise doubles every standard deviation.
     c = parameter_covariance(problem, Noise(0, 0, 0), covariances=4 * given)
     np.testing.assert_allclose(c.crb_std[a.subset], 2 * a.crb_std[a.subset], rtol=1e-7)
+
+
+def test_the_bound_is_computed_when_asked_for_and_a_silent_noise_refused_at_once(hayati, rng):
+    # The covariance of a least-squares fit needs only ``least_squares``: the Cramer-Rao bound
+    # (a dense whitening of every pose's noise) is computed on first use, once, and is the same.
+    problem, _ = make_problem(hayati, "invariant", "pose", rng, n_poses=12)
+    unc = parameter_covariance(problem, NOISE)
+    assert callable(unc.__dict__["crb"])
+    np.testing.assert_allclose(unc.std, unc.least_squares_std)  # the estimator's, no bound
+    assert callable(unc.__dict__["crb"])
+    crb = unc.crb
+    assert unc.__dict__["crb"] is crb and unc.crb is crb
+    np.testing.assert_array_equal(crb, crb.T)
+    assert np.linalg.eigvalsh(unc.least_squares - crb).min() > -1e-12 * crb.max()
+    weighted = parameter_covariance(problem, NOISE, estimator="weighted")
+    np.testing.assert_array_equal(weighted.covariance, crb)
+    # no noise at all: refused by parameter_covariance itself, as the bound's whitening did
+    with pytest.raises(RelcalError, match="noise model is zero"):
+        parameter_covariance(problem, Noise(0, 0, 0))
+    with pytest.raises(RelcalError, match="noise model is zero"):
+        parameter_covariance(problem, Noise(0, 0, 0), covariances=np.zeros((12, 6, 6)))
 
 
 def test_correlation_and_strongest_pairs(hayati, rng):

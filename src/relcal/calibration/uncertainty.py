@@ -307,6 +307,27 @@ def _inverse_scaled(info: np.ndarray) -> np.ndarray:
     return (v / w) @ v.T / np.outer(d, d)
 
 
+class _Deferred:
+    """A field of a frozen dataclass that may be given as a function of no arguments instead of
+    its value: the function is called on the first read and its value kept (work that a caller
+    may never ask for is not done up front)."""
+
+    def __set_name__(self, owner, name: str) -> None:
+        self._name = name
+
+    def __get__(self, obj, owner=None):
+        if obj is None:  # the class: no default value
+            raise AttributeError(self._name)
+        value = obj.__dict__[self._name]
+        if callable(value):
+            value = value()
+            obj.__dict__[self._name] = value
+        return value
+
+    def __set__(self, obj, value) -> None:
+        obj.__dict__[self._name] = value
+
+
 @dataclass(frozen=True)
 class Uncertainty:
     """Covariance of the estimated parameters.
@@ -315,12 +336,15 @@ class Uncertainty:
     units (m, rad): the Cramer-Rao bound (the noise-weighted estimator) and the covariance of the
     problem's least-squares estimate (its pairs and row weights). ``estimator`` says which one
     :attr:`covariance` is. Parameters outside the subset are not estimated (held at nominal).
+    ``crb`` may be given as a function of no arguments that computes it: it is then computed on
+    first use (:func:`parameter_covariance` does so; the covariance of a least-squares fit needs
+    only ``least_squares``).
     """
 
     names: tuple[str, ...]
     is_angle: np.ndarray  # (P,)
     subset: np.ndarray  # (k,)
-    crb: np.ndarray  # (k, k)
+    crb: np.ndarray = _Deferred()  # (k, k); or a function of no arguments computing it
     least_squares: np.ndarray | None  # (k, k), None when not computed (pose planning)
     estimator: Estimator
     identifiable: np.ndarray  # (P,) individually identifiable (no share in the null space)
@@ -443,16 +467,25 @@ def parameter_covariance(
     subset = np.sort(np.asarray(ident.subset if subset is None else subset, dtype=int))
     if estimator not in ("least_squares", "weighted"):
         raise ValueError(f"unknown estimator '{estimator}': use least_squares or weighted")
+    silent = not np.any(noise.joints) and not np.any(
+        noise.pose_covariance() if covariances is None else covariances
+    )
+    if silent:  # what the bound's whitening would find, said before it is deferred
+        raise RelcalError("the noise model is zero: give position/orientation or joint noise")
     _, a = residuals(problem, params, model_jacobian=True)
     a = a[:, subset]
-    if problem.formulation == "board":  # independent poses: a block-diagonal whitening, linear
-        wa = _per_pose_whitened(problem, a, noise, covariances, params)
-    else:
-        chain = spanning_chain(problem)
-        same = chain is problem
-        a_chain = a if same else residuals(chain, params, model_jacobian=True)[1][:, subset]
-        wa = whitener(noise_factor(chain, noise, covariances, params)) @ a_chain
-    crb = _inverse_scaled(wa.T @ wa)
+
+    def bound() -> np.ndarray:  # the Cramer-Rao bound, computed when first asked for
+        if problem.formulation == "board":  # independent poses: a block-diagonal whitening
+            wa = _per_pose_whitened(problem, a, noise, covariances, params)
+        else:
+            chain = spanning_chain(problem)
+            same = chain is problem
+            a_chain = a if same else residuals(chain, params, model_jacobian=True)[1][:, subset]
+            wa = whitener(noise_factor(chain, noise, covariances, params)) @ a_chain
+        crb = _inverse_scaled(wa.T @ wa)
+        return 0.5 * (crb + crb.T)
+
     kz = _inverse_scaled(a.T @ a) @ projected_noise_factor(problem, a, noise, covariances, params)
     ls = kz @ kz.T
     identifiable = np.zeros(problem.full_layout.size, dtype=bool)
@@ -462,7 +495,7 @@ def parameter_covariance(
         is_angle=problem.full_layout.is_angle(),
         units=problem.full_layout.units(),
         subset=subset,
-        crb=0.5 * (crb + crb.T),
+        crb=bound,
         least_squares=0.5 * (ls + ls.T),
         estimator=estimator,
         identifiable=identifiable,
