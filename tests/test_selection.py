@@ -19,6 +19,7 @@ from relcal.calibration.kinds.poses import pair_left_maps
 from relcal.calibration.measurement import Problem, make_pairs, pair_errors
 from relcal.calibration.noise import _moment_design, estimate_pose_noise, pair_covariances
 from relcal.calibration.pipeline import cross_validate
+from relcal.calibration.selection import plain_whiteners, row_factors, whitened
 from relcal.calibration.validate import held_out, pooled, stats
 from relcal.cli import main
 from relcal.data.importers import import_rct_positioner
@@ -33,6 +34,27 @@ def test_moment_design_is_the_pair_covariance_map(rng):
     theta = np.array([sigma[a, b] for a in range(6) for b in range(a, 6)])
     expected = pair_covariances(sigma, left).reshape(-1)
     np.testing.assert_allclose(_moment_design(left) @ theta, expected, rtol=1e-12, atol=1e-12)
+
+
+def test_a_diagonal_whitening_scales_the_rows_to_the_same_numbers(rng):
+    # The plain weighting is one diagonal block for every pair: scaling the rows gives the block
+    # products' numbers to the bit, in the same (C) order, so the sums over them are unchanged.
+    jac, b = rng.normal(size=(40, 6, 9)), rng.normal(size=(40, 6))
+    jac = jac[:, :, [0, 2, 4, 6, 8]]  # a column subset: not C-contiguous
+    plain = plain_whiteners(40)
+    np.testing.assert_array_equal(row_factors(plain), [1, 1, 1, 0.1, 0.1, 0.1])
+    rows = np.arange(40) % 3 > 0
+    jw, bw = whitened(plain, jac, b, rows)
+    np.testing.assert_array_equal(jw, plain[rows] @ jac[rows])
+    np.testing.assert_array_equal(bw, np.einsum("pij,pj->pi", plain[rows], b[rows]))
+    assert jw.flags.c_contiguous and bw.flags.c_contiguous
+    # per-pair blocks (the noise model) are multiplied as they are
+    blocks = rng.normal(size=(40, 6, 6))
+    assert row_factors(blocks) is None
+    assert row_factors(np.broadcast_to(blocks[0], (40, 6, 6))) is None  # the same, not diagonal
+    jw, bw = whitened(blocks, jac, b)
+    np.testing.assert_array_equal(jw, blocks @ jac)
+    np.testing.assert_array_equal(bw, np.einsum("pij,pj->pi", blocks, b))
 
 
 def test_noise_model_recovers_a_planted_correlated_covariance(a465, rng):

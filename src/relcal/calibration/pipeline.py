@@ -250,8 +250,11 @@ def calibrate(
     lin_priors = None
     if kind.shared_linearisation:
         if with_priors:
+            used = {c.weighting for c in cands}  # (the kind may learn more weightings)
             lin_priors = {
-                w: lin_prior(lin, whiten, full.params, std) for w, whiten in noise.whiteners.items()
+                w: lin_prior(lin, whiten, full.params, std)
+                for w, whiten in noise.whiteners.items()
+                if w in used
             }
         scores = score_candidates(lin, noise.whiteners, cands, folds_k, seed, lin_priors)
     else:  # every candidate fitted, and linearised at its own fit

@@ -154,6 +154,34 @@ def plain_whiteners(n_pairs: int) -> np.ndarray:
     return np.broadcast_to(w, (n_pairs, 6, 6))
 
 
+def row_factors(whiten: np.ndarray) -> np.ndarray | None:
+    """The row factors ``(6,)`` when every block of ``whiten`` ``(P, 6, 6)`` is the same diagonal
+    matrix (the plain weighting, :func:`plain_whiteners`), else None. Such a whitening is a
+    scaling of the rows: the same numbers as the block products, without them."""
+    if not len(whiten):
+        return None
+    first = whiten[0]
+    factors = np.diag(first)
+    if np.any(first != np.diag(factors)) or np.any(whiten != first):
+        return None
+    return factors.copy()
+
+
+def whitened(
+    whiten: np.ndarray, jac: np.ndarray, b: np.ndarray, rows=None
+) -> tuple[np.ndarray, np.ndarray]:
+    """``whiten @ jac`` ``(P', 6, Q)`` and ``whiten @ b`` ``(P', 6)`` over the blocks ``rows``
+    (default all) of ``whiten`` ``(P, 6, 6)``, ``jac`` ``(P, 6, Q)`` and ``b`` ``(P, 6)``; a
+    diagonal whitening (:func:`row_factors`) scales the rows instead of multiplying blocks."""
+    rows = slice(None) if rows is None else rows
+    factors = row_factors(whiten)
+    if factors is not None:  # C order, as the products give (sums over it keep their order)
+        scaled = np.multiply(jac[rows], factors[:, None], order="C")
+        return scaled, np.multiply(b[rows], factors, order="C")
+    w = whiten[rows]
+    return w @ jac[rows], np.einsum("pij,pj->pi", w, b[rows])
+
+
 def solve_normal(normal: np.ndarray, rhs: np.ndarray) -> np.ndarray:
     """``normal^-1 rhs`` with Jacobi scaling (metres and radians differ by orders)."""
     d = np.sqrt(np.clip(np.diag(normal), 1e-300, None))
@@ -195,7 +223,9 @@ def lin_prior(
 
     if not np.isfinite(np.asarray(std, float)).any():
         return None
-    rows = np.einsum("pij,pj->pi", whiten, errors(lin, params))
+    e = errors(lin, params)
+    factors = row_factors(whiten)
+    rows = e * factors if factors is not None else np.einsum("pij,pj->pi", whiten, e)
     noise = noise_level(rows)
     if noise <= 0:
         return None
@@ -241,8 +271,11 @@ def score_candidates(
 ) -> list[Score]:
     """K-fold scores of every candidate: each fold's samples held out, the others refitted;
     ``prior``: per weighting, the prior-row weights of maximum a posteriori fits
-    (:func:`lin_prior`; None: plain least squares)."""
+    (:func:`lin_prior`; None: plain least squares). Only the weightings of ``cands`` are formed
+    (``whiteners`` may hold more)."""
     held = {c.name + c.weighting: [] for c in cands}
+    used = {c.weighting for c in cands}
+    whiteners = {w: whiten for w, whiten in whiteners.items() if w in used}
     in_fold = np.zeros(lin.n_samples, dtype=int)
     for f, fold in enumerate(sample_folds(lin.n_samples, k, seed)):
         in_fold[fold] = f
@@ -254,8 +287,8 @@ def score_candidates(
             train, test = train | lin.always, test & ~lin.always
         test_pairs.append(np.flatnonzero(test))
         for weighting, whiten in whiteners.items():
-            jw = (whiten[train] @ lin.jac[train]).reshape(-1, lin.jac.shape[-1])
-            bw = np.einsum("pij,pj->pi", whiten[train], lin.b[train]).reshape(-1)
+            jw, bw = whitened(whiten, lin.jac, lin.b, train)
+            jw, bw = jw.reshape(-1, lin.jac.shape[-1]), bw.reshape(-1)
             normal, rhs = jw.T @ jw, jw.T @ bw
             for c in cands:
                 if c.weighting != weighting:
@@ -396,8 +429,7 @@ def bootstrap_std(
     prior-row weights of a maximum a posteriori fit (:func:`lin_prior`), in every resampling."""
     rng = np.random.default_rng(seed)
     k = len(columns)
-    jw = whiten @ lin.jac[:, :, columns]  # (P, 6, k)
-    bw = np.einsum("pij,pj->pi", whiten, lin.b)
+    jw, bw = whitened(whiten, lin.jac[:, :, columns], lin.b)  # (P, 6, k), (P, 6)
     gram = np.einsum("pra,prb->pab", jw, jw).reshape(len(jw), k * k)  # each pair's share
     rhs = np.einsum("pra,pr->pa", jw, bw)
     i, j = lin.pairs.T
