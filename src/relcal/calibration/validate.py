@@ -275,13 +275,14 @@ def _scores(problem: Problem, params: np.ndarray, samples, partners, sigma=None)
     if problem.formulation in ("absolute", "tracker"):
         errors = pair_errors(problem, params)[samples][:, None, :]
     else:
-        pairs = np.array([(k, j) for k in samples for j in partners if j != k], dtype=int)
+        # every (sample, partner) but a sample with itself, sample by sample
+        slot, where = np.divmod(np.arange(len(samples) * len(partners)), len(partners))
+        other = samples[slot] != partners[where]
+        slot, where = slot[other], where[other]
+        pairs = np.stack([samples[slot], partners[where]], axis=1).astype(int)
         per = pair_errors(replace(problem, pairs=pairs), params)
         errors = np.full((len(samples), len(partners), 6), np.nan)
-        slot = {int(k): i for i, k in enumerate(samples)}
-        where = {int(j): i for i, j in enumerate(partners)}
-        for row, (k, j) in enumerate(pairs):
-            errors[slot[int(k)], where[int(j)]] = per[row]
+        errors[slot, where] = per
     if sigma is None:
         flat = errors.reshape(-1, 6)
         flat = flat[np.isfinite(flat[:, :3]).all(axis=1)]
