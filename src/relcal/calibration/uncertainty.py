@@ -203,9 +203,13 @@ def projected_noise_factor(
     poses, blocks = noise_blocks(problem, params)
     m, slots, r, _ = blocks.shape
     rows = a.reshape(m, r, -1)
-    out = np.zeros((len(problem.q), a.shape[1], 6))
-    for k in range(slots):
-        np.add.at(out, poses[:, k], np.einsum("mrp,mrc->mpc", rows, blocks[:, k]))
+    shares = np.concatenate([np.einsum("mrp,mrc->mpc", rows, blocks[:, k]) for k in range(slots)])
+    # each pose's sum of its measurements' shares, slot by slot and measurement by measurement
+    # (the order of a sequential sum): one sparse product instead of unbuffered additions
+    incidence = scipy.sparse.csr_matrix(
+        (np.ones(m * slots), (poses.T.ravel(), np.arange(m * slots))), (len(problem.q), m * slots)
+    )
+    out = (incidence @ shares.reshape(m * slots, -1)).reshape(-1, a.shape[1], 6)
     root = _root(pose_covariances(problem, noise, covariances, params))
     return np.concatenate(out @ root, axis=1)
 
