@@ -207,6 +207,37 @@ def test_joint_unit_alternatives_are_named(synthetic):
     ).determined
 
 
+def test_readings_skipped_by_their_rotation_angles_surely_misfit():
+    """The readings diagnose_readings leaves unevaluated (their rotation angles alone put the
+    misfit above the tolerance, whatever R_X) are those whose misfit is above it: the bound is
+    never above the misfit _evaluate finds, wrong samples left out or not."""
+    robot = get_robot("a465")
+    rng = np.random.default_rng(7)
+    q = rng.uniform(-1.5, 1.5, (40, 6))
+    x = tf.from_vector(np.array([0, 0.04, 0.06, 0.3, -0.2, 0.1]))
+    noise = np.c_[rng.normal(0, 1e-4, (40, 3)), rng.normal(0, 2e-3, (40, 3))]
+    poses = fk(robot, q) @ x @ tf.from_vector(noise)
+    poses[[3, 17]] = poses[[17, 3]]  # two wrong rows: samples left out of the misfit
+    pairs = pl.check_pairs(40)
+    rank = pl._misfit_rank(pairs)
+    assert 1 <= rank <= len(pairs) // 2
+    measured = pl._motions(poses, pairs)
+    skipped = 0
+    for scale in (1.0, 0.5, 0.9, -1.0, 1.3, 3.0):
+        for joint in range(6):
+            read = q.copy()
+            read[:, joint] *= scale
+            flange = pl._motions(fk(robot, read), pairs)
+            misfit = pl._evaluate("", flange, measured, pairs, np.radians(10)).fit.misfit
+            floor = np.partition(np.abs(flange.angles - measured.angles), rank - 1)[rank - 1]
+            assert floor <= misfit + 1e-12
+            for tolerance in np.radians([1.0, 5.0, 10.0, 30.0]):
+                surely = pl._surely_misfit(flange, measured, rank, tolerance)
+                assert not surely or misfit > tolerance
+                skipped += surely
+    assert skipped > 0  # the bound does skip readings
+
+
 def test_scale_message_names_the_board_square():
     board = Board(type="chessboard", rows=7, columns=10, spacing=0.025)
     text = pl.scale_message(1.25, board, poses_given=False)

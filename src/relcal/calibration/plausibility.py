@@ -495,17 +495,49 @@ class _Evaluation:
 
 @dataclass(frozen=True)
 class _Motions:
-    """The relative motions ``(P, 4, 4)`` of one reading over the pairs and their rotation
-    vectors ``(P, 3)`` (rad): computed once per reading, shared by every combination of
-    readings :func:`diagnose_readings` tries."""
+    """The relative motions ``(P, 4, 4)`` of one reading over the pairs, their rotation
+    vectors ``(P, 3)`` and rotation angles ``(P,)`` (rad): computed once per reading, shared by
+    every combination of readings :func:`diagnose_readings` tries."""
 
     transforms: np.ndarray
     rotvecs: np.ndarray
+    angles: np.ndarray
 
 
 def _motions(poses: np.ndarray, pairs: np.ndarray) -> _Motions:
     rel = relative(poses, pairs)
-    return _Motions(rel, rotation_vectors(rel))
+    rotvecs = rotation_vectors(rel)
+    return _Motions(rel, rotvecs, np.linalg.norm(rotvecs, axis=1))
+
+
+def _misfit_rank(pairs: np.ndarray) -> int:
+    """``k`` (from 1) such that the rotation misfit :func:`_evaluate` finds on ``pairs`` is at
+    least the ``k``-th smallest of any per-pair lower bounds of the pairs' angles: the median
+    over the pairs it keeps, at least ``max(6, P - the pairs of the quarter of the samples with
+    the most pairs)`` of them (the samples left out are at most a quarter of those seen, and
+    only when 10 pairs or more), is at least the ``ceil(kept / 2)``-th smallest bound."""
+    n_pairs = len(pairs)
+    kept = n_pairs
+    if n_pairs >= 10:
+        degree = np.bincount(np.asarray(pairs, dtype=int).ravel())
+        degree = np.sort(degree[degree > 0])[::-1]
+        kept = max(min(6, n_pairs), n_pairs - int(degree[: len(degree) // 4].sum()))
+    return (kept + 1) // 2
+
+
+MISFIT_MARGIN = 1e-6  # rad: round-off of the computed angles, far below any tolerance
+
+
+def _surely_misfit(flange: _Motions, measured: _Motions, rank: int, tolerance: float) -> bool:
+    """Whether a reading's rotation misfit (:func:`_evaluate`) is surely above ``tolerance``
+    without finding ``R_X``: the angle of ``R_A^T R_X R_B R_X^T`` is at least the difference
+    of the two motions' rotation angles whatever ``R_X`` (the angle between rotations is a
+    metric, and conjugation keeps an angle), so the misfit is at least the ``rank``-th smallest
+    difference (:func:`_misfit_rank`)."""
+    floor = np.abs(flange.angles - measured.angles)
+    if not 1 <= rank <= len(floor):
+        return False
+    return bool(np.partition(floor, rank - 1)[rank - 1] > tolerance + MISFIT_MARGIN)
 
 
 def _evaluate(label, flange: _Motions, measured: _Motions, pairs, tolerance) -> _Evaluation:
@@ -579,6 +611,7 @@ def diagnose_readings(
         given = _Fit("", np.inf, np.inf)
     fits: list[_Fit] = []
     reads: dict = {None: given_motions}  # each reading's motions, computed once
+    rank = _misfit_rank(pairs)
     for jr in [None, *joints]:
         flange_jr = flange if jr is None else fk(jr.joints(q))
         if flange_jr is None:
@@ -593,6 +626,8 @@ def diagnose_readings(
             if pr not in reads:
                 reads[pr] = _motions(pr.poses(poses), pairs)  # type: ignore[union-attr]
             moved = moved or _motions(flange_jr, pairs)
+            if _surely_misfit(moved, reads[pr], rank, tol):
+                continue  # its rotations do not fit: not a reading that fits, never named
             fits.append(_evaluate(label, moved, reads[pr], pairs, tol).fit)
     fitting = [f for f in fits if f.misfit <= tol]
     best = min(fitting, key=lambda f: (f.translation, f.misfit), default=None)
