@@ -202,8 +202,17 @@ def projected_noise_factor(
     all-pairs set of N poses has ``M ~ 3 N^2`` rows, and ``Z`` would hold ``M x 6 N`` numbers)."""
     poses, blocks = noise_blocks(problem, params)
     m, slots, r, _ = blocks.shape
+    from relcal.calibration.selection import row_factors
+
     rows = a.reshape(m, r, -1)
-    shares = np.concatenate([np.einsum("mrp,mrc->mpc", rows, blocks[:, k]) for k in range(slots)])
+
+    def share(block: np.ndarray) -> np.ndarray:  # rows^T block per measurement (m, k, 6)
+        factors = row_factors(block) if r == 6 else None
+        if factors is not None:  # one diagonal block (the plain weighting's first slot)
+            return np.multiply(np.swapaxes(rows, 1, 2), factors, order="C")
+        return np.einsum("mrp,mrc->mpc", rows, block)
+
+    shares = np.concatenate([share(blocks[:, k]) for k in range(slots)])
     # each pose's sum of its measurements' shares, slot by slot and measurement by measurement
     # (the order of a sequential sum): one sparse product instead of unbuffered additions
     incidence = scipy.sparse.csr_matrix(
