@@ -17,9 +17,14 @@ from relcal.calibration.identifiability import analyse_problem
 from relcal.calibration.identify import identify_lm
 from relcal.calibration.kinds.poses import pair_left_maps
 from relcal.calibration.measurement import Problem, make_pairs, pair_errors
-from relcal.calibration.noise import _moment_design, estimate_pose_noise, pair_covariances
+from relcal.calibration.noise import (
+    _moment_design,
+    estimate_pose_noise,
+    pair_covariances,
+    row_factors,
+)
 from relcal.calibration.pipeline import cross_validate
-from relcal.calibration.selection import plain_whiteners, row_factors, whitened
+from relcal.calibration.selection import plain_whiteners, whitened
 from relcal.calibration.validate import held_out, pooled, stats
 from relcal.cli import main
 from relcal.data.importers import import_rct_positioner

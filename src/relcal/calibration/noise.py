@@ -266,6 +266,20 @@ def estimate_pose_noise(
     return PoseNoise(sigma, n_pairs, int(np.sum(weight < 1.0)))
 
 
+def row_factors(whiten: np.ndarray) -> np.ndarray | None:
+    """The row factors ``(6,)`` when every block of ``whiten`` ``(P, 6, 6)`` is the same diagonal
+    matrix (the plain weighting, :func:`relcal.calibration.selection.plain_whiteners`), else
+    None. Such a whitening is a scaling of the rows: the same numbers as the block products,
+    without them."""
+    if not len(whiten):
+        return None
+    first = whiten[0]
+    factors = np.diag(first)
+    if np.any(first != np.diag(factors)) or np.any(whiten != first):
+        return None
+    return factors.copy()
+
+
 def pair_whiteners(sigma: np.ndarray, left: np.ndarray) -> np.ndarray:
     """``W_p`` ``(P, 6, 6)`` with ``W_p S_p W_p^T = I`` for the pair covariances ``S_p``: the
     inverse Cholesky factors."""

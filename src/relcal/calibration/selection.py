@@ -26,7 +26,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from relcal.calibration.measurement import Problem, residuals
-from relcal.calibration.noise import Noise
+from relcal.calibration.noise import Noise, row_factors
 from relcal.calibration.uncertainty import parameter_covariance
 from relcal.robot.model import RobotModel, nongeometric_options, with_nongeometric
 
@@ -154,25 +154,13 @@ def plain_whiteners(n_pairs: int) -> np.ndarray:
     return np.broadcast_to(w, (n_pairs, 6, 6))
 
 
-def row_factors(whiten: np.ndarray) -> np.ndarray | None:
-    """The row factors ``(6,)`` when every block of ``whiten`` ``(P, 6, 6)`` is the same diagonal
-    matrix (the plain weighting, :func:`plain_whiteners`), else None. Such a whitening is a
-    scaling of the rows: the same numbers as the block products, without them."""
-    if not len(whiten):
-        return None
-    first = whiten[0]
-    factors = np.diag(first)
-    if np.any(first != np.diag(factors)) or np.any(whiten != first):
-        return None
-    return factors.copy()
-
-
 def whitened(
     whiten: np.ndarray, jac: np.ndarray, b: np.ndarray, rows=None
 ) -> tuple[np.ndarray, np.ndarray]:
     """``whiten @ jac`` ``(P', 6, Q)`` and ``whiten @ b`` ``(P', 6)`` over the blocks ``rows``
     (default all) of ``whiten`` ``(P, 6, 6)``, ``jac`` ``(P, 6, Q)`` and ``b`` ``(P, 6)``; a
-    diagonal whitening (:func:`row_factors`) scales the rows instead of multiplying blocks."""
+    diagonal whitening (:func:`~relcal.calibration.noise.row_factors`) scales the rows instead
+    of multiplying blocks."""
     rows = slice(None) if rows is None else rows
     factors = row_factors(whiten)
     if factors is not None:  # C order, as the products give (sums over it keep their order)

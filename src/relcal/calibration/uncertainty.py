@@ -38,7 +38,7 @@ from relcal.calibration.measurement import (
     residuals,
     split_params,
 )
-from relcal.calibration.noise import Noise
+from relcal.calibration.noise import Noise, row_factors
 from relcal.errors import RelcalError
 from relcal.robot.ik import joint_layout
 from relcal.robot.kinematics import fk, pose_jacobian
@@ -202,8 +202,6 @@ def projected_noise_factor(
     all-pairs set of N poses has ``M ~ 3 N^2`` rows, and ``Z`` would hold ``M x 6 N`` numbers)."""
     poses, blocks = noise_blocks(problem, params)
     m, slots, r, _ = blocks.shape
-    from relcal.calibration.selection import row_factors
-
     rows = a.reshape(m, r, -1)
 
     def share(block: np.ndarray) -> np.ndarray:  # rows^T block per measurement (m, k, 6)
