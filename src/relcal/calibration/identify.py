@@ -26,6 +26,7 @@ from relcal.calibration.identifiability import (
 from relcal.calibration.measurement import (
     Problem,
     check_measured,
+    derived,
     pair_errors,
     residuals,
     row_clusters,
@@ -40,7 +41,7 @@ from relcal.calibration.uncertainty import (
     whitener,
 )
 from relcal.errors import ArgumentError, RelcalError
-from relcal.robot.kinematics import Layout, apply_errors
+from relcal.robot.kinematics import Layout, errors_applied
 
 Method = Literal["published", "lm"]
 Loss = Literal["linear", "huber", "soft_l1", "cauchy", "arctan"]
@@ -656,13 +657,14 @@ def levenberg_marquardt(
     x = np.asarray(x0, dtype=float).copy()
     r, a = evaluate(x)
     cost, nfev, damping = float(r @ r), 1, _DAMPING
-    scale = np.linalg.norm(a, axis=0)
+    scale = _column_norms(a)
     scale = np.where(scale > 0, scale, 1.0)
+    eye = np.eye(len(x))
     while nfev < max_nfev:
         unit = a / scale
         normal, gradient = unit.T @ unit, unit.T @ r
         try:
-            step = np.linalg.solve(normal + damping * np.eye(len(x)), gradient)
+            step = np.linalg.solve(normal + damping * eye, gradient)
         except np.linalg.LinAlgError:
             damping *= 10.0
             continue
@@ -682,7 +684,7 @@ def levenberg_marquardt(
             small_step = np.linalg.norm(step) <= rtol * (np.linalg.norm(x * scale) + rtol)
             small_gain = cost - cost_new <= rtol * cost
             x, r, a, cost = trial, r_new, a_new, cost_new
-            scale = np.maximum(scale, np.linalg.norm(a, axis=0))
+            scale = np.maximum(scale, _column_norms(a))
             damping = max(damping / 10.0, 1e-15)
             if small_step or small_gain or cost == 0.0:
                 return x, _stationary(r, a, scale), nfev
@@ -691,6 +693,10 @@ def levenberg_marquardt(
         else:
             damping *= 10.0
     return x, False, nfev
+
+
+def _column_norms(a: np.ndarray) -> np.ndarray:
+    return np.sqrt(np.einsum("ij,ij->j", a, a))
 
 
 def _stationary(r: np.ndarray, a: np.ndarray, scale: np.ndarray) -> bool:
@@ -724,7 +730,7 @@ def _reduced(
     if np.any(held[n_geo:]):
         return None
     layout = problem.layout
-    model = apply_errors(problem.model, layout, held[:n_geo]) if held.any() else problem.model
+    model = errors_applied(problem.model, layout, held[:n_geo]) if held.any() else problem.model
     sub = Layout(
         tuple(layout.names[i] for i in geo_free),
         tuple(layout.kinds[i] for i in geo_free),
@@ -734,7 +740,7 @@ def _reduced(
     frames = problem.full_layout.size - n_geo  # hand-eye (and board) 6-vectors
     columns = np.r_[geo_free, np.arange(n_geo, n_geo + frames)]
     sub_subset = np.r_[np.arange(len(geo_free)), len(geo_free) + free[free >= n_geo] - n_geo]
-    return replace(problem, model=model, layout=sub), columns, sub_subset.astype(int)
+    return derived(problem, model=model, layout=sub), columns, sub_subset.astype(int)
 
 
 @one_blas_thread
@@ -845,19 +851,27 @@ def _lm(
             last.update(x=x.tobytes(), r=r, jac=a)
         return last["r"], last["jac"]
 
+    every = len(subset) == len(full)  # the reduced problems estimate all their columns
+
+    def stated(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The stated cost's residual and Jacobian, ``r(x + dx) ~ r(x) - A dx``."""
+        r, a = evaluate(x)
+        a = a if every else a[:, subset]
+        if whiten is not None:
+            r, a = whiten @ r, whiten @ a
+        if rows is not None:
+            r, a = np.r_[r, -rows[1] * x[at]], np.vstack([a, prior_jac])
+        return r, a
+
     def fun(x: np.ndarray) -> np.ndarray:
-        r = evaluate(x)[0]
-        r = -(r if whiten is None else whiten @ r)
-        return r if rows is None else np.r_[r, rows[1] * x[at]]
+        return -stated(x)[0]
 
     def jac(x: np.ndarray) -> np.ndarray:
-        a = evaluate(x)[1][:, subset]
-        a = a if whiten is None else whiten @ a
-        return a if prior_jac is None else np.vstack([a, prior_jac])
+        return stated(x)[1]
 
     nfev = 0
     if loss == "linear":
-        x0, converged, nfev = levenberg_marquardt(lambda x: (-fun(x), jac(x)), x0, max_nfev)
+        x0, converged, nfev = levenberg_marquardt(stated, x0, max_nfev)
     if loss != "linear" or not converged:
         # Robust losses, and the rare linear fit whose own iteration stalled off the optimum:
         # SciPy's trust-region reflective solver takes over.

@@ -31,6 +31,7 @@ Residuals follow ``r ~ A (p_true - p)``: measured minus modelled, so a Gauss-New
 
 from __future__ import annotations
 
+import copy
 import functools
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
@@ -53,8 +54,9 @@ from relcal.limits import AUTO_ALL_PAIRS as AUTO_ALL_PAIRS  # re-exported
 from relcal.limits import resolve_pairing as resolve_pairing
 from relcal.robot.kinematics import (
     Layout,
-    apply_errors,
+    check_errors,
     check_layout,
+    errors_applied,
     fk,
     make_layout,
     pose_jacobian,
@@ -333,7 +335,7 @@ class Problem:
         for name, value in check_problem(self).items():
             object.__setattr__(self, name, value)
 
-    @property
+    @functools.cached_property
     def full_layout(self) -> Layout:
         """The parameter layout including the hand-eye 6-vector when it is estimated (or, for the
         tracker formulation, the instrument 6-vector and the marker 3-vector)."""
@@ -390,6 +392,21 @@ class Problem:
         return count * self.rows_per_measurement
 
 
+def derived(problem: Problem, **changes: Any) -> Problem:
+    """``replace(problem, **changes)`` without the argument checks, for internal changes that
+    keep a checked problem valid (a sub-layout of its model, weights dropped, another
+    measure). The measured motions, formed once per problem, carry over when the poses, pairs
+    and formulation stay."""
+    out = copy.copy(problem)
+    cache = out.__dict__
+    cache.pop("full_layout", None)
+    if {"poses", "pairs", "formulation"} & changes.keys():
+        cache.pop("measured_motions", None)
+    for name, value in changes.items():
+        object.__setattr__(out, name, value)
+    return out
+
+
 def camera_problem(
     model: RobotModel,
     q: np.ndarray,
@@ -422,7 +439,7 @@ def camera_problem(
 def split_params(problem: Problem, params: np.ndarray) -> tuple[RobotModel, np.ndarray]:
     """The model with the geometric errors applied, and the hand-eye transform ``X``."""
     n_geo = problem.layout.size
-    model = apply_errors(problem.model, problem.layout, params[:n_geo])
+    model = errors_applied(problem.model, problem.layout, params[:n_geo])
     handeye = problem.handeye
     if problem.formulation in ("invariant", "board"):
         handeye = handeye @ tf.from_vector(params[n_geo : n_geo + 6])
@@ -466,6 +483,9 @@ def residuals(
     the Fisher information and the propagation of measurement noise use (the noise lives in the
     tangent space at the true measurement). Both give the same gradient ``A^T r``.
     """
+    params = np.asarray(params, dtype=float)
+    if params.shape != (problem.full_layout.size,) or not np.isfinite(params).all():
+        check_errors(params, problem.full_layout, "params")  # raises, naming what is wrong
     if problem.formulation == "tracker":
         return _tracker(problem, params, jacobian)
     if problem.formulation == "coincidence":
@@ -602,10 +622,10 @@ def pair_errors(problem: Problem, params: np.ndarray) -> np.ndarray:
         r = formulation_hooks(problem.formulation).sample_errors(problem, params)
         return np.concatenate([r, np.full_like(r, np.nan)], axis=1)
     if problem.formulation == "tracker":  # points: 3 rows per sample, no orientation
-        plain = replace(problem, weights=None, pair_weights=None)
+        plain = derived(problem, weights=None, pair_weights=None)
         r = residuals(plain, params, jacobian=False).reshape(-1, 3)
         return np.concatenate([r, np.full_like(r, np.nan)], axis=1)
-    plain = replace(problem, measure="pose", weights=None, pair_weights=None)
+    plain = derived(problem, measure="pose", weights=None, pair_weights=None)
     r = residuals(plain, params, jacobian=False).reshape(-1, 6)
     if problem.measure == "position":
         r[:, 3:] = np.nan
@@ -624,7 +644,7 @@ def _tracker(problem: Problem, params: np.ndarray, jacobian: bool):
     """Residuals ``(3 N,)`` ``p_meas - T F(q) m`` and, if asked, the Jacobian ``(3 N, P)`` of the
     modelled point ``T F(q) m`` with respect to the parameters (``r ~ A (p_true - p)``)."""
     n_geo = problem.layout.size
-    model = apply_errors(problem.model, problem.layout, params[:n_geo])
+    model = errors_applied(problem.model, problem.layout, params[:n_geo])
     instrument, marker = tracker_frames(problem, params)
     if jacobian and n_geo:
         tip, spatial = spatial_jacobian(model, problem.q, problem.layout)

@@ -298,41 +298,66 @@ def apply_errors(model: RobotModel, layout: Layout, errors: np.ndarray) -> Robot
     """
     check_model(model)
     check_layout(layout, model)
-    errors = check_errors(errors, layout)
-    folded: tuple[str, ...] = ()
-    if "origin" in layout.kinds:
-        folded = _ORIGIN_KINDS
-        moves = [(k, i, e) for (k, i), e in zip(layout, errors, strict=False) if k in folded]
-        if any(e != 0 for _, _, e in moves):
-            from relcal.robot.urdf import move_origins, zero_directions
+    return errors_applied(model, layout, check_errors(errors, layout))
 
-            if model.urdf is None:
-                raise RelcalError(f"'{model.name}': origin errors need a robot loaded from a URDF")
-            motions = np.zeros((model.n_joints, 6))
-            zero = zero_directions(model.urdf)
-            for kind, i, e in moves:
-                if kind == "origin":
-                    motions[i // 6, i % 6] += e
-                else:  # a zero offset, along the joint axis
-                    motions[i] += e * zero[i]
-            model = move_origins(model, motions)
-    arrays: dict[str, np.ndarray] = {}
-    frames: dict[str, np.ndarray] = {}
-    for (kind, i), e in zip(layout, errors, strict=False):
-        if kind in folded:
-            continue
-        if kind in _FRAMES:
-            frames.setdefault(kind, np.zeros(6))[i] += e
-        elif kind in KINDS or kind in NONGEOMETRIC_KINDS:
-            if kind not in arrays:
-                arrays[kind] = model.geometric(kind).copy()
-            arrays[kind][i] += e
-    moved = {
-        frame: getattr(model, frame) @ tf.from_vector(vec)
-        for frame, vec in frames.items()
-        if vec.any()
-    }
-    return replace(model, **arrays, **moved)
+
+def errors_applied(model: RobotModel, layout: Layout, errors: np.ndarray) -> RobotModel:
+    """:func:`apply_errors` without its argument checks, for callers whose model, layout and
+    ``errors`` ``(P,)`` are already checked (a solver's inner loop evaluates it every step)."""
+    plan = _error_plan(layout)
+    if plan.origin_moves.size and np.any(errors[plan.origin_moves]):
+        from relcal.robot.urdf import move_origins, zero_directions
+
+        if model.urdf is None:
+            raise RelcalError(f"'{model.name}': origin errors need a robot loaded from a URDF")
+        motions = np.zeros((model.n_joints, 6))
+        zero = zero_directions(model.urdf)
+        for column in plan.origin_moves:
+            kind, i = layout.kinds[column], layout.index[column]
+            if kind == "origin":
+                motions[i // 6, i % 6] += errors[column]
+            else:  # a zero offset, along the joint axis
+                motions[i] += errors[column] * zero[i]
+        model = move_origins(model, motions)
+    changes: dict[str, np.ndarray] = {}
+    for kind, columns, joints in plan.arrays:
+        value = model.geometric(kind).copy()
+        np.add.at(value, joints, errors[columns])
+        changes[kind] = value
+    for frame, columns, components in plan.frames:
+        vec = np.zeros(6)
+        np.add.at(vec, components, errors[columns])
+        if vec.any():
+            changes[frame] = getattr(model, frame) @ tf.from_vector(vec)
+    return replace(model, **changes)
+
+
+@dataclass(frozen=True)
+class _ErrorPlan:
+    """Where :func:`errors_applied` puts each entry of a layout: the columns that move URDF
+    origins, and per array kind or frame the columns and the joints (components) they change."""
+
+    origin_moves: np.ndarray
+    arrays: tuple[tuple[str, np.ndarray, np.ndarray], ...]
+    frames: tuple[tuple[str, np.ndarray, np.ndarray], ...]
+
+
+@functools.lru_cache(maxsize=64)
+def _error_plan(layout: Layout) -> _ErrorPlan:
+    kinds, index = np.array(layout.kinds), np.array(layout.index, dtype=int)
+    folded = (
+        np.isin(kinds, _ORIGIN_KINDS) if "origin" in layout.kinds else np.zeros(len(kinds), bool)
+    )
+
+    def groups(names) -> tuple[tuple[str, np.ndarray, np.ndarray], ...]:
+        out = []
+        for kind in names:
+            columns = np.flatnonzero((kinds == kind) & ~folded)
+            if columns.size:
+                out.append((kind, columns, index[columns]))
+        return tuple(out)
+
+    return _ErrorPlan(np.flatnonzero(folded), groups(KINDS + NONGEOMETRIC_KINDS), groups(_FRAMES))
 
 
 _ORIGIN_KINDS = ("origin", "theta_off", "d")  # what moves URDF origins in an origins layout
