@@ -51,11 +51,11 @@ Loss = Literal["linear", "huber", "soft_l1", "cauchy", "arctan"]
 class SolverOptions:
     """How :func:`identify` solves.
 
-    ``method``: ``"lm"`` (Levenberg-Marquardt on the identifiable subset, SciPy) or
-    ``"published"`` (iterated truncated-SVD least squares, Lu & Hayes). ``loss`` and ``f_scale``
-    (the residual, in weighted units, where a robust loss bends) apply to ``"lm"``; ``rcond``
-    (singular values below ``rcond * s_max`` zeroed) and ``tol`` (relative step size that stops
-    the iteration) to ``"published"``.
+    ``method``: ``"lm"`` (Levenberg-Marquardt) or ``"published"`` (iterated truncated-SVD
+    least squares, Lu & Hayes), both on the identifiable subset, the rest held at nominal.
+    ``loss`` and ``f_scale`` (the residual, in weighted units, where a robust loss bends) apply
+    to ``"lm"``; ``rcond`` (singular values below ``rcond * s_max`` zeroed) and ``tol``
+    (relative step size that stops the iteration) to ``"published"``.
 
     Parameters
     ----------
@@ -185,12 +185,10 @@ class Result:
     def gradient_check(self) -> GradientCheck:
         """The stationarity of the stated cost at :attr:`params`, from finite differences of
         the real residual (not the solver's Jacobian): :func:`gradient_check`."""
-        every = np.arange(len(self.params))
-        columns = every if self.method == "published" else self.identifiability.subset
         return gradient_check(
             self.problem,
             self.params,
-            columns,
+            self.identifiability.subset,
             self.loss,
             self.f_scale,
             self.whiten,
@@ -484,18 +482,22 @@ def held_dependence(
     for v in ident.null_space.T:
         lead = held[np.argmax(np.abs(v[held] / unit[held]))] if len(held) else np.argmax(np.abs(v))
         step += v / abs(v[lead]) * unit[lead]
-    if published:  # nothing is held: the solver picks a point on the symmetry's orbit
-        refit = identify_published(problem, identifiability=ident, initial=params + step)
-    else:
-        if prior is not None:
-            # What the *data* determine: the plain least squares from the estimate, against
-            # the same moved along the symmetries (the priors pull both alike; a prior's pull
-            # on a combination's member would read as a dependence of the others).
-            params = identify_lm(problem, 50, ident, whiten=whiten, initial=params, fixed=params)
-            params = params.params
-        moved = params.copy()
-        moved[held] += step[held]
-        refit = identify_lm(problem, 50, ident, whiten=whiten, initial=params + step, fixed=moved)
+
+    def solve(initial: np.ndarray, fixed: np.ndarray) -> Result:
+        """The plain least squares of the subset from ``initial``, the others at ``fixed``, by
+        the solver that gave the estimate."""
+        if published:
+            return identify_published(problem, identifiability=ident, initial=initial, fixed=fixed)
+        return identify_lm(problem, 50, ident, whiten=whiten, initial=initial, fixed=fixed)
+
+    if prior is not None:
+        # What the *data* determine: the plain least squares from the estimate, against the
+        # same moved along the symmetries (the priors pull both alike; a prior's pull on a
+        # combination's member would read as a dependence of the others).
+        params = solve(params, params).params
+    moved = params.copy()
+    moved[held] += step[held]
+    refit = solve(params + step, moved)
     involved = np.linalg.norm(ident.null_space, axis=1) > 1e-6
     moves = np.abs(refit.params - params) / unit > DEPENDENCE_TOL
     if problem.formulation == "coincidence":
@@ -576,24 +578,100 @@ def identify_published(
     max_iter: int = 50,
     identifiability: Identifiability | None = None,
     initial: np.ndarray | None = None,
+    fixed: np.ndarray | None = None,
+    prior: np.ndarray | None = None,
+    prior_std: np.ndarray | None = None,
 ) -> Result:
-    """Iterated linear least squares with an SVD pseudo-inverse (Lu & Hayes).
+    """Iterated linear least squares with an SVD pseudo-inverse (Lu & Hayes), on the
+    identifiable subset.
 
-    Each step solves ``A dp = r`` on unit-norm columns with singular values below
-    ``rcond * s_max`` zeroed, and stops when ``|dp|`` (scaled) falls below ``tol`` times the
-    scaled parameter norm (or an absolute 1e-15).
+    The parameters of ``identifiability.subset`` (the QR-pivoted identifiable subset of
+    :func:`relcal.analyse_problem`, the columns :func:`identify_lm` estimates) start from
+    ``initial`` and are estimated; the others stay where ``fixed`` holds them (nominal by
+    default), as :func:`identify_lm` holds them. Estimating every column instead leaves the
+    solution free along the unidentifiable directions, where the pseudo-inverse's minimum-norm
+    rule splits a correction the data give to one member (a hand-eye rotation, say) among all of
+    them (the last joint's offset takes about half): the predictions are the same, the
+    parameters not, and such a split can exceed any plausible correction.
+
+    Each step solves ``A dp = r`` on the subset's columns scaled to unit norm, singular values
+    below ``rcond * s_max`` zeroed (weak directions left where they are), halving the step
+    until the cost does not rise. The iteration stops when the step is negligible (``|dp|``,
+    scaled, below ``tol`` times the scaled parameter norm, or an absolute 1e-15), when no step
+    along the Gauss-Newton direction lowers the cost, or when a full step lowers the residual
+    norm by less than a millionth; :attr:`Result.converged` also asks the finite-difference
+    gradient check.
+
+    Parameters
+    ----------
+    problem : Problem
+        The identification problem.
+    rcond : float
+        Relative singular value threshold of the pseudo-inverse, ``0 < rcond < 1``.
+    tol : float
+        Relative step size that stops the iteration (> 0).
+    max_iter : int
+        Most iterations (> 0).
+    identifiability : Identifiability, optional
+        The analysis at the nominal model whose ``subset`` is estimated (computed if not given).
+    initial : (P,) ndarray of float, optional
+        Start of the estimated parameters (m, rad; only ``subset`` entries are read; default
+        nominal, zeros).
+    fixed : (P,) ndarray of float, optional
+        Values (m, rad) at which the parameters outside ``subset`` are held (default zeros).
+    prior : (P,) ndarray of float, optional
+        A maximum a posteriori fit: the rows ``prior[k] * params[k]`` (weighted residual units;
+        0: none) appended to the residual for the estimated parameters, as for
+        :func:`identify_lm`.
+    prior_std : (P,) ndarray of float, optional
+        The priors' standard deviations (m, rad; inf: none), for the covariance.
+
+    Returns
+    -------
+    Result
+        The estimate ``(P,)`` over ``problem.full_layout``; ``rank`` counts the singular values
+        kept at the last step (at most ``len(subset)``).
     """
     _check(problem)
     start = time.perf_counter()
-    params = np.zeros(problem.full_layout.size)
-    r, a = residuals(problem, params)
-    ident = identifiability or analyse_problem(problem, jac=a)
-    initial_norm = float(np.linalg.norm(r))  # the costs count from nominal
+    size = problem.full_layout.size
+    ident, nominal = identifiability, None  # nominal: the residual and Jacobian there
+    if ident is None:
+        nominal = residuals(problem, np.zeros(size))
+        ident = analyse_problem(problem, jac=nominal[1])
+    subset = np.asarray(ident.subset, dtype=int)
+    held = np.zeros(size) if fixed is None else np.asarray(fixed, dtype=float).copy()
+    held[subset] = 0.0
+    rows = prior_rows(prior, subset)
+    at = None if rows is None else np.searchsorted(subset, rows[0])
+
+    def stated(x: np.ndarray, jacobian: bool = True):
+        """The stated cost's residual (data rows, then prior rows) and its Jacobian over the
+        subset, ``r(x + dx) ~ r(x) - A dx``."""
+        out = residuals(problem, x, jacobian=jacobian)
+        r, a = (out[0], out[1][:, subset]) if jacobian else (out, None)
+        if rows is not None:
+            r = np.r_[r, -rows[1] * x[rows[0]]]
+            if jacobian:
+                extra = np.zeros((len(at), len(subset)))
+                extra[np.arange(len(at)), at] = rows[1]
+                a = np.vstack([a, extra])
+        return r, a
+
+    params = held.copy()
     if initial is not None:
-        params = np.asarray(initial, dtype=float).copy()
-        r, a = residuals(problem, params)
-    converged, it = False, 0
-    for it in range(1, max_iter + 1):
+        params[subset] = np.asarray(initial, dtype=float)[subset]
+    if nominal is not None and rows is None and not params.any():  # the analysis's evaluation
+        r, a = nominal[0], nominal[1][:, subset]
+    else:
+        r, a = stated(params)
+    n_rows = len(r) - (0 if rows is None else len(at))
+    # The costs count from nominal (the held parameters where they are held).
+    initial_norm = float(np.linalg.norm(r if initial is None else stated(held, False)[0]))
+    keep = np.ones(len(subset), dtype=bool)
+    stopped, it = not len(subset), 0  # nothing to estimate: nothing to iterate
+    while not stopped and it < max_iter:
+        it += 1
         unit, norms = scaled(a)
         step, keep = _truncated_svd_solve(unit, r, rcond)
         step = step / norms
@@ -602,37 +680,40 @@ def identify_published(
         # weakly determined direction such as nearly parallel axes), a shorter step along the
         # same (descent) direction does: halved until the residual decreases.
         for halvings in range(40):  # noqa: B007 (read after the loop)
-            params = previous[0] + step
-            r = residuals(problem, params, jacobian=False)
+            params = previous[0].copy()
+            params[subset] += step
+            r = stated(params, jacobian=False)[0]
             if np.linalg.norm(r) <= np.linalg.norm(previous[1]):
                 break
             step = step / 2
         else:  # no step along it lowers the cost: at the minimum to round-off
             params, r, a = previous
-            converged = True
+            stopped = True
             break
-        r, a = residuals(problem, params)
-        size = np.linalg.norm(step * norms)
+        r, a = stated(params)
+        moved = np.linalg.norm(step * norms)
         # Negligible correction, or a residual that no longer decreases (at round-off level a
         # curved exact symmetry can keep a tiny singular value above rcond and move forever).
         stalled = np.linalg.norm(r) >= np.linalg.norm(previous[1]) * (1 - 1e-6) and it > 1
         stalled = stalled and halvings == 0  # a shortened step says nothing about the minimum
-        if size <= tol * max(np.linalg.norm(params * norms), 1e-3) or stalled:
-            converged = True
+        if moved <= tol * max(np.linalg.norm(params[subset] * norms), 1e-3) or stalled:
+            stopped = True
             break
     return Result(
         params=params,
         names=problem.full_layout.names,
-        stopped=converged,
+        stopped=stopped,
         iterations=it,
         initial_residual_norm=initial_norm,
         residual_norm=float(np.linalg.norm(r)),
-        n_residuals=len(r),
+        n_residuals=n_rows,
         rank=int(np.sum(keep)),
         seconds=time.perf_counter() - start,
         method="published",
         identifiability=ident,
         problem=problem,
+        prior=prior,
+        prior_std=prior_std if prior is not None else None,
     )
 
 

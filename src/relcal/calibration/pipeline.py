@@ -20,7 +20,7 @@ import numpy as np
 
 from relcal._renamed import UNSET, renamed
 from relcal.calibration.arguments import check_calibrate
-from relcal.calibration.identify import Result, SolverOptions, identify, identify_lm
+from relcal.calibration.identify import Result, SolverOptions, identify_lm, identify_published
 from relcal.calibration.kinds import MeasurementKind, NoiseModel, Training
 from relcal.calibration.kinds.dispatch import kind_of
 from relcal.calibration.measurement import PairStrategy
@@ -404,7 +404,8 @@ def _geometry_only(
 
 def _method(candidate, method: str) -> str:
     """The solver of a candidate's fit: the baseline (the frames alone) always by
-    Levenberg-Marquardt on its columns (the published method estimates every column)."""
+    Levenberg-Marquardt on its columns, so that every method is compared with the same
+    baseline."""
     return "lm" if candidate.name in BASELINE_CANDIDATES else method
 
 
@@ -449,15 +450,19 @@ def _fit(
     the robust loss bending where the kind says (:meth:`MeasurementKind.f_scale`); ``noise``: the
     kind's learned :class:`~relcal.calibration.kinds.NoiseModel` (the pose noise goes into the
     result's covariance); ``prior``: the prior rows' weights ``(P,)`` of a maximum a posteriori
-    fit (:func:`_prior`; the published solver has none: it truncates weak directions)."""
+    fit (:func:`_prior`). Both solvers estimate ``columns`` only, the others at nominal; the
+    published one has the linear loss only."""
     whiteners = None if noise is None else noise.whiteners
     weighted = kind.weighted(training, weighting, whiteners)
+    sub = replace(training.ident, subset=np.asarray(columns))
+    std = None if prior is None else layout_prior_std(weighted)
     if method == "published":
-        result = identify(weighted, SolverOptions(method="published"), training.ident)
+        o = SolverOptions(method="published")
+        result = identify_published(
+            weighted, o.rcond, o.tol, o.max_iterations, sub, initial, prior=prior, prior_std=std
+        )
     else:
-        sub = replace(training.ident, subset=np.asarray(columns))
         f_scale = kind.f_scale(weighted)
-        std = None if prior is None else layout_prior_std(weighted)
         result = identify_lm(
             weighted, 200, sub, loss, f_scale, initial=initial, prior=prior, prior_std=std
         )
