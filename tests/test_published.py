@@ -170,7 +170,10 @@ def test_published_calibration_passes_where_lm_does(tmp_path, robot, seed):
     assert chosen[0] == chosen[1]
     np.testing.assert_array_equal(p.identifiability.subset, l_.identifiability.subset)
     assert not np.any(p.params[_held(p)])  # the last joint's offset among them
-    assert _cost(p) == pytest.approx(_cost(l_), rel=1e-5)
+    # The prior rows' weights come from the noise level of the outlier search's fit, which is
+    # robust (Huber) by Levenberg-Marquardt and linear by the published solver: they differ by
+    # parts in 1e4, and so may the costs.
+    assert _cost(p) == pytest.approx(_cost(l_), rel=1e-4)
     sub = l_.identifiability.subset
     assert np.all(np.abs(p.params[sub] - l_.params[sub]) <= 0.01 * l_.std[sub])
     for which in ("baseline", "calibrated"):
