@@ -151,8 +151,8 @@ def simulate(
     Examples
     --------
     >>> import relcal
-    >>> sim = relcal.simulate(relcal.get_robot("a465"), n_poses=20, seed=0)  # no noise
-    >>> lengths, angles = sim.identification_rms()  # m, rad
+    >>> sim = relcal.simulate(relcal.get_robot("franka_fr3"), n_poses=20, seed=0)  # no noise
+    >>> lengths, angles = sim.identification_rms()  # m, rad: exact, held directions symmetries
     >>> bool(lengths < 1e-9 and angles < 1e-9)
     True
     """
