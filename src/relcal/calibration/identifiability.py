@@ -319,6 +319,9 @@ def explainer(problem: Problem):
         jac, spatial, body = jacobians()
         geometric = v[:n_geo]
         motion = jac @ geometric  # (N, 6): tip velocity and angular velocity, base frame
+        positions = problem.formulation == "board" and problem.measure == "position"
+        if kinds == {"handeye"} and positions:  # the hand-eye's rotation (its shift moves them)
+            return "turns the camera about its own centre, which camera positions do not see"
         if len(involved) == 1 and np.abs(motion).max() < 1e-12:
             return "has no effect on the tool pose"
         if kinds == {"d"} and len(involved) > 1:

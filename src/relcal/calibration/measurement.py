@@ -505,9 +505,7 @@ def residuals(
             a = residual_tangent(r) @ a
     elif problem.formulation == "board":
         n_geo = problem.layout.size
-        r, a = _board(problem, tip, jac, handeye, params[n_geo : n_geo + 12])
-        if jacobian and not model_jacobian:
-            a = residual_tangent(r) @ a
+        r, a = _board(problem, tip, jac, handeye, params[n_geo : n_geo + 12], model_jacobian)
     else:
         r, a = tf.pose_error(problem.poses, tip), jac
         if jacobian and not model_jacobian:  # log(R_e exp(-w)) ~ log(R_e) - J_r^-1(log R_e) w
@@ -572,19 +570,35 @@ def _board(
     spatial: np.ndarray | None,
     handeye: np.ndarray,
     frame_params: np.ndarray,
+    model_jacobian: bool = False,
 ) -> tuple[np.ndarray, np.ndarray | None]:
     """Residuals ``(N, 6)`` of the board formulation, the 6-vectors of ``(W F_k X)^-1 C_k``, and
-    (given the spatial twists ``(N, 6, n_geo)`` of the parameters) the Jacobian
-    ``(N, 6, n_geo + 12)`` of the modelled pose ``W F_k X`` as a body motion (camera frame);
-    ``frame_params``: the ``handeye.*`` and ``board.*`` 6-vectors.
+    (given the spatial twists ``(N, 6, n_geo)`` of the parameters) their Jacobian
+    ``(N, 6, n_geo + 12)``, or with ``model_jacobian`` that of the modelled pose ``W F_k X`` as
+    a body motion (camera frame); ``frame_params``: the ``handeye.*`` and ``board.*`` 6-vectors.
 
     ``F_k -> exp(S_k) F_k`` and ``W -> W exp(omega)`` move ``W F_k X`` by the body twists
     ``Ad((F_k X)^-1) S_k`` and ``Ad((F_k X)^-1) omega``; ``X -> X exp(xi)`` by ``xi``.
+
+    Position-only measurements (``problem.measure == "position"``) compare the camera's position
+    in the frame of the measured camera, ``R_C^T (t_C - t_model)``: the rotation of ``X`` turns
+    the camera about its own centre, and has no effect on it at all (in the modelled camera's
+    frame, ``(W F X)^-1 C``'s translation, it would turn the residual vector without changing its
+    length: a direction of the cost that the Jacobian away from the optimum shows as
+    determined). Its Jacobian is ``R_C^T R_model`` times the body motion's translation rows,
+    which is the model's at the optimum.
     """
     handeye_params, board_params = frame_params[:6], frame_params[6:12]
     world = problem.board @ tf.from_vector(board_params)
     camera = tip @ handeye  # F X
-    r = tf.to_vector(tf.invert(world @ camera) @ problem.poses)
+    modelled = world @ camera
+    r = tf.to_vector(tf.invert(modelled) @ problem.poses)
+    position = problem.measure == "position"
+    if position:
+        measured = problem.poses[:, :3, :3]
+        turn = np.swapaxes(measured, -1, -2) @ modelled[:, :3, :3]  # R_C^T R_model
+        shift = problem.poses[:, :3, 3] - modelled[:, :3, 3]
+        r[:, :3] = np.einsum("nji,nj->ni", measured, shift)
     if spatial is None:
         return r, None
     n_geo = spatial.shape[-1]
@@ -597,7 +611,12 @@ def _board(
         out[:, :, n_geo : n_geo + 6] = tf.vector_tangent(handeye_params)
     if np.any(board_params):
         out[:, :, n_geo + 6 :] = to_camera @ tf.vector_tangent(board_params)
-    return r, out
+    if model_jacobian:
+        return r, out
+    if position:  # the rotation rows are not used
+        out[:, :3] = turn @ out[:, :3]
+        return r, out
+    return r, residual_tangent(r) @ out
 
 
 def residual_tangent(r: np.ndarray) -> np.ndarray:
@@ -622,6 +641,10 @@ def pair_errors(problem: Problem, params: np.ndarray) -> np.ndarray:
         r = formulation_hooks(problem.formulation).sample_errors(problem, params)
         return np.concatenate([r, np.full_like(r, np.nan)], axis=1)
     if problem.formulation == "tracker":  # points: 3 rows per sample, no orientation
+        plain = derived(problem, weights=None, pair_weights=None)
+        r = residuals(plain, params, jacobian=False).reshape(-1, 3)
+        return np.concatenate([r, np.full_like(r, np.nan)], axis=1)
+    if problem.formulation == "board" and problem.measure == "position":  # measured frame
         plain = derived(problem, weights=None, pair_weights=None)
         r = residuals(plain, params, jacobian=False).reshape(-1, 3)
         return np.concatenate([r, np.full_like(r, np.nan)], axis=1)
