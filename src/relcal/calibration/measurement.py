@@ -407,6 +407,45 @@ def derived(problem: Problem, **changes: Any) -> Problem:
     return out
 
 
+def camera_pairing(formulation: Formulation, pairing: PairStrategy, n_poses: int) -> str:
+    """The pairing that ``pairing`` stands for with ``n_poses`` camera poses measured for
+    ``formulation`` (``auto`` resolved by :func:`resolve_pairing`), checked.
+
+    Parameters
+    ----------
+    formulation : {"invariant", "published", "absolute"}
+        What the measured poses are: camera poses in the board frame (``invariant``), or tool
+        poses in a base-aligned frame.
+    pairing : {"auto", "all", "consecutive", "star", "board"}
+        The choice (the command line's ``--pairing``).
+    n_poses : int
+        Number of poses.
+
+    Returns
+    -------
+    str
+        ``all``, ``consecutive``, ``star`` or ``board``.
+
+    Raises
+    ------
+    ArgumentError
+        An unknown pairing, or ``board`` (asked for, or ``auto`` above
+        :data:`AUTO_ALL_PAIRS` poses) with poses that are not in the board frame: only the
+        frame-invariant data have a board frame to fit.
+    """
+    check_choice(pairing, "pairing", PAIRINGS)
+    used = resolve_pairing(pairing, n_poses)
+    if used == "board" and formulation != "invariant":
+        asked = "'board'" if pairing == "board" else f"'auto' ({n_poses} poses: board)"
+        raise ArgumentError(
+            f"pairing {asked}: the board formulation compares each camera pose with a fitted "
+            "board frame, so it needs camera poses in the board frame: formulation 'invariant' "
+            f"(--formulation invariant), not {formulation!r}; or pair the poses ('all', "
+            "'consecutive' or 'star')"
+        )
+    return used
+
+
 def camera_problem(
     model: RobotModel,
     q: np.ndarray,
@@ -415,23 +454,36 @@ def camera_problem(
     measure: Measure = "pose",
     pairing: PairStrategy = "consecutive",
     poses: np.ndarray | None = None,
+    board: np.ndarray | None = None,
 ) -> Problem:
     """The identification problem of camera poses ``(N, 4, 4)`` at joints ``q`` ``(N, n)`` for a
     camera mounted by the flange-from-camera ``handeye``: estimated with the geometry from that
-    guess (frame-invariant), or folded into the tool (published, absolute). Without ``poses``, the
-    nominal camera poses (the Jacobian does not depend on them)."""
+    guess (frame-invariant, and the board formulation, which ``pairing`` ``board`` asks for:
+    :func:`camera_pairing`), or folded into the tool (published, absolute). Without ``poses``,
+    the nominal camera poses (the Jacobian does not depend on them). ``board``: the board
+    formulation's guess of the board-from-base ``W`` ``(4, 4)``, by default
+    :func:`board_guess` from the nominal flange poses and ``poses`` (as a calibration starts)."""
+    used = camera_pairing(formulation, pairing, len(q))
     x = handeye
     ident_model = model
     if formulation != "invariant":
         ident_model, x = replace(model, tool=model.tool @ handeye), np.eye(4)
+    if poses is None:
+        poses = fk(ident_model, q) @ x
+    if used == "board":
+        if board is None:
+            board = board_guess(fk(ident_model, q), poses, x)
+        return Problem(
+            ident_model, make_layout(model), q, poses, "board", measure, None, x, board=board
+        )
     return Problem(
         model=ident_model,
         layout=make_layout(model),
         q=q,
-        poses=fk(ident_model, q) @ x if poses is None else poses,
+        poses=poses,
         formulation=formulation,
         measure=measure,
-        pairs=make_pairs(len(q), pairing),
+        pairs=make_pairs(len(q), used),
         handeye=x,
     )
 
