@@ -4,7 +4,7 @@ problem (the board transform's 6-vector ``board.*`` estimated with the geometry 
 hand-eye), and their numbers agree with what the board formulation must give: the planted
 truth recovered, the rank of all pairs plus the board's six, the same Cramer-Rao bound of the
 geometry and hand-eye as all pairs, a Monte Carlo spread equal to the prediction. Also the
-per-pose information of the board formulation (what pose planning sums)."""
+noise-weighted estimator's block-diagonal whitening of independent poses (linear in them)."""
 
 import json
 import os
@@ -29,8 +29,11 @@ from relcal.calibration.measurement import (
 from relcal.calibration.noise import Noise
 from relcal.calibration.uncertainty import (
     eliminate,
+    noise_factor,
     parameter_covariance,
     pose_rows,
+    pose_whitener,
+    whitener,
 )
 from relcal.cli import main
 from relcal.design.cell import Cell
@@ -330,7 +333,7 @@ def test_study_command_with_the_board(tmp_path, capsys):
     assert "pairing 'board'" in capsys.readouterr().err
 
 
-# --- the per-pose information ---------------------------------------------------------------
+# --- the noise-weighted estimator and the per-pose information --------------------------------
 
 
 def board_problem(model, n: int, seed: int, measure: str = "pose") -> Problem:
@@ -345,6 +348,41 @@ def board_problem(model, n: int, seed: int, measure: str = "pose") -> Problem:
         model, layout, q, poses, "board", measure, None, handeye,
         board=board_guess(fk(model, q), poses, handeye),
     )  # fmt: skip
+
+
+@pytest.mark.parametrize("measure", ["pose", "position"])
+def test_block_whitening_is_the_dense_whitening(a465, measure):
+    """The board formulation's noise-weighted fit whitened pose by pose (sparse, linear in the
+    poses) is the fit whitened by the dense factor of all rows: the same estimate, cost and
+    covariance to round-off, with and without joint noise and row weights."""
+    problem = board_problem(a465, 30, 7, measure)
+    rows = 6 if measure == "pose" else 3
+    for noise in (Noise(5e-5, 1e-4), NOISE):
+        whiten = pose_whitener(problem, noise)
+        assert whiten.shape == (rows * 30, rows * 30) and whiten.nnz == rows * rows * 30
+        dense = whitener(noise_factor(problem, noise, measured=True))
+        information = (whiten.T @ whiten).toarray()
+        np.testing.assert_allclose(information, dense.T @ dense, rtol=1e-9, atol=1e-6)
+        fast = identify_weighted(problem, noise)
+        slow = identify_weighted(problem, noise, whiten=dense)
+        assert fast.converged and slow.converged and fast.method == "lm (noise-weighted)"
+        np.testing.assert_allclose(fast.params, slow.params, rtol=0, atol=1e-12)
+        assert fast.residual_norm == pytest.approx(slow.residual_norm, rel=1e-9)
+        subset = fast.identifiability.subset
+        cov_f, cov_s = fast.covariance[np.ix_(subset, subset)], slow.covariance
+        np.testing.assert_allclose(cov_f, cov_s[np.ix_(subset, subset)], rtol=1e-7)
+
+
+def test_the_weighted_fit_of_the_board_stays_linear_in_the_poses(a465):
+    """Memory, not time: the whitening holds 36 numbers per pose (the dense one held (6 N)^2,
+    about 1 GB at 2000 poses), and the whitened Jacobian keeps the shape of the Jacobian."""
+    problem = board_problem(a465, 2000, 3)
+    whiten = pose_whitener(problem, NOISE)
+    assert whiten.nnz == 36 * 2000
+    a = residuals(problem, np.zeros(problem.full_layout.size))[1]
+    assert (whiten @ a).shape == a.shape
+    fit = identify_weighted(problem, NOISE)
+    assert fit.stopped and fit.whiten is not None and fit.whiten.nnz == 36 * 2000
 
 
 def test_per_pose_information_of_the_board_formulation(a465):

@@ -430,18 +430,37 @@ def spanning_chain(problem: Problem) -> Problem:
     return replace(problem, pairs=make_pairs(n, "consecutive"), pair_weights=None)
 
 
-def _per_pose_whitened(
+PER_POSE = ("absolute", "board")  # formulations whose every measurement is one pose's own
+
+
+def pose_whiteners(
     problem: Problem,
-    a: np.ndarray,
     noise: Noise,
-    covariances: np.ndarray | None,
-    params: np.ndarray,
+    covariances: np.ndarray | None = None,
+    params: np.ndarray | None = None,
 ) -> np.ndarray:
-    """``A`` ``(6 N, k)`` of a per-pose formulation (board) whitened pose by pose: each pose's
-    rows (after the problem's row weights) times the inverse root of their covariance, in
-    ``O(N k)``; the dense whitener of :func:`noise_factor` would hold ``(6 N)^2`` numbers. Poses
-    whose covariance is singular (no noise at all) are left out of the information."""
-    poses, blocks = noise_blocks(problem, params)
+    """Whitening blocks ``(N, r, r)`` of a formulation whose measurements are one pose each
+    (:data:`PER_POSE`: board, absolute): block ``k`` times pose ``k``'s ``r`` residual rows (after
+    the problem's row weights) has the identity covariance, ``W_k^T W_k = Cov_k^+``; the whole
+    whitening is block diagonal, ``O(N)`` numbers where :func:`whitener` of
+    :func:`noise_factor` would hold ``(r N)^2`` and take an SVD of that size.
+
+    Directions whose variance is below ``_RANK_TOL^2`` of the largest (over all poses; e.g.
+    orientation rows without orientation noise) get a zero row, as :func:`whitener` leaves them
+    out.
+
+    Raises
+    ------
+    RelcalError
+        The problem is not of a per-pose formulation, or the noise model is zero.
+    """
+    if problem.formulation not in PER_POSE:
+        raise RelcalError(
+            f"per-pose whitening: the {problem.formulation} formulation's measurements share "
+            "poses (use whitener(noise_factor(...)))"
+        )
+    params = np.zeros(problem.full_layout.size) if params is None else params
+    _, blocks = noise_blocks(problem, params)
     root = _root(pose_covariances(problem, noise, covariances, params))
     factor = blocks[:, 0] @ root  # (N, r, 6): each pose's residual noise is factor @ unit noise
     cov = factor @ np.swapaxes(factor, -1, -2)
@@ -451,8 +470,40 @@ def _per_pose_whitened(
     if not keep.any():
         raise RelcalError("the noise model is zero: give position/orientation or joint noise")
     inv = np.where(keep, 1.0 / np.sqrt(np.where(keep, w, 1.0)), 0.0)
-    rows = a.reshape(len(poses), factor.shape[1], -1)
-    return (np.swapaxes(v, -1, -2) @ rows * inv[:, :, None]).reshape(-1, a.shape[1])
+    return inv[:, :, None] * np.swapaxes(v, -1, -2)
+
+
+def pose_whitener(
+    problem: Problem,
+    noise: Noise,
+    covariances: np.ndarray | None = None,
+    params: np.ndarray | None = None,
+) -> scipy.sparse.csr_matrix:
+    """The block-diagonal whitening ``(M, M)`` of :func:`pose_whiteners` as a sparse matrix
+    (``r^2 N`` stored numbers), for the solvers' ``whiten`` (``whiten @ r``, ``whiten @ A``: time
+    and memory linear in the poses)."""
+    blocks = pose_whiteners(problem, noise, covariances, params)
+    n, r, _ = blocks.shape
+    columns = np.arange(n)[:, None, None] * r + np.arange(r)  # each row's block of columns
+    indices = np.broadcast_to(columns, blocks.shape).reshape(-1)
+    indptr = np.arange(0, n * r * r + 1, r)
+    return scipy.sparse.csr_matrix((blocks.reshape(-1), indices, indptr), shape=(n * r, n * r))
+
+
+def _per_pose_whitened(
+    problem: Problem,
+    a: np.ndarray,
+    noise: Noise,
+    covariances: np.ndarray | None,
+    params: np.ndarray,
+) -> np.ndarray:
+    """``A`` ``(r N, k)`` of a per-pose formulation (board) whitened pose by pose
+    (:func:`pose_whiteners`), in ``O(N k)``; the dense whitener of :func:`noise_factor` would
+    hold ``(r N)^2`` numbers. Poses whose covariance is singular (no noise at all) are left out
+    of the information."""
+    blocks = pose_whiteners(problem, noise, covariances, params)
+    rows = a.reshape(len(blocks), blocks.shape[1], -1)
+    return (blocks @ rows).reshape(-1, a.shape[1])
 
 
 def parameter_covariance(
