@@ -71,7 +71,7 @@ def run(args: argparse.Namespace) -> int:
         [File(p, b"", what) for p, what in ((args.json, "--json"), (args.report, "--report")) if p]
     )
     measures = [args.measure] if args.measure else ["position", "pose"]
-    # the board pairing compares camera poses in the board frame: the invariant formulation's
+    # the board formulation compares camera poses in the board frame: the frame-invariant data
     formulation = args.formulation or ("invariant" if args.pairs == "board" else "published")
     runs = []
     for measure in measures:
