@@ -11,6 +11,7 @@ from conftest import random_q
 from helpers_sim import BOARD, HANDEYE, numeric_jacobian
 
 from relcal import geometry as tf
+from relcal.calibration.identifiability import analyse_problem
 from relcal.calibration.identify import identify_lm
 from relcal.calibration.measurement import (
     Problem,
@@ -76,6 +77,35 @@ def test_jacobian_matches_finite_differences_at_the_truth_and_far_from_it(arm, r
     # the model's Jacobian differs from it there (the residual's tangent), so both are tested
     model_jac = residuals(problem, params, model_jacobian=True)[1]
     assert np.abs(model_jac - fd).max() > 1e-3 * np.linalg.norm(fd, axis=0).max()
+
+
+def test_position_only_rows_are_in_the_measured_cameras_frame(arm, rng):
+    """Position-only board measurements: ``R_C^T (t_C - t_model)``, exact Jacobian far from the
+    truth, and the hand-eye's rotation without any effect on them (it turns the camera about its
+    own centre): the cost does not change along it, and the analysis names it."""
+    q = random_q(arm, 30, rng)
+    truth = planted(arm, rng)
+    problem = replace(board_problem(arm, q, truth), measure="position")
+    assert problem.n_residuals() == 90
+    params = truth + rng.normal(0, 0.02, len(truth))
+    r, a = residuals(problem, params)
+    model, handeye = split_params(problem, params)
+    modelled = board_frame(problem, params) @ fk(model, q) @ handeye
+    shift = problem.poses[:, :3, 3] - modelled[:, :3, 3]
+    want = np.einsum("nji,nj->ni", problem.poses[:, :3, :3], shift).ravel()
+    np.testing.assert_allclose(r, want, atol=1e-15)
+    fd = numeric_jacobian(problem, params)
+    assert np.abs(a - fd).max() <= 1e-6 * np.linalg.norm(fd, axis=0).max()
+    n_geo = problem.layout.size
+    turned = params.copy()
+    turned[n_geo + 3 : n_geo + 6] += [0.1, -0.2, 0.05]  # the hand-eye's rotation, far
+    np.testing.assert_allclose(residuals(problem, turned, jacobian=False), r, atol=1e-14)
+    assert np.abs(a[:, n_geo + 3 : n_geo + 6]).max() < 1e-14
+    ident = analyse_problem(problem)  # at the guesses, millimetres and degrees away
+    assert ident.rank == analyse_problem(replace(problem, measure="pose")).rank - 3
+    named = {c.names: c.reason for c in ident.combinations}
+    for c in ("rx", "ry", "rz"):
+        assert "camera positions do not see" in named[(f"handeye.{c}",)]
 
 
 def test_layout_pairs_and_guess(arm, rng):

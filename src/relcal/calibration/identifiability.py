@@ -19,7 +19,7 @@ import scipy.linalg
 from relcal import geometry as tf
 from relcal.calibration.blas import one_blas_thread
 from relcal.calibration.measurement import Problem, residuals
-from relcal.errors import RelcalError
+from relcal.errors import ArgumentError, RelcalError
 from relcal.robot.kinematics import DISPLAY_UNITS, Layout, pose_jacobian
 from relcal.robot.model import RobotModel, parallel_axes
 
@@ -319,6 +319,9 @@ def explainer(problem: Problem):
         jac, spatial, body = jacobians()
         geometric = v[:n_geo]
         motion = jac @ geometric  # (N, 6): tip velocity and angular velocity, base frame
+        positions = problem.formulation == "board" and problem.measure == "position"
+        if kinds == {"handeye"} and positions:  # the hand-eye's rotation (its shift moves them)
+            return "turns the camera about its own centre, which camera positions do not see"
         if len(involved) == 1 and np.abs(motion).max() < 1e-12:
             return "has no effect on the tool pose"
         if kinds == {"d"} and len(involved) > 1:
@@ -368,7 +371,8 @@ def analyse_problem(
 
     ``jac``: the identification Jacobian there, if the caller has it already. With
     ``handeye="known"`` the hand-eye columns of the frame-invariant formulation are left out (the
-    transform is taken as given). A coincidence problem is judged at its samples nudged onto their
+    transform is taken as given; the board formulation estimates it with the board transform,
+    always). A coincidence problem is judged at its samples nudged onto their
     group points (:func:`relcal.calibration.coincidence.consistent`; ``jac`` is not used).
 
     Parameters
@@ -381,7 +385,8 @@ def analyse_problem(
     jac : (R, P) ndarray of float, optional
         The identification Jacobian at the nominal model (R residual rows, P parameters).
     handeye : {"estimated", "known"}
-        Whether the hand-eye transform is estimated with the robot parameters.
+        Whether the hand-eye transform is estimated with the robot parameters (``known``: the
+        frame-invariant, published and absolute formulations).
 
     Returns
     -------
@@ -392,7 +397,8 @@ def analyse_problem(
     Raises
     ------
     ArgumentError
-        ``problem`` not a :class:`Problem`, ``rcond`` outside (0, 1), an unknown ``handeye``.
+        ``problem`` not a :class:`Problem`, ``rcond`` outside (0, 1), an unknown ``handeye``,
+        ``handeye="known"`` for the board formulation.
 
     Examples
     --------
@@ -409,6 +415,12 @@ def analyse_problem(
     check_instance(problem, Problem, "problem", "a Problem")
     check_number(rcond, "rcond", 0, 1, low_open=True, high_open=True)
     check_choice(handeye, "handeye", ("estimated", "known"))
+    if handeye == "known" and problem.formulation == "board":
+        raise ArgumentError(
+            "handeye 'known' (--handeye known): the board formulation estimates the hand-eye "
+            "transform X with the board transform W (as a calibration does); take X as known "
+            "with pairs of poses (pairing 'all', 'consecutive' or 'star'), or estimate it"
+        )
     if problem.formulation == "coincidence":
         from relcal.calibration.coincidence import consistent
 

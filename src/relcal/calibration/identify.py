@@ -33,11 +33,13 @@ from relcal.calibration.measurement import (
 )
 from relcal.calibration.noise import Noise, robust_sigma
 from relcal.calibration.uncertainty import (
+    PER_POSE,
     ClusteredCovariance,
     clustered_covariance,
     least_squares_covariance,
     noise_factor,
     parameter_covariance,
+    pose_whitener,
     whitener,
 )
 from relcal.errors import ArgumentError, RelcalError
@@ -1072,8 +1074,14 @@ def identify_weighted(
 
     The weights come from ``noise`` (or per-pose ``covariances`` ``(N, 6, 6)``) at the measured
     relative motions (frame-invariant) and the nominal joint Jacobians; ``whiten`` ``(r, M)``
-    (from :func:`uncertainty.whitener`) replaces them.
+    (from :func:`uncertainty.whitener`) replaces them. Where each measurement is one pose's own
+    (the board formulation, absolute poses) the poses' errors are independent and the whitening
+    is block diagonal, one block per pose (:func:`uncertainty.pose_whitener`, a sparse matrix):
+    time and memory linear in the poses, where the dense whitening of all ``M = 6 N`` rows is
+    quadratic in memory and each solver step in time (and its SVD cubic).
     """
+    if whiten is None and problem.formulation in PER_POSE:
+        whiten = pose_whitener(problem, noise, covariances)
     if whiten is None:
         whiten = whitener(noise_factor(problem, noise, covariances, measured=True))
     return identify_lm(problem, max_nfev, identifiability, whiten=whiten)

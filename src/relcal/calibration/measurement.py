@@ -407,6 +407,45 @@ def derived(problem: Problem, **changes: Any) -> Problem:
     return out
 
 
+def camera_pairing(formulation: Formulation, pairing: PairStrategy, n_poses: int) -> str:
+    """The pairing that ``pairing`` stands for with ``n_poses`` camera poses measured for
+    ``formulation`` (``auto`` resolved by :func:`resolve_pairing`), checked.
+
+    Parameters
+    ----------
+    formulation : {"invariant", "published", "absolute"}
+        What the measured poses are: camera poses in the board frame (``invariant``), or tool
+        poses in a base-aligned frame.
+    pairing : {"auto", "all", "consecutive", "star", "board"}
+        The choice (the command line's ``--pairing``).
+    n_poses : int
+        Number of poses.
+
+    Returns
+    -------
+    str
+        ``all``, ``consecutive``, ``star`` or ``board``.
+
+    Raises
+    ------
+    ArgumentError
+        An unknown pairing, or ``board`` (asked for, or ``auto`` above
+        :data:`AUTO_ALL_PAIRS` poses) with poses that are not in the board frame: only the
+        frame-invariant data have a board frame to fit.
+    """
+    check_choice(pairing, "pairing", PAIRINGS)
+    used = resolve_pairing(pairing, n_poses)
+    if used == "board" and formulation != "invariant":
+        asked = "'board'" if pairing == "board" else f"'auto' ({n_poses} poses: board)"
+        raise ArgumentError(
+            f"pairing {asked}: the board formulation compares each camera pose with a fitted "
+            "board frame, so it needs camera poses in the board frame: formulation 'invariant' "
+            f"(--formulation invariant), not {formulation!r}; or pair the poses ('all', "
+            "'consecutive' or 'star')"
+        )
+    return used
+
+
 def camera_problem(
     model: RobotModel,
     q: np.ndarray,
@@ -415,23 +454,36 @@ def camera_problem(
     measure: Measure = "pose",
     pairing: PairStrategy = "consecutive",
     poses: np.ndarray | None = None,
+    board: np.ndarray | None = None,
 ) -> Problem:
     """The identification problem of camera poses ``(N, 4, 4)`` at joints ``q`` ``(N, n)`` for a
     camera mounted by the flange-from-camera ``handeye``: estimated with the geometry from that
-    guess (frame-invariant), or folded into the tool (published, absolute). Without ``poses``, the
-    nominal camera poses (the Jacobian does not depend on them)."""
+    guess (frame-invariant, and the board formulation, which ``pairing`` ``board`` asks for:
+    :func:`camera_pairing`), or folded into the tool (published, absolute). Without ``poses``,
+    the nominal camera poses (the Jacobian does not depend on them). ``board``: the board
+    formulation's guess of the board-from-base ``W`` ``(4, 4)``, by default
+    :func:`board_guess` from the nominal flange poses and ``poses`` (as a calibration starts)."""
+    used = camera_pairing(formulation, pairing, len(q))
     x = handeye
     ident_model = model
     if formulation != "invariant":
         ident_model, x = replace(model, tool=model.tool @ handeye), np.eye(4)
+    if poses is None:
+        poses = fk(ident_model, q) @ x
+    if used == "board":
+        if board is None:
+            board = board_guess(fk(ident_model, q), poses, x)
+        return Problem(
+            ident_model, make_layout(model), q, poses, "board", measure, None, x, board=board
+        )
     return Problem(
         model=ident_model,
         layout=make_layout(model),
         q=q,
-        poses=fk(ident_model, q) @ x if poses is None else poses,
+        poses=poses,
         formulation=formulation,
         measure=measure,
-        pairs=make_pairs(len(q), pairing),
+        pairs=make_pairs(len(q), used),
         handeye=x,
     )
 
@@ -505,9 +557,7 @@ def residuals(
             a = residual_tangent(r) @ a
     elif problem.formulation == "board":
         n_geo = problem.layout.size
-        r, a = _board(problem, tip, jac, handeye, params[n_geo : n_geo + 12])
-        if jacobian and not model_jacobian:
-            a = residual_tangent(r) @ a
+        r, a = _board(problem, tip, jac, handeye, params[n_geo : n_geo + 12], model_jacobian)
     else:
         r, a = tf.pose_error(problem.poses, tip), jac
         if jacobian and not model_jacobian:  # log(R_e exp(-w)) ~ log(R_e) - J_r^-1(log R_e) w
@@ -572,19 +622,35 @@ def _board(
     spatial: np.ndarray | None,
     handeye: np.ndarray,
     frame_params: np.ndarray,
+    model_jacobian: bool = False,
 ) -> tuple[np.ndarray, np.ndarray | None]:
     """Residuals ``(N, 6)`` of the board formulation, the 6-vectors of ``(W F_k X)^-1 C_k``, and
-    (given the spatial twists ``(N, 6, n_geo)`` of the parameters) the Jacobian
-    ``(N, 6, n_geo + 12)`` of the modelled pose ``W F_k X`` as a body motion (camera frame);
-    ``frame_params``: the ``handeye.*`` and ``board.*`` 6-vectors.
+    (given the spatial twists ``(N, 6, n_geo)`` of the parameters) their Jacobian
+    ``(N, 6, n_geo + 12)``, or with ``model_jacobian`` that of the modelled pose ``W F_k X`` as
+    a body motion (camera frame); ``frame_params``: the ``handeye.*`` and ``board.*`` 6-vectors.
 
     ``F_k -> exp(S_k) F_k`` and ``W -> W exp(omega)`` move ``W F_k X`` by the body twists
     ``Ad((F_k X)^-1) S_k`` and ``Ad((F_k X)^-1) omega``; ``X -> X exp(xi)`` by ``xi``.
+
+    Position-only measurements (``problem.measure == "position"``) compare the camera's position
+    in the frame of the measured camera, ``R_C^T (t_C - t_model)``: the rotation of ``X`` turns
+    the camera about its own centre, and has no effect on it at all (in the modelled camera's
+    frame, ``(W F X)^-1 C``'s translation, it would turn the residual vector without changing its
+    length: a direction of the cost that the Jacobian away from the optimum shows as
+    determined). Its Jacobian is ``R_C^T R_model`` times the body motion's translation rows,
+    which is the model's at the optimum.
     """
     handeye_params, board_params = frame_params[:6], frame_params[6:12]
     world = problem.board @ tf.from_vector(board_params)
     camera = tip @ handeye  # F X
-    r = tf.to_vector(tf.invert(world @ camera) @ problem.poses)
+    modelled = world @ camera
+    r = tf.to_vector(tf.invert(modelled) @ problem.poses)
+    position = problem.measure == "position"
+    if position:
+        measured = problem.poses[:, :3, :3]
+        turn = np.swapaxes(measured, -1, -2) @ modelled[:, :3, :3]  # R_C^T R_model
+        shift = problem.poses[:, :3, 3] - modelled[:, :3, 3]
+        r[:, :3] = np.einsum("nji,nj->ni", measured, shift)
     if spatial is None:
         return r, None
     n_geo = spatial.shape[-1]
@@ -597,7 +663,12 @@ def _board(
         out[:, :, n_geo : n_geo + 6] = tf.vector_tangent(handeye_params)
     if np.any(board_params):
         out[:, :, n_geo + 6 :] = to_camera @ tf.vector_tangent(board_params)
-    return r, out
+    if model_jacobian:
+        return r, out
+    if position:  # the rotation rows are not used
+        out[:, :3] = turn @ out[:, :3]
+        return r, out
+    return r, residual_tangent(r) @ out
 
 
 def residual_tangent(r: np.ndarray) -> np.ndarray:
@@ -622,6 +693,10 @@ def pair_errors(problem: Problem, params: np.ndarray) -> np.ndarray:
         r = formulation_hooks(problem.formulation).sample_errors(problem, params)
         return np.concatenate([r, np.full_like(r, np.nan)], axis=1)
     if problem.formulation == "tracker":  # points: 3 rows per sample, no orientation
+        plain = derived(problem, weights=None, pair_weights=None)
+        r = residuals(plain, params, jacobian=False).reshape(-1, 3)
+        return np.concatenate([r, np.full_like(r, np.nan)], axis=1)
+    if problem.formulation == "board" and problem.measure == "position":  # measured frame
         plain = derived(problem, weights=None, pair_weights=None)
         r = residuals(plain, params, jacobian=False).reshape(-1, 3)
         return np.concatenate([r, np.full_like(r, np.nan)], axis=1)

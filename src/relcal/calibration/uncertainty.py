@@ -255,27 +255,33 @@ def pose_rows(
     Each pose's own error (``r`` = 6 rows, 3 for position-only published data) as a function of
     the parameters (``problem.full_layout``, ``P`` columns) and of what relative measurements
     cancel (``h`` nuisance columns last): the board pose ``W`` (6, frame-invariant), a constant
-    offset of every row (published: the differences cancel it), nothing (absolute). Eliminating
+    offset of every row (published: the differences cancel it), nothing (absolute, and the board
+    formulation, whose layout has ``W``'s columns ``board.*`` already). Eliminating
     the nuisance from the summed information ``sum_k R_k^T R_k`` gives the same information as
     any connected set of pairs weighted by its full covariance (the Cramer-Rao bound does not
     depend on the pairing), and the sum is additive over poses, which pose selection needs.
     """
-    if problem.formulation == "invariant" and problem.measure == "position":
+    if problem.formulation in ("invariant", "board") and problem.measure == "position":
         raise RelcalError(
-            "per-pose information needs full-pose measurements for the frame-invariant "
-            "formulation (relative positions do not split into per-pose terms); use --measure pose"
+            f"per-pose information needs full-pose measurements for the {problem.formulation} "
+            "formulation (relative positions, and positions in the measured camera's frame, do "
+            "not split into these per-pose terms); use --measure pose"
         )
     n = len(problem.q)
     params = np.zeros(problem.full_layout.size) if params is None else params
     model, handeye = split_params(problem, params)
     tip, jac = pose_jacobian(model, problem.q, problem.layout)
-    if problem.formulation == "invariant":
+    if problem.formulation in ("invariant", "board"):
         body = tf.rotate_twist(np.swapaxes(tip[:, :3, :3], -1, -2), jac)
         geo = tf.adjoint(tf.invert(handeye)) @ body
         he = np.broadcast_to(np.eye(6), (n, 6, 6))
         board = tf.adjoint(tf.invert(tip @ handeye))  # W -> W exp(w)
+        if problem.formulation == "board" and np.any(params[-6:]):  # per unit of the 6-vector
+            board = board @ tf.vector_tangent(params[-6:])
+        if problem.formulation == "board" and np.any(params[-12:-6]):
+            he = np.broadcast_to(tf.vector_tangent(params[-12:-6]), (n, 6, 6))
         rows = np.concatenate([geo, he, board], axis=-1)
-        h = 6
+        h = 6 if problem.formulation == "invariant" else 0
     elif problem.formulation == "published":  # differences cancel any constant offset
         offset = np.zeros((n, 6, problem.rows_per_measurement))
         offset[:, : problem.rows_per_measurement] = np.eye(problem.rows_per_measurement)
@@ -424,18 +430,37 @@ def spanning_chain(problem: Problem) -> Problem:
     return replace(problem, pairs=make_pairs(n, "consecutive"), pair_weights=None)
 
 
-def _per_pose_whitened(
+PER_POSE = ("absolute", "board")  # formulations whose every measurement is one pose's own
+
+
+def pose_whiteners(
     problem: Problem,
-    a: np.ndarray,
     noise: Noise,
-    covariances: np.ndarray | None,
-    params: np.ndarray,
+    covariances: np.ndarray | None = None,
+    params: np.ndarray | None = None,
 ) -> np.ndarray:
-    """``A`` ``(6 N, k)`` of a per-pose formulation (board) whitened pose by pose: each pose's
-    rows (after the problem's row weights) times the inverse root of their covariance, in
-    ``O(N k)``; the dense whitener of :func:`noise_factor` would hold ``(6 N)^2`` numbers. Poses
-    whose covariance is singular (no noise at all) are left out of the information."""
-    poses, blocks = noise_blocks(problem, params)
+    """Whitening blocks ``(N, r, r)`` of a formulation whose measurements are one pose each
+    (:data:`PER_POSE`: board, absolute): block ``k`` times pose ``k``'s ``r`` residual rows (after
+    the problem's row weights) has the identity covariance, ``W_k^T W_k = Cov_k^+``; the whole
+    whitening is block diagonal, ``O(N)`` numbers where :func:`whitener` of
+    :func:`noise_factor` would hold ``(r N)^2`` and take an SVD of that size.
+
+    Directions whose variance is below ``_RANK_TOL^2`` of the largest (over all poses; e.g.
+    orientation rows without orientation noise) get a zero row, as :func:`whitener` leaves them
+    out.
+
+    Raises
+    ------
+    RelcalError
+        The problem is not of a per-pose formulation, or the noise model is zero.
+    """
+    if problem.formulation not in PER_POSE:
+        raise RelcalError(
+            f"per-pose whitening: the {problem.formulation} formulation's measurements share "
+            "poses (use whitener(noise_factor(...)))"
+        )
+    params = np.zeros(problem.full_layout.size) if params is None else params
+    _, blocks = noise_blocks(problem, params)
     root = _root(pose_covariances(problem, noise, covariances, params))
     factor = blocks[:, 0] @ root  # (N, r, 6): each pose's residual noise is factor @ unit noise
     cov = factor @ np.swapaxes(factor, -1, -2)
@@ -445,8 +470,40 @@ def _per_pose_whitened(
     if not keep.any():
         raise RelcalError("the noise model is zero: give position/orientation or joint noise")
     inv = np.where(keep, 1.0 / np.sqrt(np.where(keep, w, 1.0)), 0.0)
-    rows = a.reshape(len(poses), factor.shape[1], -1)
-    return (np.swapaxes(v, -1, -2) @ rows * inv[:, :, None]).reshape(-1, a.shape[1])
+    return inv[:, :, None] * np.swapaxes(v, -1, -2)
+
+
+def pose_whitener(
+    problem: Problem,
+    noise: Noise,
+    covariances: np.ndarray | None = None,
+    params: np.ndarray | None = None,
+) -> scipy.sparse.csr_matrix:
+    """The block-diagonal whitening ``(M, M)`` of :func:`pose_whiteners` as a sparse matrix
+    (``r^2 N`` stored numbers), for the solvers' ``whiten`` (``whiten @ r``, ``whiten @ A``: time
+    and memory linear in the poses)."""
+    blocks = pose_whiteners(problem, noise, covariances, params)
+    n, r, _ = blocks.shape
+    columns = np.arange(n)[:, None, None] * r + np.arange(r)  # each row's block of columns
+    indices = np.broadcast_to(columns, blocks.shape).reshape(-1)
+    indptr = np.arange(0, n * r * r + 1, r)
+    return scipy.sparse.csr_matrix((blocks.reshape(-1), indices, indptr), shape=(n * r, n * r))
+
+
+def _per_pose_whitened(
+    problem: Problem,
+    a: np.ndarray,
+    noise: Noise,
+    covariances: np.ndarray | None,
+    params: np.ndarray,
+) -> np.ndarray:
+    """``A`` ``(r N, k)`` of a per-pose formulation (board) whitened pose by pose
+    (:func:`pose_whiteners`), in ``O(N k)``; the dense whitener of :func:`noise_factor` would
+    hold ``(r N)^2`` numbers. Poses whose covariance is singular (no noise at all) are left out
+    of the information."""
+    blocks = pose_whiteners(problem, noise, covariances, params)
+    rows = a.reshape(len(blocks), blocks.shape[1], -1)
+    return (blocks @ rows).reshape(-1, a.shape[1])
 
 
 def parameter_covariance(
@@ -538,20 +595,26 @@ def predicted_accuracy(
 ) -> Accuracy:
     """Propagate the parameter covariance to relative poses between validation configurations
     ``(V, n)``: ``Cov(pair) = A_pair Cov(p) A_pair^T`` with the problem's formulation (unweighted,
-    full pose)."""
+    full pose). The board formulation's too are relative poses (frame-invariant pairs, which the
+    board transform does not move), as a calibration validates it."""
     q_validation = np.atleast_2d(np.asarray(q_validation, dtype=float))
     n = len(q_validation)
     pairs = make_pairs(n, pairing)
+    relative = "invariant" if problem.formulation == "board" else problem.formulation
     shell = replace(
         problem,
         q=q_validation,
         poses=np.broadcast_to(np.eye(4), (n, 4, 4)),
+        formulation=relative,
         pairs=pairs,
         measure="pose",
         weights=None,
+        pair_weights=None,
     )
     params = np.zeros(problem.full_layout.size) if params is None else params
-    _, a = residuals(shell, params, model_jacobian=True)
+    _, a = residuals(shell, params[: shell.full_layout.size], model_jacobian=True)
+    if shell.full_layout.size < len(params):  # the board's columns: no effect on relative poses
+        a = np.pad(a, ((0, 0), (0, len(params) - shell.full_layout.size)))
     a = a[:, uncertainty.subset].reshape(-1, 6, len(uncertainty.subset))
     cov = a @ uncertainty.covariance @ np.swapaxes(a, -1, -2)  # (P, 6, 6)
     diag = np.clip(np.diagonal(cov, axis1=-2, axis2=-1), 0.0, None)

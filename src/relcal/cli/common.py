@@ -313,8 +313,8 @@ def registry_arg(parser: argparse.ArgumentParser) -> None:
     )
 
 
-# --pairing (--pairs) of calibrate and fleet calibrate: relcal.calibration.measurement.PAIRINGS,
-# written out here so that the parsers import no NumPy
+# --pairing (--pairs) of calibrate, fleet calibrate, simulate, study and observability:
+# relcal.calibration.measurement.PAIRINGS, written out here so that the parsers import no NumPy
 PAIRINGS = ("auto", "all", "consecutive", "star", "board")
 PAIRS_HELP = (
     "how relative poses are compared: auto (default: all pairs up to 300 usable samples, board "
@@ -322,19 +322,22 @@ PAIRS_HELP = (
     "board, its transform estimated: the information of all pairs, linear in the samples); "
     "--pairs is its former name"
 )
+SIMULATION_PAIRS_HELP = (
+    "how the poses are compared, as calibrate's --pairing: consecutive (default), star, all "
+    "pairs, board (each camera pose against the board, its transform board.* estimated: what "
+    "calibrate uses for large sets; frame-invariant formulation only), or auto (all pairs up to "
+    "300 poses, board above); --pairs is its former name"
+)
 
 
 def pairing_arg(parser: argparse.ArgumentParser, calibration: bool = True) -> None:
-    """``--pairing`` (``--pairs`` its former name): which samples form relative measurements;
-    a calibration's choices (``auto`` by default), or a simulation's (consecutive by default)."""
+    """``--pairing`` (``--pairs`` its former name): which samples form relative measurements,
+    the same choices everywhere; ``auto`` by default for a calibration, ``consecutive`` for a
+    simulation, study or observability report (``calibration=False``)."""
     if calibration:
-        choices, default, help_ = PAIRINGS, "auto", PAIRS_HELP
+        default, help_ = "auto", PAIRS_HELP
     else:
-        choices, default = ("consecutive", "star", "all"), "consecutive"
-        help_ = (
-            "which pairs of poses form relative measurements (default consecutive; --pairs is "
-            "its former name)"
-        )
+        default, help_ = "consecutive", SIMULATION_PAIRS_HELP
     parser.add_argument(
-        "--pairing", "--pairs", dest="pairs", choices=choices, default=default, help=help_
+        "--pairing", "--pairs", dest="pairs", choices=PAIRINGS, default=default, help=help_
     )

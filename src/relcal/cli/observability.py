@@ -28,6 +28,7 @@ examples:
   relcal observability --robot a465 --hayati auto          # Hayati's beta resolves axes 2 and 3
   relcal observability --robot a465 --poses plan.csv --json report.json
   relcal observability --robot a465 --formulation published --measure position --handeye known
+  relcal observability --robot a465 --pairing board        # the board formulation (W estimated)
 
 poses: a CSV with a header  id,q1..qn  (other columns are ignored, so a dataset's samples.csv
 works too); angles in --joint-unit (prismatic joints in m)
@@ -35,7 +36,8 @@ works too); angles in --joint-unit (prismatic joints in m)
 
 
 def build_problem(model, q: np.ndarray, formulation: str, measure: str, pairs: str):
-    """The identification problem at configurations ``q`` with the simulation's hand-eye."""
+    """The identification problem at configurations ``q`` with the simulation's hand-eye
+    (``pairs`` ``board``: the board formulation)."""
     from relcal.calibration.measurement import camera_problem
     from relcal.design.cell import Cell
 
@@ -57,8 +59,9 @@ def run(args: argparse.Namespace) -> int:
     from relcal.calibration.noise import Noise
     from relcal.design.observability import report
     from relcal.io import write_json
+    from relcal.limits import resolve_pairing
     from relcal.reporting.documents import observability_document
-    from relcal.reporting.text import format_observability
+    from relcal.reporting.text import comparison_text, format_observability
 
     model = load_robot(args)
     q, source = joint_source(args, model)
@@ -81,12 +84,14 @@ def run(args: argparse.Namespace) -> int:
         q_validation=q_val,
         estimator=args.estimator,
     )
+    pairing = resolve_pairing(args.pairs, len(q))
     if not args.quiet:
-        print(f"{source}, {args.pairs} pairs")
+        print(f"{source}, {comparison_text(problem.formulation, pairing)}")
         print(format_observability(rep))
     if args.json:
         doc = observability_document(rep)
         doc["poses_source"] = source
+        doc["pairing"] = pairing
         write_json(args.json, doc)
     return 0
 
@@ -130,7 +135,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--handeye",
         choices=("estimated", "known"),
         default="estimated",
-        help="frame-invariant formulation: estimate the hand-eye transform or take it as known",
+        help="frame-invariant formulation: estimate the hand-eye transform or take it as known "
+        "(the board formulation, --pairing board, estimates it)",
     )
     pairing_arg(p, calibration=False)
     add_noise_arg(p)

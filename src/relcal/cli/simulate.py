@@ -23,6 +23,7 @@ EPILOG_SIMULATE = """\
 examples:
   relcal simulate --robot a465                       # both published runs, random errors
   relcal simulate --robot a465 --measure pose --formulation invariant --noise 0.05,0.01
+  relcal simulate --robot a465 --measure pose --pairing board --method lm   # board formulation
   relcal simulate --robot puma560 --errors errors.yaml --json out.json
   relcal simulate --robot a465 --images synthetic/ --poses 40   # rendered images, full pipeline
   relcal simulate --robot a465 --images synthetic/ --poses 40 --image-scale 0.5  # 1224x1024 px
@@ -54,7 +55,7 @@ def run(args: argparse.Namespace) -> int:
     from relcal.io import File, json_text, write_set
     from relcal.outputset import check
     from relcal.reporting.documents import simulation_document
-    from relcal.reporting.text import format_simulation
+    from relcal.reporting.text import comparison_text, format_simulation
     from relcal.robot.kinematics import make_layout
     from relcal.sim.scenario import load_errors
     from relcal.sim.simulate import simulate
@@ -70,11 +71,13 @@ def run(args: argparse.Namespace) -> int:
         [File(p, b"", what) for p, what in ((args.json, "--json"), (args.report, "--report")) if p]
     )
     measures = [args.measure] if args.measure else ["position", "pose"]
+    # the board formulation compares camera poses in the board frame: the frame-invariant data
+    formulation = args.formulation or ("invariant" if args.pairs == "board" else "published")
     runs = []
     for measure in measures:
         sim = simulate(
             model,
-            formulation=args.formulation,
+            formulation=formulation,
             measure=measure,
             n_poses=args.poses,
             noise=noise,
@@ -86,9 +89,10 @@ def run(args: argparse.Namespace) -> int:
         runs.append(sim)
         if not args.quiet:
             what = "position only" if measure == "position" else "position and orientation"
+            lead = "" if sim.formulation == "board" else "relative "
             print(
-                f"\n{model.name}: relative {what}, {args.formulation} formulation, "
-                f"{len(sim.problem.q)} poses, {args.pairs} pairs, {sim.result.method} solver"
+                f"\n{model.name}: {lead}{what}, {comparison_text(sim.formulation, sim.pairing)}, "
+                f"{len(sim.problem.q)} poses, {sim.result.method} solver"
             )
             print(format_simulation(sim))
     items = []
@@ -213,7 +217,13 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     robot_args(sim)
     sim.add_argument("--measure", choices=("position", "pose"), help="one run only (default both)")
-    sim.add_argument("--formulation", choices=("published", "invariant"), default="published")
+    sim.add_argument(
+        "--formulation",
+        choices=("published", "invariant"),
+        help="published (default; Lu & Hayes, base-aligned differences) or invariant (camera "
+        "poses in the board frame, the hand-eye estimated); invariant is the default with "
+        "--pairing board",
+    )
     sim.add_argument("--method", choices=("published", "lm"), default="published")
     pairing_arg(sim, calibration=False)
     sim.add_argument(

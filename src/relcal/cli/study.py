@@ -23,6 +23,7 @@ examples:
   relcal study --robot a465 --hayati auto --poses plan.csv --json study.json
   relcal study --robot a465 --hayati auto --poses 16 --sampling matched
   relcal study --robot a465 --hayati auto --estimator least_squares --pairing all
+  relcal study --robot a465 --hayati auto --pairing board    # the board formulation
 
 The empirical standard deviation of each parameter over T independent trials scatters by about
 1/sqrt(2(T-1)) around the true one (5% at 200 trials); --sampling matched removes that scatter
@@ -40,7 +41,7 @@ def run(args: argparse.Namespace) -> int:
     from relcal.errors import RelcalError
     from relcal.io import write_json
     from relcal.reporting.documents import study_document
-    from relcal.reporting.text import format_study
+    from relcal.reporting.text import comparison_text, format_study
     from relcal.robot.kinematics import make_layout
     from relcal.sim.scenario import load_errors, make_scenario, simulated_joints
     from relcal.sim.study import study
@@ -90,14 +91,17 @@ def run(args: argparse.Namespace) -> int:
         if client is not None:
             client.close()
     if not args.quiet:
-        print(
-            f"\n{model.name}: {args.formulation} formulation, {args.measure}, {source}, "
-            f"{args.pairs} pairs"
-        )
+        how = comparison_text(scenario.problem_formulation, scenario.pairing)
+        print(f"\n{model.name}: {how}, {args.measure}, {source}")
         print(format_study(res, args.length_scale))
     if args.json:
         doc = study_document(res)
-        doc.update(robot=model.name, poses=source, formulation=args.formulation)
+        doc.update(
+            robot=model.name,
+            poses=source,
+            formulation=scenario.problem_formulation,
+            pairing=scenario.pairing,
+        )
         write_json(args.json, doc)
     return 0 if np.all(res.converged) else 1
 

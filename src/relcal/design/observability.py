@@ -139,7 +139,7 @@ def report(
         robot=problem.model.name,
         formulation=problem.formulation,
         measure=problem.measure,
-        handeye=handeye if problem.formulation == "invariant" else "known",
+        handeye=handeye if problem.formulation in ("invariant", "board") else "known",
         n_poses=len(problem.q),
         n_measurements=n_measurements(problem),
         n_rows=jac.shape[0],

@@ -650,6 +650,7 @@ def simulation_document(sim: Simulation) -> dict:
     return {
         "robot": sim.problem.model.name,
         "formulation": sim.formulation,
+        "pairing": sim.pairing,
         "measure": sim.measure,
         "method": r.method,
         "n_poses": len(sim.problem.q),

@@ -231,7 +231,7 @@ def _series(where: str) -> tuple[str, str]:
     """Legend labels of the two series: the calibrated model, and what it is compared with."""
     if where.startswith("held-out points"):
         return "after (calibrated)", "before: baseline (nominal, instrument and marker fitted)"
-    if where.startswith("measured pairs"):  # a simulation: the nominal model, nothing fitted
+    if where.startswith(("measured pairs", "measured poses")):  # a simulation: nothing fitted
         return "after (identified)", "before (nominal model)"
     return "after (calibrated)", "before: baseline (nominal, hand-eye fitted)"
 
@@ -244,7 +244,7 @@ def histogram_figure(before: np.ndarray, after: np.ndarray, where: str) -> Figur
     fig = Figure(figsize=(FIG_WIDTH, 3.4), dpi=DPI, layout="constrained")
     axes = fig.subplots(1, len(b), squeeze=False)[0]
     after_label, before_label = _series(where)
-    absolute = where.startswith("held-out points")
+    absolute = where.startswith(("held-out points", "measured poses"))  # not relative poses
     for ax, key in zip(axes, b, strict=True):
         label, unit, _ = QUANTITIES[key]
         label = label.replace("relative ", "") if absolute else label

@@ -18,6 +18,7 @@ from relcal.reporting.plots import (
     histogram_figure,
     parameter_figure,
 )
+from relcal.reporting.text import comparison_text
 from relcal.sim.simulate import Simulation
 
 __all__ = ["simulation_report"]
@@ -25,7 +26,9 @@ __all__ = ["simulation_report"]
 
 def _sim_title(sim: Simulation) -> str:
     what = "position only" if sim.measure == "position" else "position and orientation"
-    return f"relative {what}, {sim.formulation} formulation, {sim.result.method} solver"
+    lead = "" if sim.formulation == "board" else "relative "
+    how = comparison_text(sim.formulation, sim.pairing)
+    return f"{lead}{what}, {how}, {sim.result.method} solver"
 
 
 def _kind_rms(sim: Simulation) -> tuple[float, float]:
@@ -106,6 +109,11 @@ def _sim_parameter_table(sim: Simulation) -> Html:
 def _sim_sections(sim: Simulation, k: int) -> list[tuple[str, str, Html]]:
     before, after = sim.pair_errors()
     title = _sim_title(sim)
+    if sim.formulation == "board":
+        errors = f"errors of the {len(before)} camera poses against the board"
+        where = "measured poses against the board"
+    else:
+        errors, where = f"relative errors of the {len(before)} measured pairs", "measured pairs"
     return [
         hk.section(
             f"run{k}-parameters",
@@ -131,9 +139,9 @@ def _sim_sections(sim: Simulation, k: int) -> list[tuple[str, str, Html]]:
             f"Run {k}: residuals",
             hk.figure_html(
                 f"plot-run{k}-residuals",
-                f"Run {k}: histograms of the relative errors of the {len(before)} measured pairs "
-                "before and after identification (logarithmic bins)",
-                histogram_figure(before, after, "measured pairs"),
+                f"Run {k}: histograms of the {errors} before and after identification "
+                "(logarithmic bins)",
+                histogram_figure(before, after, where),
             ),
         ),
     ]
@@ -147,7 +155,8 @@ def _sim_settings(runs: Sequence[Simulation]) -> tuple[str, str, Html]:
         ["measure", *[s.measure for s in runs]],
         ["method", *[s.result.method for s in runs]],
         ["poses", *[str(len(s.problem.q)) for s in runs]],
-        ["pairs", *[str(len(s.problem.pair_indices())) for s in runs]],
+        ["pairing", *[s.pairing for s in runs]],
+        ["measurements (pairs, or poses against the board)", *[_count(s) for s in runs]],
         ["noise position (mm)", *[f"{s.noise.position * 1e3:g}" for s in runs]],
         ["noise orientation (deg)", *[f"{np.degrees(s.noise.orientation):g}" for s in runs]],
         ["noise joints (deg)", *[f"{np.degrees(s.noise.joints):g}" for s in runs]],
@@ -155,6 +164,11 @@ def _sim_settings(runs: Sequence[Simulation]) -> tuple[str, str, Html]:
         ["hayati joints", *[_hayati(s) for s in runs]],
     ]
     return hk.section("settings", "Settings", hk.table(head, rows))
+
+
+def _count(sim: Simulation) -> str:
+    n = len(sim.problem.pair_indices())
+    return f"{n} poses" if sim.formulation == "board" else f"{n} pairs"
 
 
 def _hayati(sim: Simulation) -> str:

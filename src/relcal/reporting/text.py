@@ -22,6 +22,14 @@ from relcal.sim.study import StudyResult, worst
 # --- the published simulation ---------------------------------------------------------------------
 
 
+def comparison_text(formulation: str, pairing: str) -> str:
+    """How the poses are compared, for a heading: ``board formulation (each pose against the
+    fitted board frame)``, or ``invariant formulation, all pairs``."""
+    if formulation == "board" or pairing == "board":
+        return "board formulation (each pose against the fitted board frame)"
+    return f"{formulation} formulation, {pairing} pairs"
+
+
 _KIND_UNITS = {"theta_off": ("dtheta", "deg"), "alpha": ("dalpha", "deg"), "a": ("da", "mm")}
 _KIND_UNITS["d"] = ("dd", "mm")
 
@@ -189,6 +197,7 @@ def _wrap(items: list[str], width: int = 96, indent: str = "  ") -> list[str]:
 
 _FORMULATION_TEXT = {
     "invariant": "frame-invariant formulation",
+    "board": "board formulation (board transform W estimated)",
     "published": "published formulation (base-aligned)",
     "absolute": "absolute poses",
 }
@@ -200,6 +209,9 @@ def format_observability(rep: Report) -> str:
     what = "relative position only" if rep.measure == "position" else "relative full pose"
     if rep.formulation == "absolute":
         what = "position only" if rep.measure == "position" else "full pose"
+    elif rep.formulation == "board":
+        what = "camera position" if rep.measure == "position" else "camera pose"
+        what += " against the board"
     he = {"estimated": "hand-eye estimated", "known": "hand-eye known"}[rep.handeye]
     lines = [
         f"{rep.robot}: {_FORMULATION_TEXT[rep.formulation]}, {what}, {he}",

@@ -13,10 +13,17 @@ tool. A measured camera pose is the camera
 in the board frame ``B^-1 F_true(q) X`` (frame-invariant), or in a base-aligned frame centred on
 the board ``F_true(q) X - c`` (published; the board's position cancels in the differences), or in
 the base frame (absolute).
+
+The frame-invariant data are identified in pairs (consecutive, star or all), or with the pairing
+``board`` by the board formulation: each camera pose against ``W F(q) X``, the board-from-base
+``W`` estimated too, started (like a calibration) from
+:func:`~relcal.calibration.measurement.board_guess` of the noise-free poses at the nominal model
+and the hand-eye guess; its true value is the inverse of the cell's board pose.
 """
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -29,6 +36,8 @@ from relcal.calibration.measurement import (
     Measure,
     PairStrategy,
     Problem,
+    board_guess,
+    camera_pairing,
     camera_problem,
 )
 from relcal.calibration.noise import Noise
@@ -113,6 +122,8 @@ class Scenario:
     ``q`` ``(N, n)`` commanded joints (rad); ``errors`` true geometric errors on
     ``make_layout(model)`` (m, rad); ``handeye`` the true flange-from-camera ``X`` and
     ``handeye_guess`` the one the identification starts from (the cell's, the mount drawing).
+    ``pairing``: how the poses are compared (``consecutive``, ``star``, ``all``, or ``board``:
+    the board formulation, frame-invariant data only; :func:`make_scenario` resolves ``auto``).
     """
 
     model: RobotModel
@@ -130,6 +141,23 @@ class Scenario:
     def true_model(self) -> RobotModel:
         """The nominal model with the true errors applied."""
         return apply_errors(self.model, make_layout(self.model), self.errors)
+
+    @property
+    def problem_formulation(self) -> Formulation:
+        """The formulation of the identification problem: ``board`` for the board pairing, else
+        :attr:`formulation`."""
+        return "board" if self.pairing == "board" else self.formulation
+
+    @functools.cached_property
+    def board_guess(self) -> np.ndarray | None:
+        """The board-from-base ``W`` ``(4, 4)`` the board formulation starts from (None for the
+        other pairings): :func:`~relcal.calibration.measurement.board_guess` of the noise-free
+        camera poses at the nominal model and :attr:`handeye_guess`, as a calibration guesses it
+        from its measured poses; one guess per scenario, so that every noisy measurement of it
+        is identified from the same start and the same ``board.*`` truth."""
+        if self.pairing != "board":
+            return None
+        return board_guess(fk(self.model, self.q), clean_poses(self), self.handeye_guess)
 
     @property
     def noise_dimension(self) -> int:
@@ -169,7 +197,10 @@ def make_scenario(
     """A scenario in ``cell`` (default: :func:`relcal.design.cell.place_board`). From the seed, in
     this order: random errors (0.1..0.9 mm, 0.01..0.9 deg) unless given; for the frame-invariant
     formulation, the true hand-eye (:data:`HANDEYE_ERROR` per axis off the cell's); unless
-    ``q`` is given, the joints of ``n_poses`` spiral poses (:func:`simulated_joints`)."""
+    ``q`` is given, the joints of ``n_poses`` spiral poses (:func:`simulated_joints`).
+    ``pairing`` is one of :data:`~relcal.calibration.measurement.PAIRINGS`, ``auto`` resolved by
+    the number of poses and ``board`` checked against the formulation
+    (:func:`~relcal.calibration.measurement.camera_pairing`: frame-invariant data only)."""
     rng = np.random.default_rng(seed)
     cell = cell or place_board(model)
     layout = make_layout(model)
@@ -180,6 +211,7 @@ def make_scenario(
         offset = np.concatenate([rng.normal(0, pos, 3), rng.normal(0, ori, 3)])
         truth = cell.handeye @ tf.from_vector(offset)
     q = simulated_joints(model, n_poses, rng, cell) if q is None else q
+    pairing = camera_pairing(formulation, pairing, len(q))
     return Scenario(
         model=model,
         cell=cell,
@@ -215,15 +247,22 @@ def problem_for(scenario: Scenario, q: np.ndarray, poses: np.ndarray) -> Problem
         scenario.measure,
         scenario.pairing,
         poses=poses,
+        board=scenario.board_guess,
     )
 
 
 def truth_vector(scenario: Scenario) -> np.ndarray:
-    """The true parameters on the problem's full layout (hand-eye error as ``X_guess^-1 X``)."""
+    """The true parameters on the problem's full layout (hand-eye error as ``X_guess^-1 X``; for
+    the board formulation then the board's as ``W_guess^-1 W``, ``W`` the inverse of the cell's
+    board pose)."""
     if scenario.formulation != "invariant":
         return scenario.errors.copy()
     offset = tf.to_vector(tf.invert(scenario.handeye_guess) @ scenario.handeye)
-    return np.concatenate([scenario.errors, offset])
+    if scenario.pairing != "board":
+        return np.concatenate([scenario.errors, offset])
+    world = tf.invert(scenario.cell.board_pose)  # the board-from-base W
+    board = tf.to_vector(tf.invert(scenario.board_guess) @ world)
+    return np.concatenate([scenario.errors, offset, board])
 
 
 def noisy_measurement(

@@ -15,6 +15,7 @@ import numpy as np
 
 from relcal.calibration.identify import Method, Result, SolverOptions, identify
 from relcal.calibration.measurement import (
+    PAIRINGS,
     Formulation,
     Measure,
     PairStrategy,
@@ -43,11 +44,15 @@ class Simulation:
     result : Result
         The identification.
     formulation : str
-        The formulation simulated (``published``, ``invariant`` or ``absolute``).
+        The formulation of the identification (``published``, ``invariant``, ``board`` or
+        ``absolute``): ``problem.formulation``.
     measure : {"pose", "position"}
         What was measured.
     noise : Noise
         The measurement noise simulated.
+    pairing : str
+        How the poses were compared: ``consecutive``, ``star``, ``all`` or ``board`` (``auto``
+        resolved).
     """
 
     problem: Problem
@@ -57,6 +62,7 @@ class Simulation:
     formulation: Formulation
     measure: Measure
     noise: Noise
+    pairing: PairStrategy = "consecutive"
 
     def pair_errors(self) -> tuple[np.ndarray, np.ndarray]:
         """Residuals per pair of the nominal model and of the identified one.
@@ -116,7 +122,8 @@ def simulate(
     model : RobotModel
         The nominal robot.
     formulation : {"published", "invariant", "absolute"}
-        The identification formulation.
+        The identification formulation (what the simulated poses are: base-aligned tool poses,
+        or camera poses in the board frame for ``invariant``).
     measure : {"pose", "position"}
         Position and orientation, or position only.
     n_poses : int
@@ -129,8 +136,11 @@ def simulate(
         True errors (m, rad) following ``make_layout(model)``; random if None.
     method : {"published", "lm"}
         The solver, when ``options`` is not given.
-    pairing : {"consecutive", "star", "all"}
-        Which pairs of poses form relative measurements.
+    pairing : {"consecutive", "star", "all", "board", "auto"}
+        Which pairs of poses form relative measurements, or ``board``: each camera pose against
+        a fitted board frame (the board formulation, the board's 6-vector ``board.*`` estimated
+        with the geometry and the hand-eye; ``formulation="invariant"`` only); ``auto`` is all
+        pairs up to 300 poses and ``board`` above, as in :func:`relcal.calibrate`.
     cell : Cell, optional
         The board and camera of the frame-invariant formulation (default :class:`Cell`).
     options : SolverOptions, optional
@@ -144,9 +154,9 @@ def simulate(
     Raises
     ------
     ArgumentError
-        ``model`` not a :class:`RobotModel`, an unknown choice, fewer than 3 poses, ``noise``
-        not a :class:`Noise`, ``cell`` not a :class:`~relcal.Cell`, ``options`` not
-        :class:`~relcal.SolverOptions`.
+        ``model`` not a :class:`RobotModel`, an unknown choice, ``board`` pairing of another
+        formulation than ``invariant``, fewer than 3 poses, ``noise`` not a :class:`Noise`,
+        ``cell`` not a :class:`~relcal.Cell`, ``options`` not :class:`~relcal.SolverOptions`.
 
     Examples
     --------
@@ -164,7 +174,7 @@ def simulate(
     check_choice(measure, "measure", ("pose", "position"))
     check_number(n_poses, "n_poses", 3, integer=True)
     check_choice(method, "method", ("published", "lm"))
-    check_choice(pairing, "pairing", ("consecutive", "star", "all"))
+    check_choice(pairing, "pairing", PAIRINGS)
     if not isinstance(seed, np.random.Generator | np.random.SeedSequence):
         check_number(seed, "seed", 0, integer=True)
     check_instance(noise, Noise, "noise", "a Noise (relcal.Noise(position=, orientation=), m, rad)")
@@ -192,7 +202,8 @@ def simulate(
         layout=problem.full_layout,
         specified=truth_vector(scenario),
         result=result,
-        formulation=formulation,
+        formulation=problem.formulation,
         measure=measure,
         noise=noise,
+        pairing=scenario.pairing,
     )

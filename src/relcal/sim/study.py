@@ -308,8 +308,11 @@ def study(
 
 def worst(res: StudyResult, length_scale: float = 0.5) -> tuple[str, float, str, float]:
     """Worst parameter by predicted and by empirical standard deviation, angles counted as the
-    displacement ``length_scale`` m away: ``(name, predicted m, name, empirical m)``."""
+    displacement ``length_scale`` m away: ``(name, predicted m, name, empirical m)``. The board
+    formulation's board transform (``board.*``, where the board happens to sit) is not one of
+    them."""
+    keep = np.array([not res.names[k].startswith("board.") for k in res.subset])
     w = np.where(res.is_angle[res.subset], length_scale, 1.0)
-    p, e = res.predicted_std * w, res.empirical_std * w
-    names = [res.names[k] for k in res.subset]
+    p, e = (res.predicted_std * w)[keep], (res.empirical_std * w)[keep]
+    names = [res.names[k] for k in res.subset[keep]]
     return names[int(np.argmax(p))], float(p.max()), names[int(np.argmax(e))], float(e.max())
