@@ -431,6 +431,18 @@ def prior_rows(
     return keep, np.asarray(prior, float)[keep]
 
 
+def _prior_jacobian(rows: tuple[np.ndarray, np.ndarray] | None, subset: np.ndarray):
+    """Where the parameters of the prior ``rows`` (:func:`prior_rows`) sit in ``subset``, and the
+    rows' Jacobian ``(R, len(subset))`` over it (``rows[1]`` on those positions); ``(None, None)``
+    without prior rows."""
+    if rows is None:
+        return None, None
+    at = np.searchsorted(subset, rows[0])
+    jac = np.zeros((len(at), len(subset)))
+    jac[np.arange(len(at)), at] = rows[1]
+    return at, jac
+
+
 def posterior_covariance(data: np.ndarray, std: np.ndarray, subset: np.ndarray) -> np.ndarray:
     """The covariance ``(P, P)`` of a maximum a posteriori estimate: the data's covariance
     ``data`` (NaN outside ``subset``; it may be singular along weak directions) combined with
@@ -645,7 +657,7 @@ def identify_published(
     held = np.zeros(size) if fixed is None else np.asarray(fixed, dtype=float).copy()
     held[subset] = 0.0
     rows = prior_rows(prior, subset)
-    at = None if rows is None else np.searchsorted(subset, rows[0])
+    at, prior_jac = _prior_jacobian(rows, subset)
 
     def stated(x: np.ndarray, jacobian: bool = True):
         """The stated cost's residual (data rows, then prior rows) and its Jacobian over the
@@ -654,10 +666,7 @@ def identify_published(
         r, a = (out[0], out[1][:, subset]) if jacobian else (out, None)
         if rows is not None:
             r = np.r_[r, -rows[1] * x[rows[0]]]
-            if jacobian:
-                extra = np.zeros((len(at), len(subset)))
-                extra[np.arange(len(at)), at] = rows[1]
-                a = np.vstack([a, extra])
+            a = np.vstack([a, prior_jac]) if jacobian else None
         return r, a
 
     params = held.copy()
@@ -909,12 +918,7 @@ def _lm(
     began = time.perf_counter()
     subset = ident.subset
     rows = prior_rows(prior, subset)
-    # positions in x of the parameters with a prior row, and the rows' Jacobian
-    at = None if rows is None else np.searchsorted(subset, rows[0])
-    prior_jac = None
-    if rows is not None:
-        prior_jac = np.zeros((len(at), len(subset)))
-        prior_jac[np.arange(len(at)), at] = rows[1]
+    at, prior_jac = _prior_jacobian(rows, subset)  # positions in x, and the rows' Jacobian
     full = np.zeros(problem.full_layout.size) if held is None else held
     r0, a0 = start if start is not None else residuals(problem, full)
     # The latest evaluation, residual and full Jacobian together: the solver asks for the

@@ -65,7 +65,7 @@ from relcal.robot.kinematics import (
 from relcal.robot.model import RobotModel, check_model
 
 if TYPE_CHECKING:
-    from relcal.calibration.coincidence import Coincidence
+    from relcal.calibration.seated import Coincidence
 
 MARKER_COMPONENTS = ("x", "y", "z")  # the tracker formulation's marker position, m
 
@@ -692,11 +692,10 @@ def pair_errors(problem: Problem, params: np.ndarray) -> np.ndarray:
     if problem.formulation == "coincidence":  # per sample, the distance rows left out
         r = formulation_hooks(problem.formulation).sample_errors(problem, params)
         return np.concatenate([r, np.full_like(r, np.nan)], axis=1)
-    if problem.formulation == "tracker":  # points: 3 rows per sample, no orientation
-        plain = derived(problem, weights=None, pair_weights=None)
-        r = residuals(plain, params, jacobian=False).reshape(-1, 3)
-        return np.concatenate([r, np.full_like(r, np.nan)], axis=1)
-    if problem.formulation == "board" and problem.measure == "position":  # measured frame
+    # Points: 3 rows per sample, no orientation (tracker points, and the board formulation's
+    # positions, which are compared in the measured camera's frame).
+    board_positions = problem.formulation == "board" and problem.measure == "position"
+    if problem.formulation == "tracker" or board_positions:
         plain = derived(problem, weights=None, pair_weights=None)
         r = residuals(plain, params, jacobian=False).reshape(-1, 3)
         return np.concatenate([r, np.full_like(r, np.nan)], axis=1)

@@ -55,7 +55,7 @@ def run(args: argparse.Namespace) -> int:
     from relcal.io import File, json_text, write_set
     from relcal.outputset import check
     from relcal.reporting.documents import simulation_document
-    from relcal.reporting.text import comparison_text, format_simulation
+    from relcal.reporting.text import format_simulation, simulated_text
     from relcal.robot.kinematics import make_layout
     from relcal.sim.scenario import load_errors
     from relcal.sim.simulate import simulate
@@ -88,11 +88,9 @@ def run(args: argparse.Namespace) -> int:
         )
         runs.append(sim)
         if not args.quiet:
-            what = "position only" if measure == "position" else "position and orientation"
-            lead = "" if sim.formulation == "board" else "relative "
             print(
-                f"\n{model.name}: {lead}{what}, {comparison_text(sim.formulation, sim.pairing)}, "
-                f"{len(sim.problem.q)} poses, {sim.result.method} solver"
+                f"\n{model.name}: {simulated_text(sim)}, {len(sim.problem.q)} poses, "
+                f"{sim.result.method} solver"
             )
             print(format_simulation(sim))
     items = []

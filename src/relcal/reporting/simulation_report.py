@@ -18,17 +18,14 @@ from relcal.reporting.plots import (
     histogram_figure,
     parameter_figure,
 )
-from relcal.reporting.text import comparison_text
+from relcal.reporting.text import simulated_text
 from relcal.sim.simulate import Simulation
 
 __all__ = ["simulation_report"]
 
 
 def _sim_title(sim: Simulation) -> str:
-    what = "position only" if sim.measure == "position" else "position and orientation"
-    lead = "" if sim.formulation == "board" else "relative "
-    how = comparison_text(sim.formulation, sim.pairing)
-    return f"{lead}{what}, {how}, {sim.result.method} solver"
+    return f"{simulated_text(sim)}, {sim.result.method} solver"
 
 
 def _kind_rms(sim: Simulation) -> tuple[float, float]:

@@ -30,6 +30,15 @@ def comparison_text(formulation: str, pairing: str) -> str:
     return f"{formulation} formulation, {pairing} pairs"
 
 
+def simulated_text(sim: Simulation) -> str:
+    """What a simulation measured and how it compared it, for a heading: ``relative position
+    only, published formulation, consecutive pairs``, or ``position and orientation, board
+    formulation (...)``."""
+    what = "position only" if sim.measure == "position" else "position and orientation"
+    lead = "" if sim.formulation == "board" else "relative "
+    return f"{lead}{what}, {comparison_text(sim.formulation, sim.pairing)}"
+
+
 _KIND_UNITS = {"theta_off": ("dtheta", "deg"), "alpha": ("dalpha", "deg"), "a": ("da", "mm")}
 _KIND_UNITS["d"] = ("dd", "mm")
 
