@@ -149,6 +149,39 @@ def test_concurrent_writers_lose_nothing(calibrated, tmp_path):
     assert {r.session for r in runs} == {f"w{w}-{k}" for w in range(n_proc) for k in range(count)}
 
 
+def test_opening_waits_for_a_migration_under_way(calibrated, tmp_path):
+    """SQLite's driver commits each DDL statement of a migration on its own: a registry opened
+    while another process migrates the file sees its tables before its revision. Opening waits
+    for the migration lock, and then finds a registry, not "a database of another program"."""
+    import threading
+    import time
+
+    path = tmp_path / "shared.sqlite"
+    url = reg.registry_url(path)
+    engine = sa.create_engine(url)
+    with reg._file_lock(reg._lock_path(engine.url)):  # another process's migration, half done
+        with engine.begin() as conn:
+            conn.exec_driver_sql("CREATE TABLE calibrations (id INTEGER PRIMARY KEY)")
+        outcome: list = []
+
+        def open_it() -> None:
+            try:
+                with reg.Registry(url, write=True) as registry:
+                    outcome.append(("ok", registry.runs()))
+            except Exception as exc:  # reported below
+                outcome.append(("error", repr(exc)))
+
+        opener = threading.Thread(target=open_it)
+        opener.start()
+        time.sleep(0.5)  # room for an opener that does not wait to look at the half-made file
+        with engine.begin() as conn:  # the migration goes on from scratch and completes
+            conn.exec_driver_sql("DROP TABLE calibrations")
+        reg.migrate(engine, locked=True)
+    opener.join(timeout=120)
+    engine.dispose()
+    assert outcome == [("ok", [])]
+
+
 def test_calibrate_records_and_history_compare_read(tmp_path, capsys, monkeypatch):
     robot = make_robot("a465", "cell7-arm2", 3)
     first = write_session(tmp_path / "monday", robot, 11)

@@ -561,14 +561,19 @@ class Registry:
             raise
 
     def _open(self, write: bool, locked: bool = False) -> None:
-        """Check the schema and the database, migrate, and (``write``) probe a write."""
+        """Check the schema and the database, migrate, and (``write``) probe a write.
+
+        The check runs under the migration lock too: SQLite's driver commits each DDL statement
+        of a migration on its own, so a check beside another process's migration could see its
+        tables before its revision and take the file for another program's."""
         try:
-            with self.engine.connect() as conn:
-                _check_database(conn, self.name)
-                if conn.dialect.name == "sqlite":  # WAL (kept in the file) once it is ours
-                    with contextlib.suppress(sa.exc.DBAPIError):  # another process may be too
-                        conn.exec_driver_sql("PRAGMA journal_mode = WAL")
-            migrate(self.engine, locked=locked)
+            with _file_lock(None if locked else _lock_path(self.engine.url)):
+                with self.engine.connect() as conn:
+                    _check_database(conn, self.name)
+                    if conn.dialect.name == "sqlite":  # WAL (kept in the file) once it is ours
+                        with contextlib.suppress(sa.exc.DBAPIError):  # another process may be
+                            conn.exec_driver_sql("PRAGMA journal_mode = WAL")
+                migrate(self.engine, locked=True)
             if write:
                 _probe_write(self.engine)
         except RelcalError as exc:
