@@ -563,17 +563,28 @@ class Registry:
     def _open(self, write: bool, locked: bool = False) -> None:
         """Check the schema and the database, migrate, and (``write``) probe a write.
 
-        The check runs under the migration lock too: SQLite's driver commits each DDL statement
-        of a migration on its own, so a check beside another process's migration could see its
-        tables before its revision and take the file for another program's."""
+        SQLite's driver commits each DDL statement of a migration on its own, so a check beside
+        another process's migration can see its tables before its revision and take the file
+        for another program's: a refusal is confirmed under the migration lock when a relcal
+        process has made one (the lock file exists), and none is created for a file refused."""
+
+        def check() -> None:
+            with self.engine.connect() as conn:
+                _check_database(conn, self.name)
+                if conn.dialect.name == "sqlite":  # WAL (kept in the file) once it is ours
+                    with contextlib.suppress(sa.exc.DBAPIError):  # another process may be too
+                        conn.exec_driver_sql("PRAGMA journal_mode = WAL")
+
         try:
-            with _file_lock(None if locked else _lock_path(self.engine.url)):
-                with self.engine.connect() as conn:
-                    _check_database(conn, self.name)
-                    if conn.dialect.name == "sqlite":  # WAL (kept in the file) once it is ours
-                        with contextlib.suppress(sa.exc.DBAPIError):  # another process may be
-                            conn.exec_driver_sql("PRAGMA journal_mode = WAL")
-                migrate(self.engine, locked=True)
+            try:
+                check()
+            except RelcalError:
+                lock = _lock_path(self.engine.url)
+                if locked or lock is None or not lock.exists():
+                    raise
+                with _file_lock(lock):  # a migration may be under way: look once it is done
+                    check()
+            migrate(self.engine, locked=locked)
             if write:
                 _probe_write(self.engine)
         except RelcalError as exc:
