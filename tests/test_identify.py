@@ -117,3 +117,24 @@ def test_identified_errors_degrade_smoothly_with_noise(a465):
     ratios = np.array(errors[1:]) / np.array(errors[:-1])
     # Linear in the noise: ten times the noise, about ten times the error.
     assert np.all((ratios > 5) & (ratios < 20)), (errors, ratios)
+
+
+def test_deferred_results_pickle_with_their_values(a465, rng):
+    # The null-space naming and the Cramer-Rao bound are computed on first read; a result sent
+    # to another process (a fleet's workers) carries their values, not the closures that
+    # compute them (which do not pickle).
+    import pickle
+
+    from relcal.calibration.noise import Noise
+    from relcal.calibration.uncertainty import parameter_covariance
+
+    problem, _ = make_problem(a465, "invariant", "pose", rng)
+    fresh = analyse_problem(problem)
+    copied = pickle.loads(pickle.dumps(fresh))
+    assert [c.describe() for c in copied.combinations] == [
+        c.describe() for c in analyse_problem(problem).combinations
+    ]
+    np.testing.assert_array_equal(copied.null_space, fresh.null_space)
+    unc = parameter_covariance(problem, Noise(1e-4, 1e-4), identifiability=fresh)
+    copied = pickle.loads(pickle.dumps(unc))
+    np.testing.assert_array_equal(copied.crb, unc.crb)

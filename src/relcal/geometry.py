@@ -108,33 +108,61 @@ def _exp_rotation_one(x: float, y: float, z: float) -> np.ndarray:
 def right_jacobian(rotvec: np.ndarray) -> np.ndarray:
     """Right Jacobian ``(..., 3, 3)`` of SO(3) at rotation vectors ``(..., 3)`` (rad):
     ``exp(w + dw) ~ exp(w) exp([J_r(w) dw])``."""
-    w = np.asarray(rotvec, dtype=float)
-    angle2 = np.einsum("...i,...i->...", w, w)[..., None, None]
-    angle = np.sqrt(angle2)
-    small = angle < 1e-4  # Taylor series there: exact to round-off, no 0/0
-    safe = np.where(small, 1.0, angle)
-    c1 = np.where(small, 0.5 - angle2 / 24, (1 - np.cos(safe)) / safe**2)
-    c2 = np.where(small, 1 / 6 - angle2 / 120, (safe - np.sin(safe)) / safe**3)
-    k = skew(w)
-    return np.eye(3) - c1 * k + c2 * (k @ k)
+    # J_r = I - (1 - cos t)/t^2 [w] + (t - sin t)/t^3 [w]^2
+    return _so3_series(
+        rotvec,
+        lambda t2: (t2 / 24 - 0.5, 1 / 6 - t2 / 120),
+        lambda t: ((np.cos(t) - 1) / t**2, (t - np.sin(t)) / t**3),
+    )
 
 
 def right_jacobian_inverse(rotvec: np.ndarray) -> np.ndarray:
     """Inverse of the right Jacobian ``(..., 3, 3)`` of SO(3) at rotation vectors ``(..., 3)``
     (rad): ``log(exp(w) exp(dw)) ~ w + J_r^-1(w) dw``. The left one is ``J_r^-1(-w)``:
     ``log(exp(dw) exp(w)) ~ w + J_r^-1(-w) dw``. Valid below pi."""
-    w = np.asarray(rotvec, dtype=float)
-    angle2 = np.einsum("...i,...i->...", w, w)[..., None, None]
-    angle = np.sqrt(angle2)
-    small = angle < 1e-4  # Taylor series there: exact to round-off, no 0/0
-    safe = np.where(small, 1.0, angle)
-    c2 = np.where(
-        small,
-        1 / 12 + angle2 / 720,
-        1 / safe**2 - (1 + np.cos(safe)) / (2 * safe * np.sin(safe)),
+    # J_r^-1 = I + [w]/2 + (1/t^2 - (1 + cos t) / (2 t sin t)) [w]^2
+    return _so3_series(
+        rotvec,
+        lambda t2: (0.5, 1 / 12 + t2 / 720),
+        lambda t: (0.5, 1 / t**2 - (1 + np.cos(t)) / (2 * t * np.sin(t))),
     )
-    k = skew(w)
-    return np.eye(3) + 0.5 * k + c2 * (k @ k)
+
+
+def _so3_series(w, series, exact) -> np.ndarray:
+    """``I + a [w] + b [w]^2`` ``(..., 3, 3)`` at rotation vectors ``w`` ``(..., 3)``, with the
+    coefficients ``(a, b)`` from ``exact(angle)`` or, below 1e-4 rad (exact to round-off there,
+    no 0/0), from ``series(angle^2)``. One vector (a hand-eye update) is done on Python floats; a
+    batch evaluates only the branches its angles need (near an optimum, all are small)."""
+    w = np.asarray(w, dtype=float)
+    if w.shape == (3,):
+        x, y, z = w.tolist()
+        t2 = x * x + y * y + z * z
+        a, b = series(t2) if t2 < 1e-8 else exact(math.sqrt(t2))
+        d = 1.0 - b * t2
+        return np.array(
+            [
+                [d + b * x * x, b * x * y - a * z, b * x * z + a * y],
+                [b * x * y + a * z, d + b * y * y, b * y * z - a * x],
+                [b * x * z - a * y, b * y * z + a * x, d + b * z * z],
+            ]
+        )
+    t2 = np.einsum("...i,...i->...", w, w)
+    small = t2 < 1e-8
+    if small.all():
+        a, b = series(t2)
+    else:
+        t = np.sqrt(np.where(small, 1.0, t2))
+        a, b = exact(t)
+        if small.any():
+            a_s, b_s = series(t2)
+            a, b = np.where(small, a_s, a), np.where(small, b_s, b)
+    a, b = np.asarray(a), np.asarray(b)  # a may be a constant
+    # [w]^2 = w w^T - t^2 I
+    out = b[..., None, None] * (w[..., :, None] * w[..., None, :])
+    diagonal = np.einsum("...ii->...i", out)
+    diagonal += (1.0 - b * t2)[..., None]
+    out += skew(a[..., None] * w)
+    return out
 
 
 def vector_tangent(vec: np.ndarray) -> np.ndarray:

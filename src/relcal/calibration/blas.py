@@ -3,6 +3,9 @@
 from __future__ import annotations
 
 import functools
+import threading
+
+_limited = threading.local()  # set while this thread runs under the limit
 
 
 @functools.cache
@@ -22,7 +25,13 @@ def one_blas_thread(function):
 
     @functools.wraps(function)
     def limited(*args, **kwargs):
-        with _blas_threads().limit(limits=1, user_api="blas"):
+        if getattr(_limited, "on", False):  # nested: the caller holds the limit already
             return function(*args, **kwargs)
+        with _blas_threads().limit(limits=1, user_api="blas"):
+            _limited.on = True
+            try:
+                return function(*args, **kwargs)
+            finally:
+                _limited.on = False
 
     return limited

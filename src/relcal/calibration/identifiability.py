@@ -19,6 +19,7 @@ import scipy.linalg
 from relcal import geometry as tf
 from relcal.calibration.blas import one_blas_thread
 from relcal.calibration.measurement import Problem, residuals
+from relcal.deferred import Deferred, resolved_state
 from relcal.errors import ArgumentError, RelcalError
 from relcal.robot.kinematics import DISPLAY_UNITS, Layout, pose_jacobian
 from relcal.robot.model import RobotModel, parallel_axes
@@ -137,11 +138,15 @@ class Identifiability:
     rcond: float
     identifiable: np.ndarray  # (P,) bool: determined individually by the data
     subset: np.ndarray  # (rank,) parameter indices chosen by QR with column pivoting
-    null_space: np.ndarray  # (P, P - rank) in original parameter units, columns unit-norm
-    combinations: tuple[Combination, ...]
+    # (P, P - rank) in original parameter units, columns unit-norm; both it and the combinations
+    # may be given as functions of no arguments, computed on first read (a fit needs neither).
+    null_space: np.ndarray = Deferred()
+    combinations: tuple[Combination, ...] = Deferred()
     # Of ``combinations``, those that generic (varied) poses would determine: weak data, not a
     # structural symmetry (:func:`check_pose_set`).
     weak: tuple[Combination, ...] = ()
+
+    __getstate__ = resolved_state
 
     @property
     def condition_number(self) -> float:
@@ -168,7 +173,22 @@ def _rank_and_involved(s: np.ndarray, vt: np.ndarray, rcond: float) -> tuple[int
 def _triangular(matrix: np.ndarray) -> np.ndarray:
     """The triangular QR factor ``R`` of ``matrix`` (``R^T R = matrix^T matrix``): what the SVD
     and the column pivoting below need of a tall matrix, at a fraction of its size."""
-    return np.linalg.qr(matrix, mode="r")
+    matrix = np.asarray(matrix, dtype=float)
+    if not matrix.size:
+        return np.linalg.qr(matrix, mode="r")
+    factored, _, _, info = scipy.linalg.lapack.dgeqrf(matrix)  # LAPACK itself: no wrapper costs
+    if info:
+        raise np.linalg.LinAlgError(f"QR factorisation failed (LAPACK info {info})")
+    return np.triu(factored[: min(matrix.shape)])
+
+
+def _pivot_order(matrix: np.ndarray) -> np.ndarray:
+    """The column order ``(P,)`` that QR with column pivoting chooses for ``matrix`` ``(M, P)``
+    (LAPACK's ``dgeqp3``, as :func:`scipy.linalg.qr` with ``pivoting=True``)."""
+    matrix = np.asarray(matrix, dtype=float)
+    if not matrix.size:
+        return np.arange(matrix.shape[1])
+    return scipy.linalg.lapack.dgeqp3(matrix)[1] - 1  # 1-based
 
 
 def _singular(matrix: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -193,7 +213,7 @@ def sparse_basis(
     when the others cannot."""
     k = null.shape[1]
     weight = np.ones(len(null)) if preference is None else preference
-    _, _, piv = scipy.linalg.qr(null.T * weight, pivoting=True)
+    piv = _pivot_order(null.T * weight)
     basis = np.linalg.solve(null.T[:, piv[:k]], null.T)  # identity in the pivot columns
     basis[np.abs(basis) < tol] = 0.0
     basis = basis[np.argsort(piv[:k])]  # ordered by pivot parameter
@@ -225,45 +245,51 @@ def analyse(
     tri = _triangular(unit)
     _, s, vt = np.linalg.svd(tri, full_matrices=False)
     rank, involved = _rank_and_involved(s, vt, rcond)
-    null_scaled = vt[rank:].T  # (P, k) in scaled coordinates
     # The hand-eye transform is estimated whole where it can be: the link parameters it absorbs
-    # (the leads of the combinations below) stay at nominal, so the exported model changes only
-    # what the data determine. Column pivoting sees only the columns' inner products, which the
+    # (the leads of the combinations) stay at nominal, so the exported model changes only what
+    # the data determine. Column pivoting sees only the columns' inner products, which the
     # triangular factor keeps.
-    hand_eye = np.array([kind in NUISANCE_KINDS for kind in layout.kinds])
-    _, piv = scipy.linalg.qr(tri * pivot_weights(layout), mode="r", pivoting=True)
-    subset = np.sort(piv[:rank])
-
-    combos = []
-    angle, units = layout.is_angle(), layout.units()
-    null = np.zeros((len(norms), 0))
-    if null_scaled.shape[1]:
-        # Each combination led by a geometric parameter where possible: "theta_off[2] with a
-        # change of X" reads better than a hand-eye component with several link parameters.
-        sparse = sparse_basis(null_scaled, preference=np.where(hand_eye, 1e-2, 1.0))
-        null = sparse / norms[:, None]  # back to parameter units
-        null /= np.linalg.norm(null, axis=0)
-        for v_scaled, v in zip(sparse.T, null.T, strict=True):
-            idx = np.flatnonzero(np.abs(v_scaled) > 1e-6)
-            combos.append(
-                Combination(
-                    names=tuple(layout.names[i] for i in idx),
-                    coefficients=tuple((v[idx] / np.abs(v[idx]).max()).tolist()),
-                    is_angle=tuple(bool(angle[i]) for i in idx),
-                    units=tuple(units[i] for i in idx),
-                    why=functools.partial(explain, v) if explain else _generic_reason,
-                )
-            )
+    piv = _pivot_order(tri * pivot_weights(layout))
+    named = functools.cache(lambda: _named_null_space(vt[rank:].T, norms, layout, explain))
     return Identifiability(
         singular_values=s,
         column_norms=norms,
         rank=rank,
         rcond=rcond,
         identifiable=~involved,
-        subset=subset,
-        null_space=null,
-        combinations=tuple(combos),
+        subset=np.sort(piv[:rank]),
+        null_space=lambda: named()[0],
+        combinations=lambda: named()[1],
     )
+
+
+def _named_null_space(
+    null_scaled: np.ndarray, norms: np.ndarray, layout: Layout, explain
+) -> tuple[np.ndarray, tuple[Combination, ...]]:
+    """The null space ``(P, k)`` given in scaled coordinates, as a sparse basis in parameter
+    units (unit-norm columns) and as named combinations (see :func:`analyse`)."""
+    if not null_scaled.shape[1]:
+        return np.zeros((len(norms), 0)), ()
+    # Each combination led by a geometric parameter where possible: "theta_off[2] with a change
+    # of X" reads better than a hand-eye component with several link parameters.
+    hand_eye = np.array([kind in NUISANCE_KINDS for kind in layout.kinds])
+    sparse = sparse_basis(null_scaled, preference=np.where(hand_eye, 1e-2, 1.0))
+    null = sparse / norms[:, None]  # back to parameter units
+    null /= np.linalg.norm(null, axis=0)
+    angle, units = layout.is_angle(), layout.units()
+    combos = []
+    for v_scaled, v in zip(sparse.T, null.T, strict=True):
+        idx = np.flatnonzero(np.abs(v_scaled) > 1e-6)
+        combos.append(
+            Combination(
+                names=tuple(layout.names[i] for i in idx),
+                coefficients=tuple((v[idx] / np.abs(v[idx]).max()).tolist()),
+                is_angle=tuple(bool(angle[i]) for i in idx),
+                units=tuple(units[i] for i in idx),
+                why=functools.partial(explain, v) if explain else _generic_reason,
+            )
+        )
+    return null, tuple(combos)
 
 
 # --- a problem's identifiability ---------------------------------------------------------------

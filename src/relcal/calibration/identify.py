@@ -13,6 +13,7 @@ from dataclasses import dataclass, field, replace
 from typing import Literal
 
 import numpy as np
+import scipy.linalg
 import scipy.optimize
 
 from relcal import geometry as tf
@@ -749,22 +750,22 @@ def levenberg_marquardt(
     x = np.asarray(x0, dtype=float).copy()
     r, a = evaluate(x)
     cost, nfev, damping = float(r @ r), 1, _DAMPING
-    scale = _column_norms(a)
+    gram, gradient = a.T @ a, a.T @ r
+    scale = np.sqrt(np.diag(gram))
     scale = np.where(scale > 0, scale, 1.0)
-    eye = np.eye(len(x))
     while nfev < max_nfev:
-        unit = a / scale
-        normal, gradient = unit.T @ unit, unit.T @ r
-        try:
-            step = np.linalg.solve(normal + damping * eye, gradient)
-        except np.linalg.LinAlgError:
+        # The normal equations of the unit-norm columns A / scale.
+        normal = gram / np.outer(scale, scale)
+        unit_gradient = gradient / scale
+        step = _damped_solve(normal, damping, unit_gradient)
+        if step is None:
             damping *= 10.0
             continue
         # The decrease the linear model promises; nearly undamped, it bounds what any step
         # can still gain. Below the tolerance, or below moving the estimate by STEP_TOL of its
         # standard deviations (|A dx|^2 / s^2 with s^2 = cost / (m - k) the noise level the
         # residuals imply), the iteration ends unevaluated.
-        promised = 2.0 * (gradient @ step) - step @ normal @ step
+        promised = 2.0 * (unit_gradient @ step) - step @ normal @ step
         negligible = min(STEP_TOL**2 * cost / max(len(r) - len(x), 1), COST_TOL * cost)
         if damping <= _DAMPING and promised <= max(rtol * cost, negligible):
             return x, True, nfev
@@ -776,7 +777,8 @@ def levenberg_marquardt(
             small_step = np.linalg.norm(step) <= rtol * (np.linalg.norm(x * scale) + rtol)
             small_gain = cost - cost_new <= rtol * cost
             x, r, a, cost = trial, r_new, a_new, cost_new
-            scale = np.maximum(scale, _column_norms(a))
+            gram, gradient = a.T @ a, a.T @ r
+            scale = np.maximum(scale, np.sqrt(np.diag(gram)))
             damping = max(damping / 10.0, 1e-15)
             if small_step or small_gain or cost == 0.0:
                 return x, _stationary(r, a, scale), nfev
@@ -785,6 +787,15 @@ def levenberg_marquardt(
         else:
             damping *= 10.0
     return x, False, nfev
+
+
+def _damped_solve(normal: np.ndarray, damping: float, gradient: np.ndarray) -> np.ndarray | None:
+    """``(N + damping I)^-1 g`` by Cholesky (LAPACK's ``dposv`` directly: the wrappers cost more
+    than the solve at these sizes); None where the matrix is not numerically positive definite."""
+    damped = normal.copy()
+    damped.flat[:: len(damped) + 1] += damping
+    _, step, info = scipy.linalg.lapack.dposv(damped, gradient)
+    return None if info else step
 
 
 def _column_norms(a: np.ndarray) -> np.ndarray:
@@ -830,9 +841,11 @@ def _reduced(
         layout.prismatic,
     )
     frames = problem.full_layout.size - n_geo  # hand-eye (and board) 6-vectors
-    columns = np.r_[geo_free, np.arange(n_geo, n_geo + frames)]
-    sub_subset = np.r_[np.arange(len(geo_free)), len(geo_free) + free[free >= n_geo] - n_geo]
-    return derived(problem, model=model, layout=sub), columns, sub_subset.astype(int)
+    columns = np.concatenate([geo_free, np.arange(n_geo, n_geo + frames)])
+    sub_subset = np.concatenate(
+        [np.arange(len(geo_free)), len(geo_free) + free[free >= n_geo] - n_geo]
+    )
+    return derived(problem, model=model, layout=sub), columns, sub_subset
 
 
 @one_blas_thread
@@ -875,17 +888,36 @@ def identify_lm(
     if reduced is None:
         start = nominal if held is None else None
         res = _lm(
-            problem, identifiability, max_nfev, loss, f_scale, whiten, initial, held, start, prior
+            problem,
+            identifiability,
+            subset,
+            max_nfev,
+            loss,
+            f_scale,
+            whiten,
+            initial,
+            held,
+            start,
+            prior,
         )
         return replace(res, prior_std=prior_std if prior is not None else None)
     # The sub-problem holds every link parameter it has (no further reduction).
     sub_problem, columns, sub_subset = reduced
-    sub_ident = replace(identifiability, subset=sub_subset)
     sub_initial = None if initial is None else np.asarray(initial, dtype=float)[columns]
     start = None if nominal is None or held is not None else (nominal[0], nominal[1][:, columns])
     sub_prior = None if prior is None else np.asarray(prior, float)[columns]
     res = _lm(
-        sub_problem, sub_ident, max_nfev, loss, f_scale, whiten, sub_initial, None, start, sub_prior
+        sub_problem,
+        identifiability,
+        sub_subset,
+        max_nfev,
+        loss,
+        f_scale,
+        whiten,
+        sub_initial,
+        None,
+        start,
+        sub_prior,
     )
     params = np.zeros(problem.full_layout.size) if held is None else held
     params[columns] = res.params
@@ -903,6 +935,7 @@ def identify_lm(
 def _lm(
     problem: Problem,
     ident: Identifiability,
+    subset: np.ndarray,
     max_nfev: int,
     loss: str,
     f_scale: float,
@@ -912,11 +945,11 @@ def _lm(
     start: tuple[np.ndarray, np.ndarray] | None,
     prior: np.ndarray | None = None,
 ) -> Result:
-    """:func:`identify_lm` on ``ident.subset`` of ``problem``, the others at ``held`` (zeros);
+    """:func:`identify_lm` on ``subset`` of ``problem``'s parameters (``ident``'s, or its
+    columns in a reduced problem), the others at ``held`` (zeros);
     ``start``: the residual and Jacobian there, if the caller has them; ``prior``: the prior
     rows' weights ``(P,)`` (see :func:`identify_lm`)."""
     began = time.perf_counter()
-    subset = ident.subset
     rows = prior_rows(prior, subset)
     at, prior_jac = _prior_jacobian(rows, subset)  # positions in x, and the rows' Jacobian
     full = np.zeros(problem.full_layout.size) if held is None else held
@@ -947,7 +980,7 @@ def _lm(
         if whiten is not None:
             r, a = whiten @ r, whiten @ a
         if rows is not None:
-            r, a = np.r_[r, -rows[1] * x[at]], np.vstack([a, prior_jac])
+            r, a = np.concatenate([r, -rows[1] * x[at]]), np.vstack([a, prior_jac])
         return r, a
 
     def fun(x: np.ndarray) -> np.ndarray:
@@ -981,7 +1014,7 @@ def _lm(
     r, a = evaluate(x)
     n_rows = len(r0)
     if rows is not None:  # the stated cost includes the prior rows (zero at nominal)
-        r = np.r_[r, -rows[1] * x[at]]
+        r = np.concatenate([r, -rows[1] * x[at]])
     if whiten is not None:
         label = "lm (noise-weighted)"
     else:

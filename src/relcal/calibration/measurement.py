@@ -552,9 +552,7 @@ def residuals(
     rows = problem.rows_per_measurement
     if problem.formulation == "invariant":
         n_geo = problem.layout.size
-        r, a = _invariant(problem, tip, jac, handeye, params[n_geo : n_geo + 6])
-        if jacobian and not model_jacobian:
-            a = residual_tangent(r) @ a
+        r, a = _invariant(problem, tip, jac, handeye, params[n_geo : n_geo + 6], model_jacobian)
     elif problem.formulation == "board":
         n_geo = problem.layout.size
         r, a = _board(problem, tip, jac, handeye, params[n_geo : n_geo + 12], model_jacobian)
@@ -583,9 +581,11 @@ def _invariant(
     spatial: np.ndarray | None,
     handeye: np.ndarray,
     handeye_params: np.ndarray,
+    model_jacobian: bool = False,
 ) -> tuple[np.ndarray, np.ndarray | None]:
     """Residuals ``(P, 6)`` and Jacobian ``(P, 6, n_geo + 6)`` of the frame-invariant form, the
-    latter if the spatial twists of the parameters (:func:`spatial_jacobian`) are given;
+    latter if the spatial twists of the parameters (:func:`spatial_jacobian`) are given (with
+    ``model_jacobian``, that of the modelled motion: see :func:`residuals`);
     ``handeye = problem.handeye @ from_vector(handeye_params)``."""
     i, j = problem.pair_indices().T
     camera = tip @ handeye  # F X
@@ -595,24 +595,30 @@ def _invariant(
     if spatial is None:
         return r, None
     n_geo = spatial.shape[-1]
-    out = np.empty((len(i), 6, n_geo + 6))
-    # F_k -> exp(S_k) F_k makes X^-1 F_i^-1 F_j X -> model_rel exp(Ad((F_j X)^-1) (S_j - S_i)),
-    # the adjoint applied block by block: (R v + p x R w, R w) for (F_j X)^-1 = (R, p).
-    diff = spatial[j] - spatial[i]
+    # F_k -> exp(S_k) F_k makes X^-1 F_i^-1 F_j X -> model_rel exp(Ad((F_j X)^-1) (S_j - S_i));
+    # X -> X exp(xi) makes it model_rel exp(xi - Ad(model_rel^-1) xi). The residual moves by its
+    # tangent T (residual_tangent; the identity for the model's Jacobian) times these body
+    # motions: T Ad and T (I - Ad) are formed per pair, 6 x 6, before the one wide product.
+    # With Ad((R, p)) = [[R, [p] R], [0, R]] and T = [[I, -[t]], [0, J]]:
+    # T Ad = [[R, [p - t] R], [0, J R]], T (I - Ad) = [[I - R, -[t] - [p - t] R], [0, J (I - R)]].
+    t = np.zeros((len(i), 3)) if model_jacobian else r[:, :3]
+    turn = None if model_jacobian else tf.right_jacobian_inverse(-r[:, 3:])
     rot, shift = inverse[j, :3, :3], inverse[j, :3, 3]
-    turned = rot @ diff[:, 3:]
-    out[:, :3, :n_geo] = rot @ diff[:, :3] + tf.skew(shift) @ turned
-    out[:, 3:, :n_geo] = turned
-    # Hand-eye X -> X exp(xi): model_rel -> model_rel exp(xi - Ad(model_rel^-1) xi), with
-    # Ad((R, p)) = [[R, [p] R], [0, R]].
+    to_pair = np.zeros((len(i), 6, 6))
+    to_pair[:, :3, :3] = rot
+    to_pair[:, :3, 3:] = tf.skew(shift - t) @ rot
+    to_pair[:, 3:, 3:] = rot if turn is None else turn @ rot
+    out = np.empty((len(i), 6, n_geo + 6))
+    np.matmul(to_pair, spatial[j] - spatial[i], out=out[:, :, :n_geo])
     rot, shift = model_rel_inv[:, :3, :3], model_rel_inv[:, :3, 3]
-    eye = np.eye(3)
-    out[:, :3, n_geo : n_geo + 3] = eye - rot
-    out[:, :3, n_geo + 3 :] = -tf.skew(shift) @ rot
-    out[:, 3:, n_geo : n_geo + 3] = 0.0
-    out[:, 3:, n_geo + 3 :] = eye - rot
+    fixed = np.eye(3) - rot
+    moved = np.zeros((len(i), 6, 6))
+    moved[:, :3, :3] = fixed
+    moved[:, :3, 3:] = -tf.skew(t) - tf.skew(shift - t) @ rot
+    moved[:, 3:, 3:] = fixed if turn is None else turn @ fixed
     if np.any(handeye_params):  # per unit change of the 6-vector, not of a motion on top
-        out[:, :, n_geo:] = out[:, :, n_geo:] @ tf.vector_tangent(handeye_params)
+        moved = (moved.reshape(-1, 6) @ tf.vector_tangent(handeye_params)).reshape(moved.shape)
+    out[:, :, n_geo:] = moved
     return r, out
 
 

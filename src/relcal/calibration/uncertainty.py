@@ -39,6 +39,7 @@ from relcal.calibration.measurement import (
     split_params,
 )
 from relcal.calibration.noise import Noise, row_factors
+from relcal.deferred import Deferred, resolved_state
 from relcal.errors import RelcalError
 from relcal.robot.ik import joint_layout
 from relcal.robot.kinematics import fk, pose_jacobian
@@ -324,27 +325,6 @@ def _inverse_scaled(info: np.ndarray) -> np.ndarray:
     return (v / w) @ v.T / np.outer(d, d)
 
 
-class _Deferred:
-    """A field of a frozen dataclass that may be given as a function of no arguments instead of
-    its value: the function is called on the first read and its value kept (work that a caller
-    may never ask for is not done up front)."""
-
-    def __set_name__(self, owner, name: str) -> None:
-        self._name = name
-
-    def __get__(self, obj, owner=None):
-        if obj is None:  # the class: no default value
-            raise AttributeError(self._name)
-        value = obj.__dict__[self._name]
-        if callable(value):
-            value = value()
-            obj.__dict__[self._name] = value
-        return value
-
-    def __set__(self, obj, value) -> None:
-        obj.__dict__[self._name] = value
-
-
 @dataclass(frozen=True)
 class Uncertainty:
     """Covariance of the estimated parameters.
@@ -361,11 +341,13 @@ class Uncertainty:
     names: tuple[str, ...]
     is_angle: np.ndarray  # (P,)
     subset: np.ndarray  # (k,)
-    crb: np.ndarray = _Deferred()  # (k, k); or a function of no arguments computing it
+    crb: np.ndarray = Deferred()  # (k, k); or a function of no arguments computing it
     least_squares: np.ndarray | None  # (k, k), None when not computed (pose planning)
     estimator: Estimator
     identifiable: np.ndarray  # (P,) individually identifiable (no share in the null space)
     units: tuple[str, ...] = ()  # SI unit per parameter (Layout.units); () means m or rad
+
+    __getstate__ = resolved_state
 
     @property
     def covariance(self) -> np.ndarray:

@@ -22,9 +22,10 @@ torque ``tau``, ``cos q`` or ``sin q``.
 
 from __future__ import annotations
 
+import copy
 import functools
 import importlib.util
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import Any, Literal
 
 import numpy as np
@@ -319,17 +320,17 @@ def errors_applied(model: RobotModel, layout: Layout, errors: np.ndarray) -> Rob
             else:  # a zero offset, along the joint axis
                 motions[i] += errors[column] * zero[i]
         model = move_origins(model, motions)
-    changes: dict[str, np.ndarray] = {}
+    out = copy.copy(model)  # not replace(): the arrays keep their shapes, nothing to re-check
     for kind, columns, joints in plan.arrays:
         value = model.geometric(kind).copy()
         np.add.at(value, joints, errors[columns])
-        changes[kind] = value
+        object.__setattr__(out, kind, value)
     for frame, columns, components in plan.frames:
         vec = np.zeros(6)
         np.add.at(vec, components, errors[columns])
         if vec.any():
-            changes[frame] = getattr(model, frame) @ tf.from_vector(vec)
-    return replace(model, **changes)
+            object.__setattr__(out, frame, getattr(model, frame) @ tf.from_vector(vec))
+    return out
 
 
 @dataclass(frozen=True)
@@ -459,28 +460,22 @@ def _link_transforms(model: RobotModel, q: np.ndarray) -> np.ndarray:
 
 def _links(model: RobotModel, c: np.ndarray, s: np.ndarray, d: np.ndarray) -> np.ndarray:
     """Joint transforms ``A_i`` ``(N, n, 4, 4)`` from ``cos``/``sin`` of the total joint angles
-    and the total offsets ``d`` ``(N, n)``.
-
-    The constant part ``Rx(alpha) Ry(beta)`` is formed once; ``Rz(theta)`` only mixes two of its
-    rows (DH, applied before) or columns (MDH, after), written out element-wise.
-    """
-    c, s = c[..., None], s[..., None]
+    and the total offsets ``d`` ``(N, n)``: ``Rz(theta) Tz(d)`` times the constant
+    ``Tx(a) Rx(alpha) Ry(beta)`` (DH), or ``Rx(alpha) Ry(beta) Tx(a)`` times it (MDH), the
+    constant part formed once per joint."""
+    turn = np.zeros((*d.shape, 4, 4))  # Rz(theta) Tz(d)
+    turn[..., 0, 0], turn[..., 0, 1], turn[..., 2, 3] = c, -s, d
+    turn[..., 1, 0], turn[..., 1, 1] = s, c
+    turn[..., 2, 2] = turn[..., 3, 3] = 1.0
     rc = _twist_rotations(model)  # (n, 3, 3)
-    out = np.zeros((*d.shape, 4, 4))
-    out[..., 3, 3] = 1.0
-    if model.convention == "dh":  # Rz(theta) Tz(d) Tx(a) [Rx(alpha) Ry(beta)]
-        out[..., 0, :3] = c * rc[:, 0] - s * rc[:, 1]
-        out[..., 1, :3] = s * rc[:, 0] + c * rc[:, 1]
-        out[..., 2, :3] = rc[:, 2]
-        out[..., 0, 3] = model.a * c[..., 0]
-        out[..., 1, 3] = model.a * s[..., 0]
-        out[..., 2, 3] = d
-    else:  # [Rx(alpha) Ry(beta)] Tx(a) Rz(theta) Tz(d)
-        out[..., :3, 0] = c * rc[..., 0] + s * rc[..., 1]
-        out[..., :3, 1] = c * rc[..., 1] - s * rc[..., 0]
-        out[..., :3, 2] = rc[..., 2]
-        out[..., :3, 3] = model.a[:, None] * rc[..., 0] + d[..., None] * rc[..., 2]
-    return out
+    constant = np.zeros((len(rc), 4, 4))
+    constant[:, :3, :3] = rc
+    constant[:, 3, 3] = 1.0
+    if model.convention == "dh":
+        constant[:, 0, 3] = model.a
+        return turn @ constant
+    constant[:, :3, 3] = model.a[:, None] * rc[..., 0]
+    return constant @ turn
 
 
 def _chain(model: RobotModel, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -695,10 +690,12 @@ def _screws(
     if not set(layout.kinds).isdisjoint(NONGEOMETRIC_KINDS):  # screw times d q_eff / d param
         axes *= _nongeometric_factors(model, q, layout)[..., None]
     # Base and tool 6-vectors are small motions in their own frames.
-    axes[:, base_cols] = model.base[:3, base_axes].T
-    points[:, base_cols] = model.base[:3, 3]
-    axes[:, tool_cols] = np.swapaxes(tip_pose[:, :3, tool_axes], -1, -2)
-    points[:, tool_cols] = tip_pose[:, None, :3, 3]
+    if base_cols.size:
+        axes[:, base_cols] = model.base[:3, base_axes].T
+        points[:, base_cols] = model.base[:3, 3]
+    if tool_cols.size:
+        axes[:, tool_cols] = np.swapaxes(tip_pose[:, :3, tool_axes], -1, -2)
+        points[:, tool_cols] = tip_pose[:, None, :3, 3]
     if origin_cols.size:
         _origin_screws(model, frames, q, layout, axes, points)
     return tip_pose, axes, points, rotation
@@ -784,16 +781,15 @@ def _urdf_joint_frames(model: RobotModel, frames: np.ndarray, q: np.ndarray) -> 
 
 def _columns(axes: np.ndarray, moments: np.ndarray, rotation: np.ndarray) -> np.ndarray:
     """Twist columns ``(N, 6, P)``: ``(moment, axis)`` for rotations, ``(axis, 0)`` for
-    translations."""
-    out = np.zeros((axes.shape[0], 6, axes.shape[1]))
-    turns = np.swapaxes(axes, -1, -2)  # (N, 3, P)
+    translations, from axes and moments ``(N, P, 3)`` (a translation's moment is not used)."""
+    out = np.empty((axes.shape[0], 6, axes.shape[1]))
     if rotation.all():
         out[:, :3] = np.swapaxes(moments, -1, -2)
-        out[:, 3:] = turns
-        return out
-    out[:, :3, rotation] = np.swapaxes(moments, -1, -2)
-    out[:, 3:, rotation] = turns[..., rotation]
-    out[:, :3, ~rotation] = turns[..., ~rotation]
+        out[:, 3:] = np.swapaxes(axes, -1, -2)
+    else:
+        turns = rotation[:, None]
+        out[:, :3] = np.swapaxes(np.where(turns, moments, axes), -1, -2)
+        out[:, 3:] = np.swapaxes(axes * turns, -1, -2)
     return out
 
 
@@ -811,7 +807,7 @@ def pose_jacobian(
     """
     tip_pose, axes, points, rotation = _screws(model, q, layout)
     tip = tip_pose[:, None, :3, 3]
-    return tip_pose, _columns(axes, _cross(axes[:, rotation], tip - points[:, rotation]), rotation)
+    return tip_pose, _columns(axes, _cross(axes, tip - points), rotation)
 
 
 def spatial_jacobian(
@@ -825,7 +821,7 @@ def spatial_jacobian(
     measurements (that difference two poses) exploit.
     """
     tip_pose, axes, points, rotation = _screws(model, q, layout)
-    return tip_pose, _columns(axes, _cross(points[:, rotation], axes[:, rotation]), rotation)
+    return tip_pose, _columns(axes, _cross(points, axes), rotation)
 
 
 def check_errors(errors: Any, layout, name: str = "errors") -> np.ndarray:
