@@ -536,7 +536,8 @@ def result_covariance(
     independent: bool = False,
 ) -> np.ndarray:
     """The covariance ``(P, P)`` of :attr:`Result.covariance` (NaN outside the subset); the pose
-    ``noise`` is estimated from the residuals (robust, isotropic) when not given. Coincidence
+    ``noise`` is estimated from the residuals (robust, isotropic; the position level alone for
+    position-only measurements, which have no orientation rows) when not given. Coincidence
     samples are clustered by placement (:func:`relcal.calibration.measurement.row_clusters`,
     :func:`relcal.calibration.uncertainty.clustered_covariance`) unless ``independent``."""
     r, a = residuals(problem, params)
@@ -551,7 +552,10 @@ def result_covariance(
         sigma = robust_sigma(pair_errors(problem, params))
         if problem.formulation != "board":
             sigma = sigma / np.sqrt(2)  # two poses per pair
-        noise = Noise(position=float(sigma[0]), orientation=float(sigma[3]))
+        # Position-only measurements have no orientation rows: nothing measures the orientation
+        # noise (pair_errors gives NaN there), and the rows' whole scatter is the position level.
+        orientation = 0.0 if problem.measure == "position" else float(sigma[3])
+        noise = Noise(position=float(sigma[0]), orientation=orientation)
     unc = parameter_covariance(problem, noise, ident, params=params)
     cov = np.full((len(params), len(params)), np.nan)
     cov[np.ix_(unc.subset, unc.subset)] = unc.least_squares
