@@ -247,3 +247,29 @@ def test_published_calibration_of_points_with_a_robust_loss(rng):
     np.testing.assert_array_equal(p.identifiability.subset, sub)
     assert p.f_scale == l_.f_scale
     assert np.all(np.abs(p.params[sub] - l_.params[sub]) <= 1e-3 * l_.std[sub])
+
+
+@pytest.mark.skipif(not (DATA / "tiago_pro").is_dir(), reason="real data not available")
+def test_cli_published_with_huber_on_the_tiago_positions(tmp_path, capsys):
+    """``relcal calibrate --method published --loss huber`` on real marker positions: before,
+    the fit was plain least squares (results.json: method "published", loss "huber" in the
+    settings) and its outlier search flagged none of the samples lm's Huber search flags."""
+    import json
+    from pathlib import Path
+
+    from relcal.cli import main
+
+    positions = Path(__file__).resolve().parents[1] / "examples" / "tiago-pro-positions"
+    docs = {}
+    for method in ("lm", "published"):
+        out = tmp_path / method
+        args = ["calibrate", str(positions), "--method", method, "--loss", "huber", "--quiet"]
+        assert main([*args, "--out", str(out), "--json", str(out) + ".json"]) == 0
+        docs[method] = json.loads(Path(str(out) + ".json").read_text())
+    capsys.readouterr()
+    lm, published = docs["lm"], docs["published"]
+    assert published["identification"]["method"] == "published (huber loss)"
+    assert published["settings"]["loss"] == "huber"
+    assert lm["outliers"] and published["outliers"] == lm["outliers"]
+    rms = [d["identification"]["residual_rms"] for d in (published, lm)]
+    assert rms[0] == pytest.approx(rms[1], rel=1e-5)
