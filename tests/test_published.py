@@ -17,11 +17,11 @@ from conftest import DATA, random_q
 from helpers_sim import BOARD, HANDEYE, make_problem, true_errors
 
 from relcal import geometry as tf
-from relcal.calibration.identify import identify_lm, identify_published
+from relcal.calibration.identify import SolverOptions, identify, identify_lm, identify_published
 from relcal.calibration.measurement import residuals
 from relcal.calibration.pipeline import calibrate
 from relcal.calibration.uncertainty import least_squares_covariance
-from relcal.data.dataset import load_dataset, write_samples
+from relcal.data.dataset import Dataset, load_dataset, write_samples
 from relcal.robot.kinematics import apply_errors, fk, make_layout
 from relcal.robot.loading import get_robot
 from relcal.robot.model import auto_hayati
@@ -85,6 +85,44 @@ def test_published_and_lm_reach_the_same_estimate(robot, formulation, measure, r
             [k != "handeye" for k in problem.full_layout.kinds]
         )
         assert np.abs(published.params[angle]).max() < np.radians(1.0)
+
+
+ROBUST = [
+    ("invariant", "pose", "huber"),
+    ("invariant", "pose", "soft_l1"),
+    ("published", "position", "cauchy"),
+    ("invariant", "position", "huber"),
+]
+
+
+@pytest.mark.parametrize(("formulation", "measure", "loss"), ROBUST)
+def test_published_with_a_robust_loss_minimises_lm_s_robust_cost(formulation, measure, loss):
+    """``SolverOptions(method="published", loss=...)`` fitted plain least squares and said so
+    nowhere (its result's loss "linear", the same estimate as without the loss): it now
+    reweights its iterations and reaches Levenberg-Marquardt's optimum of the same robust cost.
+    Two of 30 poses 10 mm off, bending at 3 noise levels."""
+    rng = np.random.default_rng(5)
+    problem, _ = make_problem(auto_hayati(get_robot("a465")), formulation, measure, rng, 30, 1e-4)
+    poses = problem.poses.copy()
+    poses[[4, 17], :3, 3] += 0.01
+    problem = replace(problem, poses=poses)
+    lm = identify(problem, SolverOptions(method="lm", loss=loss, f_scale=3e-4))
+    published = identify(problem, SolverOptions(method="published", loss=loss, f_scale=3e-4))
+    linear = identify(problem, SolverOptions(method="published"))
+    assert published.loss == loss and published.f_scale == 3e-4
+    assert published.method == f"published ({loss} loss)"
+    # converged: stopped by its rule, and the finite-difference gradient of the robust cost
+    # (not of the plain one) vanishes there
+    assert published.stopped and published.converged and lm.converged
+    assert published.gradient_check.decrement < 1e-8
+    sub = lm.identifiability.subset
+    np.testing.assert_array_equal(published.identifiability.subset, sub)
+    std = linear.std[sub]
+    assert np.all(np.abs(published.params[sub] - lm.params[sub]) <= 1e-3 * std)
+    # ... and not the plain fit, which the outliers pull by standard deviations
+    assert np.max(np.abs(linear.params[sub] - lm.params[sub]) / std) > 1.0
+    # the plain loss is unchanged: the linear fit's gradient check is of the plain cost
+    assert linear.loss == "linear" and linear.method == "published" and linear.converged
 
 
 def test_published_reports_convergence_honestly():
@@ -178,3 +216,60 @@ def test_published_calibration_passes_where_lm_does(tmp_path, robot, seed):
     assert np.all(np.abs(p.params[sub] - l_.params[sub]) <= 0.01 * l_.std[sub])
     for which in ("baseline", "calibrated"):
         assert published.validation.rms(which) == pytest.approx(lm.validation.rms(which), 1e-4)
+
+
+def test_published_calibration_of_points_with_a_robust_loss(rng):
+    """``calibrate(method="published", loss="huber")`` (the command line's ``--method published
+    --loss huber``) fitted the geometry by plain least squares while its settings said huber,
+    and its outlier search on points (a Huber fit by Levenberg-Marquardt) was a plain fit: now
+    both solvers fit the Huber cost, find the same outliers and the same model. Tracker points
+    of an FR3, 0.05 mm noise, four of 60 points 2 mm off."""
+    model = auto_hayati(get_robot("franka_fr3"))
+    layout = make_layout(model)
+    n = 60
+    q = random_q(model, n, rng, 0.8)
+    flange = fk(apply_errors(model, layout, true_errors(layout, rng)), q)
+    instrument = tf.from_vector(np.array([1.2, -0.4, 0.3, 0.1, -0.2, 2.5]))
+    marker = np.array([0.01, -0.02, 0.12])
+    points = (flange[:, :3, :3] @ marker + flange[:, :3, 3]) @ instrument[:3, :3].T
+    points += instrument[:3, 3] + rng.normal(0, 5e-5, (n, 3))
+    off = rng.normal(size=(4, 3))
+    points[rng.choice(n, 4, replace=False)] += 2e-3 * off / np.linalg.norm(off, axis=1)[:, None]
+    dataset = Dataset.from_arrays(model, q, points)
+    options = {"nongeometric": "none", "loss": "huber", "keep_outliers": True}
+    lm = calibrate(dataset, **options)
+    published = calibrate(dataset, method="published", **options)
+    assert published.outliers and published.outliers == lm.outliers
+    p, l_ = published.result, lm.result
+    assert p.loss == "huber" and p.method == "published (huber loss)" and p.converged
+    assert published.settings["loss"] == "huber"
+    sub = l_.identifiability.subset
+    np.testing.assert_array_equal(p.identifiability.subset, sub)
+    assert p.f_scale == l_.f_scale
+    assert np.all(np.abs(p.params[sub] - l_.params[sub]) <= 1e-3 * l_.std[sub])
+
+
+@pytest.mark.skipif(not (DATA / "tiago_pro").is_dir(), reason="real data not available")
+def test_cli_published_with_huber_on_the_tiago_positions(tmp_path, capsys):
+    """``relcal calibrate --method published --loss huber`` on real marker positions: before,
+    the fit was plain least squares (results.json: method "published", loss "huber" in the
+    settings) and its outlier search flagged none of the samples lm's Huber search flags."""
+    import json
+    from pathlib import Path
+
+    from relcal.cli import main
+
+    positions = Path(__file__).resolve().parents[1] / "examples" / "tiago-pro-positions"
+    docs = {}
+    for method in ("lm", "published"):
+        out = tmp_path / method
+        args = ["calibrate", str(positions), "--method", method, "--loss", "huber", "--quiet"]
+        assert main([*args, "--out", str(out), "--json", str(out) + ".json"]) == 0
+        docs[method] = json.loads(Path(str(out) + ".json").read_text())
+    capsys.readouterr()
+    lm, published = docs["lm"], docs["published"]
+    assert published["identification"]["method"] == "published (huber loss)"
+    assert published["settings"]["loss"] == "huber"
+    assert lm["outliers"] and published["outliers"] == lm["outliers"]
+    rms = [d["identification"]["residual_rms"] for d in (published, lm)]
+    assert rms[0] == pytest.approx(rms[1], rel=1e-5)

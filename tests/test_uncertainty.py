@@ -11,6 +11,7 @@ from helpers_sim import make_problem, numeric_jacobian
 
 from relcal import geometry as tf
 from relcal.calibration.identifiability import analyse_problem
+from relcal.calibration.identify import identify
 from relcal.calibration.measurement import make_pairs, residuals
 from relcal.calibration.noise import Noise
 from relcal.calibration.uncertainty import (
@@ -275,3 +276,25 @@ def test_predicted_accuracy_matches_sampled_parameter_errors(hayati, rng):
     summary = accuracy_document(acc)
     assert summary["position_mm"]["max"] == pytest.approx(acc.position.max() * 1e3)
     assert summary["orientation_deg"]["mean"] == pytest.approx(np.degrees(acc.orientation).mean())
+
+
+@pytest.mark.parametrize("formulation", ["invariant", "published"])
+def test_result_std_of_position_only_relative_data(hayati, rng, formulation):
+    # From the API, a relative position-only fit's covariance takes the pose noise from the
+    # residuals. Those have no orientation rows (pair_errors: NaN there): the orientation noise
+    # must not enter (it raised, Noise.orientation NaN), and the position rows' scatter alone
+    # sets the level. With position noise only, that is the covariance of the known noise, up
+    # to the residuals' estimate of its level (robust, without a degrees-of-freedom correction:
+    # 0.8 to 1.0 of the true level with 60 poses).
+    problem, truth = make_problem(hayati, formulation, "position", rng, n_poses=60)
+    sigma = 0.1 * MM
+    eps = np.zeros((60, 6))
+    eps[:, :3] = rng.normal(0.0, sigma, (60, 3))
+    problem = replace(problem, poses=problem.poses @ tf.from_vector(eps))
+    result = identify(problem)
+    subset = result.identifiability.subset
+    held = np.setdiff1d(np.arange(len(result.params)), subset)
+    assert np.isfinite(result.std[subset]).all() and (result.std[subset] > 0).all()
+    assert np.isnan(result.std[held]).all()
+    known = parameter_covariance(problem, Noise(sigma), result.identifiability, params=truth)
+    np.testing.assert_allclose(result.std[subset], known.std[subset], rtol=0.3)

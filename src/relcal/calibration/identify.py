@@ -57,15 +57,16 @@ class SolverOptions:
     ``method``: ``"lm"`` (Levenberg-Marquardt) or ``"published"`` (iterated truncated-SVD
     least squares, Lu & Hayes), both on the identifiable subset, the rest held at nominal.
     ``loss`` and ``f_scale`` (the residual, in weighted units, where a robust loss bends) apply
-    to ``"lm"``; ``rcond`` (singular values below ``rcond * s_max`` zeroed) and ``tol``
-    (relative step size that stops the iteration) to ``"published"``.
+    to both, the same cost (``"published"`` reweights its iterations, :func:`identify_published`);
+    ``rcond`` (singular values below ``rcond * s_max`` zeroed) and ``tol`` (relative step size
+    that stops the iteration) to ``"published"``.
 
     Parameters
     ----------
     method : {"lm", "published"}
         The solver.
     loss : {"linear", "huber", "soft_l1", "cauchy", "arctan"}
-        Loss of the weighted residuals (``"lm"`` only; SciPy's names).
+        Loss of the weighted residuals (SciPy's names), for either method.
     f_scale : float
         Where a robust loss bends, in weighted residual units (> 0).
     max_iterations : int
@@ -489,7 +490,7 @@ def held_dependence(
     if not ident.combinations:
         return out
     subset = np.asarray(ident.subset)
-    published = method == "published"
+    published = method.startswith("published")  # "published (huber loss)" too
     held = np.setdiff1d(np.arange(len(params)), subset)
     angle = problem.full_layout.is_angle()
     unit = np.where(angle, np.radians(1.0), 1e-3)
@@ -537,7 +538,8 @@ def result_covariance(
     independent: bool = False,
 ) -> np.ndarray:
     """The covariance ``(P, P)`` of :attr:`Result.covariance` (NaN outside the subset); the pose
-    ``noise`` is estimated from the residuals (robust, isotropic) when not given. Coincidence
+    ``noise`` is estimated from the residuals (robust, isotropic; the position level alone for
+    position-only measurements, which have no orientation rows) when not given. Coincidence
     samples are clustered by placement (:func:`relcal.calibration.measurement.row_clusters`,
     :func:`relcal.calibration.uncertainty.clustered_covariance`) unless ``independent``."""
     r, a = residuals(problem, params)
@@ -552,7 +554,10 @@ def result_covariance(
         sigma = robust_sigma(pair_errors(problem, params))
         if problem.formulation != "board":
             sigma = sigma / np.sqrt(2)  # two poses per pair
-        noise = Noise(position=float(sigma[0]), orientation=float(sigma[3]))
+        # Position-only measurements have no orientation rows: nothing measures the orientation
+        # noise (pair_errors gives NaN there), and the rows' whole scatter is the position level.
+        orientation = 0.0 if problem.measure == "position" else float(sigma[3])
+        noise = Noise(position=float(sigma[0]), orientation=orientation)
     unc = parameter_covariance(problem, noise, ident, params=params)
     cov = np.full((len(params), len(params)), np.nan)
     cov[np.ix_(unc.subset, unc.subset)] = unc.least_squares
@@ -596,9 +601,11 @@ def identify_published(
     fixed: np.ndarray | None = None,
     prior: np.ndarray | None = None,
     prior_std: np.ndarray | None = None,
+    loss: str = "linear",
+    f_scale: float = 1.0,
 ) -> Result:
     """Iterated linear least squares with an SVD pseudo-inverse (Lu & Hayes), on the
-    identifiable subset.
+    identifiable subset; with a robust loss, iteratively reweighted.
 
     The parameters of ``identifiability.subset`` (the QR-pivoted identifiable subset of
     :func:`relcal.analyse_problem`, the columns :func:`identify_lm` estimates) start from
@@ -613,9 +620,16 @@ def identify_published(
     below ``rcond * s_max`` zeroed (weak directions left where they are), halving the step
     until the cost does not rise. The iteration stops when the step is negligible (``|dp|``,
     scaled, below ``tol`` times the scaled parameter norm, or an absolute 1e-15), when no step
-    along the Gauss-Newton direction lowers the cost, or when a full step lowers the residual
-    norm by less than a millionth; :attr:`Result.converged` also asks the finite-difference
-    gradient check.
+    along the Gauss-Newton direction lowers the cost, or when a full step lowers the cost by
+    less than a millionth; :attr:`Result.converged` also asks the finite-difference gradient
+    check.
+
+    A robust ``loss`` (SciPy's, bending at ``f_scale`` weighted residual units) minimises the
+    cost :func:`identify_lm` minimises with it, ``sum f_scale^2 rho((r / f_scale)^2)`` over the
+    data and prior rows, by iteratively reweighted least squares: each step solves the normal
+    equations of the rows weighted by ``sqrt(rho'((r / f_scale)^2))`` at the current residual
+    (the same truncated SVD), and the halving asks the robust cost to fall. At its fixed point
+    the gradient of the robust cost vanishes (what :func:`gradient_check` tests).
 
     Parameters
     ----------
@@ -640,6 +654,10 @@ def identify_published(
         :func:`identify_lm`.
     prior_std : (P,) ndarray of float, optional
         The priors' standard deviations (m, rad; inf: none), for the covariance.
+    loss : {"linear", "huber", "soft_l1", "cauchy", "arctan"}
+        Loss of the weighted residuals (SciPy's names).
+    f_scale : float
+        Where a robust loss bends, in weighted residual units (> 0).
 
     Returns
     -------
@@ -647,6 +665,11 @@ def identify_published(
         The estimate ``(P,)`` over ``problem.full_layout``; ``rank`` counts the singular values
         kept at the last step (at most ``len(subset)``).
     """
+    if loss not in Loss.__args__ or not (isinstance(f_scale, int | float) and f_scale > 0):
+        raise ArgumentError(
+            f"identify_published: unknown loss '{loss}' or f_scale {f_scale!r} not positive: use "
+            f"one of {', '.join(Loss.__args__)} and f_scale > 0"
+        )
     _check(problem)
     start = time.perf_counter()
     size = problem.full_layout.size
@@ -681,21 +704,36 @@ def identify_published(
     # The costs count from nominal (the held parameters where they are held).
     initial_norm = float(np.linalg.norm(r if initial is None else stated(held, False)[0]))
     keep = np.ones(len(subset), dtype=bool)
+    # A full step that lowers the cost's root by less than this share stops the iteration;
+    # reweighting converges linearly, so its steps are short well before the minimum.
+    stall = 1e-6 if loss == "linear" else IRLS_TOL
     stopped, it = not len(subset), 0  # nothing to estimate: nothing to iterate
     while not stopped and it < max_iter:
         it += 1
-        unit, norms = scaled(a)
-        step, keep = _truncated_svd_solve(unit, r, rcond)
+        if loss == "linear":
+            unit, norms = scaled(a)
+            step, keep = _truncated_svd_solve(unit, r, rcond)
+        else:  # the reweighted rows: a step of iteratively reweighted least squares
+            weight = np.sqrt(_loss_derivative(loss, (r / f_scale) ** 2))
+            weighted = weight * r
+            unit, norms = scaled(weight[:, None] * a)
+            step, keep = _truncated_svd_solve(unit, weighted, rcond)
+            # The share of the reweighted cost the step promises to remove: it vanishes where
+            # the robust cost's gradient does (the gradient check's decrement, analytic here).
+            if np.sum((unit @ step) ** 2) <= IRLS_TOL * max(float(weighted @ weighted), 1e-300):
+                stopped = True
+                break
         step = step / norms
         previous = (params, r, a)
+        level = _cost_root(r, loss, f_scale)  # the cost's root before the step
         # Where the linearisation does not hold over the whole step (with noise, typically a
         # weakly determined direction such as nearly parallel axes), a shorter step along the
-        # same (descent) direction does: halved until the residual decreases.
+        # same (descent) direction does: halved until the cost decreases.
         for halvings in range(40):  # noqa: B007 (read after the loop)
             params = previous[0].copy()
             params[subset] += step
             r = stated(params, jacobian=False)[0]
-            if np.linalg.norm(r) <= np.linalg.norm(previous[1]):
+            if _cost_root(r, loss, f_scale) <= level:
                 break
             step = step / 2
         else:  # no step along it lowers the cost: at the minimum to round-off
@@ -704,9 +742,9 @@ def identify_published(
             break
         r, a = stated(params)
         moved = np.linalg.norm(step * norms)
-        # Negligible correction, or a residual that no longer decreases (at round-off level a
+        # Negligible correction, or a cost that no longer decreases (at round-off level a
         # curved exact symmetry can keep a tiny singular value above rcond and move forever).
-        stalled = np.linalg.norm(r) >= np.linalg.norm(previous[1]) * (1 - 1e-6) and it > 1
+        stalled = _cost_root(r, loss, f_scale) >= level * (1 - stall) and it > 1
         stalled = stalled and halvings == 0  # a shortened step says nothing about the minimum
         if moved <= tol * max(np.linalg.norm(params[subset] * norms), 1e-3) or stalled:
             stopped = True
@@ -721,13 +759,34 @@ def identify_published(
         n_residuals=n_rows,
         rank=int(np.sum(keep)),
         seconds=time.perf_counter() - start,
-        method="published",
+        method="published" if loss == "linear" else f"published ({loss} loss)",
         identifiability=ident,
         problem=problem,
+        loss=loss,
+        f_scale=f_scale,
         prior=prior,
         prior_std=prior_std if prior is not None else None,
     )
 
+
+def _cost_root(r: np.ndarray, loss: str, f_scale: float) -> float:
+    """The root of ``sum f_scale^2 rho((r / f_scale)^2)`` of SciPy's losses (twice the cost that
+    :func:`scipy.optimize.least_squares` minimises): ``|r|`` for the linear one."""
+    if loss == "linear":
+        return float(np.linalg.norm(r))
+    z = (r / f_scale) ** 2
+    if loss == "huber":
+        rho = np.where(z <= 1, z, 2 * np.sqrt(z) - 1)
+    elif loss == "soft_l1":
+        rho = 2 * (np.sqrt(1 + z) - 1)
+    elif loss == "cauchy":
+        rho = np.log1p(z)
+    else:  # arctan
+        rho = np.arctan(z)
+    return float(f_scale * np.sqrt(np.sum(rho)))
+
+
+IRLS_TOL = 1e-10  # reweighted: a step promising less than this share of the cost stops
 
 _DAMPING = 1e-6  # Marquardt's starting damping, relative to unit-norm columns
 STEP_TOL = 0.01  # a step below this share of the standard deviations is not taken
@@ -1093,7 +1152,15 @@ def identify(
         )
     o = options or SolverOptions()
     if o.method == "published":
-        return identify_published(problem, o.rcond, o.tol, o.max_iterations, identifiability)
+        return identify_published(
+            problem,
+            o.rcond,
+            o.tol,
+            o.max_iterations,
+            identifiability,
+            loss=o.loss,
+            f_scale=o.f_scale,
+        )
     return identify_lm(problem, o.max_iterations, identifiability, o.loss, o.f_scale)
 
 

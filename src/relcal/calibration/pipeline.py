@@ -127,7 +127,8 @@ def calibrate(
     method : {"lm", "published"}
         The solver (:class:`SolverOptions`).
     loss : {"linear", "huber", "cauchy", "soft_l1"}
-        Loss of the fits once outliers are out (``lm`` only).
+        Loss of the fits once outliers are out, with either ``method`` (the published solver
+        reweights its iterations: the same robust cost).
     reject_outliers : bool
         Deprecated (a DeprecationWarning; removed in relcal 0.2): ``reject_outliers=False`` is
         ``keep_outliers=True``. Not given by default.
@@ -450,19 +451,22 @@ def _fit(
     the robust loss bending where the kind says (:meth:`MeasurementKind.f_scale`); ``noise``: the
     kind's learned :class:`~relcal.calibration.kinds.NoiseModel` (the pose noise goes into the
     result's covariance); ``prior``: the prior rows' weights ``(P,)`` of a maximum a posteriori
-    fit (:func:`_prior`). Both solvers estimate ``columns`` only, the others at nominal; the
-    published one has the linear loss only."""
+    fit (:func:`_prior`). Both solvers estimate ``columns`` only, the others at nominal, and
+    minimise the same cost (the published one reweighted for a robust loss)."""
     whiteners = None if noise is None else noise.whiteners
     weighted = kind.weighted(training, weighting, whiteners)
     sub = replace(training.ident, subset=np.asarray(columns))
     std = None if prior is None else layout_prior_std(weighted)
-    if method == "published":
+    published = method == "published"
+    # (a linear published fit does not use where a loss bends: that evaluation is spared)
+    f_scale = 1.0 if published and loss == "linear" else kind.f_scale(weighted)
+    if published:
         o = SolverOptions(method="published")
         result = identify_published(
-            weighted, o.rcond, o.tol, o.max_iterations, sub, initial, prior=prior, prior_std=std
-        )
+            weighted, o.rcond, o.tol, o.max_iterations, sub, initial, prior=prior, prior_std=std,
+            loss=loss, f_scale=f_scale,
+        )  # fmt: skip
     else:
-        f_scale = kind.f_scale(weighted)
         result = identify_lm(
             weighted, 200, sub, loss, f_scale, initial=initial, prior=prior, prior_std=std
         )

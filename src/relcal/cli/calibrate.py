@@ -351,8 +351,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--loss",
         choices=("linear", "huber", "cauchy", "soft_l1"),
         default="linear",
-        help="loss of the weighted residuals once outlier samples are out (lm only; default "
-        "linear; the outlier search itself always uses huber)",
+        help="loss of the weighted residuals once outlier samples are out, with either --method "
+        "(default linear; the outlier search's own fit uses huber for points, linear for poses)",
     )
     cp.add_argument(
         "--keep-outliers", action="store_true", help="do not leave detected outliers out of the fit"
