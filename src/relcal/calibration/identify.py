@@ -419,6 +419,23 @@ def _loss_derivative(loss: str, z: np.ndarray) -> np.ndarray:
     return np.ones_like(z)
 
 
+def _cost_root(r: np.ndarray, loss: str, f_scale: float) -> float:
+    """The root of ``sum f_scale^2 rho((r / f_scale)^2)`` of SciPy's losses (twice the cost that
+    :func:`scipy.optimize.least_squares` minimises): ``|r|`` for the linear one."""
+    if loss == "linear":
+        return float(np.linalg.norm(r))
+    z = (r / f_scale) ** 2
+    if loss == "huber":
+        rho = np.where(z <= 1, z, 2 * np.sqrt(z) - 1)
+    elif loss == "soft_l1":
+        rho = 2 * (np.sqrt(1 + z) - 1)
+    elif loss == "cauchy":
+        rho = np.log1p(z)
+    else:  # arctan
+        rho = np.arctan(z)
+    return float(f_scale * np.sqrt(np.sum(rho)))
+
+
 def prior_rows(
     prior: np.ndarray | None, columns: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray] | None:
@@ -767,23 +784,6 @@ def identify_published(
         prior=prior,
         prior_std=prior_std if prior is not None else None,
     )
-
-
-def _cost_root(r: np.ndarray, loss: str, f_scale: float) -> float:
-    """The root of ``sum f_scale^2 rho((r / f_scale)^2)`` of SciPy's losses (twice the cost that
-    :func:`scipy.optimize.least_squares` minimises): ``|r|`` for the linear one."""
-    if loss == "linear":
-        return float(np.linalg.norm(r))
-    z = (r / f_scale) ** 2
-    if loss == "huber":
-        rho = np.where(z <= 1, z, 2 * np.sqrt(z) - 1)
-    elif loss == "soft_l1":
-        rho = 2 * (np.sqrt(1 + z) - 1)
-    elif loss == "cauchy":
-        rho = np.log1p(z)
-    else:  # arctan
-        rho = np.arctan(z)
-    return float(f_scale * np.sqrt(np.sum(rho)))
 
 
 IRLS_TOL = 1e-10  # reweighted: a step promising less than this share of the cost stops

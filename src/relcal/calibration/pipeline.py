@@ -463,9 +463,17 @@ def _fit(
     if published:
         o = SolverOptions(method="published")
         result = identify_published(
-            weighted, o.rcond, o.tol, o.max_iterations, sub, initial, prior=prior, prior_std=std,
-            loss=loss, f_scale=f_scale,
-        )  # fmt: skip
+            weighted,
+            o.rcond,
+            o.tol,
+            o.max_iterations,
+            sub,
+            initial,
+            prior=prior,
+            prior_std=std,
+            loss=loss,
+            f_scale=f_scale,
+        )
     else:
         result = identify_lm(
             weighted, 200, sub, loss, f_scale, initial=initial, prior=prior, prior_std=std
