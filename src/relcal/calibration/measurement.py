@@ -589,8 +589,8 @@ def _invariant(
     ``handeye = problem.handeye @ from_vector(handeye_params)``."""
     i, j = problem.pair_indices().T
     camera = tip @ handeye  # F X
-    inverse = tf.invert(camera)
-    model_rel_inv = inverse[j] @ camera[i]  # (X^-1 F_i^-1 F_j X)^-1
+    inverse = tf.invert(camera)[j]  # (F_j X)^-1
+    model_rel_inv = inverse @ camera[i]  # (X^-1 F_i^-1 F_j X)^-1
     r = tf.to_vector(model_rel_inv @ problem.measured_motions)
     if spatial is None:
         return r, None
@@ -603,7 +603,7 @@ def _invariant(
     # T Ad = [[R, [p - t] R], [0, J R]], T (I - Ad) = [[I - R, -[t] - [p - t] R], [0, J (I - R)]].
     t = np.zeros((len(i), 3)) if model_jacobian else r[:, :3]
     turn = None if model_jacobian else tf.right_jacobian_inverse(-r[:, 3:])
-    rot, shift = inverse[j, :3, :3], inverse[j, :3, 3]
+    rot, shift = inverse[:, :3, :3], inverse[:, :3, 3]
     to_pair = np.zeros((len(i), 6, 6))
     to_pair[:, :3, :3] = rot
     to_pair[:, :3, 3:] = tf.skew(shift - t) @ rot

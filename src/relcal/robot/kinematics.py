@@ -305,6 +305,8 @@ def apply_errors(model: RobotModel, layout: Layout, errors: np.ndarray) -> Robot
 def errors_applied(model: RobotModel, layout: Layout, errors: np.ndarray) -> RobotModel:
     """:func:`apply_errors` without its argument checks, for callers whose model, layout and
     ``errors`` ``(P,)`` are already checked (a solver's inner loop evaluates it every step)."""
+    if not errors.any():  # the nominal model (a fit's first evaluation)
+        return model
     plan = _error_plan(layout)
     if plan.origin_moves.size and np.any(errors[plan.origin_moves]):
         from relcal.robot.urdf import move_origins, zero_directions
@@ -458,12 +460,14 @@ def _link_transforms(model: RobotModel, q: np.ndarray) -> np.ndarray:
     return _links(model, np.cos(theta), np.sin(theta), d)
 
 
-def _links(model: RobotModel, c: np.ndarray, s: np.ndarray, d: np.ndarray) -> np.ndarray:
-    """Joint transforms ``A_i`` ``(N, n, 4, 4)`` from ``cos``/``sin`` of the total joint angles
-    and the total offsets ``d`` ``(N, n)``: ``Rz(theta) Tz(d)`` times the constant
-    ``Tx(a) Rx(alpha) Ry(beta)`` (DH), or ``Rx(alpha) Ry(beta) Tx(a)`` times it (MDH), the
-    constant part formed once per joint."""
-    turn = np.zeros((*d.shape, 4, 4))  # Rz(theta) Tz(d)
+def _link_parts(
+    model: RobotModel, c: np.ndarray, s: np.ndarray, d: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """The two factors of the joint transforms, from ``cos``/``sin`` of the total joint angles
+    and the total offsets ``d`` ``(N, n)``: ``Rz(theta) Tz(d)`` ``(N, n, 4, 4)``, and the
+    constant ``Tx(a) Rx(alpha) Ry(beta)`` (DH: ``A_i = Rz Tz C_i``) or ``Rx(alpha) Ry(beta)
+    Tx(a)`` (MDH: ``A_i = C_i Rz Tz``) ``(n, 4, 4)``."""
+    turn = np.zeros((*d.shape, 4, 4))
     turn[..., 0, 0], turn[..., 0, 1], turn[..., 2, 3] = c, -s, d
     turn[..., 1, 0], turn[..., 1, 1] = s, c
     turn[..., 2, 2] = turn[..., 3, 3] = 1.0
@@ -473,9 +477,15 @@ def _links(model: RobotModel, c: np.ndarray, s: np.ndarray, d: np.ndarray) -> np
     constant[:, 3, 3] = 1.0
     if model.convention == "dh":
         constant[:, 0, 3] = model.a
-        return turn @ constant
-    constant[:, :3, 3] = model.a[:, None] * rc[..., 0]
-    return constant @ turn
+    else:
+        constant[:, :3, 3] = model.a[:, None] * rc[..., 0]
+    return turn, constant
+
+
+def _links(model: RobotModel, c: np.ndarray, s: np.ndarray, d: np.ndarray) -> np.ndarray:
+    """Joint transforms ``A_i`` ``(N, n, 4, 4)`` (see :func:`_link_parts`)."""
+    turn, constant = _link_parts(model, c, s, d)
+    return turn @ constant if model.convention == "dh" else constant @ turn
 
 
 def _chain(model: RobotModel, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -483,12 +493,19 @@ def _chain(model: RobotModel, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np
     the total joint angles ``(N, n)`` (the Jacobian needs them again)."""
     theta, d = _joint_values(model, q)
     c, s = np.cos(theta), np.sin(theta)
-    links = _links(model, c, s, d)
-    n_conf, n = links.shape[:2]
+    turn, constant = _link_parts(model, c, s, d)
+    n_conf, n = d.shape
     frames = np.empty((n_conf, n + 1, 4, 4))
     frames[:, 0] = model.base
+    # A joint's constant factor is the same for every configuration: one matrix product over
+    # the frames' stacked rows (F C) applies it to all of them.
     for i in range(n):
-        frames[:, i + 1] = frames[:, i] @ links[:, i]
+        if model.convention == "dh":
+            rows = (frames[:, i] @ turn[:, i]).reshape(-1, 4) @ constant[i]
+            frames[:, i + 1] = rows.reshape(n_conf, 4, 4)
+        else:
+            rows = frames[:, i].reshape(-1, 4) @ constant[i]
+            frames[:, i + 1] = rows.reshape(n_conf, 4, 4) @ turn[:, i]
     return frames, c, s
 
 
