@@ -76,7 +76,9 @@ from relcal.sim.scenario import (  # noqa: E402
 OPTIONAL_MODULES = ("images", "montecarlo", "selection", "scale", "fleet", "plan", "capture")
 
 FK_GOAL = 5e6  # configurations per second on one core
-ID_GOAL_MS = 10.0  # one identification of 100 poses
+# One identification of 100 poses: the default solver within 3 ms (issue 18), the published one
+# within 10.
+ID_GOAL_MS = {"identify_lm": 3.0, "identify_published": 10.0}
 PEER_RATIO_GOAL = 3.0  # at least this many times ahead of each peer
 HELP_GOAL_S = 0.3  # `relcal --help`, wall time of a fresh process
 
@@ -92,6 +94,7 @@ class Row:
     met: bool | None = None  # None: informational, no goal
     note: str = ""
     goal_ratio: float = PEER_RATIO_GOAL  # how many times ahead of the peer the goal asks
+    goal_ms: float | None = None  # the time the goal allows, for rows in ms
 
     @property
     def ratio(self) -> float | None:
@@ -101,13 +104,16 @@ class Row:
         return self.peer_value / self.value if faster_is_less else self.value / self.peer_value
 
 
-def best_time(fn, seconds: float = 1.5, min_repeat: int = 3, max_repeat: int = 200) -> float:
+def best_time(fn, seconds: float = 1.5, min_repeat: int = 3, max_repeat: int = 5000) -> float:
     """Least CPU time of one call of ``fn`` (after a warm-up), repeating for about ``seconds``.
 
     Everything timed this way runs on one thread, so CPU time is the one-core time; unlike wall
     time it does not count the moments other processes hold the core. Repeating over a window of
     time rather than a fixed count lets a short burst of load on a shared machine (which also
-    slows the CPU time of a process whose core is shared) pass.
+    slows the CPU time of a process whose core is shared) pass; ``max_repeat`` only bounds
+    calls so fast that the window would mean more than thousands of them (until 2026-12-04 it
+    was 200: a call of 3 ms was timed over 0.6 s only, and a slow half-second of the machine
+    showed as a slower relcal).
     """
     fn()
     best, start = np.inf, time.perf_counter()
@@ -357,11 +363,12 @@ def identify_rows(problem: Problem, sc: Scenario, noisy: bool) -> list[Row]:
             "ms",
             "scipy least_squares, FD Jacobian",
             peer_ms,
-            f"< {ID_GOAL_MS:g} ms, >= {PEER_RATIO_GOAL:g}x peer",
+            f"< {ID_GOAL_MS[name]:g} ms, >= {PEER_RATIO_GOAL:g}x peer",
             note=f"{result.iterations} iterations; held-out error {error:.0e} "
             f"(peer {peer_error:.0e}) m or rad",
+            goal_ms=ID_GOAL_MS[name],
         )
-        row.met = ms < ID_GOAL_MS and row.ratio >= PEER_RATIO_GOAL
+        row.met = ms < ID_GOAL_MS[name] and row.ratio >= PEER_RATIO_GOAL
         rows.append(row)
     return rows
 
@@ -502,8 +509,8 @@ def gap(r: Row) -> str:
     parts = []
     if r.unit == "configs/s" and r.value is not None and r.value < FK_GOAL:
         parts.append(f"{FK_GOAL / r.value:.2g}x short of {FK_GOAL / 1e6:g} M/s")
-    if r.unit == "ms" and r.value is not None and r.value >= ID_GOAL_MS:
-        parts.append(f"{r.value - ID_GOAL_MS:.3g} ms over")
+    if r.goal_ms is not None and r.value is not None and r.value >= r.goal_ms:
+        parts.append(f"{r.value - r.goal_ms:.3g} ms over")
     if r.ratio is not None and r.ratio < r.goal_ratio:
         parts.append(f"ratio {r.ratio:.3g} < {r.goal_ratio:g}")
     return "; ".join(parts) or "see goal"
