@@ -457,10 +457,9 @@ def _fit(
     weighted = kind.weighted(training, weighting, whiteners)
     sub = replace(training.ident, subset=np.asarray(columns))
     std = None if prior is None else layout_prior_std(weighted)
-    published = method == "published"
-    # (a linear published fit does not use where a loss bends: that evaluation is spared)
-    f_scale = 1.0 if published and loss == "linear" else kind.f_scale(weighted)
-    if published:
+    # Where a robust loss bends (the linear loss has none: its evaluation at nominal is spared).
+    f_scale = 1.0 if loss == "linear" else kind.f_scale(weighted)
+    if method == "published":
         o = SolverOptions(method="published")
         result = identify_published(
             weighted,
