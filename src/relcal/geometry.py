@@ -9,6 +9,7 @@ which the small batches of an identification pay many times.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -128,7 +129,7 @@ def right_jacobian_inverse(rotvec: np.ndarray) -> np.ndarray:
     )
 
 
-def _so3_series(w, series, exact) -> np.ndarray:
+def _so3_series(w: np.ndarray, series: Callable, exact: Callable) -> np.ndarray:
     """``I + a [w] + b [w]^2`` ``(..., 3, 3)`` at rotation vectors ``w`` ``(..., 3)``, with the
     coefficients ``(a, b)`` from ``exact(angle)`` or, below 1e-4 rad (exact to round-off there,
     no 0/0), from ``series(angle^2)``. One vector (a hand-eye update) is done on Python floats; a
