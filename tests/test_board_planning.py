@@ -290,6 +290,60 @@ def test_observability_command_with_the_board_and_auto(tmp_path, capsys):
     assert "needs camera poses in the board frame" in capsys.readouterr().err
 
 
+def test_planning_commands_pair_the_poses_as_calibrate_does(tmp_path, capsys):
+    """Without --pairing, observability, study and simulate compare the poses as ``relcal
+    calibrate`` compares the same samples (its default, auto: all pairs of these 16), so the
+    identifiability and precision they print are those of the calibration to come."""
+    from helpers_dataset import synthetic_dataset
+
+    from relcal.cli import build_parser
+
+    for command in ("calibrate DS", "observability", "study", "simulate"):
+        assert build_parser().parse_args(command.split()).pairs == "auto", command
+    root = synthetic_dataset(tmp_path / "ds", n=16).root
+    results = tmp_path / "results.json"
+    calibrate = ["calibrate", str(root), "--out", str(tmp_path / "cal"), "--quiet"]
+    assert main([*calibrate, "--json", str(results)]) == 0
+    used = json.loads(results.read_text())["settings"]["pairing"]
+    assert used == "all"
+    samples = str(root / "samples.csv")
+    common = ["observability", "--robot", "a465", "--hayati", "auto", "--poses", samples]
+    common += ["--validation", "5"]
+    default, explicit = tmp_path / "default.json", tmp_path / "explicit.json"
+    assert main([*common, "--json", str(default)]) == 0
+    assert main([*common, "--pairing", used, "--json", str(explicit)]) == 0
+    printed = capsys.readouterr().out
+    assert printed.count("invariant formulation, all pairs") == 2
+    doc = json.loads(default.read_text())
+    assert doc["pairing"] == used and doc["n_measurements"] == 16 * 15 // 2
+    assert doc == json.loads(explicit.read_text())  # rank, indices, both standard deviations
+    study_doc = tmp_path / "study.json"
+    study_argv = ["study", "--robot", "a465", "--hayati", "auto", "--poses", samples]
+    assert main([*study_argv, "--trials", "3", "--quiet", "--json", str(study_doc)]) == 0
+    assert json.loads(study_doc.read_text())["pairing"] == used
+    sim = tmp_path / "sim.json"
+    simulate_argv = ["simulate", "--measure", "pose", "--n-poses", "16", "--quiet"]
+    assert main([*simulate_argv, "--json", str(sim)]) == 0
+    assert json.loads(sim.read_text())["pairing"] == used
+
+
+def test_simulate_above_auto_s_limit_simulates_the_board_frame(monkeypatch):
+    """auto above 300 poses is the board formulation, which needs the frame-invariant data:
+    simulate then simulates those, as it does for --pairing board (published below)."""
+    import relcal.sim.simulate
+
+    asked = []
+
+    def recorded(model, **kwargs):
+        asked.append((kwargs["formulation"], kwargs["pairing"]))
+        raise RelcalError("recorded")
+
+    monkeypatch.setattr(relcal.sim.simulate, "simulate", recorded)
+    for n in (300, 301):
+        assert main(["simulate", "--measure", "pose", "--n-poses", str(n), "--quiet"]) == 2
+    assert asked == [("published", "auto"), ("invariant", "auto")]
+
+
 # --- study ------------------------------------------------------------------------------------
 
 

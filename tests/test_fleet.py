@@ -10,6 +10,7 @@ import os
 import signal
 import threading
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -217,6 +218,16 @@ def test_study_on_the_cluster_gives_the_same_trials(cluster, tmp_path, capsys):
     assert "trials" in capsys.readouterr().out
 
 
+def written(out: Path) -> bool:
+    """Whether a session's results.json is in ``out`` yet (staged or in place). The workers
+    rename and remove folders while the walk runs: one that vanishes between its listing and
+    its scan makes ``rglob`` raise FileNotFoundError, which only means: look again."""
+    try:
+        return any(out.rglob("results.json"))
+    except FileNotFoundError:
+        return False
+
+
 def test_a_killed_worker_does_not_stop_the_fleet(fleet, cluster, tmp_path):
     """SIGKILL one of the two worker processes while sessions run: its tasks run again
     elsewhere (the nanny starts a new worker), and the fleet completes."""
@@ -232,7 +243,7 @@ def test_a_killed_worker_does_not_stop_the_fleet(fleet, cluster, tmp_path):
         def killer() -> None:
             deadline = time.monotonic() + 120
             while time.monotonic() < deadline:
-                if any(out.rglob("results.json")):  # sessions are running
+                if written(out):  # sessions are running
                     os.kill(victim, signal.SIGKILL)
                     killed.set()
                     return

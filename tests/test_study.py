@@ -119,6 +119,26 @@ def test_short_studies_run_in_this_process(scenario, monkeypatch):
     assert spawned == []  # 4 trials take far less than starting a worker
 
 
+def test_a_busy_machine_does_not_send_short_studies_to_workers(scenario, monkeypatch):
+    """The reference estimate stalled by 0.5 s of wall-clock time (another process on the
+    cores): the 4 trials are still far less work than starting a worker."""
+    import time
+
+    real, calls = relcal.sim.study._estimate, []
+
+    def stalled(problem, context):
+        calls.append(1)
+        if len(calls) == 1:  # the noise-free reference, the one that is timed
+            time.sleep(0.5)
+        return real(problem, context)
+
+    spawned = []
+    monkeypatch.setattr(relcal.sim.study, "_estimate", stalled)
+    monkeypatch.setattr(relcal.sim.study, "ProcessPoolExecutor", _recording(spawned))
+    study(scenario, trials=4, seed=5, workers=2, progress=False)
+    assert spawned == [] and len(calls) == 5
+
+
 def test_command_line_study(tmp_path, capsys):
     out = tmp_path / "study.json"
     code = main(

@@ -323,21 +323,19 @@ PAIRS_HELP = (
     "--pairs is its former name"
 )
 SIMULATION_PAIRS_HELP = (
-    "how the poses are compared, as calibrate's --pairing: consecutive (default), star, all "
-    "pairs, board (each camera pose against the board, its transform board.* estimated: what "
-    "calibrate uses for large sets; frame-invariant formulation only), or auto (all pairs up to "
-    "300 poses, board above); --pairs is its former name"
+    "how the poses are compared, as calibrate's --pairing and with its default: auto (default: "
+    "all pairs up to 300 poses, board above, what calibrate uses for these poses), all (every "
+    "pair), consecutive, star, or board (each camera pose against the board, its transform "
+    "board.* estimated; frame-invariant formulation only); --pairs is its former name"
 )
 
 
 def pairing_arg(parser: argparse.ArgumentParser, calibration: bool = True) -> None:
     """``--pairing`` (``--pairs`` its former name): which samples form relative measurements,
-    the same choices everywhere; ``auto`` by default for a calibration, ``consecutive`` for a
-    simulation, study or observability report (``calibration=False``)."""
-    if calibration:
-        default, help_ = "auto", PAIRS_HELP
-    else:
-        default, help_ = "consecutive", SIMULATION_PAIRS_HELP
+    the same choices and the same default, ``auto``, everywhere: a simulation, study or
+    observability report (``calibration=False``, which words the help for poses) pairs its
+    poses as ``relcal calibrate`` will pair them (:func:`relcal.limits.resolve_pairing`)."""
+    help_ = PAIRS_HELP if calibration else SIMULATION_PAIRS_HELP
     parser.add_argument(
-        "--pairing", "--pairs", dest="pairs", choices=PAIRINGS, default=default, help=help_
+        "--pairing", "--pairs", dest="pairs", choices=PAIRINGS, default="auto", help=help_
     )

@@ -71,8 +71,12 @@ def run(args: argparse.Namespace) -> int:
         [File(p, b"", what) for p, what in ((args.json, "--json"), (args.report, "--report")) if p]
     )
     measures = [args.measure] if args.measure else ["position", "pose"]
-    # the board formulation compares camera poses in the board frame: the frame-invariant data
-    formulation = args.formulation or ("invariant" if args.pairs == "board" else "published")
+    from relcal.limits import resolve_pairing
+
+    # the board formulation (asked for, or auto's above 300 poses) compares camera poses in the
+    # board frame: the frame-invariant data
+    board = resolve_pairing(args.pairs, args.poses) == "board"
+    formulation = args.formulation or ("invariant" if board else "published")
     runs = []
     for measure in measures:
         sim = simulate(
@@ -220,7 +224,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         choices=("published", "invariant"),
         help="published (default; Lu & Hayes, base-aligned differences) or invariant (camera "
         "poses in the board frame, the hand-eye estimated); invariant is the default with "
-        "--pairing board",
+        "--pairing board, and with auto's board above 300 poses",
     )
     sim.add_argument("--method", choices=("published", "lm"), default="published")
     pairing_arg(sim, calibration=False)

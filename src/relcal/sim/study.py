@@ -217,7 +217,7 @@ class StudyResult:
         return self.reference - self.truth
 
 
-WORKER_STARTUP_S = 1.0  # s: a spawned worker imports NumPy, SciPy and relcal
+WORKER_STARTUP_S = 1.0  # s (CPU): a spawned worker imports NumPy, SciPy and relcal
 TASK_SECONDS = 0.25  # s: the work of one Dask task of a study (its overhead is a few ms)
 
 
@@ -236,8 +236,9 @@ def study(
     this process), or as tasks on the Dask cluster of ``client`` (a ``distributed.Client``),
     with a progress bar, and compare them with the predicted covariance.
 
-    A study whose workers would save less than :data:`WORKER_STARTUP_S` (judged by the
-    noise-free reference estimate) runs in this process: starting a worker costs about that much.
+    A study whose workers would save less than :data:`WORKER_STARTUP_S` (judged by the CPU
+    time of the noise-free reference estimate, which a busy machine does not inflate) runs in
+    this process: starting a worker costs about that much.
     The estimates do not depend on where they run.
     """
     from tqdm import tqdm
@@ -247,10 +248,13 @@ def study(
     base = problem_for(scenario, scenario.q, clean)
     ident = analyse_problem(base)
     context = {"scenario": scenario, "clean": clean, "ident": ident, "estimator": estimator}
-    tick = time.perf_counter()
+    # The reference's CPU time, not the wall clock's: on a busy machine the wall-clock time of
+    # this one call grows with the load (a short study then looked worth its workers), while
+    # the trials and the workers' start would compete for the same cores.
+    tick = time.thread_time()
     reference, _ = _estimate(base, context)
     # Noisy trials take about twice the noise-free reference (more iterations).
-    trial_seconds = 2 * (time.perf_counter() - tick)
+    trial_seconds = 2 * (time.thread_time() - tick)
     if workers > 1 and client is None:  # workers pay when they save more than they cost
         saved = trials * trial_seconds * (1 - 1 / workers)
         workers = workers if saved > WORKER_STARTUP_S else 1
