@@ -209,7 +209,7 @@ def projected_noise_factor(
         factors = row_factors(block) if r == 6 else None
         if factors is not None:  # one diagonal block (the plain weighting's first slot)
             return np.multiply(np.swapaxes(rows, 1, 2), factors, order="C")
-        return np.einsum("mrp,mrc->mpc", rows, block)
+        return np.swapaxes(rows, 1, 2) @ block  # (a batched product: einsum is 20x slower)
 
     shares = np.concatenate([share(blocks[:, k]) for k in range(slots)])
     # each pose's sum of its measurements' shares, slot by slot and measurement by measurement
