@@ -120,7 +120,7 @@ class Result:
     ``covariance`` ``(P, P)`` of the estimated subset, NaN for parameters held at nominal: for
     relative measurements (pairs share poses, so their residuals correlate) the least-squares
     covariance of :func:`uncertainty.parameter_covariance` with the pose noise estimated from
-    the residuals (:func:`uncertainty.residual_noise`); for absolute poses and tracker points
+    the residuals (:func:`uncertainty.residual_noise`; absolute poses too); for tracker points
     ``s^2 (A^T A)^-1``; for the
     noise-weighted estimator its Cramer-Rao form. Computed on first use. Costs are
     ``0.5 |r|^2`` per residual row, weighted as solved.
@@ -569,8 +569,9 @@ def result_covariance(
     clusters = None if independent else row_clusters(problem)
     if clusters is not None:  # rows correlated within clusters (coincidence: placements)
         return clustered_covariance(a, r, ident.subset, clusters).covariance
-    if problem.formulation in ("absolute", "tracker", "coincidence"):  # independent samples
+    if problem.formulation in ("tracker", "coincidence"):  # independent points, in one unit
         return least_squares_covariance(a, r, ident.subset)
+    # Poses (absolute ones too: one s^2 of rows in m and in rad would mix the two units)
     if noise is None:  # the levels the residuals show, with what the fit took out counted
         noise = residual_noise(problem, params, a, ident.subset)
     unc = parameter_covariance(problem, noise, ident, params=params)
