@@ -32,7 +32,7 @@ from relcal.calibration.measurement import (
     residuals,
     row_clusters,
 )
-from relcal.calibration.noise import Noise, robust_sigma
+from relcal.calibration.noise import Noise
 from relcal.calibration.uncertainty import (
     PER_POSE,
     ClusteredCovariance,
@@ -41,6 +41,7 @@ from relcal.calibration.uncertainty import (
     noise_factor,
     parameter_covariance,
     pose_whitener,
+    residual_noise,
     whitener,
 )
 from relcal.errors import ArgumentError, RelcalError
@@ -119,7 +120,8 @@ class Result:
     ``covariance`` ``(P, P)`` of the estimated subset, NaN for parameters held at nominal: for
     relative measurements (pairs share poses, so their residuals correlate) the least-squares
     covariance of :func:`uncertainty.parameter_covariance` with the pose noise estimated from
-    the residuals; for absolute poses and tracker points ``s^2 (A^T A)^-1``; for the
+    the residuals (:func:`uncertainty.residual_noise`; absolute poses too); for tracker points
+    ``s^2 (A^T A)^-1``; for the
     noise-weighted estimator its Cramer-Rao form. Computed on first use. Costs are
     ``0.5 |r|^2`` per residual row, weighted as solved.
 
@@ -555,8 +557,10 @@ def result_covariance(
     independent: bool = False,
 ) -> np.ndarray:
     """The covariance ``(P, P)`` of :attr:`Result.covariance` (NaN outside the subset); the pose
-    ``noise`` is estimated from the residuals (robust, isotropic; the position level alone for
-    position-only measurements, which have no orientation rows) when not given. Coincidence
+    ``noise`` is estimated from the residuals when not given
+    (:func:`relcal.calibration.uncertainty.residual_noise`: robust, isotropic, with what the fit
+    took out of each row counted; the position level alone for position-only measurements,
+    which have no orientation rows). Coincidence
     samples are clustered by placement (:func:`relcal.calibration.measurement.row_clusters`,
     :func:`relcal.calibration.uncertainty.clustered_covariance`) unless ``independent``."""
     r, a = residuals(problem, params)
@@ -565,16 +569,11 @@ def result_covariance(
     clusters = None if independent else row_clusters(problem)
     if clusters is not None:  # rows correlated within clusters (coincidence: placements)
         return clustered_covariance(a, r, ident.subset, clusters).covariance
-    if problem.formulation in ("absolute", "tracker", "coincidence"):  # independent samples
+    if problem.formulation in ("tracker", "coincidence"):  # independent points, in one unit
         return least_squares_covariance(a, r, ident.subset)
-    if noise is None:
-        sigma = robust_sigma(pair_errors(problem, params))
-        if problem.formulation != "board":
-            sigma = sigma / np.sqrt(2)  # two poses per pair
-        # Position-only measurements have no orientation rows: nothing measures the orientation
-        # noise (pair_errors gives NaN there), and the rows' whole scatter is the position level.
-        orientation = 0.0 if problem.measure == "position" else float(sigma[3])
-        noise = Noise(position=float(sigma[0]), orientation=orientation)
+    # Poses (absolute ones too: one s^2 of rows in m and in rad would mix the two units)
+    if noise is None:  # the levels the residuals show, with what the fit took out counted
+        noise = residual_noise(problem, params, a, ident.subset)
     unc = parameter_covariance(problem, noise, ident, params=params)
     cov = np.full((len(params), len(params)), np.nan)
     cov[np.ix_(unc.subset, unc.subset)] = unc.least_squares
