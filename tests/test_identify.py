@@ -138,3 +138,20 @@ def test_deferred_results_pickle_with_their_values(a465, rng):
     unc = parameter_covariance(problem, Noise(1e-4, 1e-4), identifiability=fresh)
     copied = pickle.loads(pickle.dumps(unc))
     np.testing.assert_array_equal(copied.crb, unc.crb)
+
+
+def test_equivalent_parameters_are_held_the_same_way_whatever_the_round_off(a465, rng):
+    # Two parameters the data see exactly alike (here two equal Jacobian columns): which one is
+    # estimated must not depend on the last digit of the Jacobian (another BLAS, another order
+    # of the same products), or one calibration estimates the first and the next, of the same
+    # data, the second: the earlier in the layout is estimated, the other held.
+    from relcal.calibration.identifiability import analyse
+
+    layout = make_layout(a465).extended("handeye")
+    jac = rng.normal(size=(200, layout.size))
+    first, second = layout.names.index("handeye.ty"), layout.names.index("handeye.rx")
+    for _ in range(20):  # the second column off the first by round-off, in some direction
+        jac[:, second] = jac[:, first] + 1e-15 * rng.normal(size=len(jac))
+        ident = analyse(jac, layout)
+        assert ident.rank == layout.size - 1
+        assert first in ident.subset and second not in ident.subset

@@ -182,13 +182,27 @@ def _triangular(matrix: np.ndarray) -> np.ndarray:
     return np.triu(factored[: min(matrix.shape)])
 
 
+_TIE = 1e-6  # columns whose pivoting norms agree this closely are taken in their order
+
+
 def _pivot_order(matrix: np.ndarray) -> np.ndarray:
-    """The column order ``(P,)`` that QR with column pivoting chooses for ``matrix`` ``(M, P)``
-    (LAPACK's ``dgeqp3``, as :func:`scipy.linalg.qr` with ``pivoting=True``)."""
+    """The column order ``(P,)`` of QR with column pivoting of ``matrix`` ``(M, P)`` (LAPACK's
+    ``dgeqp3``), columns whose norms tie to within :data:`_TIE` taken in their order.
+
+    Symmetries make exact ties (two parameters that the data see alike, such as the offsets of
+    a curved symmetry): LAPACK breaks them by round-off, so that a change in the last digit of
+    the Jacobian (another BLAS, another order of the same products) swapped which of two
+    equivalent parameters a calibration estimated and which it held. A relative preference of
+    ``_TIE`` for earlier columns decides them the same way every time; it is far above the
+    round-off of the norms LAPACK updates (about 1e-8 relative) and far below any real
+    difference between columns.
+    """
     matrix = np.asarray(matrix, dtype=float)
+    n = matrix.shape[1]
     if not matrix.size:
-        return np.arange(matrix.shape[1])
-    return scipy.linalg.lapack.dgeqp3(matrix)[1] - 1  # 1-based
+        return np.arange(n)
+    earlier = 1.0 + _TIE * np.arange(n - 1, -1, -1) / max(n - 1, 1)
+    return scipy.linalg.lapack.dgeqp3(matrix * earlier)[1] - 1  # 1-based
 
 
 def _singular(matrix: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

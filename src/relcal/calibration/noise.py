@@ -110,13 +110,19 @@ class Noise:
         return cls(values[0] * MM, values[1] * DEG, values[2] * DEG)
 
 
+def robust_scale(values: np.ndarray) -> float:
+    """1.4826 times the median absolute deviation of ``values`` (any shape): their standard
+    deviation where they are normal, little moved by outliers."""
+    values = np.asarray(values, dtype=float)
+    return 1.4826 * float(np.median(np.abs(values - np.median(values))))
+
+
 def robust_sigma(errors: np.ndarray) -> np.ndarray:
-    """Per-row noise levels ``(6,)``: 1.4826 MAD of the translation and of the rotation rows."""
+    """Per-row noise levels ``(6,)``: :func:`robust_scale` of the translation and of the
+    rotation rows of ``errors`` ``(n, 6)``, at least 1e-12."""
     sigma = np.empty(6)
     for rows in (slice(0, 3), slice(3, 6)):
-        values = errors[:, rows].ravel()
-        mad = 1.4826 * np.median(np.abs(values - np.median(values)))
-        sigma[rows] = max(mad, 1e-12)
+        sigma[rows] = max(robust_scale(errors[:, rows]), 1e-12)
     return sigma
 
 

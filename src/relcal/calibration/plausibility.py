@@ -36,6 +36,7 @@ from scipy.spatial.transform import Rotation
 
 from relcal import geometry as tf
 from relcal.calibration.handeye import align_rotations, rotation_vectors
+from relcal.calibration.noise import robust_scale
 from relcal.errors import RelcalError
 from relcal.geometry import relative
 
@@ -478,7 +479,7 @@ def _wrong_samples(pairs: np.ndarray, values: np.ndarray, threshold: float = 5.0
     score = per_sample_median(values, pairs)
     seen = np.isfinite(score)
     centre = np.median(score[seen])
-    spread = max(1.4826 * np.median(np.abs(score[seen] - centre)), 1e-12 * max(centre, 1e-12))
+    spread = max(robust_scale(score[seen]), 1e-12 * max(centre, 1e-12))
     bad = np.flatnonzero(seen & (score - centre > threshold * spread))
     if len(bad) > seen.sum() // 4:
         bad = bad[np.argsort(score[bad])[::-1][: seen.sum() // 4]]

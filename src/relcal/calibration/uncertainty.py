@@ -39,7 +39,7 @@ from relcal.calibration.measurement import (
     residuals,
     split_params,
 )
-from relcal.calibration.noise import Noise, row_factors
+from relcal.calibration.noise import Noise, robust_scale, row_factors
 from relcal.deferred import Deferred, resolved_state
 from relcal.errors import RelcalError
 from relcal.robot.ik import joint_layout
@@ -246,11 +246,6 @@ def whitener(z: np.ndarray) -> np.ndarray:
 # --- the noise level from a fit's residuals ------------------------------------------------------
 
 
-def _robust_scale(z: np.ndarray) -> float:
-    """1.4826 MAD of ``z``: its standard deviation where it is normal, unmoved by outliers."""
-    return 1.4826 * float(np.median(np.abs(z - np.median(z))))
-
-
 def fitted_row_variances(
     problem: Problem, params: np.ndarray, a: np.ndarray, subset: np.ndarray
 ) -> np.ndarray:
@@ -352,17 +347,17 @@ def residual_noise(
     groups = [(x[keep], dd[keep]) for (x, dd), keep in zip(groups, live, strict=True)]
     if rows == 3:  # one level: the translation rows' scatter under position noise alone
         x, dd = groups[0]
-        level = _robust_scale(x / np.sqrt(dd[:, 0])) if len(x) else 0.0
+        level = robust_scale(x / np.sqrt(dd[:, 0])) if len(x) else 0.0
         return Noise(position=max(level, 1e-12), orientation=0.0)
     mean = np.array([dd.mean(axis=0) for _, dd in groups])  # (group, component)
-    start = np.array([_robust_scale(x) ** 2 for x, _ in groups])
+    start = np.array([robust_scale(x) ** 2 for x, _ in groups])
     var = np.clip(np.linalg.lstsq(mean, start, rcond=None)[0], floor, None)
     for _ in range(50):
         # each group's rows in units of the standard deviation the levels give them; their
         # robust scale says how far the group's mean variance is off
         spread = [dd @ var for _, dd in groups]
         scale = np.array(
-            [_robust_scale(x / np.sqrt(v)) for (x, _), v in zip(groups, spread, strict=True)]
+            [robust_scale(x / np.sqrt(v)) for (x, _), v in zip(groups, spread, strict=True)]
         )
         new = np.linalg.lstsq(mean, scale**2 * [v.mean() for v in spread], rcond=None)[0]
         new = np.clip(new, floor, None)

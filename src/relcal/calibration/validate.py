@@ -25,6 +25,7 @@ from relcal.calibration.measurement import (
     make_pairs,
     pair_errors,
 )
+from relcal.calibration.noise import robust_scale
 from relcal.robot.model import RobotModel
 
 _KINDS = (("position_mm", slice(0, 3), 1e3), ("orientation_deg", slice(3, 6), 180 / np.pi))
@@ -291,7 +292,7 @@ def _scores(problem: Problem, params: np.ndarray, samples, partners, sigma=None)
             values = flat[:, cols].ravel()
             values = values[np.isfinite(values)]
             if values.size:
-                sigma[cols] = max(1.4826 * np.median(np.abs(values - np.median(values))), 1e-12)
+                sigma[cols] = max(robust_scale(values), 1e-12)
     norms = np.sqrt(np.nansum((errors / sigma) ** 2, axis=2))
     norms[np.isnan(errors).all(axis=2)] = np.nan
     return np.nanmedian(norms, axis=1), sigma
@@ -326,7 +327,7 @@ def held_out_outliers(
         if own.size < 4:
             return np.zeros(0, dtype=int)
         centre = np.median(own)
-        spread = max(1.4826 * np.median(np.abs(own - centre)), 1e-12)
+        spread = max(robust_scale(own), 1e-12)
         flagged &= (theirs - centre) > threshold * spread
     return samples[flagged]
 

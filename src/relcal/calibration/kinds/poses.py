@@ -42,6 +42,7 @@ from relcal.calibration.measurement import (
 from relcal.calibration.noise import (
     estimate_pose_noise,
     pair_whiteners,
+    robust_scale,
     robust_sigma,
 )
 from relcal.calibration.outcome import ROBUST_SCALE, outlier_samples
@@ -115,8 +116,7 @@ class PoseKind(MeasurementKind):
     def f_scale(self, weighted: Problem) -> float:
         """:data:`ROBUST_SCALE` robust standard deviations of the weighted rows at nominal."""
         r0 = residuals(weighted, np.zeros(weighted.full_layout.size), jacobian=False)
-        scale = 1.4826 * np.median(np.abs(r0 - np.median(r0)))
-        return ROBUST_SCALE * max(scale, 1e-12)
+        return ROBUST_SCALE * max(robust_scale(r0), 1e-12)
 
     def outliers(self, training: Training, detection: Result) -> np.ndarray:
         """A robust per-sample median of its pairs' errors (a few bad samples do not hide among
