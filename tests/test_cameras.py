@@ -116,12 +116,22 @@ def record_realsense(path: Path, n: int = 6) -> None:
     del recorder  # closes the file
 
 
-def test_realsense_playback(tmp_path):
-    pytest.importorskip("pyrealsense2")
+def test_realsense_playback(tmp_path, monkeypatch):
+    rs = pytest.importorskip("pyrealsense2")
     from relcal.capture.cameras.realsense import RealSenseCamera
 
     path = tmp_path / "camera.db3"  # librealsense 2.59 records ROS 2 bags (.db3)
     record_realsense(path)
+    # A busy machine: half a second passes between the pipeline's start and what follows it;
+    # the six frames (0.2 s of recording) must still all reach the reader.
+    start = rs.pipeline.start
+
+    def slow_start(self, *args):
+        profile = start(self, *args)
+        time.sleep(0.5)
+        return profile
+
+    monkeypatch.setattr(rs.pipeline, "start", slow_start)
     clock = RealClock()
     camera = RealSenseCamera(playback=str(path), clock=clock)
     assert isinstance(camera, Camera)

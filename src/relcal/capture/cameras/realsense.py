@@ -88,12 +88,16 @@ class RealSenseCamera:
                 config.enable_stream(rs.stream.infrared, 1, width, height, rs.format.y8, fps)
         self._pipeline = rs.pipeline()
         try:
+            if playback:
+                # Frame by frame, waiting for the reader, from the first frame: set after the
+                # start, the recording played in real time meanwhile, and on a busy machine a
+                # short one dropped its frames before the first grab (the pipeline starts the
+                # device that the config resolves to, so it is set here).
+                config.resolve(self._pipeline).get_device().as_playback().set_real_time(False)
             profile = self._pipeline.start(config)
         except RuntimeError as exc:
             where = f"recording {playback}" if playback else f"camera {serial or '(first)'}"
             raise CaptureError(f"realsense: cannot start {where}: {exc}") from None
-        if playback:
-            profile.get_device().as_playback().set_real_time(False)
         kind = rs.stream.color if stream == "color" else rs.stream.infrared
         try:
             self._profile = profile.get_stream(kind).as_video_stream_profile()
