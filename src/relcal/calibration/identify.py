@@ -817,6 +817,8 @@ def levenberg_marquardt(
         unit_gradient = gradient / scale
         step = _damped_solve(normal, damping, unit_gradient)
         if step is None:
+            if damping > 1e10:  # no damping makes it positive definite: not finite
+                return x, False, nfev
             damping *= 10.0
             continue
         # The decrease the linear model promises; nearly undamped, it bounds what any step
