@@ -858,10 +858,6 @@ def _damped_solve(normal: np.ndarray, damping: float, gradient: np.ndarray) -> n
     return None if info else step
 
 
-def _column_norms(a: np.ndarray) -> np.ndarray:
-    return np.sqrt(np.einsum("ij,ij->j", a, a))
-
-
 def _stationary(r: np.ndarray, a: np.ndarray, scale: np.ndarray) -> bool:
     """Whether an undamped Gauss-Newton step at ``(r, A)`` would remove at most
     :data:`COST_TOL` of the cost: a small step or gain after heavy damping says nothing about

@@ -407,6 +407,14 @@ def derived(problem: Problem, **changes: Any) -> Problem:
     return out
 
 
+def unweighted(problem: Problem) -> Problem:
+    """``problem`` without its row and pair weights (itself when it has none): the residuals in
+    their own units (m, rad)."""
+    if problem.weights is None and problem.pair_weights is None:
+        return problem
+    return derived(problem, weights=None, pair_weights=None)
+
+
 def camera_pairing(formulation: Formulation, pairing: PairStrategy, n_poses: int) -> str:
     """The pairing that ``pairing`` stands for with ``n_poses`` camera poses measured for
     ``formulation`` (``auto`` resolved by :func:`resolve_pairing`), checked.
@@ -702,8 +710,7 @@ def pair_errors(problem: Problem, params: np.ndarray) -> np.ndarray:
     # positions, which are compared in the measured camera's frame).
     board_positions = problem.formulation == "board" and problem.measure == "position"
     if problem.formulation == "tracker" or board_positions:
-        plain = derived(problem, weights=None, pair_weights=None)
-        r = residuals(plain, params, jacobian=False).reshape(-1, 3)
+        r = residuals(unweighted(problem), params, jacobian=False).reshape(-1, 3)
         return np.concatenate([r, np.full_like(r, np.nan)], axis=1)
     plain = derived(problem, measure="pose", weights=None, pair_weights=None)
     r = residuals(plain, params, jacobian=False).reshape(-1, 6)

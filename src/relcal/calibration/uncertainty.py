@@ -34,10 +34,10 @@ from relcal.calibration.identifiability import Identifiability, scaled
 from relcal.calibration.measurement import (
     PairStrategy,
     Problem,
-    derived,
     make_pairs,
     residuals,
     split_params,
+    unweighted,
 )
 from relcal.calibration.noise import Noise, robust_scale, row_factors
 from relcal.deferred import Deferred, resolved_state
@@ -285,9 +285,8 @@ def fitted_row_variances(
         problem, a_fit, Noise(1.0, 1.0), params=params
     )
     g = np.ascontiguousarray(np.swapaxes(g.reshape(len(subset), -1, 6), 0, 1))
-    weighted = problem.weights is not None or problem.pair_weights is not None
-    plain = derived(problem, weights=None, pair_weights=None) if weighted else problem
-    a_plain = residuals(plain, params)[1][:, subset] if weighted else a_fit
+    plain = unweighted(problem)
+    a_plain = a_fit if plain is problem else residuals(plain, params)[1][:, subset]
     a_plain = a_plain.reshape(-1, rows, len(subset))
     poses, blocks = noise_blocks(plain, params)
     # A_row G_n per slot (the pose the slot involves): (m, r, 6) each
@@ -333,10 +332,8 @@ def residual_noise(
     Noise
         ``position`` (m) and ``orientation`` (rad), each at least 1e-12 (noise-free residuals).
     """
-    weighted = problem.weights is not None or problem.pair_weights is not None
-    plain = derived(problem, weights=None, pair_weights=None) if weighted else problem
     rows = problem.rows_per_measurement
-    r = residuals(plain, params, jacobian=False).reshape(-1, rows)
+    r = residuals(unweighted(problem), params, jacobian=False).reshape(-1, rows)
     d = fitted_row_variances(problem, params, a, subset)
     floor = 1e-24
     groups = [(r[:, :3].ravel(), d[:, :3].reshape(-1, 2))]
