@@ -24,7 +24,7 @@ from __future__ import annotations
 import tempfile
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import TYPE_CHECKING, Literal
+from typing import TYPE_CHECKING, Literal, Protocol
 
 import numpy as np
 
@@ -40,9 +40,34 @@ from relcal.robot.model import RobotModel, dump_model, load_model
 from relcal.robot.urdf import load_urdf
 
 if TYPE_CHECKING:
-    from relcal.calibration.outcome import Calibration
+    from relcal.data.dataset import Dataset
+    from relcal.data.imaging import Measurements
 
 Holds = Literal["full model", "geometry only"]
+
+
+class Calibration(Protocol):
+    """What exporting and validating the files reads of a calibration: the attributes of
+    :class:`relcal.calibration.outcome.Calibration` used here (that class calls
+    :func:`export_artifacts` for its ``artifacts``; named here, this module does not import the
+    one that imports it)."""
+
+    dataset: Dataset
+    measurements: Measurements
+    problem: Problem  # the training samples
+    result: Result
+    geometry: Result | None
+    validation: Validation | PlacementValidation | None
+    settings: dict
+
+    @property
+    def exported(self) -> str: ...
+
+    @property
+    def model(self) -> RobotModel: ...
+
+    @property
+    def geometry_model(self) -> RobotModel: ...
 
 
 @dataclass(frozen=True)
