@@ -236,14 +236,28 @@ def test_a_killed_worker_does_not_stop_the_fleet(fleet, cluster, tmp_path):
     sessions = discover(fleet)
     out = tmp_path / "out"
     with Client(cluster) as client:
-        pids = client.run(os.getpid)
-        victim = sorted(pids.values())[0]
+        pids = client.run(os.getpid)  # by worker address
         killed = threading.Event()
+        victim = None
+
+        def busy() -> int | None:
+            """The pid of a worker the scheduler has given a session to, if any. (The
+            scheduler's state changes under this thread: a read that races it tries again.)"""
+            try:
+                workers = list(cluster.scheduler.workers.items())
+                return next((pids[a] for a, w in workers if w.processing and a in pids), None)
+            except RuntimeError:
+                return None
 
         def killer() -> None:
+            # A worker busy with a session, not a fixed one: as sessions got faster, the first
+            # worker could be between tasks when the first result appeared, and its killing
+            # then sent no task elsewhere (the test's own assertion failed, not the fleet).
+            nonlocal victim
             deadline = time.monotonic() + 120
             while time.monotonic() < deadline:
-                if written(out):  # sessions are running
+                victim = busy() if written(out) else None  # sessions are running
+                if victim is not None:
                     os.kill(victim, signal.SIGKILL)
                     killed.set()
                     return
