@@ -107,6 +107,37 @@ def test_interrupt_during_the_lazy_report_import(dataset, tmp_path, monkeypatch,
     assert list(tmp_path.iterdir()) == []
 
 
+@pytest.mark.parametrize(("sig", "code"), [("SIGINT", 130), ("SIGTERM", 143)])
+@pytest.mark.parametrize("afterwards", ["fails", "goes_on"])
+def test_an_interrupt_a_library_swallows_still_ends_the_run_as_interrupted(
+    dataset, tmp_path, monkeypatch, capsys, sig, code, afterwards
+):
+    """Like trimesh's optional imports (``except BaseException``): the signal's exception never
+    reaches relcal, and the library fails later with an unrelated error, or carries on."""
+    import signal
+
+    real = pipeline._fit
+
+    def swallowing(*args, **kwargs):
+        try:
+            signal.raise_signal(getattr(signal, sig))
+        except BaseException:  # noqa: BLE001 - what such a library does
+            pass
+        if afterwards == "fails":
+            raise TypeError("unsupported operand type(s) for |: 'ExceptionWrapper' and 'NoneType'")
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(pipeline, "_fit", swallowing)
+    assert calibrate(dataset, tmp_path / "o") == code
+    err = capsys.readouterr().err
+    assert "internal error" not in err and "Traceback" not in err
+    assert ("terminated" if sig == "SIGTERM" else "interrupted") in err
+    if afterwards == "fails":
+        assert "nothing written" in err and list(tmp_path.iterdir()) == []
+    else:  # the run finished its outputs before it could stop: whole, and named
+        assert "already written, each whole" in err and whole_set(tmp_path / "o")
+
+
 def test_json_to_a_device_is_written_into_not_replaced(dataset, tmp_path, capfd):
     assert calibrate(dataset, tmp_path / "o", "--json", "/dev/stdout") == 0
     out = capfd.readouterr().out

@@ -39,8 +39,21 @@ class Terminated(KeyboardInterrupt):
     """SIGTERM, raised like Ctrl-C so that staged outputs are cleaned up."""
 
 
-def _terminate(signum, frame):  # noqa: ARG001
-    raise Terminated
+# The signals this run received. A library may swallow the KeyboardInterrupt a signal raises
+# (trimesh, imported lazily by yourdfpy, catches BaseException around its optional imports and
+# fails later with an unrelated TypeError): the run still ends as interrupted, never as a bug.
+_received: list[int] = []
+
+
+def _on_signal(signum, frame):  # noqa: ARG001
+    _received.append(signum)
+    raise Terminated if signum == signal.SIGTERM else KeyboardInterrupt
+
+
+def _interrupt_noted() -> None:
+    """Raise the interrupt a received signal stands for, if one was received."""
+    if _received:
+        raise Terminated if _received[-1] == signal.SIGTERM else KeyboardInterrupt
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -88,10 +101,12 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 def _main(argv: Sequence[str] | None) -> int:
-    previous = signal.getsignal(signal.SIGTERM)
+    sigs = (signal.SIGINT, signal.SIGTERM)
     in_main = _main_thread()
-    if in_main:
-        signal.signal(signal.SIGTERM, _terminate)
+    previous = {s: signal.getsignal(s) for s in sigs} if in_main else {}
+    _received.clear()
+    for s in previous:
+        signal.signal(s, _on_signal)
     from relcal.outputset import forget_written
 
     forget_written()
@@ -106,8 +121,8 @@ def _main(argv: Sequence[str] | None) -> int:
         print(f"relcal: interrupted; {_what_was_written()}", file=sys.stderr)
         return 130
     finally:
-        if in_main:
-            signal.signal(signal.SIGTERM, previous)
+        for s, handler in previous.items():
+            signal.signal(s, signal.SIG_DFL if handler is None else handler)
 
 
 def _what_was_written() -> str:
@@ -140,31 +155,40 @@ def _run(argv: Sequence[str] | None) -> int:
         from relcal.outputset import tracking
 
         with tracking(), np.errstate(all="ignore"):
-            return func(args)
-    except RelcalError as exc:
+            code = func(args)
+        _interrupt_noted()  # swallowed by a library: whatever was written is whole, and says so
+        return code
+    except (KeyboardInterrupt, SystemExit):
+        raise
+    except BaseException as exc:
+        _interrupt_noted()  # a failure that followed a swallowed interrupt is the interrupt
+        return _failure(exc)
+
+
+def _failure(exc: BaseException) -> int:
+    """Print the message of a failed command (not an interrupt); its exit code."""
+    if isinstance(exc, RelcalError):
         print(f"relcal: error: {printable(exc)}", file=sys.stderr)
         return 2
-    except BrokenPipeError:  # the reader of our output went away (``relcal history | head``)
+    if isinstance(exc, BrokenPipeError):  # the reader of our output went away (``| head``)
         try:
             sys.stdout = open(os.devnull, "w")  # noqa: SIM115 - nothing more to print
         except OSError:
             pass
         return 141
-    except OSError as exc:
+    if isinstance(exc, OSError):
         where = f" {exc.filename}:" if exc.filename else ""
         print(f"relcal: error:{where} {exc.strerror or exc}; nothing written", file=sys.stderr)
         return 2
-    except (KeyboardInterrupt, SystemExit):
-        raise
-    except Exception as exc:  # a bug: one line, the traceback only on request
-        if os.environ.get("RELCAL_DEBUG") == "1":
-            raise
-        print(
-            f"relcal: internal error: {type(exc).__name__}: {exc}; please report it "
-            "(RELCAL_DEBUG=1 shows the traceback)",
-            file=sys.stderr,
-        )
-        return 3
+    if not isinstance(exc, Exception) or os.environ.get("RELCAL_DEBUG") == "1":
+        raise exc
+    # a bug: one line, the traceback only on request
+    print(
+        f"relcal: internal error: {type(exc).__name__}: {exc}; please report it "
+        "(RELCAL_DEBUG=1 shows the traceback)",
+        file=sys.stderr,
+    )
+    return 3
 
 
 if __name__ == "__main__":
