@@ -138,6 +138,45 @@ def test_an_interrupt_a_library_swallows_still_ends_the_run_as_interrupted(
         assert "already written, each whole" in err and whole_set(tmp_path / "o")
 
 
+@pytest.mark.parametrize(("sig", "code"), [("SIGINT", 130), ("SIGTERM", 143)])
+def test_an_interrupt_during_an_import_arrives_once_the_import_is_done(
+    dataset, tmp_path, monkeypatch, capsys, sig, code
+):
+    """A signal inside a module body (a nanobind extension aborts the process when its
+    initialisation meets an exception) waits for the import to finish, then stops the run."""
+    import importlib
+    import signal
+    import time
+
+    (tmp_path / "lib").mkdir()
+    (tmp_path / "lib" / "fragile_module.py").write_text(
+        "import signal\n"
+        "intact = False\n"
+        f"signal.raise_signal(signal.{sig})\n"
+        "sum(range(100_000))  # the interpreter checks for signals while this runs\n"
+        "intact = True\n"
+    )
+    monkeypatch.syspath_prepend(tmp_path / "lib")
+    seen: dict[str, object] = {}
+
+    def importing(*args, **kwargs):
+        module = importlib.import_module("fragile_module")
+        seen["intact"] = module.intact
+        start = time.perf_counter()
+        try:
+            time.sleep(30)  # the re-delivered signal ends this
+        finally:
+            seen["waited"] = time.perf_counter() - start
+
+    monkeypatch.setattr(pipeline, "_fit", importing)
+    assert calibrate(dataset, tmp_path / "o") == code
+    assert seen["intact"] is True and seen["waited"] < 5, seen
+    err = capsys.readouterr().err
+    assert ("terminated" if sig == "SIGTERM" else "interrupted") in err and "Traceback" not in err
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+    sys.modules.pop("fragile_module", None)
+
+
 def test_json_to_a_device_is_written_into_not_replaced(dataset, tmp_path, capfd):
     assert calibrate(dataset, tmp_path / "o", "--json", "/dev/stdout") == 0
     out = capfd.readouterr().out

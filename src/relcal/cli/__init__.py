@@ -20,6 +20,7 @@ for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
 import argparse  # noqa: E402
 import signal  # noqa: E402
 import sys  # noqa: E402
+import threading  # noqa: E402
 from collections.abc import Callable, Sequence  # noqa: E402
 
 from relcal.errors import RelcalError, printable  # noqa: E402
@@ -43,11 +44,40 @@ class Terminated(KeyboardInterrupt):
 # (trimesh, imported lazily by yourdfpy, catches BaseException around its optional imports and
 # fails later with an unrelated TypeError): the run still ends as interrupted, never as a bug.
 _received: list[int] = []
+# While main's handlers are installed; a deferred signal is re-delivered only then (the lock
+# keeps a late re-delivery from reaching the caller's handlers once main has restored them).
+_handling = False
+_handling_lock = threading.Lock()
+_REDELIVER_S = 0.05
 
 
-def _on_signal(signum, frame):  # noqa: ARG001
+def _on_signal(signum, frame):
     _received.append(signum)
+    if not _handling:  # a re-delivery main is already past: recorded, the run ends as interrupted
+        return
+    if _importing(frame):
+        # Module initialisation is no place for an exception: a nanobind extension creating its
+        # enums (manifold3d, under trimesh) aborts the process on one (SIGABRT, no cleanup),
+        # and a half-run module body stays broken. The signal comes back once the import is done.
+        threading.Timer(_REDELIVER_S, _redeliver, (signum,)).start()
+        return
     raise Terminated if signum == signal.SIGTERM else KeyboardInterrupt
+
+
+def _redeliver(signum: int) -> None:
+    with _handling_lock:
+        if _handling:
+            # to the main thread itself, so that a sleep or a blocking read there wakes up
+            signal.pthread_kill(threading.main_thread().ident, signum)
+
+
+def _importing(frame) -> bool:
+    """Whether ``frame`` runs inside an import (a module body, or importlib finding one)."""
+    while frame is not None:
+        if frame.f_code.co_filename.startswith("<frozen importlib._bootstrap"):
+            return True
+        frame = frame.f_back
+    return False
 
 
 def _interrupt_noted() -> None:
@@ -105,6 +135,7 @@ def _main(argv: Sequence[str] | None) -> int:
     in_main = _main_thread()
     previous = {s: signal.getsignal(s) for s in sigs} if in_main else {}
     _received.clear()
+    _set_handling(in_main)
     for s in previous:
         signal.signal(s, _on_signal)
     from relcal.outputset import forget_written
@@ -121,8 +152,15 @@ def _main(argv: Sequence[str] | None) -> int:
         print(f"relcal: interrupted; {_what_was_written()}", file=sys.stderr)
         return 130
     finally:
-        for s, handler in previous.items():
+        _set_handling(False)
+        for s, handler in previous.items():  # signal.signal first handles what is pending
             signal.signal(s, signal.SIG_DFL if handler is None else handler)
+
+
+def _set_handling(on: bool) -> None:
+    global _handling
+    with _handling_lock:
+        _handling = on
 
 
 def _what_was_written() -> str:
@@ -141,8 +179,6 @@ def _what_was_written() -> str:
 
 
 def _main_thread() -> bool:
-    import threading
-
     return threading.current_thread() is threading.main_thread()
 
 
