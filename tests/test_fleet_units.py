@@ -301,7 +301,7 @@ def panda_2_halves(tmp_path_factory):
 
 def test_exported_model_and_urdf_put_the_ball_where_the_calibration_does(panda_2_halves):
     ds = load_dataset(panda_2_halves / "a")
-    cal = calibrate(ds, nongeometric="none", reject_outliers=False, selection="all")
+    cal = calibrate(ds, nongeometric="none", keep_outliers=True, selection="all")
     model, tool, _ = split_params(cal.problem, cal.result.params)
     assert np.linalg.norm(tool) > 2e-4  # the tool point moved off its guess: worth exporting
     files = calibration_files(cal, results_document(cal), "test")
