@@ -177,6 +177,24 @@ def test_an_interrupt_during_an_import_arrives_once_the_import_is_done(
     sys.modules.pop("fragile_module", None)
 
 
+def test_an_import_that_hangs_is_still_interrupted(dataset, tmp_path, monkeypatch, capsys):
+    """Deferred, not ignored: a signal inside an import that does not finish stops the run after
+    a few seconds."""
+    import importlib
+    import time
+
+    (tmp_path / "lib").mkdir()
+    (tmp_path / "lib" / "hanging_module.py").write_text(
+        "import signal, time\nsignal.raise_signal(signal.SIGINT)\ntime.sleep(60)\n"
+    )
+    monkeypatch.syspath_prepend(tmp_path / "lib")
+    monkeypatch.setattr(pipeline, "_fit", lambda *a, **k: importlib.import_module("hanging_module"))
+    start = time.perf_counter()
+    assert calibrate(dataset, tmp_path / "o") == 130
+    assert time.perf_counter() - start < 30
+    assert "interrupted" in capsys.readouterr().err and "hanging_module" not in sys.modules
+
+
 def test_json_to_a_device_is_written_into_not_replaced(dataset, tmp_path, capfd):
     assert calibrate(dataset, tmp_path / "o", "--json", "/dev/stdout") == 0
     out = capfd.readouterr().out

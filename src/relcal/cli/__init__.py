@@ -49,19 +49,28 @@ _received: list[int] = []
 _handling = False
 _handling_lock = threading.Lock()
 _REDELIVER_S = 0.05
+_DEFER_AT_MOST_S = 3.0  # an import that hangs is still interrupted
+_deferred_since: list[float] = []
 
 
 def _on_signal(signum, frame):
     _received.append(signum)
     if not _handling:  # a re-delivery main is already past: recorded, the run ends as interrupted
         return
-    if _importing(frame):
+    if _importing(frame) and _deferral_allowed():
         # Module initialisation is no place for an exception: a nanobind extension creating its
         # enums (manifold3d, under trimesh) aborts the process on one (SIGABRT, no cleanup),
         # and a half-run module body stays broken. The signal comes back once the import is done.
         threading.Timer(_REDELIVER_S, _redeliver, (signum,)).start()
         return
     raise Terminated if signum == signal.SIGTERM else KeyboardInterrupt
+
+
+def _deferral_allowed() -> bool:
+    import time
+
+    _deferred_since[:] = _deferred_since or [time.monotonic()]
+    return time.monotonic() - _deferred_since[0] < _DEFER_AT_MOST_S
 
 
 def _redeliver(signum: int) -> None:
@@ -135,6 +144,7 @@ def _main(argv: Sequence[str] | None) -> int:
     in_main = _main_thread()
     previous = {s: signal.getsignal(s) for s in sigs} if in_main else {}
     _received.clear()
+    _deferred_since.clear()
     _set_handling(in_main)
     for s in previous:
         signal.signal(s, _on_signal)
