@@ -114,8 +114,6 @@ def test_an_interrupt_a_library_swallows_still_ends_the_run_as_interrupted(
 ):
     """Like trimesh's optional imports (``except BaseException``): the signal's exception never
     reaches relcal, and the library fails later with an unrelated error, or carries on."""
-    import signal
-
     real = pipeline._fit
 
     def swallowing(*args, **kwargs):
@@ -138,6 +136,13 @@ def test_an_interrupt_a_library_swallows_still_ends_the_run_as_interrupted(
         assert "already written, each whole" in err and whole_set(tmp_path / "o")
 
 
+def importable(tmp_path: Path, monkeypatch, name: str, body: str) -> None:
+    """A module ``name`` with source ``body`` on the import path, for this test only."""
+    (tmp_path / "lib").mkdir()
+    (tmp_path / "lib" / f"{name}.py").write_text(body)
+    monkeypatch.syspath_prepend(tmp_path / "lib")
+
+
 @pytest.mark.parametrize(("sig", "code"), [("SIGINT", 130), ("SIGTERM", 143)])
 def test_an_interrupt_during_an_import_arrives_once_the_import_is_done(
     dataset, tmp_path, monkeypatch, capsys, sig, code
@@ -145,18 +150,18 @@ def test_an_interrupt_during_an_import_arrives_once_the_import_is_done(
     """A signal inside a module body (a nanobind extension aborts the process when its
     initialisation meets an exception) waits for the import to finish, then stops the run."""
     import importlib
-    import signal
     import time
 
-    (tmp_path / "lib").mkdir()
-    (tmp_path / "lib" / "fragile_module.py").write_text(
+    importable(
+        tmp_path,
+        monkeypatch,
+        "fragile_module",
         "import signal\n"
         "intact = False\n"
         f"signal.raise_signal(signal.{sig})\n"
         "sum(range(100_000))  # the interpreter checks for signals while this runs\n"
-        "intact = True\n"
+        "intact = True\n",
     )
-    monkeypatch.syspath_prepend(tmp_path / "lib")
     seen: dict[str, object] = {}
 
     def importing(*args, **kwargs):
@@ -183,11 +188,12 @@ def test_an_import_that_hangs_is_still_interrupted(dataset, tmp_path, monkeypatc
     import importlib
     import time
 
-    (tmp_path / "lib").mkdir()
-    (tmp_path / "lib" / "hanging_module.py").write_text(
-        "import signal, time\nsignal.raise_signal(signal.SIGINT)\ntime.sleep(60)\n"
+    importable(
+        tmp_path,
+        monkeypatch,
+        "hanging_module",
+        "import signal, time\nsignal.raise_signal(signal.SIGINT)\ntime.sleep(60)\n",
     )
-    monkeypatch.syspath_prepend(tmp_path / "lib")
     monkeypatch.setattr(pipeline, "_fit", lambda *a, **k: importlib.import_module("hanging_module"))
     start = time.perf_counter()
     assert calibrate(dataset, tmp_path / "o") == 130

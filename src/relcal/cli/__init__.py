@@ -21,6 +21,7 @@ import argparse  # noqa: E402
 import signal  # noqa: E402
 import sys  # noqa: E402
 import threading  # noqa: E402
+import time  # noqa: E402
 from collections.abc import Callable, Sequence  # noqa: E402
 
 from relcal.errors import RelcalError, printable  # noqa: E402
@@ -50,7 +51,7 @@ _handling = False
 _handling_lock = threading.Lock()
 _REDELIVER_S = 0.05
 _DEFER_AT_MOST_S = 3.0  # an import that hangs is still interrupted
-_deferred_since: list[float] = []
+_deferred_since: float | None = None  # when this run first deferred a signal
 
 
 def _on_signal(signum, frame):
@@ -63,14 +64,18 @@ def _on_signal(signum, frame):
         # and a half-run module body stays broken. The signal comes back once the import is done.
         threading.Timer(_REDELIVER_S, _redeliver, (signum,)).start()
         return
-    raise Terminated if signum == signal.SIGTERM else KeyboardInterrupt
+    raise _interruption(signum)
+
+
+def _interruption(signum: int) -> type[KeyboardInterrupt]:
+    return Terminated if signum == signal.SIGTERM else KeyboardInterrupt
 
 
 def _deferral_allowed() -> bool:
-    import time
-
-    _deferred_since[:] = _deferred_since or [time.monotonic()]
-    return time.monotonic() - _deferred_since[0] < _DEFER_AT_MOST_S
+    global _deferred_since
+    if _deferred_since is None:
+        _deferred_since = time.monotonic()
+    return time.monotonic() - _deferred_since < _DEFER_AT_MOST_S
 
 
 def _redeliver(signum: int) -> None:
@@ -92,7 +97,7 @@ def _importing(frame) -> bool:
 def _interrupt_noted() -> None:
     """Raise the interrupt a received signal stands for, if one was received."""
     if _received:
-        raise Terminated if _received[-1] == signal.SIGTERM else KeyboardInterrupt
+        raise _interruption(_received[-1])
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -143,8 +148,9 @@ def _main(argv: Sequence[str] | None) -> int:
     sigs = (signal.SIGINT, signal.SIGTERM)
     in_main = _main_thread()
     previous = {s: signal.getsignal(s) for s in sigs} if in_main else {}
+    global _deferred_since
     _received.clear()
-    _deferred_since.clear()
+    _deferred_since = None
     _set_handling(in_main)
     for s in previous:
         signal.signal(s, _on_signal)
