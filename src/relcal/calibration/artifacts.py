@@ -30,7 +30,7 @@ import numpy as np
 
 from relcal import geometry as tf
 from relcal.calibration.identify import Result
-from relcal.calibration.measurement import Problem, pair_errors, tracker_frames
+from relcal.calibration.measurement import Problem, pair_errors, tracker_frames, world_errors
 from relcal.calibration.validate import PlacementValidation, Validation, spread_of, subset
 from relcal.errors import RelcalError
 from relcal.io import load_yaml
@@ -122,13 +122,12 @@ def held_out_errors(
         _, tool, _ = split_params(cal.problem, params)
         spread = spread_of(model, ds.q[samples], held, tool)
         return replace(val, calibrated=spread)
-    problem = _everything(cal, model, layout)
-    if problem.formulation == "board":  # validated on relative poses, as PoseKind.validate
-        relative = replace(problem, formulation="invariant", pairs=val.pairs)
-        nuisance = nuisance[: relative.full_layout.size - layout.size]  # the hand-eye
-        errors = pair_errors(relative, np.concatenate([np.zeros(layout.size), nuisance]))
-        return replace(val, calibrated=errors)
     samples = np.unique(val.pairs)
+    if val.what == "poses":  # each pose in the world frame, as PoseKind.validate
+        poses = cal.measurements.poses[samples]
+        errors = world_errors(cal.problem, params, model, cal.dataset.q[samples], poses)
+        return replace(val, calibrated=errors)
+    problem = _everything(cal, model, layout)
     pairing = cal.settings.get("pairing") or "all"
     test = subset(problem, samples, pairing)
     if problem.formulation in ("absolute", "tracker"):

@@ -149,6 +149,15 @@ class Calibration:
         baseline = chosen is not None and chosen.name in BASELINE_CANDIDATES
         return "baseline" if baseline else "calibrated"
 
+    def verdict(self):
+        """The :class:`~relcal.calibration.verdict.Verdict` on the exported model: its held-out
+        evidence, and what the samples cannot show (``settings["coverage"]["limits"]``: a joint
+        that never moved, every sample singular)."""
+        from relcal.calibration.verdict import verdict
+
+        limits = tuple(self.settings.get("coverage", {}).get("limits", ()))
+        return verdict(self.validation, self.exported, self.problem.formulation, limits)
+
     @property
     def worse(self) -> bool:
         """The exported calibrated model's held-out RMS (position; the spread of coincidences)
@@ -212,8 +221,8 @@ class Calibration:
             before, after = val.baseline.as_errors(), val.calibrated.as_errors()
             return Comparison(before, after, "held-out placements", len(val.samples))
         if val is not None:
-            source = (
-                "held-out points" if self.problem.formulation == "tracker" else "held-out pairs"
+            source = {"points": "held-out points", "poses": "held-out poses"}.get(
+                val.what, "held-out pairs"
             )
             return Comparison(val.before, val.after, source, len(val.pairs))
         problem = replace(self.problem, weights=None, pair_weights=None)

@@ -179,7 +179,8 @@ def _robots(entries: list[dict]) -> tuple:
         "robots",
         "Robots",
         hk.paragraph(
-            "Held-out errors: relative poses, RMS over the held-out pairs of each session; "
+            "Held-out errors: poses, RMS over the held-out poses of each session predicted in "
+            "the world frame; points, RMS over the held-out points; "
             "coincidence sessions (a ball in sockets), RMS distance of the held-out placements' "
             "samples from their sockets' refitted points (mm only)."
         ),

@@ -52,6 +52,14 @@ def _error_sets(cal: Calibration) -> tuple[np.ndarray, np.ndarray, str, str]:
             "identification did not use; before = nominal model with the instrument transform and "
             "marker fitted to the training points, after = calibrated model."
         )
+    elif c.source == "held-out poses":
+        sentence = (
+            f"Held-out validation: {c.count} poses that the identification did not use, each "
+            "predicted in the world frame (W F(q) X, the world and hand-eye transforms from the "
+            "training fit) against the measured one; before = the baseline (nominal kinematics "
+            "with the frames fitted on the training samples, the best a user gets without "
+            "kinematic calibration), after = the exported model."
+        )
     elif c.source == "held-out pairs":
         sentence = (
             f"Held-out validation: {c.count} pairs among {len(cal.test)} samples that the "
@@ -489,6 +497,7 @@ def calibration_report(cal: Calibration, doc: dict) -> str:
     before, after, label, sentence = errors
     unit, kind = {
         "held-out points": ("point", "Absolute position"),
+        "held-out poses": ("pose", "World-frame pose"),
         "held-out placements": ("sample", "Spread"),
     }.get(label, ("pair", "Relative pose"))
     with matplotlib.rc_context(PLOT_STYLE):

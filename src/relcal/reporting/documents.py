@@ -24,14 +24,14 @@ from relcal.calibration.validate import (
     PlacementValidation,
     Validation,
     pooled,
-    ratio_interval,
     stats,
 )
-from relcal.calibration.verdict import Verdict, verdict
+from relcal.calibration.verdict import Verdict
 from relcal.calibration.verify import FROZEN, Assessment, JointRanges, Verification
 from relcal.data.dataset import Dataset
 from relcal.data.imaging import Measurements
 from relcal.data.importers import Imported
+from relcal.data.order import sample_digests
 from relcal.design.criteria import Quality
 from relcal.design.observability import Report
 from relcal.design.plan import PlanResult
@@ -279,8 +279,10 @@ def validation_document(
     if isinstance(val, PlacementValidation):
         return placement_document(val, ids)
     doc: dict = {
+        "held_out": val.what,
         "n_pairs": len(val.pairs),
         "n_samples": len(np.unique(val.pairs)),
+        "n_configurations": val.n_configurations,
         "baseline_handeye_guess": stats(val.guess),
     }
     if ids is not None:  # held-out samples that fit badly under every model, left out
@@ -288,11 +290,9 @@ def validation_document(
     if val.baseline is not None:
         doc["baseline"] = stats(val.baseline)
     doc["calibrated"] = stats(val.calibrated)
-    doc["ratio_to_baseline"] = ratio_interval(val.pairs, val.before, val.calibrated)
+    doc["ratio_to_baseline"] = val.interval(val.before, val.calibrated)
     if val.baseline is not None:
-        doc["ratio_to_baseline_handeye_guess"] = ratio_interval(
-            val.pairs, val.guess, val.calibrated
-        )
+        doc["ratio_to_baseline_handeye_guess"] = val.interval(val.guess, val.calibrated)
     if ids is None:
         return doc
 
@@ -437,11 +437,25 @@ def results_document(cal: Calibration) -> dict:
         "validation": (
             validation_document(cal.validation, cal.dataset.ids) if cal.validation else None
         ),
-        "verdict": verdict_document(verdict(cal.validation, cal.exported, cal.problem.formulation)),
+        "verdict": verdict_document(cal.verdict()),
         "artifacts": artifacts_document(cal),
         "parameter_labels": parameter_labels(cal),
         "calibrated_model": model_to_dict(cal.model),
         "joint_ranges": JointRanges.of(cal.dataset.model, cal.dataset.q[cal.train]).to_dict(),
+        "training": training_document(cal),
+    }
+
+
+def training_document(cal: Calibration) -> dict:
+    """The training samples as ``relcal verify`` recognises them: their joint values
+    (``configurations``, rad and m) and a digest of each sample (joints and measurement,
+    :func:`relcal.data.order.sample_digests`): a session that repeats them is not new."""
+    ds, train = cal.dataset, cal.train
+    groups = None if ds.groups is None else [ds.groups[k] for k in train]
+    poses = None if ds.measured == "coincidence" else cal.measurements.poses[train]
+    return {
+        "configurations": ds.q[train].tolist(),
+        "digests": sample_digests(ds.q[train], poses, groups),
     }
 
 
@@ -454,7 +468,10 @@ def verdict_document(v: Verdict) -> dict:
         "text": v.text,
         "factor": v.factor,
         "interval": None if v.interval is None else list(v.interval),
+        "held_out_interval": None if v.held_out_interval is None else list(v.held_out_interval),
         "n_held_out": v.n_held_out,
+        "n_configurations": v.n_configurations,
+        "not_validated": list(v.limits),
         "warnings": list(v.warnings),
     }
 
@@ -488,7 +505,7 @@ def artifact_document(cal: Calibration, a: Artifact) -> dict:
             "n_samples": len(np.unique(val.pairs)),
             "n_pairs": len(val.pairs),
             "calibrated": stats(val.calibrated),
-            "ratio_to_baseline": ratio_interval(val.pairs, val.before, val.calibrated),
+            "ratio_to_baseline": val.interval(val.before, val.calibrated),
         }
     doc["held_out"]["position_rms_mm"] = val.rms("calibrated")
     return doc

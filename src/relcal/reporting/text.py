@@ -470,6 +470,7 @@ def calibration_summary(doc: dict) -> str:
         f"{doc['robot']}: {doc['n_used']} of {doc['n_samples']} samples used, "
         f"{len(doc['held_out_ids'])} held out",
     ]
+    lines += coverage_lines(doc["settings"].get("coverage"))
     formulation = doc["settings"].get("formulation")
     points = formulation in ("tracker", "coincidence")
     frames = {
@@ -511,6 +512,12 @@ def calibration_summary(doc: dict) -> str:
             if points:
                 what = f"absolute {key.split('_')[0]} error over {val['n_samples']} points"
                 guesses, fitted = "instrument and marker guesses", "instrument and marker fitted"
+            elif val.get("held_out") == "poses":
+                what = (
+                    f"{key.split('_')[0]} error of the poses in the world frame over "
+                    f"{configurations(val)}"
+                )
+                guesses, fitted = "frame guesses", "hand-eye and world fitted"
             else:
                 what = (
                     f"relative {key.split('_')[0]} error over {val['n_pairs']} pairs of "
@@ -569,9 +576,11 @@ def calibration_summary(doc: dict) -> str:
         pooled = cv["pooled"]
         base = "baseline" if "baseline" in pooled else "baseline_handeye_guess"
         b, a = pooled[base]["position_mm"], pooled["calibrated"]["position_mm"]
+        held = pooled.get("held_out", "points" if points else "pairs of poses")
+        count = pooled["n_samples"] if held in ("points", "poses") else pooled["n_pairs"]
         lines.append(
-            f"{cv['k']}-fold cross-validation over {pooled['n_pairs']} held-out "
-            f"{'points' if points else 'pairs'}: position "
+            f"{cv['k']}-fold cross-validation over {count} held-out "
+            f"{'pairs' if held == 'pairs of poses' else held}: position "
             f"RMS baseline {b['rms']:.3f} -> calibrated {a['rms']:.3f} mm "
             f"({_ratio_text(pooled['ratio_to_baseline']['position_mm'])}); chosen per fold: "
             + ", ".join(cv["chosen"])
@@ -592,6 +601,41 @@ def calibration_summary(doc: dict) -> str:
     lines += artifact_lines(doc.get("artifacts"))
     lines += verdict_lines(doc.get("verdict"))
     return "\n".join(lines)
+
+
+def configurations(val: dict) -> str:
+    """``12 held-out samples`` or ``30 held-out samples in 10 distinct configurations``."""
+    n, k = val["n_samples"], val.get("n_configurations", val["n_samples"])
+    text = f"{n} held-out sample{'s' if n != 1 else ''}"
+    if k != n:
+        text += f" in {k} distinct configuration{'s' if k != 1 else ''}"
+    return text
+
+
+def coverage_lines(cov: dict | None) -> list[str]:
+    """What the samples cover (:func:`relcal.calibration.coverage.describe`): repeated
+    configurations, joints that never moved, singular samples."""
+    if not cov:
+        return []
+    lines = []
+    if cov["repeated_samples"]:
+        lines.append(
+            f"  {cov['configurations']} distinct configurations ({cov['repeated_samples']} "
+            "samples repeat one: held out together with it)"
+        )
+    for j in cov["still_joints"]:
+        lines.append(
+            f"  joint {j['joint']} ({j['name']}) never moved: at {j['value']:.1f} {j['unit']} in "
+            "every sample"
+        )
+    singular = cov["singular_samples"]
+    if singular:
+        shown = ", ".join(singular[:5]) + (", ..." if len(singular) > 5 else "")
+        lines.append(
+            f"  {len(singular)} sample(s) at a singular configuration (the flange Jacobian loses "
+            f"rank): {shown}"
+        )
+    return lines
 
 
 def identification_line(ident: dict) -> str:
