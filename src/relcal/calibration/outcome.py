@@ -173,26 +173,32 @@ class Calibration:
         the model alone (model.yaml, the URDF's tip) predicts the ball centre it was fitted
         with, whatever the tool point absorbed."""
         layout = self.problem.layout
-        model = calibrated_model(self.problem.model, layout, self.result.params)
-        if self.problem.formulation == "coincidence":
-            from relcal.calibration.coincidence import split_params, with_tool_point
-
-            model = with_tool_point(model, split_params(self.problem, self.result.params)[1])
+        model = self._model_of(self.result.params)
         if not self.selection:
             return model
         columns = self.selection[self.chosen].candidate.columns
         return exported_model(model, {layout.kinds[c] for c in columns if c < layout.size})
 
+    def _model_of(self, params: np.ndarray) -> RobotModel:
+        """The nominal model with the errors of ``params`` applied; for coincidences its tool
+        transform ends at the tool point of ``params``
+        (:func:`relcal.calibration.coincidence.with_tool_point`)."""
+        model = calibrated_model(self.problem.model, self.problem.layout, params)
+        if self.problem.formulation == "coincidence":
+            from relcal.calibration.coincidence import split_params, with_tool_point
+
+            model = with_tool_point(model, split_params(self.problem, params)[1])
+        return model
+
     @property
     def geometry_model(self) -> RobotModel:
         """The model of the geometry-only files (URDF, UR and Franka files): :attr:`model` when
         the chosen model has no non-geometric term, otherwise the geometry-only refit
-        (:attr:`geometry`) with every non-geometric term off."""
+        (:attr:`geometry`) with every non-geometric term off (coincidences: its tool transform
+        ends at the refit's own tool point, as :attr:`model`'s at the chosen fit's)."""
         if self.geometry is None:
             return self.model
-        layout = self.problem.layout
-        model = calibrated_model(self.problem.model, layout, self.geometry.params)
-        return exported_model(model, set())
+        return exported_model(self._model_of(self.geometry.params), set())
 
     @functools.cached_property
     def artifacts(self):

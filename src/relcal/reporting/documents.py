@@ -472,7 +472,7 @@ def artifact_document(cal: Calibration, a: Artifact) -> dict:
         "written": a.written,
         "refused": a.refused,
         "sha256": hashlib.sha256(a.content).hexdigest(),
-        "frames": artifact_frames(cal, a.fit),
+        "frames": artifact_frames(cal, a.fit, a.name),
     }
     if val is None:
         doc["held_out"] = None
