@@ -64,6 +64,9 @@ class Calibration(Protocol):
     def exported(self) -> str: ...
 
     @property
+    def exported_fit(self) -> Result: ...
+
+    @property
     def model(self) -> RobotModel: ...
 
     @property
@@ -254,9 +257,10 @@ def export_artifacts(cal: Calibration) -> tuple[Artifact, ...]:
     docstring); a geometry-only file worse than the baseline, or unmeasured while it differs
     from the validated model, is refused."""
     nominal = cal.dataset.model
-    refit = cal.geometry is not None
-    geometry_fit = cal.geometry if refit else cal.result
-    entries = [("model.yaml", dump_model(cal.model).encode(), "full model", False, cal.result)]
+    exported = cal.exported_fit
+    refit = cal.geometry is not None and exported is cal.result
+    geometry_fit = cal.geometry if refit else exported
+    entries = [("model.yaml", dump_model(cal.model).encode(), "full model", False, exported)]
     for name, content in robot_files(cal.geometry_model).items():
         entries.append((name, content, "geometry only", refit, geometry_fit))
     out = []

@@ -143,17 +143,17 @@ class Calibration:
         return self.result.std
 
     @property
-    def exported(self) -> str:
-        """``calibrated``, or ``baseline`` when the hand-eye transform alone was chosen."""
+    def selected_baseline(self) -> bool:
+        """Model selection chose the candidate without kinematic correction (the data support
+        none): :attr:`result` is the baseline's fit."""
         chosen = self.selection[self.chosen].candidate if self.selection else None
-        baseline = chosen is not None and chosen.name in BASELINE_CANDIDATES
-        return "baseline" if baseline else "calibrated"
+        return chosen is not None and chosen.name in BASELINE_CANDIDATES
 
     @property
     def worse(self) -> bool:
-        """The exported calibrated model's held-out RMS (position; the spread of coincidences)
-        exceeds the baseline's."""
-        if self.validation is None or self.exported == "baseline":
+        """The chosen calibrated model's held-out RMS (position; the spread of coincidences)
+        exceeds the baseline's: it is not exported (:attr:`exported`)."""
+        if self.validation is None or self.selected_baseline:
             return False
         return self.validation.rms("calibrated") > self.validation.rms("before")
 
@@ -166,14 +166,46 @@ class Calibration:
         return self.validation.ratio()["ci95"][0] > 1.0
 
     @property
+    def exported(self) -> str:
+        """``calibrated``, or ``baseline``: model selection chose the measurement frames alone
+        (the data support no kinematic correction), or the chosen model is :attr:`worse` than
+        the baseline on the held-out samples (a model worse than what the user has without
+        calibration is never the answer)."""
+        return "baseline" if self.selected_baseline or self.worse else "calibrated"
+
+    @property
+    def exported_fit(self) -> Result:
+        """The fit of the exported model: :attr:`result`, or :attr:`baseline` when the chosen
+        model is :attr:`worse` than it."""
+        return self.baseline if self.worse else self.result
+
+    @property
+    def export_reason(self) -> str | None:
+        """Why the baseline is exported, in words (None: the calibrated model is)."""
+        if self.selected_baseline:
+            return "the data support no kinematic correction"
+        if not self.worse:
+            return None
+        chosen = self.selection[self.chosen].candidate.name if self.selection else "calibrated"
+        what = "spread" if isinstance(self.validation, PlacementValidation) else "position"
+        return (
+            f"the chosen model ({chosen}) is worse than the baseline on the held-out samples "
+            f"({what} RMS {self.validation.rms('calibrated'):.3f} mm against "
+            f"{self.validation.rms('before'):.3f} mm)"
+        )
+
+    @property
     def model(self) -> RobotModel:
         """The exported robot model (the identified errors applied; only the non-geometric
         terms of the chosen model switched on). Coincidence data: the tool transform ends at
         the estimated tool point (:func:`relcal.calibration.coincidence.with_tool_point`), so
         the model alone (model.yaml, the URDF's tip) predicts the ball centre it was fitted
-        with, whatever the tool point absorbed."""
+        with, whatever the tool point absorbed. When the chosen model is :attr:`worse` than
+        the baseline, the baseline's: the nominal kinematics."""
         layout = self.problem.layout
-        model = self._model_of(self.result.params)
+        model = self._model_of(self.exported_fit.params)
+        if self.worse:
+            return exported_model(model, set())
         if not self.selection:
             return model
         columns = self.selection[self.chosen].candidate.columns
@@ -196,7 +228,7 @@ class Calibration:
         the chosen model has no non-geometric term, otherwise the geometry-only refit
         (:attr:`geometry`) with every non-geometric term off (coincidences: its tool transform
         ends at the refit's own tool point, as :attr:`model`'s at the chosen fit's)."""
-        if self.geometry is None:
+        if self.geometry is None or self.worse:
             return self.model
         return exported_model(self._model_of(self.geometry.params), set())
 
@@ -232,8 +264,9 @@ class Calibration:
 
     @property
     def handeye(self) -> np.ndarray:
-        """The calibrated hand-eye transform ``X`` ``(4, 4)``."""
-        return calibrated_handeye(self.problem, self.result)
+        """The hand-eye transform ``X`` ``(4, 4)`` of the exported model's fit
+        (:attr:`exported_fit`)."""
+        return calibrated_handeye(self.problem, self.exported_fit)
 
 
 def exported_model(model: RobotModel, kinds: set[str]) -> RobotModel:

@@ -8,8 +8,9 @@ number of held-out samples:
 - ``collect more samples``: the interval spans 1 (the held-out samples cannot tell), or fewer
   than :data:`MIN_JUDGED` held-out samples leave no interval worth reading (a bootstrap over
   two samples, one pair of poses, has none);
-- ``do not deploy``: the whole interval lies above 1, or the data support no kinematic
-  correction (the exported model is the baseline);
+- ``do not deploy``: the whole interval lies above 1, or the exported model is the baseline
+  (the data support no kinematic correction, or the calibrated model is worse than the
+  baseline on the held-out samples: a worse model is never exported);
 - ``not validated``: no held-out samples (``--holdout 0``).
 
 Fewer than :data:`MIN_HELD_OUT` held-out samples add a warning: a bootstrap over so few samples
@@ -75,7 +76,8 @@ def verdict(
     formulation: str = "invariant",
 ) -> Verdict:
     """The verdict on the exported model from its ``validation`` (see the module docstring);
-    ``exported``: ``calibrated`` or ``baseline`` (the data supported no correction);
+    ``exported``: ``calibrated`` or ``baseline`` (the data supported no correction, or the
+    calibrated model was worse than the baseline on ``validation``, which then names how much);
     ``formulation``: names the evidence (points, pairs of poses, placements)."""
     if validation is None:
         return Verdict(
@@ -94,21 +96,30 @@ def verdict(
             "interval is rough; hold out more (--holdout) or cross-validate (--kfold)",
         )
     what = held_out_what(validation, formulation)
-    if exported == "baseline":
-        return Verdict(
-            "do not deploy",
-            "do not deploy a correction: the data support none (the exported model is the "
-            "baseline, nominal kinematics with the measurement frames fitted)",
-            None,
-            None,
-            n,
-            warnings,
-        )
     ratio = validation.ratio()
     r, (lo, hi) = ratio["after_over_before"], ratio["ci95"]
     factor = 1.0 / max(r, 1e-300)
     interval = (1.0 / max(hi, 1e-300), 1.0 / max(lo, 1e-300))
     span = f"95% interval {times(interval[0])}..{times(interval[1])}, {n} held-out samples"
+    if exported == "baseline":
+        exported_text = (
+            "the exported model is the baseline, nominal kinematics with the measurement "
+            "frames fitted"
+        )
+        why = "the data support none"
+        if validation.rms("calibrated") > validation.rms("before"):  # not the selection's
+            why = (
+                f"the calibrated model is {times(r)} worse than the baseline on held-out "
+                f"{what} ({span})"
+            )
+        return Verdict(
+            "do not deploy",
+            f"do not deploy a correction: {why} ({exported_text})",
+            None,
+            None,
+            n,
+            warnings,
+        )
     if n < MIN_JUDGED:
         code: Code = "collect more samples"
         text = (

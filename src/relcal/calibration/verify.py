@@ -743,7 +743,7 @@ def _verdict(
                 "the calibration is the nominal kinematics (no correction); " + degraded,
             )
         return "holds", (
-            "the calibration exported the nominal kinematics (the data supported no correction); "
+            "the calibration exported the nominal kinematics (no correction); "
             f"on this session it predicts as at calibration (position RMS "
             f"{cal['position_mm']['rms']:.3f} mm)"
         )

@@ -306,9 +306,10 @@ def _selection(doc: dict) -> Html:
     ]
     note = f"Chosen: {sel['chosen']} ({sel['weighting']}): {sel['reason']}."
     if sel["exported"] == "baseline":
+        reason = sel.get("export_reason") or "the data support no kinematic correction"
         note += (
-            " The data support no kinematic correction: the exported model is the nominal "
-            "kinematics with the fitted hand-eye transform."
+            f" {reason[0].upper()}{reason[1:]}: the exported model is the nominal kinematics "
+            "with the measurement frames fitted."
         )
     noise = doc.get("noise_model")
     if noise:

@@ -208,6 +208,7 @@ def selection_document(cal: Calibration) -> dict:
         "weighting": cal.settings.get("weighting"),
         "reason": cal.reason,
         "exported": cal.exported,
+        "export_reason": cal.export_reason,
         "parameters": [
             layout.names[k]
             for k in (cal.selection[cal.chosen].candidate.columns if cal.selection else [])
@@ -499,7 +500,7 @@ def artifacts_document(cal: Calibration) -> dict:
     whether the geometry-only files hold the validated model (``geometry_is_validated_model``:
     no non-geometric term chosen, nothing refitted)."""
     return {
-        "geometry_is_validated_model": cal.geometry is None,
+        "geometry_is_validated_model": not any(a.refit for a in cal.artifacts),
         "measured_on": "each file as written, read back (model.yaml by relcal's model loader, "
         "URDF by relcal's URDF loader, vendor files written into the nominal URDF's joint "
         "origins), on the held-out samples of the validation",

@@ -494,9 +494,9 @@ def calibration_summary(doc: dict) -> str:
             )
         lines.append(f"  chosen: {sel['chosen']} ({sel['weighting']}): {sel['reason']}")
         if sel["exported"] == "baseline":
+            reason = sel.get("export_reason") or "the data support no kinematic correction"
             lines.append(
-                "  the data support no kinematic correction: the exported model is the nominal "
-                f"kinematics with {frames} fitted"
+                f"  {reason}: the exported model is the nominal kinematics with {frames} fitted"
             )
     lines.append(identification_line(ident))
     val = doc["validation"]
