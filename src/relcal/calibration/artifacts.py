@@ -24,7 +24,7 @@ from __future__ import annotations
 import tempfile
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import TYPE_CHECKING, Literal, Protocol
+from typing import TYPE_CHECKING, Any, Literal, Protocol
 
 import numpy as np
 
@@ -59,6 +59,7 @@ class Calibration(Protocol):
     geometry: Result | None
     validation: Validation | PlacementValidation | None
     settings: dict
+    kind: Any  # relcal.calibration.kinds.MeasurementKind
 
     @property
     def exported(self) -> str: ...
@@ -120,15 +121,16 @@ def held_out_errors(
         The kind scored other held-out evidence (pairs, samples) than the validation's.
     """
     from relcal.calibration.kinds import Training
-    from relcal.calibration.kinds.dispatch import kind_of
 
     val = cal.validation
     if val is None:
         return None
+    if cal.kind is None:
+        raise RelcalError("a calibration without its measurement kind: its files cannot be scored")
     layout = make_layout(model)
     nuisance = accompanying(cal, params, name)[cal.problem.layout.size :]
     problem = replace(cal.problem, model=model, layout=layout)
-    kind = kind_of(replace(cal.dataset, model=model), cal.measurements, _pairing(cal))
+    kind = replace(cal.kind, dataset=replace(cal.kind.dataset, model=model))
     training = Training(cal.train, problem, cal.result.identifiability, np.zeros(0, dtype=int))
     fit = replace(cal.result, params=np.concatenate([np.zeros(layout.size), nuisance]))
     # the samples the validation scored: its held-out samples less those it left out as
@@ -138,11 +140,6 @@ def held_out_errors(
     if not _same_evidence(mine, val):
         raise RelcalError("the held-out samples of an artifact differ from the validation's")
     return replace(val, calibrated=mine.calibrated)
-
-
-def _pairing(cal: Calibration) -> str:
-    """The pairing the calibration used (``auto`` resolved, in its settings), else ``auto``."""
-    return cal.settings.get("pairing") or "auto"
 
 
 def _same_evidence(

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import functools
 from dataclasses import dataclass, replace
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 
@@ -93,6 +93,10 @@ class Calibration:
         The chosen columns without their non-geometric terms, refitted: the best model a
         geometry-only file (URDF, UR and Franka files) can hold, validated on its own at
         export; None when the chosen model has no non-geometric term.
+    kind : MeasurementKind or None
+        The measurement kind that made it (:mod:`relcal.calibration.kinds`): its ``validate``,
+        the held-out metric of :attr:`validation`, measures each exported file too
+        (:attr:`artifacts`).
     """
 
     dataset: Dataset
@@ -115,6 +119,9 @@ class Calibration:
     # the chosen columns without the non-geometric terms, refitted: what a geometry-only file
     # (URDF, vendor files) can hold; None when the chosen model has no non-geometric term
     geometry: Result | None = None
+    # the measurement kind (relcal.calibration.kinds.MeasurementKind) that made it: its
+    # ``validate`` is the held-out metric, which measures each exported file too (artifacts)
+    kind: Any = None
 
     def __repr__(self) -> str:
         from relcal._repr import plural, short

@@ -143,7 +143,7 @@ def _drift_cell(e: dict) -> Html | str:
         return "–"
     if drift["verdict"] == "agree":
         return hk.badge(True, f"agree (p={drift['p_value']:.2g})")
-    what = ", ".join(drift["flagged"]) or "as a whole"
+    what = ", ".join(drift.get("flagged_labels") or drift["flagged"]) or "as a whole"
     return hk.badge(False, no=f"drift: {what} (p={drift['p_value']:.2g})")
 
 
@@ -239,6 +239,9 @@ def parameter_figure(group: list[dict], model: str) -> tuple[Figure, list[str]]:
     """One small plot per parameter: each robot's identified error (+- std) per session; far
     values among the robots of this model in red. Returns the figure and the outliers."""
     names, points = _parameter_values(group)
+    labels: dict[str, str] = {}  # as the calibrations showed the parameters
+    for e in group:
+        labels |= (e["record"].get("settings") or {}).get("parameter_labels") or {}
     robots = sorted({e["robot_id"] for e in group})
     cols = 6
     rows = max(1, -(-len(names) // cols))
@@ -258,10 +261,11 @@ def parameter_figure(group: list[dict], model: str) -> tuple[Figure, list[str]]:
             ax.errorbar(x + jitter, v, yerr=s, fmt="none", ecolor=BEFORE, elinewidth=1)
             ax.scatter(x[~far] + jitter[~far], v[~far], s=10, color=AFTER, zorder=3)
             ax.scatter(x[far] + jitter[far], v[far], s=16, color=BAD, zorder=4)
+            label = labels.get(name, name)
             flagged += [
-                f"{name}: {pts[k][3]} ({v[k]:+.4f} {pts[k][4]})" for k in np.flatnonzero(far)
+                f"{label}: {pts[k][3]} ({v[k]:+.4f} {pts[k][4]})" for k in np.flatnonzero(far)
             ]
-            ax.set_title(f"{name} ({pts[0][4]})", fontsize=9)
+            ax.set_title(f"{label} ({pts[0][4]})", fontsize=9)
             ax.set_xticks(range(len(robots)))
             ax.set_xticklabels(robots if len(robots) <= 8 else [], rotation=90, fontsize=6)
             ax.tick_params(axis="y", labelsize=7)

@@ -6,6 +6,7 @@ from typing import Any
 
 from relcal.fleet.drift import Comparison, display
 from relcal.fleet.registry import Run, VerificationRun
+from relcal.robot.kinematics import relabel
 
 
 def _time(run: Run) -> str:
@@ -35,7 +36,7 @@ def verdict_text(c: Comparison | None) -> str:
         return ""
     if not c.drift:
         return f"agree (p={c.p_value:.2g})"
-    moved = ", ".join(c.flagged) or "as a whole"
+    moved = ", ".join(c.label(n) for n in c.flagged) or "as a whole"
     return f"DRIFT (p={c.p_value:.2g}; {moved})"
 
 
@@ -67,7 +68,9 @@ def history_text(
         )
     lines += _table(rows, {0})
     lines += ["", "parameters (identified error in its kind's unit, +- one standard deviation):"]
-    labels = runs[-1].settings.get("parameter_labels") or {}  # URDF robots: joint names
+    labels: dict[str, str] = {}  # URDF robots: joint names, as each calibration showed them
+    for run in runs:
+        labels |= run.labels
     header = ["name", "unit"] + [f"run {r.id}" for r in runs]
     table = [header]
     never: dict[str, list[str]] = {"n/i": [], "-": []}
@@ -142,7 +145,7 @@ def comparison_text(c: Comparison) -> str:
         s = display(p.std, p.unit)[0]
         rows.append(
             [
-                p.name,
+                c.label(p.name),
                 unit,
                 f"{va:+.4f}",
                 f"{vb:+.4f}",
@@ -168,11 +171,11 @@ def comparison_text(c: Comparison) -> str:
     if rest:
         lines.append(
             "not compared (not estimated or not identifiable in both, or hand-eye): "
-            + ", ".join(rest)
+            + ", ".join(c.label(n) for n in rest)
         )
     if points:
         lines.append(f"not compared: the group points ({len(points) // 3}, each session's own)")
-    lines += [f"note: {n}" for n in c.notes]
+    lines += [f"note: {relabel(n, c.labels)}" for n in c.notes]
     return "\n".join(lines)
 
 
@@ -210,9 +213,11 @@ def comparison_document(c: Comparison) -> dict[str, Any]:
         "p_value": c.p_value,
         "z_threshold": c.z_threshold,
         "flagged": c.flagged,
+        "parameter_labels": c.labels,  # the names the parameters are shown by
         "parameters": [
             {
                 "name": p.name,
+                "label": c.label(p.name),
                 "unit": p.unit,
                 "a": p.a,
                 "b": p.b,
@@ -243,6 +248,7 @@ def drift_summary(c: Comparison | None, against: str | None) -> dict[str, Any] |
         "chi2": c.chi2,
         "dof": c.dof,
         "flagged": c.flagged,
+        "flagged_labels": [c.label(n) for n in c.flagged],  # as they are shown
     }
 
 
@@ -293,7 +299,8 @@ def fleet_text(
         text = ""
         if drift:
             text = f"{drift['verdict']} (p={drift['p_value']:.2g}"
-            text += f"; {', '.join(drift['flagged'])})" if drift["flagged"] else ")"
+            flagged = drift.get("flagged_labels") or drift["flagged"]
+            text += f"; {', '.join(flagged)})" if flagged else ")"
         rows.append(
             [
                 e["session"],

@@ -7,7 +7,6 @@ deg). The domain modules return dataclasses; only this module turns them into di
 from __future__ import annotations
 
 import hashlib
-import re
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -36,7 +35,8 @@ from relcal.design.criteria import Quality
 from relcal.design.observability import Report
 from relcal.design.plan import PlanResult
 from relcal.geometry import to_xyz_rpy
-from relcal.robot.kinematics import DISPLAY_UNITS
+from relcal.robot.kinematics import DISPLAY_UNITS, relabel
+from relcal.robot.kinematics import parameter_labels as robot_parameter_labels
 from relcal.robot.model import KINDS, NONGEOMETRIC_KINDS, RobotModel, model_to_dict
 from relcal.sim.simulate import Simulation
 from relcal.sim.study import StudyResult
@@ -81,29 +81,12 @@ def parameter_status(cal: Calibration) -> list[str]:
     return out
 
 
-_INDEXED = re.compile(r"\b([a-z_]+)\[(\d+)\]")
-
-
 def parameter_labels(cal: Calibration) -> dict[str, str]:
-    """For a robot loaded from a URDF, each joint parameter's name with its joint's name
-    (``theta_off[3]`` -> ``theta_off[arm_right_2_joint]``), the way a person reads the URDF;
+    """Each parameter's label where it differs from its name
+    (:func:`relcal.robot.kinematics.parameter_labels`: for a robot loaded from a URDF, a joint
+    parameter named after its joint, ``theta_off[3]`` -> ``theta_off[arm_right_2_joint]``);
     empty for other robots (their joints are numbered)."""
-    model = cal.dataset.model
-    if model.urdf is None:
-        return {}
-    out = {}
-    for name in cal.problem.full_layout.names:
-        m = _INDEXED.fullmatch(name)
-        if m and 1 <= int(m.group(2)) <= model.n_joints:
-            out[name] = f"{m.group(1)}[{model.joint_names[int(m.group(2)) - 1]}]"
-    return out
-
-
-def relabel(text: str, labels: dict[str, str]) -> str:
-    """``text`` with every parameter name of ``labels`` (``kind[i]``) replaced by its label."""
-    if not labels:
-        return text
-    return _INDEXED.sub(lambda m: labels.get(m.group(0), m.group(0)), text)
+    return robot_parameter_labels(cal.dataset.model, cal.problem.full_layout.names)
 
 
 def residual_unit(cal: Calibration) -> str:
@@ -384,6 +367,7 @@ def results_document(cal: Calibration) -> dict:
     handeye = cal.handeye
     xyz, rpy = to_xyz_rpy(handeye)
     m = cal.measurements
+    labels = parameter_labels(cal)  # every sentence names parameters as the tables do
     return {
         "robot": cal.dataset.model.name,
         "dataset": str(cal.dataset.root),
@@ -417,14 +401,18 @@ def results_document(cal: Calibration) -> dict:
             ),
             "seconds": r.seconds,
             "singular_values": [float(s) for s in r.identifiability.singular_values],
-            "unidentifiable": r.unidentifiable,
+            "unidentifiable": [relabel(t, labels) for t in r.unidentifiable],
             # issue 18: held by priors or at nominal, and candidates the data do not determine
-            "weak_directions": [w["text"] for w in cal.settings.get("weak_directions", [])],
+            "weak_directions": [
+                relabel(w["text"], labels) for w in cal.settings.get("weak_directions", [])
+            ],
             "dropped_candidates": [d["reason"] for d in cal.settings.get("dropped_candidates", [])],
-            "plausibility_warnings": list(getattr(cal, "warnings", ())),
+            "plausibility_warnings": [relabel(t, labels) for t in getattr(cal, "warnings", ())],
         },
         "parameters": parameter_rows(cal),
-        "identifiable_combinations": combination_rows(cal),
+        "identifiable_combinations": [
+            {**c, "text": relabel(c["text"], labels)} for c in combination_rows(cal)
+        ],
         "model_selection": selection_document(cal),
         "noise_model": noise_document(cal),
         "exported": cal.exported,
@@ -440,7 +428,7 @@ def results_document(cal: Calibration) -> dict:
         ),
         "verdict": verdict_document(verdict(cal.validation, cal.exported, cal.problem.formulation)),
         "artifacts": artifacts_document(cal),
-        "parameter_labels": parameter_labels(cal),
+        "parameter_labels": labels,
         "calibrated_model": model_to_dict(cal.model),
         "joint_ranges": JointRanges.of(cal.dataset.model, cal.dataset.q[cal.train]).to_dict(),
     }
@@ -547,6 +535,7 @@ def observability_document(rep: Report) -> dict:
         "subset_singular_values": [float(s) for s in rep.subset_singular_values],
         "indices": indices_document(rep.indices),
         "identifiable_subset": [rep.names[k] for k in ident.subset],
+        "parameter_labels": rep.labels,  # the names the parameters are shown by
         "not_estimated": rep.not_estimated,
         "unidentifiable": [
             {
