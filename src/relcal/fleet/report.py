@@ -52,28 +52,37 @@ def _summary(doc: dict, entries: list[dict]) -> tuple:
         ("drift flagged", str(len(drifted)), ", ".join(e["robot_id"] for e in drifted) or "none"),
         ("time", f"{doc.get('seconds', 0):.1f} s", _where(doc)),
     ]
-    rows = [
-        [
+    rows = []
+    for m in models:
+        row = [
             m["model"] or "(unknown: failed before loading)",
             str(m["n_sessions"]),
             str(len(m["robots"])),
             str(m["n_ok"]),
             str(m["n_failed"]),
             ", ".join(m["drift_robots"]) or "none",
-            hk.fmt(m["median_baseline_position_rms_mm"], ".3f"),
-            hk.fmt(m["median_calibrated_position_rms_mm"], ".3f"),
         ]
-        for m in models
-    ]
+        held = m.get("held_out") or [{"metric": None}]
+        for h in held:  # one row per kind of held-out metric: never one median over two
+            rows.append(
+                row
+                + [
+                    h["metric"] or "–",
+                    hk.fmt(h.get("median_baseline_position_rms_mm"), ".3f"),
+                    hk.fmt(h.get("median_calibrated_position_rms_mm"), ".3f"),
+                ]
+            )
+            row = [""] * len(row)
     head = ["robot model", "sessions", "robots", "calibrated", "failed", "drift flagged"]
-    head += ["baseline mm", "calibrated mm"]
+    head += ["held out", "baseline mm", "calibrated mm"]
     return hk.section(
         "summary",
         "Summary",
         hk.cards(cards, "wide"),
         hk.paragraph(
             "Per robot model (robots of one model compare, of two do not): held-out position RMS, "
-            "median over the model's calibrated sessions."
+            "median over the model's calibrated sessions, one row per kind of held-out metric "
+            "(relative poses, points and placements measure different things)."
         ),
         hk.table(head, rows, "num"),
         hk.paragraph(
@@ -157,6 +166,7 @@ def _robots(entries: list[dict]) -> tuple:
                 e.get("robot_id", ""),
                 e.get("model") or "–",
                 hk.badge(ok, e["status"], e["status"]),
+                e.get("held_out_metric") or "–",
                 hk.fmt(e.get("baseline_position_rms_mm"), ".3f"),
                 hk.fmt(e.get("calibrated_position_rms_mm"), ".3f"),
                 hk.fmt(e.get("baseline_orientation_rms_deg"), ".4f"),
@@ -169,6 +179,7 @@ def _robots(entries: list[dict]) -> tuple:
         "robot",
         "model",
         "status",
+        "held out",
         "baseline mm",
         "calibrated mm",
         "baseline deg",
@@ -179,9 +190,10 @@ def _robots(entries: list[dict]) -> tuple:
         "robots",
         "Robots",
         hk.paragraph(
-            "Held-out errors: relative poses, RMS over the held-out pairs of each session; "
-            "coincidence sessions (a ball in sockets), RMS distance of the held-out placements' "
-            "samples from their sockets' refitted points (mm only)."
+            "Held-out errors, of the kind each session's data give (held out): pairs of poses, "
+            "RMS over the held-out pairs; points, RMS over the held-out points (mm only); "
+            "placements (a ball in sockets), RMS distance of the held-out placements' samples "
+            "from their sockets' refitted points (mm only)."
         ),
         hk.table(head, rows, "num"),
     )

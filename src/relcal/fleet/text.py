@@ -31,6 +31,17 @@ def _table(rows: list[list[str]], right: set[int] = frozenset()) -> list[str]:
     ]
 
 
+def run_metric(run: Run) -> str | None:
+    """What a run's held-out errors measure (``pairs of poses``, ``points``, ``placements``:
+    :func:`relcal.fleet.records.held_out_metric`), from its settings or, for older records,
+    its validation."""
+    if "held_out_metric" in run.settings:
+        return run.settings["held_out_metric"]
+    from relcal.fleet.records import held_out_metric
+
+    return held_out_metric({"validation": run.validation})
+
+
 def verdict_text(c: Comparison | None) -> str:
     if c is None:
         return ""
@@ -54,7 +65,8 @@ def history_text(
         head = f"{robot_id}: no calibration in {where}"
         return "\n".join([head, *verifications_text(list(verifications))])
     lines = [f"{robot_id} ({runs[-1].model_name}): {len(runs)} calibration(s) in {where}", ""]
-    rows = [["run", "time (UTC)", "session", "relcal", "held-out position RMS mm", "vs previous"]]
+    rows = [["run", "time (UTC)", "session", "relcal", "held-out position RMS mm", "held out"]]
+    rows[0].append("vs previous")
     for run, c in zip(runs, comparisons, strict=True):
         rows.append(
             [
@@ -63,6 +75,7 @@ def history_text(
                 run.session or "",
                 run.relcal_version,
                 _errors(run.errors) + ("" if run.converged else " (not converged)"),
+                run_metric(run) or "",
                 verdict_text(c),
             ]
         )
@@ -293,7 +306,9 @@ def fleet_text(
     """The sessions of a fleet run (status, held-out errors, drift), the failures, a summary per
     robot model, the latest verification of each robot (when a registry has them) and the
     comparison of the units of each model (``units``, :func:`relcal.fleet.units.compare_units`)."""
-    rows = [["session", "robot", "status", "held-out position RMS mm", "drift vs previous"]]
+    rows = [
+        ["session", "robot", "status", "held-out position RMS mm", "held out", "drift vs previous"]
+    ]
     for e in entries:
         drift = e.get("drift")
         text = ""
@@ -307,6 +322,7 @@ def fleet_text(
                 str(e.get("robot_id", "")),
                 e["status"],
                 _errors(e) if e["status"] != "failed" else "",
+                (e.get("held_out_metric") or "") if e["status"] != "failed" else "",
                 text,
             ]
         )
@@ -315,10 +331,17 @@ def fleet_text(
         if e["status"] == "failed":
             lines.append(f"failed {e['session']}: {e['reason']}")
     for m in models or []:
-        base, after = m["median_baseline_position_rms_mm"], m["median_calibrated_position_rms_mm"]
         errors = ""
-        if base is not None and after is not None:
-            errors = f"; held-out position RMS {base:.3f} -> {after:.3f} mm (median)"
+        for h in m.get("held_out") or []:  # one median per kind of metric, never pooled
+            base, after = (
+                h["median_baseline_position_rms_mm"],
+                h["median_calibrated_position_rms_mm"],
+            )
+            if base is not None and after is not None and h["metric"] is not None:
+                errors += (
+                    f"; held-out position RMS on {h['metric']} {base:.3f} -> {after:.3f} mm "
+                    f"(median of {h['n_sessions']})"
+                )
         lines.append(
             f"{m['model'] or '(model unknown)'}: {m['n_sessions']} sessions of "
             f"{len(m['robots'])} robots, {m['n_ok']} calibrated, {m['n_failed']} failed, drift: "

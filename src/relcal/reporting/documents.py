@@ -26,7 +26,7 @@ from relcal.calibration.validate import (
     ratio_interval,
     stats,
 )
-from relcal.calibration.verdict import Verdict, verdict
+from relcal.calibration.verdict import Verdict, held_out_what, verdict
 from relcal.calibration.verify import FROZEN, Assessment, JointRanges, Verification
 from relcal.data.dataset import Dataset
 from relcal.data.imaging import Measurements
@@ -423,6 +423,10 @@ def results_document(cal: Calibration) -> dict:
             "rpy_deg": [float(np.degrees(v)) for v in rpy],
         },
         **_nuisance_frames(cal),
+        # what the held-out numbers measure (the verdict's words): never pooled with another kind
+        "held_out_metric": (
+            held_out_what(cal.validation, cal.problem.formulation) if cal.validation else None
+        ),
         "validation": (
             validation_document(cal.validation, cal.dataset.ids) if cal.validation else None
         ),
