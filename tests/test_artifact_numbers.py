@@ -187,7 +187,7 @@ def test_coincidence_files_hold_the_tool_point_or_are_given_it(panda, tmp_path):
         folder = tmp_path / art.name.replace(".", "_")
         folder.mkdir()
         loaded = read_back(art.name, art.content, cal.dataset.model, folder)
-        tool = np.array(entry["frames"]["tool_point_m"])
+        tool = np.array(entry["frames"]["tool_point_xyz_m"])
         if art.name in HOLD_THE_TOOL:
             np.testing.assert_allclose(tool, 0.0, atol=1e-15)
         else:

@@ -29,7 +29,7 @@ from typing import TYPE_CHECKING, Any, Literal, Protocol
 import numpy as np
 
 from relcal import geometry as tf
-from relcal.calibration.identify import Result
+from relcal.calibration.identify import Result, calibrated_handeye
 from relcal.calibration.measurement import Problem, tracker_frames
 from relcal.calibration.validate import PlacementValidation, Validation
 from relcal.errors import RelcalError
@@ -171,22 +171,22 @@ def accompanying(cal: Calibration, params: np.ndarray, name: str = "model.yaml")
     return params
 
 
-def frames(cal: Calibration, fit: Result, name: str = "model.yaml") -> dict:
-    """The measurement frames that accompany a file's kinematics in its validation (SI units,
-    transforms ``(4, 4)`` as nested lists): ``handeye`` (relative poses), ``instrument`` and
-    ``marker_m`` (points), ``tool_point_m`` (coincidences)."""
+def frames(cal: Calibration, fit: Result, name: str = "model.yaml") -> dict[str, np.ndarray]:
+    """The measurement frames that accompany file ``name``'s kinematics in its validation (SI):
+    ``handeye`` ``(4, 4)`` (relative poses), ``instrument`` ``(4, 4)`` and ``marker`` ``(3,)``
+    (points), ``tool_point`` ``(3,)`` (coincidences: zero for a file that holds it,
+    :func:`accompanying`)."""
     problem = cal.problem
     if problem.formulation == "tracker":
         instrument, marker = tracker_frames(problem, fit.params)
-        return {"instrument": instrument.tolist(), "marker_m": [float(v) for v in marker]}
-    if problem.formulation == "coincidence":  # the file holds the tool point: zero here
+        return {"instrument": instrument, "marker": np.asarray(marker, dtype=float)}
+    if problem.formulation == "coincidence":
         from relcal.calibration.coincidence import split_params
 
         _, tool, _ = split_params(problem, accompanying(cal, fit.params, name))
-        return {"tool_point_m": [float(v) for v in tool]}
-    if problem.formulation == "invariant":
-        n = problem.layout.size
-        return {"handeye": (problem.handeye @ tf.from_vector(fit.params[n:])).tolist()}
+        return {"tool_point": np.asarray(tool, dtype=float)}
+    if problem.formulation in ("invariant", "board"):
+        return {"handeye": calibrated_handeye(problem, fit)}
     return {}
 
 

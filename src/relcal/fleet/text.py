@@ -6,6 +6,7 @@ from typing import Any
 
 from relcal.fleet.drift import Comparison, display
 from relcal.fleet.registry import Run, VerificationRun
+from relcal.reporting.quantities import parameter_json
 from relcal.robot.kinematics import relabel
 
 
@@ -208,9 +209,31 @@ def run_document(run: Run) -> dict[str, Any]:
         "settings": run.settings,
         "input_hashes": run.input_hashes,
         "errors": run.errors,
-        "parameters": run.parameters,
-        "parameter_unit": "values and std in SI: m for lengths, rad for angles",
+        "held_out_metric": run_metric(run),
+        "parameters": [parameter_document(p, run.label(p["name"])) for p in run.parameters],
+        "parameter_unit": PARAMETER_UNIT,
     }
+
+
+#: How every JSON document gives a parameter's values (results.json, history, compare).
+PARAMETER_UNIT = (
+    "values in each parameter's unit, as results.json: mm for lengths, deg for angles, ppm for "
+    "joint scales, urad/Nm or um/N for compliances"
+)
+
+
+def parameter_document(p: dict, label: str) -> dict[str, Any]:
+    """A registry parameter (SI) as the JSON documents give it: ``name`` (the key), ``label``
+    (the name shown), ``unit`` and the values in the unit a person reads
+    (:func:`relcal.reporting.quantities.parameter_json`), as results.json does."""
+    out = {"name": p["name"], "label": label}
+    unit = parameter_json(None, p["unit"])[1]
+    out["unit"] = unit
+    for key in ("value", "std", "calibration_std"):
+        if key in p:
+            out[key] = parameter_json(p[key], p["unit"])[0]
+    out |= {k: v for k, v in p.items() if k not in (*out, "unit")}
+    return out
 
 
 def comparison_document(c: Comparison) -> dict[str, Any]:
@@ -231,18 +254,18 @@ def comparison_document(c: Comparison) -> dict[str, Any]:
             {
                 "name": p.name,
                 "label": c.label(p.name),
-                "unit": p.unit,
-                "a": p.a,
-                "b": p.b,
-                "difference": p.difference,
-                "std": p.std,
+                "unit": parameter_json(None, p.unit)[1],
+                "a": parameter_json(p.a, p.unit)[0],
+                "b": parameter_json(p.b, p.unit)[0],
+                "difference": parameter_json(p.difference, p.unit)[0],
+                "std": parameter_json(p.std, p.unit)[0],
                 "z": p.z,
                 "p_value": p.p_value,
                 "flagged": p.flagged,
             }
             for p in c.parameters
         ],
-        "parameter_unit": "a, b, difference and std in SI: m for lengths, rad for angles",
+        "parameter_unit": PARAMETER_UNIT,
         "common_model": c.common_model,  # both refitted on it (their chosen models differed)
         "left_out": list(c.left_out),
         "one_sided": list(c.one_sided),  # of left_out: estimated in one run only

@@ -34,7 +34,7 @@ from relcal.data.importers import Imported
 from relcal.design.criteria import Quality
 from relcal.design.observability import Report
 from relcal.design.plan import PlanResult
-from relcal.geometry import to_xyz_rpy
+from relcal.reporting.quantities import point_json, transform_json
 from relcal.robot.kinematics import DISPLAY_UNITS, relabel
 from relcal.robot.kinematics import parameter_labels as robot_parameter_labels
 from relcal.robot.model import KINDS, NONGEOMETRIC_KINDS, RobotModel, model_to_dict
@@ -330,42 +330,45 @@ def pooled_artifacts(folds: Sequence[Calibration]) -> dict[str, dict]:
     return out
 
 
+def frames_json(frames: dict[str, np.ndarray]) -> dict:
+    """Measurement frames (SI arrays by name: transforms ``(4, 4)``, points ``(3,)`` or
+    ``(G, 3)``) as JSON, each quantity by its one serializer (:mod:`relcal.reporting.quantities`):
+    a transform ``{"xyz_m", "rpy_deg"}`` under its name, a point in m under ``NAME_xyz_m``."""
+    out: dict = {}
+    for name, value in frames.items():
+        value = np.asarray(value, dtype=float)
+        if value.shape == (4, 4):
+            out[name] = transform_json(value)
+        else:
+            out[f"{name}_xyz_m"] = point_json(value)
+    return out
+
+
 def _nuisance_frames(cal: Calibration) -> dict:
     """The estimated instrument-from-base transform and marker position (tracker formulation),
     or the tool point and the group points (coincidence)."""
     if cal.problem.formulation == "coincidence":
         from relcal.calibration.coincidence import split_params
 
-        _, tool, points = split_params(cal.problem, cal.result.params)
+        _, tool, points = split_params(cal.problem, cal.exported_fit.params)
         base_tool = split_params(cal.problem, cal.baseline.params)[1]
         names = cal.problem.coincidence.names
         return {
-            "tool_point_xyz_m": [float(v) for v in tool],
+            "tool_point_xyz_m": point_json(tool),
             # the nominal kinematics' own tool point: what `relcal verify` checks its baseline by
-            "baseline_tool_point_xyz_m": [float(v) for v in base_tool],
+            "baseline_tool_point_xyz_m": point_json(base_tool),
             "tool_point_in_model": True,  # model.yaml's and the URDF's tool end at tool_point
-            "group_points_xyz_m": {
-                n: [float(v) for v in p] for n, p in zip(names, points, strict=True)
-            },
+            "group_points_xyz_m": {n: point_json(p) for n, p in zip(names, points, strict=True)},
         }
     if cal.problem.formulation != "tracker":
         return {}
-    instrument, marker = tracker_frames(cal.problem, cal.result.params)
-    xyz, rpy = to_xyz_rpy(instrument)
-    return {
-        "instrument": {
-            "xyz_m": [float(v) for v in xyz],
-            "rpy_deg": [float(np.degrees(v)) for v in rpy],
-        },
-        "marker_xyz_m": [float(v) for v in marker],
-    }
+    instrument, marker = tracker_frames(cal.problem, cal.exported_fit.params)
+    return {"instrument": transform_json(instrument), "marker_xyz_m": point_json(marker)}
 
 
 def results_document(cal: Calibration) -> dict:
     """Everything a calibration found, JSON-ready."""
     r = cal.result
-    handeye = cal.handeye
-    xyz, rpy = to_xyz_rpy(handeye)
     m = cal.measurements
     labels = parameter_labels(cal)  # every sentence names parameters as the tables do
     return {
@@ -418,10 +421,7 @@ def results_document(cal: Calibration) -> dict:
         "exported": cal.exported,
         "handeye": None
         if cal.problem.formulation in POINT_FORMULATIONS
-        else {
-            "xyz_m": [float(v) for v in xyz],
-            "rpy_deg": [float(np.degrees(v)) for v in rpy],
-        },
+        else transform_json(cal.handeye),
         **_nuisance_frames(cal),
         # what the held-out numbers measure (the verdict's words): never pooled with another kind
         "held_out_metric": (
@@ -465,7 +465,7 @@ def artifact_document(cal: Calibration, a: Artifact) -> dict:
         "written": a.written,
         "refused": a.refused,
         "sha256": hashlib.sha256(a.content).hexdigest(),
-        "frames": artifact_frames(cal, a.fit, a.name),
+        "frames": frames_json(artifact_frames(cal, a.fit, a.name)),
     }
     if val is None:
         doc["held_out"] = None
@@ -816,7 +816,7 @@ def verification_document(
             "folds": ver.n_folds,
             "seed": ver.seed,
             "fitted_to_all_samples": {
-                name: {"values": n.values, "converged": n.converged}
+                name: {"values": frames_json(n.frames), "converged": n.converged}
                 for name, n in ver.nuisance.items()
             },
         },
