@@ -2,9 +2,9 @@
 validated model gets the validated number (to round-off), and a number recomputed here from the
 file read back, by plain NumPy, agrees with it.
 
-The kinds: relative poses (a synthetic A465), rendered board images (the same pipeline from
-pixels), tracker points (TIAGo Pro, real) and coincidences (MUKCa Panda, real: its tool point
-was counted twice, 1.078 mm printed for the model file of a 0.527 mm validation).
+The kinds: relative poses (a synthetic A465), tracker points (TIAGo Pro, real) and coincidences
+(MUKCa Panda, real: its tool point was counted twice, 1.078 mm printed for the model file of a
+0.527 mm validation); rendered board images in tests/test_images_end_to_end.py (its images).
 """
 
 from __future__ import annotations
@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from conftest import DATA
+from helpers_artifacts import files_carry_the_validated_number, model_file, relative_rms
 from helpers_dataset import synthetic_dataset
 
 from relcal.calibration.artifacts import HOLD_THE_TOOL, read_back
@@ -29,52 +30,21 @@ TIAGO_POSITIONS = Path(__file__).resolve().parents[1] / "examples" / "tiago-pro-
 
 def _calibrate(root, **options):
     dataset = load_dataset(root)
-    return calibrate(dataset, measure(dataset, progress=False), seed=0, **options)
-
-
-def _model_file(cal):
-    (model,) = [a for a in cal.artifacts if a.name == "model.yaml"]
-    return model
-
-
-def _assert_files_carry_the_validated_number(cal):
-    """model.yaml always; every written file when nothing was refitted (they all hold the
-    validated model then)."""
-    val = cal.validation
-    assert val is not None
-    want = val.rms("calibrated")
-    assert _model_file(cal).rms() == pytest.approx(want, rel=1e-9, abs=1e-9)
-    if cal.geometry is None:
-        for art in cal.artifacts:
-            assert art.written, (art.name, art.refused)
-            assert art.rms() == pytest.approx(want, rel=1e-7), art.name
-    assert want < val.rms("before")  # a real correction: the test could fail by doubling it
+    measured = measure(dataset, workers=1, progress=False)  # images: no pool to start
+    return calibrate(dataset, measured, seed=0, **options)
 
 
 # --- relative poses and images ------------------------------------------------------------------
-
-
-def _relative_rms(cal, loaded, handeye) -> float:
-    """Position RMS (mm) of ``model^-1 measured`` over the validation's pairs, recomputed from
-    the file's forward kinematics and the hand-eye that accompanies it."""
-    val = cal.validation
-    poses = cal.measurements.poses
-    tool = fk(loaded, cal.dataset.q) @ handeye
-    i, j = val.pairs.T
-    model = np.linalg.inv(tool[i]) @ tool[j]
-    measured = np.linalg.inv(poses[i]) @ poses[j]
-    error = np.linalg.inv(model) @ measured
-    return float(np.sqrt(np.mean(np.sum(error[:, :3, 3] ** 2, axis=1)))) * 1e3
 
 
 def test_pose_files_carry_the_validated_number(tmp_path):
     syn = synthetic_dataset(tmp_path / "poses", n=40, noise=(5e-5, 1e-4), seed=3)
     cal = _calibrate(syn.root, nongeometric="none")
     assert cal.problem.formulation == "invariant" and cal.geometry is None
-    _assert_files_carry_the_validated_number(cal)
-    model = _model_file(cal)
+    files_carry_the_validated_number(cal)
+    model = model_file(cal)
     loaded = read_back("model.yaml", model.content, cal.dataset.model, tmp_path)
-    rms = _relative_rms(cal, loaded, cal.handeye)
+    rms = relative_rms(cal, loaded, cal.handeye)
     assert rms == pytest.approx(model.rms(), rel=1e-9)
 
 
@@ -83,26 +53,7 @@ def test_pose_model_file_with_nongeometric_terms_carries_the_validated_number(tm
     syn = synthetic_dataset(tmp_path / "scale", n=40, seed=4, nongeometric=("scale",))
     cal = _calibrate(syn.root, selection="all")
     assert cal.geometry is not None  # the URDF holds a geometry-only refit
-    _assert_files_carry_the_validated_number(cal)
-
-
-def test_image_files_carry_the_validated_number(tmp_path):
-    from relcal.robot.loading import get_robot
-    from relcal.sim.synth import write_image_dataset
-    from relcal.vision.camera import Camera
-
-    camera = Camera(
-        fx=580.0, fy=580.0, cx=305.5, cy=255.5, distortion=(0, 0, 0, 0, 0), width=612, height=512
-    )
-    write_image_dataset(
-        tmp_path / "images", get_robot("a465"), n_images=14, seed=2, camera=camera, progress=False
-    )
-    cal = _calibrate(tmp_path / "images", nongeometric="none")
-    assert cal.dataset.images is not None and cal.measurements.ok.sum() >= 10
-    _assert_files_carry_the_validated_number(cal)
-    model = _model_file(cal)
-    loaded = read_back("model.yaml", model.content, cal.dataset.model, tmp_path)
-    assert _relative_rms(cal, loaded, cal.handeye) == pytest.approx(model.rms(), rel=1e-9)
+    files_carry_the_validated_number(cal)
 
 
 # --- tracker points ------------------------------------------------------------------------------
@@ -114,8 +65,8 @@ def test_point_files_carry_the_validated_number(tmp_path):
 
     cal = _calibrate(TIAGO_POSITIONS, nongeometric="none")
     assert cal.problem.formulation == "tracker"
-    _assert_files_carry_the_validated_number(cal)
-    model = _model_file(cal)
+    files_carry_the_validated_number(cal)
+    model = model_file(cal)
     loaded = read_back("model.yaml", model.content, cal.dataset.model, tmp_path)
     instrument, marker = tracker_frames(cal.problem, cal.result.params)
     samples = cal.validation.pairs[:, 0]
@@ -165,8 +116,8 @@ def test_coincidence_model_file_carries_the_validated_spread(panda, tmp_path):
     centre at its tip) it is the same."""
     cal = _calibrate(panda)
     assert cal.problem.formulation == "coincidence" and cal.geometry is not None
-    _assert_files_carry_the_validated_number(cal)
-    model = _model_file(cal)
+    files_carry_the_validated_number(cal)
+    model = model_file(cal)
     loaded = read_back("model.yaml", model.content, cal.dataset.model, tmp_path)
     assert _spread_rms(cal, loaded, np.zeros(3)) == pytest.approx(model.rms(), rel=1e-9)
 
@@ -177,7 +128,7 @@ def test_coincidence_files_hold_the_tool_point_or_are_given_it(panda, tmp_path):
     holds the joints only, so the fitted tool point accompanies it, as its frames say."""
     cal = _calibrate(panda, nongeometric="none")
     assert cal.geometry is None
-    _assert_files_carry_the_validated_number(cal)
+    files_carry_the_validated_number(cal)
     from relcal.reporting.documents import results_document
 
     doc = results_document(cal)
