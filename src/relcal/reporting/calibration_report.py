@@ -64,6 +64,11 @@ def _error_sets(cal: Calibration) -> tuple[np.ndarray, np.ndarray, str, str]:
             f"No held-out samples: training residuals of {c.count} pairs "
             "(optimistic: the fit saw them)."
         )
+    if cal.worse:  # after = the chosen model, which the baseline replaced
+        sentence += (
+            " The chosen model shown as after is worse than the baseline on these samples and "
+            "was not exported: the exported files hold the baseline."
+        )
     return c.before, c.after, c.source, sentence
 
 
