@@ -80,8 +80,8 @@ def test_real_tiago_calibration_verified_on_the_other_session(tmp_path):
     # the session's nuisance, fitted to all its points: the instrument close to the identity
     # (the data's README), the new marker near the gripper
     frames = doc["nuisance"]["fitted_to_all_samples"]["calibrated"]["values"]
-    assert np.linalg.norm(frames["instrument_xyz_m"]) < 0.05
-    assert np.degrees(np.abs(frames["instrument_rpy_rad"])).max() < 3.0
+    assert np.linalg.norm(frames["instrument"]["xyz_m"]) < 0.05
+    assert np.abs(frames["instrument"]["rpy_deg"]).max() < 3.0  # deg, as in results.json
     assert 0.1 < np.linalg.norm(frames["marker_xyz_m"]) < 0.2
 
 

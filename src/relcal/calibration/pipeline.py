@@ -382,6 +382,7 @@ def calibrate(
         bootstrap_std=boot,
         warnings=tuple(warnings),
         geometry=geometry,
+        kind=kind,  # its validate measures each exported file (calibration.artifacts)
     )
 
 

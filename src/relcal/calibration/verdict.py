@@ -8,8 +8,9 @@ number of held-out samples:
 - ``collect more samples``: the interval spans 1 (the held-out samples cannot tell), or fewer
   than :data:`MIN_JUDGED` held-out samples leave no interval worth reading (a bootstrap over
   two samples, one pair of poses, has none);
-- ``do not deploy``: the whole interval lies above 1, or the data support no kinematic
-  correction (the exported model is the baseline);
+- ``do not deploy``: the whole interval lies above 1, or the exported model is the baseline
+  (the data support no kinematic correction, or the calibrated model is worse than the
+  baseline on the held-out samples: a worse model is never exported);
 - ``not validated``: no held-out samples (``--holdout 0``).
 
 The evidence is counted in distinct configurations: repeats of one configuration (within the
@@ -96,7 +97,8 @@ def verdict(
     limits: tuple[str, ...] = (),
 ) -> Verdict:
     """The verdict on the exported model from its ``validation`` (see the module docstring);
-    ``exported``: ``calibrated`` or ``baseline`` (the data supported no correction);
+    ``exported``: ``calibrated`` or ``baseline`` (the data supported no correction, or the
+    calibrated model was worse than the baseline on ``validation``, which then names how much);
     ``formulation``: unused (the validation names its evidence); ``limits``: what the held-out
     samples cannot show, in words (a joint that never moved, ...)."""
     if validation is None:
@@ -119,18 +121,6 @@ def verdict(
             "interval is rough; hold out more (--holdout) or cross-validate (--kfold)",
         )
     what = held_out_what(validation)
-    if exported == "baseline":
-        return Verdict(
-            "do not deploy",
-            "do not deploy a correction: the data support none (the exported model is the "
-            "baseline, nominal kinematics with the measurement frames fitted)",
-            None,
-            None,
-            n,
-            warnings,
-            n_conf,
-            limits=tuple(limits),
-        )
     ratio = validation.ratio()
     r, (lo, hi) = ratio["after_over_before"], ratio["ci95"]
     factor = 1.0 / max(r, 1e-300)
@@ -139,8 +129,29 @@ def verdict(
     if n_conf < n and not placements:
         evidence += f" in {n_conf} distinct configuration" + ("s" if n_conf != 1 else "")
     span = f"95% interval {times(held[0])}..{times(held[1])}, {evidence}"
-    few = (n if placements else n_conf) < MIN_JUDGED
     limits = tuple(limits)
+    if exported == "baseline":
+        exported_text = (
+            "the exported model is the baseline, nominal kinematics with the measurement "
+            "frames fitted"
+        )
+        why = "the data support none"
+        if validation.rms("calibrated") > validation.rms("before"):  # not the selection's
+            why = (
+                f"the calibrated model is {times(r)} worse than the baseline on held-out "
+                f"{what} ({span})"
+            )
+        return Verdict(
+            "do not deploy",
+            f"do not deploy a correction: {why} ({exported_text})",
+            None,
+            None,
+            n,
+            warnings,
+            n_conf,
+            limits=limits,
+        )
+    few = (n if placements else n_conf) < MIN_JUDGED
     if few:
         code: Code = "collect more samples"
         count = f"{n} held-out samples" if n_conf == n or placements else evidence

@@ -271,9 +271,11 @@ PLAIN = np.diag(plain_whiteners(1)[0]).copy()  # rows of a relative pose: m, and
 
 @dataclass(frozen=True)
 class Nuisance:
-    """What one fit of a session's nuisance found, for the report (SI units)."""
+    """What one fit of a session's nuisance found, for the report: ``frames`` by name, SI
+    (``handeye`` or ``instrument`` ``(4, 4)``, ``marker`` and ``tool_point`` ``(3,)``,
+    ``group_points`` ``(G, 3)``; the documents serialize them)."""
 
-    values: dict[str, list[float]]  # e.g. {"handeye_xyz_m": [...], "handeye_rpy_rad": [...]}
+    frames: dict[str, np.ndarray]
     converged: bool
 
 
@@ -374,33 +376,15 @@ def _nuisance_all(
     tool_point: np.ndarray | None,
 ) -> Nuisance:
     """The nuisance fitted to every sample of the session (shown, never used for the errors)."""
-    from relcal.geometry import to_xyz_rpy
-
     if kind == "pose":
         (handeye, world), ok = _fit_pose(model, q, poses)
-        xyz, rpy = to_xyz_rpy(handeye)
-        w_xyz, w_rpy = to_xyz_rpy(world)
-        values = {
-            "handeye_xyz_m": xyz.tolist(),
-            "handeye_rpy_rad": rpy.tolist(),
-            "world_xyz_m": w_xyz.tolist(),
-            "world_rpy_rad": w_rpy.tolist(),
-        }
-        return Nuisance(values, ok)
+        return Nuisance({"handeye": handeye, "world": world}, ok)
     if kind == "position":
         (instrument, marker), ok = _fit_points(model, q, poses)
-        xyz, rpy = to_xyz_rpy(instrument)
-        values = {
-            "instrument_xyz_m": xyz.tolist(),
-            "instrument_rpy_rad": rpy.tolist(),
-            "marker_xyz_m": marker.tolist(),
-        }
-        return Nuisance(values, ok)
+        return Nuisance({"instrument": instrument, "marker": np.asarray(marker)}, ok)
     n_groups = int(groups.max()) + 1
     points = _group_points(_tool_points(model, q, tool_point), groups, n_groups)
-    return Nuisance(
-        {"tool_point_m": list(map(float, tool_point)), "groups_m": points.tolist()}, True
-    )
+    return Nuisance({"tool_point": np.asarray(tool_point, float), "group_points": points}, True)
 
 
 @dataclass(frozen=True)
@@ -751,7 +735,7 @@ def _verdict(
                 "the calibration is the nominal kinematics (no correction); " + degraded,
             )
         return "holds", (
-            "the calibration exported the nominal kinematics (the data supported no correction); "
+            "the calibration exported the nominal kinematics (no correction); "
             f"on this session it predicts as at calibration (position RMS "
             f"{cal['position_mm']['rms']:.3f} mm)"
         )

@@ -42,6 +42,22 @@ def held_out_errors(doc: dict) -> dict[str, float | None]:
     }
 
 
+def held_out_metric(doc: dict) -> str | None:
+    """What the held-out numbers of a results document measure, in the verdict's words
+    (:func:`relcal.calibration.verdict.held_out_what`: ``pairs of poses``, ``points``,
+    ``placements``; ``held_out_metric`` of the document), so that numbers of different kinds are
+    never pooled; for documents older than that key, read from the validation's shape. None
+    without a held-out set."""
+    if "held_out_metric" in doc:
+        return doc["held_out_metric"]
+    val = doc.get("validation") or {}
+    if not val:
+        return None
+    if val.get("held_out") == "placements":
+        return "placements"
+    return "points" if val.get("n_pairs") == val.get("n_samples") else "pairs of poses"
+
+
 def _sha256(path: Path) -> str:
     digest = hashlib.sha256()
     with open(path, "rb") as handle:
@@ -159,6 +175,7 @@ def calibration_record(
             "joint_ranges": doc.get("joint_ranges"),  # what `relcal verify` checks a session by
             **_tool_points(doc),
             "verdict": (doc.get("verdict") or {}).get("code"),
+            "held_out_metric": held_out_metric(doc),  # what `errors` measure
             # URDF robots: parameters named after their joints, as the calibration showed them
             "parameter_labels": doc.get("parameter_labels") or {},
             # every loadable file with its own held-out error (documents.artifacts_document)

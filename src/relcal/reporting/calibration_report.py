@@ -72,6 +72,11 @@ def _error_sets(cal: Calibration) -> tuple[np.ndarray, np.ndarray, str, str]:
             f"No held-out samples: training residuals of {c.count} pairs "
             "(optimistic: the fit saw them)."
         )
+    if cal.worse:  # after = the chosen model, which the baseline replaced
+        sentence += (
+            " The chosen model shown as after is worse than the baseline on these samples and "
+            "was not exported: the exported files hold the baseline."
+        )
     return c.before, c.after, c.source, sentence
 
 
@@ -314,9 +319,10 @@ def _selection(doc: dict) -> Html:
     ]
     note = f"Chosen: {sel['chosen']} ({sel['weighting']}): {sel['reason']}."
     if sel["exported"] == "baseline":
+        reason = sel.get("export_reason") or "the data support no kinematic correction"
         note += (
-            " The data support no kinematic correction: the exported model is the nominal "
-            "kinematics with the fitted hand-eye transform."
+            f" {reason[0].upper()}{reason[1:]}: the exported model is the nominal kinematics "
+            "with the measurement frames fitted."
         )
     noise = doc.get("noise_model")
     if noise:
