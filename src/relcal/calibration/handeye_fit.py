@@ -17,11 +17,11 @@ camera intrinsics given or refined with the frames, a robust first pass to find 
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, field
 
 import numpy as np
 import scipy.optimize
-from scipy.stats import chi2
 
 from relcal import geometry as tf
 from relcal.calibration.identify import Result, calibrated_handeye, identify_lm, identify_weighted
@@ -37,6 +37,7 @@ from relcal.robot.model import RobotModel
 
 EMPTY = Layout((), (), ())  # no kinematic parameter free: the two frames alone
 OUTLIER_LEVEL = 0.999  # chi-square(6) quantile beyond which a sample is a bad frame
+OUTLIER_CHI2 = 22.457744484825323  # scipy.stats.chi2.ppf(OUTLIER_LEVEL, 6)
 MAX_OUTLIER_SHARE = 0.25  # more would be the model's fault, not the frames'
 FULL_NOISE_SAMPLES = 12  # fewer samples: an isotropic noise model (2 levels), not a full 6x6
 NOISE_FLOOR = 1e-9  # m, rad: exact synthetic data still get a (tiny) noise model
@@ -63,8 +64,8 @@ class FrameFit:
         Samples the final fit used (bad frames left out).
     outliers : dict of int to str
         Samples left out as bad frames, with the reason.
-    converged : bool
-        The gradient of the stated cost vanishes at the estimate (finite differences).
+    stopped : bool
+        The solver's own stopping rule was met (see :attr:`converged`).
     noise : (6, 6) ndarray of float or None
         The learned pose noise covariance (camera frame; m, rad), poses only.
     pixel_sigma : float or None
@@ -81,12 +82,21 @@ class FrameFit:
     covariance: np.ndarray
     used: np.ndarray
     outliers: dict[int, str]
-    converged: bool
+    stopped: bool
     noise: np.ndarray | None = None
     pixel_sigma: float | None = None
     held: tuple[str, ...] = ()
     camera: object = None
     result: Result | None = field(default=None, repr=False, compare=False)
+
+    @functools.cached_property
+    def converged(self) -> bool:
+        """The solver stopped by its rule and the gradient of the stated cost vanishes at the
+        estimate (finite differences of the real residual, poses; the solver's own gradient
+        test, images)."""
+        if self.result is not None:
+            return bool(self.result.converged)
+        return self.stopped
 
 
 def frames_problem(
@@ -128,7 +138,7 @@ def bad_frames(errors: np.ndarray, n_params: int = 12) -> tuple[np.ndarray, np.n
     chi-square(6) under the noise learned from the others (robust start: per-component scales),
     at most :data:`MAX_OUTLIER_SHARE` of them; ``(bad mask, squared Mahalanobis distances)``."""
     n = len(errors)
-    limit = chi2.ppf(OUTLIER_LEVEL, 6)
+    limit = OUTLIER_CHI2
     scale = np.array([robust_scale(errors[:, j]) for j in range(6)])
     scale = np.maximum(scale, NOISE_FLOOR)
     d2 = np.sum((errors / scale) ** 2, axis=1)
@@ -221,7 +231,7 @@ def fit_poses(
         covariance=cov,
         used=keep,
         outliers=outliers,
-        converged=result.converged,
+        stopped=result.stopped,
         noise=noise,
         held=tuple(FRAME_NAMES[i] for i in np.flatnonzero(held_mask)),
         result=result,
@@ -237,22 +247,17 @@ def fk_of(model: RobotModel, q: np.ndarray) -> np.ndarray:
 def _reparametrise(
     x0: np.ndarray, w0: np.ndarray, x: np.ndarray, w: np.ndarray, params: np.ndarray
 ) -> np.ndarray:
-    """``(12, 12)``: how perturbations at the start, ``X0 from_vector(p)``, map to perturbations
-    at the estimate, ``X from_vector(v)`` (finite differences; the identity for a fit that did
-    not move)."""
-    base = params.copy()
-
-    def at(p: np.ndarray) -> np.ndarray:
-        xp = x0 @ tf.from_vector(p[:6])
-        wp = w0 @ tf.from_vector(p[6:12])
-        return np.r_[tf.to_vector(tf.invert(x) @ xp), tf.to_vector(tf.invert(w) @ wp)]
-
-    step = 1e-7
-    out = np.empty((12, 12))
-    for i in range(12):
-        d = np.zeros(12)
-        d[i] = step
-        out[:, i] = (at(base + d) - at(base - d)) / (2 * step)
+    """``(12, 12)``: how perturbations at the start, ``X0 from_vector(p)`` (``X = X0
+    from_vector(p_hat)``), map to perturbations at the estimate, ``X from_vector(v)``: with
+    ``from_vector(p) = (exp(w), t)``, ``v_t = R(w_hat)^T (t - t_hat)`` and ``v_w = log(R(w_hat)^T
+    R(w)) ~ J_r(w_hat) (w - w_hat)``."""
+    del x0, w0, x, w
+    out = np.zeros((12, 12))
+    for block in (slice(0, 6), slice(6, 12)):
+        p = params[block]
+        b = block.start
+        out[b : b + 3, b : b + 3] = tf.exp_rotation(p[3:]).T
+        out[b + 3 : b + 6, b + 3 : b + 6] = tf.right_jacobian(p[3:])
     return out
 
 
@@ -441,7 +446,7 @@ def fit_images(
         covariance=cov,
         used=keep,
         outliers=outliers,
-        converged=converged,
+        stopped=converged,
         pixel_sigma=sigma,
         camera=used_camera,
     )
