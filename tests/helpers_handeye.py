@@ -108,9 +108,17 @@ def render_dataset(folder: Path, mode: str, n: int = 10, seed: int = 0):
         cv2.imwrite(str(folder / name), image)
         names.append(name)
     (folder / "board.yaml").write_text(yaml_text(board_to_spec(board)))
-    cam = {"fx": 320.0, "fy": 320.0, "cx": 199.5, "cy": 149.5, "width": 400, "height": 300,
-           "distortion": [0.05, -0.1, 0.0, 0.0, 0.0]}  # fmt: skip
+    cam = {
+        "fx": 320.0,
+        "fy": 320.0,
+        "cx": 199.5,
+        "cy": 149.5,
+        "width": 400,
+        "height": 300,
+        "distortion": [0.05, -0.1, 0.0, 0.0, 0.0],
+    }
     (folder / "camera.yaml").write_text(yaml_text(cam))
-    write_flange_dataset(folder, flange, images=names, mode=mode,
-                         extra="board: board.yaml\ncamera: camera.yaml\n")  # fmt: skip
+    write_flange_dataset(
+        folder, flange, images=names, mode=mode, extra="board: board.yaml\ncamera: camera.yaml\n"
+    )
     return folder, x, w

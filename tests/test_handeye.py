@@ -1,4 +1,4 @@
-"""Hand-eye calibration: closed forms, the refined estimate and its held-out proof, planted truth."""
+"""Hand-eye calibration: closed forms, the refined estimate, its held-out proof, planted truth."""
 
 from __future__ import annotations
 
@@ -127,8 +127,9 @@ def test_refined_spread_over_200_seeds_is_the_cramer_rao_bound():
     # the spread in units of the bound: 1 for an efficient estimator (sampling error ~3 %)
     spread = np.mean(np.einsum("ni,ij,nj->n", est, info, est)) / 12
     assert abs(spread - 1.0) < 0.10, spread
-    spread_x = np.mean(np.einsum("ni,ij,nj->n", est[:, :6], np.linalg.inv(crb[:6, :6]),
-                                 est[:, :6])) / 6  # fmt: skip
+    spread_x = (
+        np.mean(np.einsum("ni,ij,nj->n", est[:, :6], np.linalg.inv(crb[:6, :6]), est[:, :6])) / 6
+    )
     assert abs(spread_x - 1.0) < 0.10, spread_x
     # and the fit's own covariance predicts it
     assert np.allclose(np.sqrt(np.diag(fit.covariance)), np.sqrt(np.diag(crb)), rtol=0.15)
@@ -143,7 +144,7 @@ def test_rendered_images_planted_truth(tmp_path, mode):
     assert result.validation.criterion == "px"
     err = _frame_error(result.handeye, x)
     std = np.sqrt(np.diag(result.fit.covariance))[:6]
-    assert np.all(np.abs(err) < 3 * std), (err / std)
+    assert np.all(np.abs(err) < 3 * std), err / std
     best = min(np.linalg.norm(_frame_error(a.handeye, x)[:3]) for a in result.closed if a.ok)
     assert np.linalg.norm(err[:3]) <= best
     val = result.validation
@@ -158,8 +159,9 @@ def test_numbers_do_not_change_when_rows_are_reordered(tmp_path):
     poses = camera_poses(flange, seed=7)
     a = handeye(relcal.load_dataset(write_flange_dataset(tmp_path / "a", flange, poses)))
     perm = np.random.default_rng(1).permutation(16)
-    b = handeye(relcal.load_dataset(write_flange_dataset(tmp_path / "b", flange[perm],
-                                                         poses[perm])))  # fmt: skip
+    b = handeye(
+        relcal.load_dataset(write_flange_dataset(tmp_path / "b", flange[perm], poses[perm]))
+    )
     assert np.allclose(a.handeye, b.handeye, atol=1e-12)
     for m in ("refined", *METHODS):
         sa, sb = a.validation.summary(m), b.validation.summary(m)

@@ -128,8 +128,11 @@ def informative_samples(
             break
         worst = max(np.flatnonzero(count == count.max()), key=lambda k: (-spread[k], k))
         partner = int(np.flatnonzero(sub[worst])[0])
-        turn = np.degrees(angles[worst, partner] if angles[worst, partner] > np.radians(
-            max_deg) else low[worst, partner])  # fmt: skip
+        turn = np.degrees(
+            angles[worst, partner]
+            if angles[worst, partner] > np.radians(max_deg)
+            else low[worst, partner]
+        )
         why = "near 180 deg" if turn > max_deg else f"less than {min_deg:g} deg"
         left[int(order[worst])] = (
             f"turns {turn:.2f} deg ({why}) from another sample and {int(count[worst])} in all"
@@ -197,8 +200,9 @@ def solve(method: str, flange: np.ndarray, measured: np.ndarray) -> ClosedForm:
                 method=flag,
             )
             x, why = _checked(method, rot, trans)
-            return ClosedForm(method, x, None if x is None else world_given(
-                flange, measured, x), why)  # fmt: skip
+            return ClosedForm(
+                method, x, None if x is None else world_given(flange, measured, x), why
+            )
         flag = getattr(cv2, f"CALIB_ROBOT_WORLD_HAND_EYE_{method.upper()}")
         inverse_f = tf.invert(flange)
         rot_w, trans_w, rot_x, trans_x = cv2.calibrateRobotWorldHandEye(

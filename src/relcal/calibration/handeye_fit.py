@@ -400,9 +400,14 @@ def fit_images(
     try:
         if reject:
             sol = scipy.optimize.least_squares(
-                lambda v: (bar.update(1), fun(v, keep))[1], p, method="trf", loss="huber",
-                f_scale=1.0, x_scale="jac", max_nfev=200,
-            )  # fmt: skip
+                lambda v: (bar.update(1), fun(v, keep))[1],
+                p,
+                method="trf",
+                loss="huber",
+                f_scale=1.0,
+                x_scale="jac",
+                max_nfev=200,
+            )
             p = sol.x
             rms = _per_image_rms(fun(p, keep), corners)
             limit = max(3.0 * float(np.median(rms)), 1.0)
@@ -415,9 +420,15 @@ def fit_images(
                     )
                 keep = ~bad
         sol = scipy.optimize.least_squares(
-            lambda v: (bar.update(1), fun(v, keep))[1], p, method="trf", x_scale="jac",
-            max_nfev=200, xtol=1e-12, ftol=1e-12, gtol=1e-10,
-        )  # fmt: skip
+            lambda v: (bar.update(1), fun(v, keep))[1],
+            p,
+            method="trf",
+            x_scale="jac",
+            max_nfev=200,
+            xtol=1e-12,
+            ftol=1e-12,
+            gtol=1e-10,
+        )
     finally:
         bar.close()
     p = sol.x

@@ -170,8 +170,9 @@ def _bootstrap_rms(values: np.ndarray, seed: int) -> list[float]:
 def _bootstrap_ratio(before: np.ndarray, after: np.ndarray, seed: int) -> dict[str, Any]:
     rng = np.random.default_rng(seed)
     draws = rng.integers(0, len(before), (N_BOOT, len(before)))
-    boot = np.sqrt(np.sum(after[draws] ** 2, axis=1) / np.maximum(np.sum(before[draws] ** 2,
-        axis=1), 1e-300))  # fmt: skip
+    boot = np.sqrt(
+        np.sum(after[draws] ** 2, axis=1) / np.maximum(np.sum(before[draws] ** 2, axis=1), 1e-300)
+    )
     ratio = float(np.sqrt(np.sum(after**2) / max(np.sum(before**2), 1e-300)))
     return {
         "after_over_before": ratio,
@@ -342,8 +343,9 @@ def _frames_default(mode: str) -> dict[str, str]:
         "base": "base_link",
         "flange": "tool0",
         "camera": "camera" if mode != "robot_world" else "sensor",
-        "world": "world" if mode == "robot_world" else ("board" if mode == "eye_in_hand" else
-            "camera"),  # fmt: skip
+        "world": "world"
+        if mode == "robot_world"
+        else ("board" if mode == "eye_in_hand" else "camera"),
         "marker": "board" if mode == "eye_to_hand" else "marker",
     }
 
@@ -458,8 +460,9 @@ def _start(answers: list[ClosedForm], flange: np.ndarray, measured: np.ndarray, 
         if not a.ok:
             continue
         e = sample_errors(flange, measured, a.handeye, a.world)
-        s = float(np.median(np.linalg.norm(e[:, :3], axis=1) + lever * np.linalg.norm(e[:, 3:],
-            axis=1)))  # fmt: skip
+        s = float(
+            np.median(np.linalg.norm(e[:, :3], axis=1) + lever * np.linalg.norm(e[:, 3:], axis=1))
+        )
         if s < score:
             best, score = a, s
     return best
@@ -549,9 +552,7 @@ def _validate(
     for f in tqdm(range(k), desc="cross-validating", unit="fold", disable=not progress):
         test, train = np.flatnonzero(fold == f), np.flatnonzero(fold != f)
         try:
-            answers, _, fit = _fit_all(
-                data, train, mode, methods, refine_intrinsics, reject, guess
-            )
+            answers, _, fit = _fit_all(data, train, mode, methods, refine_intrinsics, reject, guess)
         except RelcalError as exc:
             failures[REFINED].append(f"fold {f + 1}: {exc}")
             continue
@@ -599,8 +600,9 @@ def _corners(dataset, m, usable: np.ndarray) -> list[Corners]:
     return out
 
 
-def check_job(dataset, measurements, mode, methods, folds, seed, refine_intrinsics, reject,
-              progress) -> None:  # fmt: skip
+def check_job(
+    dataset, measurements, mode, methods, folds, seed, refine_intrinsics, reject, progress
+) -> None:
     """The arguments of :func:`handeye`, checked before anything is measured."""
     from relcal.checks import check_choice, check_flag, check_number
     from relcal.data.dataset import MODES, check_dataset
@@ -700,8 +702,9 @@ def handeye(
     from relcal.data.imaging import measure
     from relcal.robot.kinematics import fk
 
-    check_job(dataset, measurements, mode, methods, folds, seed, refine_intrinsics, reject,
-              progress)  # fmt: skip
+    check_job(
+        dataset, measurements, mode, methods, folds, seed, refine_intrinsics, reject, progress
+    )
     mode = mode or dataset.mode
     m = measurements if measurements is not None else measure(dataset, progress=progress)
     usable = np.flatnonzero(m.ok)
@@ -749,8 +752,18 @@ def handeye(
         exported = _exported(validation, answers)
     if exported not in (None, REFINED):
         chosen = next(a for a in answers if a.method == exported)
-        replaced = FrameFit(chosen.handeye, chosen.world, np.full((12, 12), np.nan), fit.used,
-                            fit.outliers, True, fit.noise, fit.pixel_sigma, (), fit.camera)  # fmt: skip
+        replaced = FrameFit(
+            chosen.handeye,
+            chosen.world,
+            np.full((12, 12), np.nan),
+            fit.used,
+            fit.outliers,
+            True,
+            fit.noise,
+            fit.pixel_sigma,
+            (),
+            fit.camera,
+        )
         delivered = deliver(mode, replaced, frames)
     ids = dataset.ids
     verdict = handeye_verdict(validation, fit, exported, undetermined, held, guess is not None)
@@ -761,8 +774,9 @@ def handeye(
         delivered=delivered,
         exported=exported,
         closed=tuple(answers),
-        selection=Selection(order[selection.used], {int(order[k]): v for k, v in
-                                                     selection.left_out.items()}),  # fmt: skip
+        selection=Selection(
+            order[selection.used], {int(order[k]): v for k, v in selection.left_out.items()}
+        ),
         fit=fit,
         ids=ids,
         usable=m.ok.copy(),
@@ -772,9 +786,10 @@ def handeye(
         validation=validation,
         verdict=verdict,
         source=(
-            "the logged flange poses" if dataset.flange is not None
+            "the logged flange poses"
+            if dataset.flange is not None
             else "joints and the robot model"
-        ),  # fmt: skip
+        ),
         settings={
             "mode": mode,
             "methods": list(methods),
@@ -837,8 +852,15 @@ def _hold_at_guess(data: _Data, rows: np.ndarray, fit: FrameFit, guess: np.ndarr
 
     move = _reparametrise(guess, fit.world, x, w, result.params)
     cov = move @ np.nan_to_num(cov) @ move.T
-    return replace(fit, handeye=x, world=w, covariance=cov, stopped=result.stopped,
-                   result=result, held=("handeye.* (prior: the guess of dataset.yaml)",))  # fmt: skip
+    return replace(
+        fit,
+        handeye=x,
+        world=w,
+        covariance=cov,
+        stopped=result.stopped,
+        result=result,
+        held=("handeye.* (prior: the guess of dataset.yaml)",),
+    )
 
 
 def handeye_verdict(
@@ -920,7 +942,10 @@ def handeye_verdict(
     )
     if ours != REFINED:
         code = "deploy" if n >= MIN_JUDGED else "collect more samples"
-        text = f"{code}: the held-out samples favour {TITLES[ours]} over the refined estimate ({compare})"
+        text = (
+            f"{code}: the held-out samples favour {TITLES[ours]} over the refined estimate "
+            f"({compare})"
+        )
     elif n < MIN_JUDGED or held or not fit.converged:
         code = "collect more samples"
         text = f"collect more samples: {compare}"

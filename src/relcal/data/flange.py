@@ -82,8 +82,11 @@ def flange_chain(flange: np.ndarray) -> tuple[RobotModel, np.ndarray]:
     spec = {**_CHAIN, "joints": [dict(j) for j in _CHAIN["joints"]]}
     # The wrist is Rz(r1) Ry(r2) Rz(r3): mid-range (r2 = 90 deg) for the mean orientation.
     tool_rot = tf.rot_y(np.pi / 2).T @ mean_rotation(flange[:, :3, :3])
-    spec["tool"] = {"rpy": [float(np.degrees(v)) for v in tf.to_xyz_rpy(tf.homogeneous(
-        tool_rot, np.zeros(3)))[1]]}  # fmt: skip
+    spec["tool"] = {
+        "rpy": [
+            float(np.degrees(v)) for v in tf.to_xyz_rpy(tf.homogeneous(tool_rot, np.zeros(3)))[1]
+        ]
+    }
     model = model_from_dict(spec)
     # the prismatic joints translate along a permutation of the base axes: read it off the chain
     unit = np.zeros((3, 6))
