@@ -62,13 +62,14 @@ def test_closed_form_failures_are_named_never_used():
 
 def test_informative_samples_leave_out_tiny_and_half_turn_pairs_whatever_the_order():
     flange = flange_poses(10, seed=2)
-    twin = flange[3] @ tf.from_vector([0.001, 0, 0, 0, 0, np.radians(0.5)])  # 0.5 deg from 3
+    twin = flange[3] @ tf.from_vector([0.001, 0, 0, 0, 0, np.radians(0.5)])  # 0.5 deg, 1 mm
+    slide = flange[4] @ tf.from_vector([0.05, 0, 0, 0, 0, 0])  # a pure translation: kept
     flip = flange[5] @ tf.from_vector([0, 0, 0, np.radians(178.0), 0, 0])  # 178 deg from 5
-    all_f = np.concatenate([flange, twin[None], flip[None]])
+    all_f = np.concatenate([flange, twin[None], flip[None], slide[None]])
     poses = camera_poses(all_f, cov=None)
     sel = informative_samples(all_f, poses)
-    assert len(sel.used) == 10 and len(sel.left_out) == 2
-    assert any("less than 2 deg" in why for why in sel.left_out.values())
+    assert len(sel.used) == 11 and len(sel.left_out) == 2
+    assert any("moves less than 2 mm" in why for why in sel.left_out.values())
     assert any("near 180 deg" in why for why in sel.left_out.values())
     perm = np.random.default_rng(0).permutation(len(all_f))
     sel2 = informative_samples(all_f[perm], poses[perm])

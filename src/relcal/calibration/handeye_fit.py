@@ -380,8 +380,11 @@ def fit_images(
     from dataclasses import replace
 
     n = len(flange)
-    n_intr = (4 + len(camera.dist)) if refine_intrinsics else 0
-    intr0 = np.r_[camera.fx, camera.fy, camera.cx, camera.cy, camera.dist] if n_intr else None
+    dist0 = np.asarray(camera.distortion, dtype=float)
+    if refine_intrinsics and len(dist0) == 0:
+        dist0 = np.zeros(4)  # none given: k1, k2, p1, p2 refined from zero
+    n_intr = (4 + len(dist0)) if refine_intrinsics else 0
+    intr0 = np.r_[camera.fx, camera.fy, camera.cx, camera.cy, dist0] if n_intr else None
 
     def unpack(p: np.ndarray, keep: np.ndarray):
         x = handeye @ tf.from_vector(p[:6])
@@ -444,7 +447,9 @@ def fit_images(
     used_camera = camera
     if n_intr:
         v = intr0 + p[12:]
-        used_camera = replace(camera, fx=v[0], fy=v[1], cx=v[2], cy=v[3], dist=tuple(v[4:]))
+        used_camera = replace(
+            camera, fx=v[0], fy=v[1], cx=v[2], cy=v[3], distortion=tuple(float(c) for c in v[4:])
+        )
     grad = jac.T @ r
     scale = np.sqrt(np.maximum(np.diag(info), 1e-300))
     converged = (
