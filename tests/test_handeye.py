@@ -178,3 +178,176 @@ def test_flange_columns_must_be_complete(tmp_path):
     (folder / "samples.csv").write_text(text)
     with pytest.raises(RelcalError, match="fqw"):
         relcal.load_dataset(folder)
+
+
+# --- degenerate motions: named, never a confident number -----------------------------------------
+
+
+def test_rotations_about_one_axis_are_named_and_refused_without_a_guess(tmp_path):
+    """Every motion turns about the flange's z axis: X's translation along it trades with W's,
+    so it is named and the transform is refused (no value printed, no file to load)."""
+    flange = flange_poses(20, seed=9, spread=0.6, axis=np.array([0.0, 0.0, 1.0]))
+    poses = camera_poses(flange, seed=10)
+    result = handeye(relcal.load_dataset(write_flange_dataset(tmp_path / "d", flange, poses)))
+    assert any("rotations about parallel axes" in f for f in result.findings)
+    assert any("(+0.00, +0.00, +1.00)" in f for f in result.findings)
+    he = result.delivered[0]
+    assert he.undetermined and "translation" in he.undetermined[0]
+    assert result.exported is None and result.verdict.code == "do not deploy"
+    from relcal.reporting.handeye_report import handeye_document, handeye_files, handeye_text
+
+    doc = handeye_document(result)
+    assert doc["handeye"]["xyz_m"] is None  # never printed as a number
+    assert set(handeye_files(result, doc)) == {"results.json"}
+    assert "not determined" in handeye_text(doc)
+
+
+def test_rotations_about_one_axis_are_held_at_the_guess(tmp_path):
+    flange = flange_poses(20, seed=9, spread=0.6, axis=np.array([0.0, 0.0, 1.0]))
+    poses = camera_poses(flange, seed=10)
+    xyz, rpy = tf.to_xyz_rpy(X_TRUE)
+    guess = (
+        f"handeye: {{xyz: [{xyz[0]:.4f}, {xyz[1]:.4f}, {xyz[2] + 0.004:.4f}], "
+        f"rpy: [{np.degrees(rpy[0]):.3f}, {np.degrees(rpy[1]):.3f}, {np.degrees(rpy[2]):.3f}]}}\n"
+    )
+    folder = write_flange_dataset(tmp_path / "d", flange, poses, extra=guess)
+    result = handeye(relcal.load_dataset(folder))
+    he = result.delivered[0]
+    assert not he.undetermined and he.held
+    assert result.exported == "refined"
+    # the free direction sits at the guess (4 mm off the truth), with the guess's std
+    assert result.handeye[2, 3] == pytest.approx(X_TRUE[2, 3] + 0.004, abs=5e-4)
+    assert he.xyz_std[2] == pytest.approx(0.010, rel=0.2)
+    assert result.verdict.code == "collect more samples"
+
+
+def test_tiny_rotations_are_named_and_never_a_confident_number(tmp_path):
+    flange = flange_poses(20, seed=11, spread=np.radians(0.15))  # a few tenths of a degree
+    poses = camera_poses(flange, seed=12)
+    result = handeye(relcal.load_dataset(write_flange_dataset(tmp_path / "d", flange, poses)))
+    assert any("rotations too small" in f for f in result.findings)
+    he = result.delivered[0]
+    assert he.undetermined
+    assert result.exported is None and result.verdict.code == "do not deploy"
+
+
+# --- exports that load ---------------------------------------------------------------------------
+
+
+def _launch_transforms(text: str) -> dict[tuple[str, str], np.ndarray]:
+    """The transforms a launch file's static_transform_publisher nodes publish (parsed, not
+    run: ROS is not installed in the tests)."""
+    import ast
+
+    from scipy.spatial.transform import Rotation
+
+    out = {}
+    for node in ast.walk(ast.parse(text)):
+        if isinstance(node, ast.Call) and getattr(node.func, "id", None) == "Node":
+            kw = {k.arg: ast.literal_eval(k.value) for k in node.keywords}
+            assert kw["package"] == "tf2_ros"
+            assert kw["executable"] == "static_transform_publisher"
+            args = kw["arguments"]
+            value = dict(zip(args[::2], args[1::2], strict=True))
+            t = np.eye(4)
+            t[:3, 3] = [float(value[f"--{c}"]) for c in "xyz"]
+            q = [float(value[f"--q{c}"]) for c in "xyzw"]
+            t[:3, :3] = Rotation.from_quat(q).as_matrix()
+            out[(value["--frame-id"], value["--child-frame-id"])] = t
+    return out
+
+
+def _urdf_transforms(text: str) -> dict[tuple[str, str], np.ndarray]:
+    import xml.etree.ElementTree as ET
+
+    out = {}
+    for joint in ET.fromstring(text).iter("joint"):
+        origin = joint.find("origin")
+        xyz = np.array([float(v) for v in origin.get("xyz").split()])
+        rpy = np.array([float(v) for v in origin.get("rpy").split()])
+        key = (joint.find("parent").get("link"), joint.find("child").get("link"))
+        out[key] = tf.from_xyz_rpy(xyz, rpy)
+    return out
+
+
+@pytest.mark.parametrize("mode", ["eye_in_hand", "eye_to_hand", "robot_world"])
+def test_exports_load_back_to_the_same_transforms(tmp_path, mode):
+    import yaml
+    from yourdfpy import URDF
+
+    from relcal.cli import main
+
+    flange = flange_poses(12, seed=13)
+    folder = write_flange_dataset(tmp_path / "d", flange, camera_poses(flange, seed=14), mode=mode)
+    out = tmp_path / "out"
+    assert main(["handeye", str(folder), "--out", str(out), "--quiet", "--folds", "3"]) == 0
+    result = handeye(relcal.load_dataset(folder), folds=3)
+    want = {(d.parent, d.child): d.transform for d in result.delivered}
+    assert len(want) == (2 if mode == "robot_world" else 1)
+    launch = _launch_transforms((out / "handeye.launch.py").read_text())
+    urdf = _urdf_transforms((out / "handeye.urdf").read_text())
+    loaded = URDF.load(str(out / "handeye.urdf"))
+    data = yaml.safe_load((out / "handeye.yaml").read_text())
+    from scipy.spatial.transform import Rotation
+
+    for (parent, child), t in want.items():
+        assert np.abs(launch[(parent, child)] - t).max() < 1e-12
+        assert np.abs(urdf[(parent, child)] - t).max() < 1e-12
+        assert np.abs(loaded.get_transform(child, parent) - t).max() < 1e-12
+        entry = next(v for v in data.values() if isinstance(v, dict) and v.get("child") == child)
+        assert entry["parent"] == parent
+        rot = Rotation.from_quat(entry["quaternion"]).as_matrix()
+        assert np.abs(rot - t[:3, :3]).max() < 1e-12
+        assert (
+            np.abs(tf.from_xyz_rpy(np.array(entry["xyz"]), np.array(entry["rpy"])) - t).max()
+            < 1e-12
+        )
+    calib = yaml.safe_load((out / "handeye.calib").read_text())
+    first = result.delivered[0].transform
+    tr, rq = calib["transform"]["translation"], calib["transform"]["rotation"]
+    assert np.allclose([tr["x"], tr["y"], tr["z"]], first[:3, 3], atol=1e-12)
+    assert np.allclose(Rotation.from_quat([rq["x"], rq["y"], rq["z"], rq["w"]]).as_matrix(),
+                       first[:3, :3], atol=1e-12)  # fmt: skip
+    expected = "eye_on_base" if mode == "eye_to_hand" else "eye_in_hand"
+    assert calib["parameters"]["calibration_type"] == expected
+    doc = yaml.safe_load((out / "results.json").read_text())
+    assert doc["handeye"]["xyz_m"] == pytest.approx(list(tf.to_xyz_rpy(first)[0]), abs=1e-12)
+    assert ("world" in doc) and ((doc["world"] is not None) == (mode == "robot_world"))
+
+
+def test_command_refuses_bad_input_with_exit_2(tmp_path, capsys):
+    from relcal.cli import main
+
+    flange = flange_poses(8, seed=15)
+    folder = write_flange_dataset(tmp_path / "d", flange, camera_poses(flange, cov=None))
+    text = (folder / "samples.csv").read_text().splitlines()
+    cells = text[3].split(",")
+    cells[4] = "2.0"  # fqx: not a unit quaternion any more
+    text[3] = ",".join(cells)
+    (folder / "samples.csv").write_text("\n".join(text) + "\n")
+    assert main(["handeye", str(folder), "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert "line 4: fqx, fqy, fqz, fqw: expected a unit quaternion" in err
+    assert not (folder / "handeye").exists()
+
+
+# --- real data -----------------------------------------------------------------------------------
+
+
+def test_real_robot_world_laser_tracker_set():
+    """The IPA UR10's 25 flange poses and tracker poses (read as exported): the refined estimate
+    is not worse than the best closed form beyond doubt, and the probe sits about 93 mm along
+    the flange's z axis (the data set's description)."""
+    import pathlib
+
+    folder = pathlib.Path(__file__).parent.parent / "examples" / "ipa-ur10-handeye"
+    result = handeye(relcal.load_dataset(folder))
+    assert result.mode == "robot_world" and len(result.delivered) == 2
+    x = result.transform("handeye")
+    # along the x axis of the flange frame (ROS-Industrial's flange frame points x out of the
+    # flange, where tool0 points z)
+    assert x[:3, 3] == pytest.approx([0.093, 0.0, 0.0], abs=0.002)
+    val = result.validation
+    best = min((m for m in METHODS if np.isfinite(val.rms(m))), key=val.rms)
+    ratio = val.ratio(best)["position_mm"]
+    assert ratio["ci95"][0] <= 1.0

@@ -73,6 +73,9 @@ class FrameFit:
     held : tuple of str
         Frame directions (:data:`FRAME_NAMES`) held at the start because the data do not
         determine them.
+    null_space : (12, k) ndarray of float
+        Directions of the 12 perturbations the data do not determine at all (unit columns, SI):
+        what a held parameter stands for, a combination of ``X`` and ``W``.
     camera : object
         The camera intrinsics used (refined ones when refined), images only.
     """
@@ -87,6 +90,7 @@ class FrameFit:
     pixel_sigma: float | None = None
     held: tuple[str, ...] = ()
     camera: object = None
+    null_space: np.ndarray = field(default_factory=lambda: np.zeros((12, 0)))
     result: Result | None = field(default=None, repr=False, compare=False)
 
     @functools.cached_property
@@ -235,6 +239,8 @@ def fit_poses(
         noise=noise,
         held=tuple(FRAME_NAMES[i] for i in np.flatnonzero(held_mask)),
         result=result,
+        null_space=move
+        @ np.asarray(result.identifiability.null_space, dtype=float).reshape(12, -1),
     )
 
 
@@ -259,43 +265,6 @@ def _reparametrise(
         out[b : b + 3, b : b + 3] = tf.exp_rotation(p[3:]).T
         out[b + 3 : b + 6, b + 3 : b + 6] = tf.right_jacobian(p[3:])
     return out
-
-
-def transform_std(
-    transform: np.ndarray, covariance: np.ndarray, invert: bool = False
-) -> tuple[np.ndarray, np.ndarray]:
-    """Standard deviations of the ``xyz`` (m) and ``rpy`` (rad) of ``transform`` (or of its
-    inverse) given the covariance ``(6, 6)`` of its perturbation ``T exp(v)`` (NaN where not
-    determined)."""
-
-    def out(v: np.ndarray) -> np.ndarray:
-        t = transform @ tf.from_vector(v)
-        t = tf.invert(t) if invert else t
-        xyz, rpy = tf.to_xyz_rpy(t)
-        return np.r_[xyz, rpy]
-
-    step = 1e-7
-    jac = np.empty((6, 6))
-    ref = out(np.zeros(6))
-    for i in range(6):
-        d = np.zeros(6)
-        d[i] = step
-        diff = out(d) - out(-d)
-        diff[3:] = (diff[3:] + np.pi) % (2 * np.pi) - np.pi
-        jac[:, i] = diff / (2 * step)
-    del ref
-    nan = ~np.isfinite(np.diag(covariance))
-    cov = np.where(np.isfinite(covariance), covariance, 0.0)
-    var = np.einsum("ij,jk,ik->i", jac, cov, jac)
-    std = np.sqrt(np.maximum(var, 0.0))
-    touched = np.abs(jac[:, nan]).max(axis=1) > 1e-9 if nan.any() else np.zeros(6, dtype=bool)
-    std[touched] = np.nan
-    return std[:3], std[3:]
-
-
-def check_fit_inputs(flange: np.ndarray, measured: np.ndarray) -> None:
-    """Shapes agree (internal)."""
-    assert flange.shape == measured.shape and flange.shape[1:] == (4, 4)
 
 
 # --- images --------------------------------------------------------------------------------------
@@ -439,6 +408,10 @@ def fit_images(
     dof = max(len(r) - len(p), 1)
     sigma = float(np.sqrt(r @ r / dof))
     info = jac.T @ jac
+    scale_cols = np.sqrt(np.maximum(np.diag(info), 1e-300))
+    vals, vecs = np.linalg.eigh(info / np.outer(scale_cols, scale_cols))
+    null = vecs[:, vals < 1e-10 * vals.max()] / scale_cols[:, None]
+    null = null[:12] / np.maximum(np.linalg.norm(null[:12], axis=0), 1e-300)
     cov_all = sigma**2 * np.linalg.pinv(info, rcond=1e-12)
     x = handeye @ tf.from_vector(p[:6])
     w = world @ tf.from_vector(p[6:12])
@@ -465,6 +438,7 @@ def fit_images(
         stopped=converged,
         pixel_sigma=sigma,
         camera=used_camera,
+        null_space=move @ null,
     )
 
 

@@ -70,15 +70,16 @@ REFINED = "refined"
 class Delivered:
     """One transform the job delivers: ``key`` (``handeye``, ``world``), ``parent`` and ``child``
     frame names, ``transform`` ``(4, 4)`` (child in parent, m), standard deviations of ``xyz``
-    (m) and ``rpy`` (rad) (NaN where not determined), and the directions the data leave
-    undetermined, in words."""
+    (m) and of the rotation about the parent's x, y, z axes (``rotation_std``, rad; roll,
+    pitch and yaw themselves have no useful deviation near pitch = 90 deg) (NaN where not
+    determined), and the directions the data leave undetermined, in words."""
 
     key: str
     parent: str
     child: str
     transform: np.ndarray
     xyz_std: np.ndarray
-    rpy_std: np.ndarray
+    rotation_std: np.ndarray
     undetermined: tuple[str, ...] = ()
     held: tuple[str, ...] = ()
 
@@ -406,15 +407,26 @@ def deliver(
     out = []
     for key, parent, child, fn in _deliverables(mode, frames):
         t = fn(fit.handeye, fit.world)
-        j_rpy, j_par = _jacobians(fn, fit.handeye, fit.world)
-        std = np.sqrt(np.abs(np.diag(_propagate(j_rpy, fit.covariance))))
+        _, j_par = _jacobians(fn, fit.handeye, fit.world)
         par = _propagate(j_par, fit.covariance)
+        std = np.sqrt(np.abs(np.diag(par)))
         weak = []
         for block, unit, limit, what in (
             (slice(0, 3), 1e3, HOLD_MM, "translation"),
             (slice(3, 6), np.degrees(1.0), HOLD_DEG, "rotation"),
         ):
             sub = par[block, block]
+            free = j_par[block] @ fit.null_space  # how the deliverable moves along the null space
+            if free.size and np.abs(free).max() > 1e-6:
+                u, sv, _ = np.linalg.svd(free, full_matrices=False)
+                for e in u[:, sv > 1e-6 * max(sv.max(), 1e-300)].T:
+                    e = e * np.sign(e[np.argmax(np.abs(e))])
+                    about = "along" if what == "translation" else "about"
+                    weak.append(
+                        f"{what} of {parent} -> {child} {about} {_direction(e)} ({parent} frame):"
+                        " not determined at all by these data (it trades with the fixed frame's)"
+                    )
+                continue
             if not np.all(np.isfinite(sub)):
                 weak.append(f"{what} of {parent} -> {child}: not determined by these data")
                 continue
@@ -838,9 +850,12 @@ def _hold_at_guess(data: _Data, rows: np.ndarray, fit: FrameFit, guess: np.ndarr
     initial = np.r_[tf.to_vector(tf.invert(guess) @ fit.handeye), np.zeros(6)]
     from relcal.calibration.identifiability import analyse_problem
 
+    ident = analyse_problem(problem)  # with the prior rows, all 12 are determined
+    every = np.arange(problem.full_layout.size)
+    ident = replace(ident, subset=every, rank=len(every), identifiable=np.ones(len(every), bool))
     result = identify_lm(
         problem,
-        identifiability=analyse_problem(problem),
+        identifiability=ident,
         whiten=whiten,
         initial=initial,
         prior=prior,
@@ -918,7 +933,7 @@ def handeye_verdict(
     if not closed:
         return Verdict(
             "collect more samples" if n < MIN_JUDGED or held else "deploy",
-            f"held-out error {mine:.3g} {unit} on {n} samples; no closed form to compare with "
+            f"held-out error {mine:.3f} {unit} on {n} samples; no closed form to compare with "
             "(all failed)",
             None,
             None,
@@ -937,7 +952,7 @@ def handeye_verdict(
         span = f", 95% interval {times(interval[0])}..{times(interval[1])}"
     name = "the refined estimate" if ours == REFINED else TITLES[ours]
     compare = (
-        f"{name}: held-out {mine:.3g} {unit} RMS on {n} samples against {validation.rms(best):.3g}"
+        f"{name}: held-out {mine:.3f} {unit} RMS on {n} samples against {validation.rms(best):.3f}"
         f" {unit} for the best closed form ({TITLES[best]}){span}"
     )
     if ours != REFINED:

@@ -216,9 +216,10 @@ def handeye_record(
 ) -> dict[str, Any]:
     """The registry record of a hand-eye job (``relcal handeye``): a row of the calibrations
     table whose ``settings.job`` is ``handeye`` and whose parameters are the delivered
-    transform(s), ``handeye.x`` .. ``handeye.yaw`` (and ``world.*`` for robot-world) in m and rad
-    with their standard deviations; the held-out errors of the exported estimate (and, as the
-    baseline, of the best closed form) go where a calibration's go."""
+    transform(s), ``PARENT->CHILD.x`` .. ``.yaw`` (two transforms for robot-world) in m and rad
+    with their standard deviations (rotations: about the parent's axes); the held-out errors
+    of the exported estimate (and, as the baseline, of the best closed form) go where a
+    calibration's go."""
     import math
 
     from relcal import geometry as tf
@@ -227,14 +228,16 @@ def handeye_record(
     parameters = []
     for d in he.delivered:
         xyz, rpy = tf.to_xyz_rpy(d.transform)
-        stds = [*d.xyz_std, *d.rpy_std]
+        stds = [*d.xyz_std, *d.rotation_std]  # rotations: about the parent's axes
         for k, (c, v) in enumerate(zip(("x", "y", "z", "roll", "pitch", "yaw"), (*xyz, *rpy),
                                        strict=True)):  # fmt: skip
             sd = float(stds[k])
             known = math.isfinite(sd) and not d.undetermined
             parameters.append(
                 {
-                    "name": f"{d.key}.{c}",
+                    # named by the frames: never confused with a calibration's handeye.*
+                    # (corrections of a guess, not the transform itself)
+                    "name": f"{d.parent}->{d.child}.{c}",
                     "unit": "m" if k < 3 else "rad",
                     "value": float(v) if known else None,
                     "std": sd if known else None,

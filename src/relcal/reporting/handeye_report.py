@@ -41,14 +41,15 @@ def _nan_none(values) -> list[float | None]:
 
 
 def delivered_document(d: Delivered) -> dict:
-    """One delivered transform: frames, values, standard deviations (mm, deg; None where not
-    determined), what is undetermined or held."""
+    """One delivered transform: frames, values, standard deviations (``xyz_mm``; ``rotation_deg``
+    about the parent's x, y, z axes; None where not determined), what is undetermined or
+    held."""
     out = {"parent": d.parent, "child": d.child, **_frame(d.transform)}
     if d.undetermined:  # never a confident number: the values are not given
         out["xyz_m"] = out["rpy_deg"] = out["quaternion_xyzw"] = None
     out["std"] = {
         "xyz_mm": _nan_none(np.asarray(d.xyz_std) * 1e3),
-        "rpy_deg": _nan_none(np.degrees(d.rpy_std)),
+        "rotation_deg": _nan_none(np.degrees(d.rotation_std)),
     }
     out["undetermined"] = list(d.undetermined)
     out["held_at_guess"] = list(d.held)
@@ -193,9 +194,9 @@ def handeye_text(doc: dict, per_sample: bool = False) -> str:
                 + " ".join(_fmt(v) for v in std["xyz_mm"])
                 + "), rpy "
                 + " ".join(f"{v:.4f}" for v in d["rpy_deg"])
-                + " deg (std "
-                + " ".join(_fmt(v, ".4f") for v in std["rpy_deg"])
-                + ")"
+                + " deg; rotation std about x y z "
+                + " ".join(_fmt(v, ".4f") for v in std["rotation_deg"])
+                + " deg"
             )
         for u in d["undetermined"]:
             lines.append(f"  not determined: {u}")
@@ -288,7 +289,7 @@ def handeye_yaml(he: HandEye, doc: dict) -> str:
             "rpy": [float(v) for v in rpy],
             "std": {
                 "xyz_mm": _nan_none(np.asarray(d.xyz_std) * 1e3),
-                "rpy_deg": _nan_none(np.degrees(d.rpy_std)),
+                "rotation_deg": _nan_none(np.degrees(d.rotation_std)),
             },
         }
         if d.held:
@@ -428,14 +429,14 @@ def handeye_html(doc: dict) -> str:
                 " ".join(vals) if vals else "not determined",
                 " ".join(f"{v:.4f}" for v in d["rpy_deg"]) if d["rpy_deg"] else "not determined",
                 " ".join(_fmt(v) for v in d["std"]["xyz_mm"]),
-                " ".join(_fmt(v, ".4f") for v in d["std"]["rpy_deg"]),
+                " ".join(_fmt(v, ".4f") for v in d["std"]["rotation_deg"]),
             ]
         )
     sections.append(
         section(
             "transform",
             "Transform",
-            table(["frames", "xyz mm", "rpy deg", "std mm", "std deg"], rows),
+            table(["frames", "xyz mm", "rpy deg", "std mm", "rotation std deg"], rows),
             bullet_list(doc["findings"], "the motions determine every direction"),
         )
     )
