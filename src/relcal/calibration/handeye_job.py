@@ -224,6 +224,11 @@ class HandEye:
         flange poses``.
     settings : dict
         The options used.
+    frames : dict of str to str
+        The frame names of the exports (``base``, ``flange``, ``camera``, ``world``, ``marker``:
+        defaults, overridden by ``frames:`` of dataset.yaml).
+    camera : Camera or None
+        With images, the intrinsics used (refined ones when refined).
     """
 
     mode: str
@@ -262,7 +267,19 @@ class HandEye:
         )
 
     def transform(self, key: str = "handeye") -> np.ndarray:
-        """The delivered transform ``key`` (``handeye`` or, robot-world, ``world``), ``(4, 4)``."""
+        """A delivered transform.
+
+        Parameters
+        ----------
+        key : {"handeye", "world"}
+            ``handeye`` (eye-to-hand: the camera in the base frame), or for robot-world
+            ``world`` (the robot's base in the world frame).
+
+        Returns
+        -------
+        (4, 4) ndarray of float
+            The child frame in the parent frame, m.
+        """
         for d in self.delivered:
             if d.key == key:
                 return d.transform
@@ -708,8 +725,10 @@ def handeye(
     >>> w = tf.from_xyz_rpy(np.array([0.6, 0.1, -0.3]), np.radians([180, 0, 0]))
     >>> poses = w @ relcal.fk(model, q) @ x  # camera poses in the board frame, no noise
     >>> result = relcal.handeye(relcal.Dataset.from_arrays(model, q, poses), folds=4)
-    >>> np.round(result.transform("handeye")[:3, 3] * 1e3, 3)  # mm
-    array([ 0.,  50.,  80.])
+    >>> [round(float(v), 3) + 0.0 for v in result.transform("handeye")[:3, 3] * 1e3]  # mm
+    [0.0, 50.0, 80.0]
+    >>> result.verdict.code, result.exported
+    ('deploy', 'refined')
     """
     from relcal.data.imaging import measure
     from relcal.robot.kinematics import fk
