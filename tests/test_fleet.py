@@ -211,16 +211,17 @@ def test_fleet_report_renders_in_chromium(fleet_run, tmp_path):
     for e in doc["sessions"]:
         k = cells.index(e["session"])
         assert cells[k + 1] == e["robot_id"] and cells[k + 3] == e["status"]
+        assert cells[k + 4] == (e.get("held_out_metric") or "–")  # what the numbers measure
         if e["status"] == "ok":
-            assert float(cells[k + 4]) == pytest.approx(e["baseline_position_rms_mm"], abs=1e-3)
-            assert float(cells[k + 5]) == pytest.approx(e["calibrated_position_rms_mm"], abs=1e-3)
+            assert float(cells[k + 5]) == pytest.approx(e["baseline_position_rms_mm"], abs=1e-3)
+            assert float(cells[k + 6]) == pytest.approx(e["calibrated_position_rms_mm"], abs=1e-3)
         drift = e["drift"]
         if drift is None:
-            assert cells[k + 8] == "–"
+            assert cells[k + 9] == "–"
         elif drift["verdict"] == "drift":
-            assert cells[k + 8].startswith("drift: a[2]")
+            assert cells[k + 9].startswith("drift: a[2]")
         else:
-            assert cells[k + 8].startswith("agree")
+            assert cells[k + 9].startswith("agree")
     failed = next(e for e in doc["sessions"] if e["status"] == "failed")
     assert failed["reason"] in cells
     found, shot = check_rendering(report, tmp_path, plots)

@@ -30,7 +30,7 @@ from relcal.calibration.verify import FROZEN, Assessment, JointRanges, Verificat
 from relcal.data.dataset import Dataset
 from relcal.data.imaging import Measurements
 from relcal.data.importers import Imported
-from relcal.data.order import sample_digests
+from relcal.data.order import natural, sample_digests
 from relcal.design.criteria import Quality
 from relcal.design.observability import Report
 from relcal.design.plan import PlanResult
@@ -263,7 +263,7 @@ def validation_document(
     if isinstance(val, PlacementValidation):
         return placement_document(val, ids)
     doc: dict = {
-        "held_out": val.what,
+        "held_out": held_out_what(val),
         "n_pairs": len(val.pairs),
         "n_samples": len(np.unique(val.pairs)),
         "n_configurations": val.n_configurations,
@@ -291,10 +291,12 @@ def validation_document(
     for name, errors in models.items():
         columns[f"{name}_mm"] = norms(errors, slice(0, 3), 1e3)
         columns[f"{name}_deg"] = norms(errors, slice(3, 6), np.degrees(1.0))
-    doc["pairs"] = [
+    rows = [
         {"ids": [ids[i], ids[j]], **{key: col[k] for key, col in columns.items()}}
         for k, (i, j) in enumerate(val.pairs)
     ]
+    key = dict(zip(natural(ids), range(len(ids)), strict=True))  # ids as a person lists them
+    doc["pairs"] = sorted(rows, key=lambda r: (key[r["ids"][0]], key[r["ids"][1]]))
     return doc
 
 
@@ -377,11 +379,11 @@ def results_document(cal: Calibration) -> dict:
         "settings": cal.settings,
         "n_samples": len(cal.dataset.ids),
         "n_used": int(m.ok.sum()),
-        "train_ids": [cal.dataset.ids[i] for i in cal.train],
-        "held_out_ids": [cal.dataset.ids[i] for i in cal.test],
-        "outliers": list(cal.outliers),
+        "train_ids": natural(cal.dataset.ids[i] for i in cal.train),
+        "held_out_ids": natural(cal.dataset.ids[i] for i in cal.test),
+        "outliers": natural(cal.outliers),
         "held_out_outliers": (
-            [cal.dataset.ids[i] for i in cal.validation.outliers] if cal.validation else []
+            natural(cal.dataset.ids[i] for i in cal.validation.outliers) if cal.validation else []
         ),
         "rejected": [
             {"id": cal.dataset.ids[i], "reason": m.reasons[i]} for i in np.flatnonzero(~m.ok)
