@@ -441,7 +441,33 @@ def results_document(cal: Calibration) -> dict:
         "artifacts": artifacts_document(cal),
         "parameter_labels": parameter_labels(cal),
         "calibrated_model": model_to_dict(cal.model),
+        "nominal_robot": nominal_robot_document(cal.dataset.model),
         "joint_ranges": JointRanges.of(cal.dataset.model, cal.dataset.q[cal.train]).to_dict(),
+    }
+
+
+def nominal_robot_document(model: RobotModel) -> dict:
+    """The robot a calibration started from, as ``relcal compensate`` needs it to apply the
+    calibration without being told again: its ``name``, ``joint_names`` and joint ``types``, the
+    URDF ``chain`` (file as given, its SHA-256, ``root`` and ``tip`` links; None for a robot not
+    loaded from a URDF) and the nominal ``model`` itself (the model file's form, degrees)."""
+    chain = None
+    if model.urdf is not None:
+        u = model.urdf
+        chain = {
+            "urdf": str(u.path),
+            "urdf_sha256": hashlib.sha256(u.data).hexdigest(),
+            "robot_name": u.robot_name,
+            "root": u.root,
+            "tip": u.tip,
+            "parametrisation": u.parametrisation,
+        }
+    return {
+        "name": model.name,
+        "joint_names": list(model.joint_names),
+        "types": ["prismatic" if p else "revolute" for p in model.prismatic],
+        "chain": chain,
+        "model": model_to_dict(model),
     }
 
 
@@ -641,6 +667,18 @@ def travel_document(res: PlanResult, model: RobotModel) -> dict | None:
             "value": value,
         },
         "total_of_largest_joint_moves": res.route.total,
+        "max_move": res.route.max_move,
+        "moves_beyond_max_move": [
+            {
+                "joint": model.joint_names[j],
+                "from_pose": int(m) + 1,
+                "to_pose": int(m) + 2,
+                "value": float(res.route.moves[m, j]),
+            }
+            for m, j in res.route.over
+        ],
+        "exchanged_for_max_move": res.move_exchanges,
+        "added_for_max_move": max(0, len(res.q) - res.requested) if res.requested else 0,
     }
 
 

@@ -316,14 +316,39 @@ def _quality_row(label: str, q: Quality) -> str:
 def format_travel(res: PlanResult, model=None) -> str:
     """One line: the route's longest single joint move and the sum of the largest joint moves
     (``model`` names the joints and tells prismatic ones)."""
-    move, joint, value = res.route.longest
+    route = res.route
+    move, joint, value = route.longest
     prismatic = model is not None and bool(model.prismatic[joint])
     unit, f = ("m", 1.0) if prismatic else ("deg", np.degrees(1.0))
     name = model.joint_names[joint] if model is not None else f"q{joint + 1}"
-    return (
+    line = (
         f"travel order: longest single move {value * f:.1f} {unit} ({name}, pose {move + 1} to "
-        f"{move + 2}); largest joint moves add up to {res.route.total * np.degrees(1.0):.0f} deg"
+        f"{move + 2}); largest joint moves add up to {route.total * np.degrees(1.0):.0f} deg"
     )
+    if route.max_move is None:
+        return line
+    bound = f"{np.degrees(route.max_move):.0f} deg"
+    over = route.over
+    if len(over):
+        names = model.joint_names if model is not None else [f"q{j + 1}" for j in range(99)]
+        shown = ", ".join(
+            f"{names[j]} {np.degrees(route.moves[m, j]):.1f} deg (pose {m + 1} to {m + 2})"
+            for m, j in over[:3]
+        )
+        line += (
+            f"\nwarning: {len(over)} joint move(s) beyond the bound of {bound}: {shown}; more "
+            "candidates (--n-candidates) or a larger --max-move"
+        )
+    else:
+        line += f"; every joint move within {bound}"
+    notes = []
+    if res.move_exchanges:
+        notes.append(f"{res.move_exchanges} pose(s) exchanged")
+    if res.requested and len(res.q) > res.requested:
+        notes.append(f"{len(res.q) - res.requested} pose(s) added between poses")
+    if notes:
+        line += f" ({' and '.join(notes)} to keep the moves within {bound})"
+    return line
 
 
 def format_plan(res: PlanResult, length_scale: float, model=None) -> str:
