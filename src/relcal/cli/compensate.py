@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 import sys
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -359,8 +359,9 @@ def check_nominal(nominal, applied: Applied, given: str) -> None:
             )
 
 
-def gate_message(path, ids, comp, gate, bad, joint_unit, model) -> str:
-    """Why the targets ``bad`` are refused."""
+def gate_message(path, ids, comp, gate, bad, joint_unit, model, one: bool = False) -> str:
+    """Why the targets ``bad`` are refused: all of them (the model does not fit), or with
+    ``one`` the first alone (reached only on another branch)."""
     import numpy as np
 
     k = int(np.flatnonzero(bad)[0])
@@ -389,13 +390,19 @@ def gate_message(path, ids, comp, gate, bad, joint_unit, model) -> str:
         parts.append(
             f"and by {comp.predicted_rotation_deg[k]:.4g} deg (at most {gate.rotation_deg:.3g})"
         )
+    if one:
+        return (
+            f"{path}: target {ids[k]}: {'; '.join(parts)}: the calibrated arm reaches it only on "
+            "another branch of its inverse kinematics (near the edge of the workspace or a "
+            "joint limit); refused, no joints written for it"
+        )
     others = int(bad.sum()) - 1
     return (
         f"{path}: target {ids[k]}: {'; '.join(parts)}"
         + (f" ({others} more target(s) beyond the gate)" if others else "")
         + ": larger than this calibration can produce; nothing written. Likely another robot "
-        "or chain than the one calibrated (--nominal), or a target the inverse kinematics "
-        "reaches on another branch"
+        "or chain than the one calibrated (--nominal: its model, root and tip), or targets in "
+        "another unit or frame"
     )
 
 
@@ -447,20 +454,34 @@ def run(args: argparse.Namespace) -> int:
     check([File(p, b"", what) for p, what in ((args.out, "--out"), (args.json, "--json")) if p])
     comp = compensate(calibrated, poses, nominal=nominal, q_nominal=q_program)
 
-    gate = None
+    gate, refused = None, np.zeros(len(ids), dtype=bool)
     if nominal is not None:
         gate = correction_gate(calibrated, applied.reference or nominal)
         bad = implausible(comp, gate, calibrated)
-        if bad.any():
+        model_misfit = comp.predicted_position_mm > gate.position_mm
+        model_misfit |= comp.predicted_rotation_deg > gate.rotation_deg
+        if (bad & model_misfit).any():  # another robot or chain: nothing is written
             raise RelcalError(
-                gate_message(args.targets, ids, comp, gate, bad, joint_unit, calibrated)
+                gate_message(
+                    args.targets, ids, comp, gate, bad & model_misfit, joint_unit, calibrated
+                )
             )
+        refused = bad  # reached only on another branch: those targets get no joints
 
     q = joints_in_unit(calibrated, comp.q, joint_unit)
     dq = None
     if comp.q_nominal is not None:
         dq = q - joints_in_unit(calibrated, comp.q_nominal, joint_unit)
-    text = compensation_csv(ids, q, comp, dq)
+    status = [
+        "refused: beyond the gate (another branch)"
+        if refused[k]
+        else ("ok" if comp.converged[k] else "not reached")
+        for k in range(len(ids))
+    ]
+    if refused.any():
+        q[refused] = np.nan
+        comp = replace(comp, converged=comp.converged & ~refused)
+    text = compensation_csv(ids, q, comp, dq, status)
     failed = int((~comp.converged).sum())
     items = [File(args.out, text, "--out")] if args.out else []
     if args.json:
@@ -482,17 +503,26 @@ def run(args: argparse.Namespace) -> int:
                 "rotation_deg": gate.rotation_deg,
                 "n_samples": gate.n_samples,
             }
-        doc = {**inputs, **compensation_document(ids, q, comp, dq, units)}
+        doc = {**inputs, **compensation_document(ids, q, comp, dq, units, status)}
         items.append(File(args.json, json_text(doc), "--json"))
     write_set(*items)
     if not args.out:
         print(text, end="")
     if failed:  # the outputs mark them (converged False); the exit status tells
         if not args.quiet:
-            print(
-                f"relcal: {failed} target(s) not reached within joint limits (of {len(ids)})",
-                file=sys.stderr,
-            )
+            for k in np.flatnonzero(refused):
+                alone = np.arange(len(ids)) == k
+                text_k = gate_message(
+                    args.targets, ids, comp, gate, alone, joint_unit, calibrated, one=True
+                )
+                print(f"relcal: warning: {text_k}", file=sys.stderr)
+            unreached = failed - int(refused.sum())
+            if unreached:
+                print(
+                    f"relcal: {unreached} target(s) not reached within joint limits "
+                    f"(of {len(ids)})",
+                    file=sys.stderr,
+                )
         return 1
     cond = near_singular(calibrated, comp.q)
     if not args.quiet:

@@ -772,9 +772,10 @@ def compensation_document(
     comp: Compensation,
     dq: np.ndarray | None,
     units: list[str],
+    status: list[str] | None = None,
 ) -> dict:
     """The ``--json`` document: the CSV's content per target (joints in ``units``, one per
-    joint), and a summary. Non-finite numbers become null."""
+    joint; ``status`` why a target has none), and a summary. Non-finite numbers become null."""
 
     def number(v: float) -> float | None:
         return float(v) if np.isfinite(v) else None
@@ -786,15 +787,13 @@ def compensation_document(
             row["dq"] = [number(v) for v in dq[k]]
             row["predicted_position_mm"] = number(comp.predicted_position_mm[k])
             row["predicted_rotation_deg"] = number(comp.predicted_rotation_deg[k])
+        if status is not None:
+            row["status"] = status[k]
         targets.append(row)
-    return {
-        "joint_units": units,
-        "targets": targets,
-        "summary": {
-            "n_targets": len(ids),
-            "n_not_converged": int((~comp.converged).sum()),
-        },
-    }
+    summary = {"n_targets": len(ids), "n_not_converged": int((~comp.converged).sum())}
+    if status is not None:
+        summary["n_refused"] = sum(s.startswith("refused") for s in status)
+    return {"joint_units": units, "targets": targets, "summary": summary}
 
 
 def board_document(board: Board, path: Path, dpi: float) -> dict:

@@ -680,23 +680,36 @@ def verdict_lines(v: dict | None) -> list[str]:
 
 
 def compensation_csv(
-    ids: list[str], q: np.ndarray, comp: Compensation, dq: np.ndarray | None
+    ids: list[str],
+    q: np.ndarray,
+    comp: Compensation,
+    dq: np.ndarray | None,
+    status: list[str] | None = None,
 ) -> str:
-    """The output CSV: corrected joints ``q`` and corrections ``dq`` (display units) per id."""
+    """The output CSV: corrected joints ``q`` and corrections ``dq`` (display units) per id, and
+    with ``status`` a last column saying why a target has none (empty cells: not written)."""
+
+    def cell(v: float, digits: str) -> str:
+        return f"{v:{digits}}" if np.isfinite(v) else ""
+
     n = q.shape[1]
     header = ["id", *[f"q{i + 1}" for i in range(n)], "converged"]
     if dq is not None:
         header += [f"dq{i + 1}" for i in range(n)]
         header += ["predicted_position_mm", "predicted_rotation_deg"]
+    if status is not None:
+        header.append("status")
     lines = [",".join(header)]
     for k, sid in enumerate(ids):
-        cells = [sid, *[f"{v:.10g}" for v in q[k]], str(bool(comp.converged[k]))]
+        cells = [sid, *[cell(v, ".10g") for v in q[k]], str(bool(comp.converged[k]))]
         if dq is not None:
-            cells += [f"{v:.6g}" for v in dq[k]]
+            cells += [cell(v, ".6g") for v in dq[k]]
             cells += [
                 f"{comp.predicted_position_mm[k]:.6g}",
                 f"{comp.predicted_rotation_deg[k]:.6g}",
             ]
+        if status is not None:
+            cells.append(status[k])
         lines.append(",".join(cells))
     return "\n".join(lines) + "\n"
 
