@@ -128,6 +128,8 @@ def correction_gate(
     revolute = ~calibrated.prismatic
     lo = np.where(revolute, np.maximum(lo, np.maximum(calibrated.lower, -np.pi)), lo)
     hi = np.where(revolute, np.minimum(hi, np.minimum(calibrated.upper, np.pi)), hi)
+    lo = np.where(np.isfinite(lo), lo, -1.0)  # an unlimited prismatic joint: +-1 m
+    hi = np.where(np.isfinite(hi), hi, 1.0)
     lo, hi = np.minimum(lo, hi), np.maximum(lo, hi)
     rng = np.random.default_rng(seed)
     q = rng.uniform(lo, hi, (4 * n_samples, calibrated.n_joints))
