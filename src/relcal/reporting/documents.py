@@ -649,8 +649,9 @@ def plan_document(res: PlanResult, model: RobotModel) -> dict:
         "travel": travel_document(res, model),
         "plan": one(res.plan),
         "random": [one(r) for r in res.random],
-        "random_median_worst_m": res.random_median_worst,
-        "improvement": res.improvement,
+        # no random sets (random_sets=0): nothing to compare with, null rather than NaN
+        "random_median_worst_m": res.random_median_worst if res.random else None,
+        "improvement": res.improvement if res.random else None,
     }
 
 
