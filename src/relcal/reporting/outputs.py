@@ -163,7 +163,7 @@ def write_calibration(
     >>> cal = relcal.calibrate(relcal.load_dataset("examples/tiago-pro-poses"), nongeometric="none")
     >>> files = relcal.write_calibration(cal, tempfile.mkdtemp() + "/cal")
     >>> sorted(path.name for path in files)[:3]
-    ['model.yaml', 'origin_corrections.yaml', 'parameters.csv']
+    ['calibrated.launch.py', 'model.yaml', 'origin_corrections.yaml']
     """
     check_instance(cal, Calibration, "cal", "a Calibration (what relcal.calibrate returned)")
     check_path(out_dir, "out_dir", "the output folder")
