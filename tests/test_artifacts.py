@@ -222,6 +222,7 @@ def test_a_refused_file_is_not_written(tiago):
     cal.__dict__["artifacts"] = refused  # the cached property, as a refusal would leave it
     files = calibration_files(cal, results_document(cal), "run")
     assert "robot.urdf" not in files and "model.yaml" in files
+    assert "ros2/calibrated.launch.py" not in files  # no overlay without its URDF
     assert files["model.yaml"].startswith(b"# relcal run run\n")
 
 

@@ -38,12 +38,15 @@ def register_all(sub: argparse._SubParsersAction) -> None:
         importlib.import_module(f"relcal.cli.{name}").register(sub)
 
 
-def robot_args(parser: argparse.ArgumentParser) -> None:
-    """``--robot`` and ``--hayati``, shared by every command that takes a robot model."""
+def robot_args(
+    parser: argparse.ArgumentParser, default: str | None = "a465", help: str | None = None
+) -> None:
+    """``--robot`` and ``--hayati``, shared by every command that takes a robot model
+    (``default`` None: the command finds the robot elsewhere, ``help`` says where)."""
     parser.add_argument(
         "--robot",
-        default="a465",
-        help="built-in robot name, model YAML path or URDF file (.urdf) (default a465)",
+        default=default,
+        help=help or "built-in robot name, model YAML path or URDF file (.urdf) (default a465)",
     )
     parser.add_argument(
         "--root",
