@@ -47,6 +47,7 @@ def test_a_record_holds_what_the_calibration_found(calibrated, tmp_path):
     chosen = cal.selection[cal.chosen].candidate
     settings = {**cal.settings, "chosen_model": chosen.name, "joint_ranges": doc["joint_ranges"]}
     settings["verdict"] = doc["verdict"]["code"]
+    settings["held_out_metric"] = doc["held_out_metric"]
     settings["parameter_labels"] = {}  # a YAML robot: its joints are numbered
     settings["artifacts"] = [
         {
