@@ -29,13 +29,19 @@ calls before identifying and before anything is written.
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy.spatial.transform import Rotation
 
 from relcal import geometry as tf
-from relcal.calibration.handeye import align_rotations, rotation_vectors
+from relcal.calibration.handeye import (
+    LEVER,
+    PURE_TRANSLATION,
+    align_rotations,
+    handeye_rotation,
+    rotation_vectors,
+)
 from relcal.calibration.noise import robust_scale
 from relcal.errors import RelcalError
 from relcal.geometry import relative
@@ -43,6 +49,12 @@ from relcal.geometry import relative
 MAX_PAIRS = 2000  # pairs used by the checks (all pairs up to 63 samples)
 RATIO = 3.0  # an alternative reading that fits the rotations this much better is named
 SURE_AXIS = np.radians(150)  # relative rotations below this angle have a sure axis
+SAME_CONFIGURATION = np.radians(0.05)  # rad (a prismatic joint: 0.05 mm): joints this close are
+# one configuration recorded again: such a pair is repeatability data, no motion to compare
+MIN_PAIRS = 6  # pairs that carry a motion, fewer: the check cannot tell
+# Measured over modelled translations that a reading may need and still be offered as the fix:
+# the same unit, or millimetres for metres either way (the scale check then names it).
+PLAUSIBLE_SCALES = ((0.5, 2.0), (500.0, 2000.0), (0.0005, 0.002))
 
 
 @dataclass(frozen=True)
@@ -121,6 +133,8 @@ class Scale:
     determined: bool
     handeye_translation: np.ndarray | None = None  # (3,) t_X of the fit, m
     residual: float = float("nan")  # RMS of the fit's translation rows, m
+    translation_known: bool = True  # the pairs turn enough about every axis to fix t_X
+    rotation_misfit: float = float("nan")  # median over the pairs that turn, rad (check_inputs)
 
 
 def translation_scale(
@@ -166,7 +180,11 @@ def translation_scale(
     s_std = np.sqrt(sigma2 * np.linalg.inv(normal)[3, 3]) / col[3]
     s = float(sol[3])
     rel = float(s_std / abs(s))
-    return Scale(1.0 / s, rel, bool(rel < 0.01 and s > 0), sol[:3], typical)
+    # t_X is fixed only by pairs that turn about every axis: the weakest direction of the
+    # stacked R_A - I turns by at least PURE_TRANSLATION (rms over the pairs kept)
+    weakest = np.linalg.svd(rows[:, :3], compute_uv=False)[-1] / np.sqrt(max(len(rows) // 3, 1))
+    known = bool(weakest > 2 * np.sin(PURE_TRANSLATION / 2))
+    return Scale(1.0 / s, rel, bool(rel < 0.01 and s > 0), sol[:3], typical, known)
 
 
 def reorder_w_first(poses: np.ndarray) -> np.ndarray:
@@ -459,9 +477,25 @@ def pose_readings(
 @dataclass(frozen=True)
 class _Fit:
     label: str
-    misfit: float  # median relative-rotation misfit, rad
-    translation: float  # median relative-translation misfit after the best hand-eye, m (inf
-    # when the rotations do not fit)
+    misfit: float  # median relative-rotation misfit over the pairs that turn, rad (NaN: too few
+    # pairs turn to tell)
+    translation: float  # median relative-translation misfit after the best hand-eye, m, over
+    # the pairs that move (inf when the rotations do not fit, NaN when R_X is not determined)
+    ratio: float = float("nan")  # measured over modelled translations (NaN: not determined)
+
+    def fits(self, tolerances: Tolerances) -> bool:
+        """Rotations and translations within the tolerances (what cannot be told passes), with
+        a translation scale a reading may need (:data:`PLAUSIBLE_SCALES`): a reading that fits
+        only by shrinking every commanded motion (degrees read as radians on data that barely
+        turn) is not a fit, and following it would not be safe."""
+        ok_scale = not np.isfinite(self.ratio) or any(
+            lo <= self.ratio <= hi for lo, hi in PLAUSIBLE_SCALES
+        )
+        return (
+            not self.misfit > tolerances.rotation
+            and not self.translation > tolerances.translation
+            and ok_scale
+        )
 
 
 def _pair_angles(commanded: np.ndarray, measured: np.ndarray, rx: np.ndarray) -> np.ndarray:
@@ -476,6 +510,8 @@ def _wrong_samples(pairs: np.ndarray, values: np.ndarray, threshold: float = 5.0
     pairs, a robust z-score above ``threshold``), at most a quarter of them."""
     from relcal.calibration.measurement import per_sample_median
 
+    if not len(pairs):
+        return np.zeros(0, dtype=int)
     score = per_sample_median(values, pairs)
     seen = np.isfinite(score)
     centre = np.median(score[seen])
@@ -511,12 +547,60 @@ def _motions(poses: np.ndarray, pairs: np.ndarray) -> _Motions:
     return _Motions(rel, rotvecs, np.linalg.norm(rotvecs, axis=1))
 
 
+def moving_pairs(
+    q: np.ndarray, pairs: np.ndarray, prismatic: np.ndarray | None = None
+) -> np.ndarray:
+    """Which pairs ``(P,)`` join two different configurations: some joint differs by more than
+    :data:`SAME_CONFIGURATION` (rad; a thousandth of it in m for the ``prismatic`` joints). A
+    pair of one configuration recorded twice carries the robot's repeatability and the
+    instrument's noise, no motion: it says nothing of units, conventions or the hand-eye
+    transform."""
+    q = np.asarray(q, dtype=float)
+    slide = np.zeros(q.shape[1], dtype=bool) if prismatic is None else np.asarray(prismatic)
+    same = np.where(slide, SAME_CONFIGURATION * 1e-3, SAME_CONFIGURATION)
+    return np.any(np.abs(q[pairs[:, 0]] - q[pairs[:, 1]]) > same, axis=1)
+
+
+def turning_pairs(
+    flange: _Motions, measured: _Motions, moving: np.ndarray, tolerance
+) -> np.ndarray:
+    """Which pairs can show a rotation misfit above ``tolerance`` (rad): the misfit of a pair is
+    at most the sum of its two rotation angles (the angle between rotations is a metric), so
+    pairs that turn less together tell nothing (a cube of ISO 9283 keeps one orientation)."""
+    return moving & (flange.angles + measured.angles > tolerance)
+
+
+def _rotation(
+    flange: _Motions, measured: _Motions, turning: np.ndarray, moving: np.ndarray
+) -> tuple[np.ndarray, bool]:
+    """:func:`handeye.handeye_rotation` of one reading: the rotation vectors of the pairs that
+    turn, the translations of the pairs that move without turning."""
+    still = moving & (flange.angles < PURE_TRANSLATION) & (measured.angles < PURE_TRANSLATION)
+    rotvecs = (flange.rotvecs, measured.rotvecs)
+    return handeye_rotation(flange.transforms, measured.transforms, turning, still, rotvecs)
+
+
+def _refine_rotation(
+    flange: _Motions, measured: _Motions, turning: np.ndarray, moving: np.ndarray, scale: Scale
+) -> np.ndarray:
+    """``R_X`` refitted with every moving pair's translation, ``t_X`` and ``s`` of ``scale``:
+    ``(R_A - I) t_X + t_A = s R_X t_B``, beside the rotation vectors of the pairs that turn."""
+    a_rel, b_rel = flange.transforms[moving], measured.transforms[moving]
+    lhs = np.einsum("pij,j->pi", a_rel[:, :3, :3] - np.eye(3), scale.handeye_translation)
+    lhs = lhs + a_rel[:, :3, 3]
+    rhs = b_rel[:, :3, 3] / scale.ratio
+    a = np.concatenate([flange.rotvecs[turning] * LEVER, lhs])
+    b = np.concatenate([measured.rotvecs[turning] * LEVER, rhs])
+    return tf.kabsch(a, b)
+
+
 def _misfit_rank(pairs: np.ndarray) -> int:
-    """``k`` (from 1) such that the rotation misfit :func:`_evaluate` finds on ``pairs`` is at
-    least the ``k``-th smallest of any per-pair lower bounds of the pairs' angles: the median
-    over the pairs it keeps, at least ``max(6, P - the pairs of the quarter of the samples with
-    the most pairs)`` of them (the samples left out are at most a quarter of those seen, and
-    only when 10 pairs or more), is at least the ``ceil(kept / 2)``-th smallest bound."""
+    """``k`` (from 1) such that the rotation misfit :func:`_evaluate` finds on ``pairs`` (the
+    pairs that turn) is at least the ``k``-th smallest of any per-pair lower bounds of the
+    pairs' angles: the median over the pairs it keeps, at least ``max(6, P - the pairs of the
+    quarter of the samples with the most pairs)`` of them (the samples left out are at most a
+    quarter of those seen, and only when 10 pairs or more), is at least the ``ceil(kept /
+    2)``-th smallest bound."""
     n_pairs = len(pairs)
     kept = n_pairs
     if n_pairs >= 10:
@@ -529,53 +613,91 @@ def _misfit_rank(pairs: np.ndarray) -> int:
 MISFIT_MARGIN = 1e-6  # rad: round-off of the computed angles, far below any tolerance
 
 
-def _surely_misfit(flange: _Motions, measured: _Motions, rank: int, tolerance: float) -> bool:
+def _surely_misfit(
+    flange: _Motions, measured: _Motions, pairs: np.ndarray, moving: np.ndarray, tolerance: float
+) -> bool:
     """Whether a reading's rotation misfit (:func:`_evaluate`) is surely above ``tolerance``
     without finding ``R_X``: the angle of ``R_A^T R_X R_B R_X^T`` is at least the difference
     of the two motions' rotation angles whatever ``R_X`` (the angle between rotations is a
-    metric, and conjugation keeps an angle), so the misfit is at least the ``rank``-th smallest
-    difference (:func:`_misfit_rank`)."""
-    floor = np.abs(flange.angles - measured.angles)
+    metric, and conjugation keeps an angle), so the misfit over the pairs that turn is at least
+    the ``rank``-th smallest difference among them (:func:`_misfit_rank`)."""
+    turning = turning_pairs(flange, measured, moving, tolerance)
+    if turning.sum() < MIN_PAIRS:
+        return False
+    floor = np.abs(flange.angles - measured.angles)[turning]
+    rank = _misfit_rank(pairs[turning])
     if not 1 <= rank <= len(floor):
         return False
     return bool(np.partition(floor, rank - 1)[rank - 1] > tolerance + MISFIT_MARGIN)
 
 
-def _evaluate(label, flange: _Motions, measured: _Motions, pairs, tolerance) -> _Evaluation:
-    """How well one reading fits: rotations (median over the pairs), then translations after
-    the best hand-eye transform; the samples that misfit far more than the rest (a few wrong
-    rows) are left out and the fit repeated, so that they do not pass for a wrong reading of
-    all samples. ``R_X`` as :func:`handeye.align_rotations` finds it, from the rotation
-    vectors."""
+def _evaluate(
+    label, flange: _Motions, measured: _Motions, pairs, tolerance, moving=None
+) -> _Evaluation:
+    """How well one reading fits: rotations (median over the pairs that turn:
+    :func:`turning_pairs`), then translations after the best hand-eye transform (median over
+    the pairs that move: :func:`moving_pairs`, default all); the samples that misfit far more
+    than the rest (a few wrong rows) are left out and the fit repeated, so that they do not pass
+    for a wrong reading of all samples. ``R_X`` from rotations and translations
+    (:func:`handeye.handeye_rotation`), refined with ``t_X`` and the scale."""
+    moving = np.ones(len(pairs), dtype=bool) if moving is None else moving
+    turning = turning_pairs(flange, measured, moving, tolerance)
+    rx, known = _rotation(flange, measured, turning, moving)
     a, b = flange.transforms, measured.transforms
-    rx = tf.kabsch(flange.rotvecs, measured.rotvecs)
-    angles = _pair_angles(a, b, rx)
-    wrong = _wrong_samples(pairs, angles) if len(pairs) >= 10 else np.zeros(0, dtype=int)
-    if wrong.size:
-        keep = ~np.isin(pairs, wrong).any(axis=1)
-        if keep.sum() >= 6:
-            a, b, pairs = a[keep], b[keep], pairs[keep]
-            rx = tf.kabsch(flange.rotvecs[keep], measured.rotvecs[keep])
-            angles = _pair_angles(a, b, rx)
-        else:
-            wrong = np.zeros(0, dtype=int)
-    misfit = float(np.median(angles))
+    wrong = np.zeros(0, dtype=int)
+    misfit = float("nan")
+    if turning.sum() >= MIN_PAIRS:
+        angles = _pair_angles(a[turning], b[turning], rx)
+        if turning.sum() >= 10:
+            wrong = _wrong_samples(pairs[turning], angles)
+        if wrong.size:
+            kept = turning & ~np.isin(pairs, wrong).any(axis=1)
+            if kept.sum() >= MIN_PAIRS:
+                turning = kept
+                moving = moving & ~np.isin(pairs, wrong).any(axis=1)
+                rx, known = _rotation(flange, measured, turning, moving)
+                angles = _pair_angles(a[turning], b[turning], rx)
+            else:
+                wrong = np.zeros(0, dtype=int)
+        misfit = float(np.median(angles))
     if misfit > tolerance:
         return _Evaluation(_Fit(label, misfit, np.inf), rx, None, wrong)
-    scale = translation_scale(a, b, rx)
-    if len(pairs) >= 10 and scale.handeye_translation is not None and np.isfinite(scale.ratio):
+    if not known or moving.sum() < MIN_PAIRS:
+        return _Evaluation(_Fit(label, misfit, float("nan")), rx, None, wrong)
+    scale = translation_scale(a[moving], b[moving], rx)
+    for _ in range(3):  # R_X with the translations of every moving pair, t_X and s with it
+        if scale.handeye_translation is None or not np.isfinite(scale.ratio) or scale.ratio <= 0:
+            break
+        rx = _refine_rotation(flange, measured, turning, moving, scale)
+        scale = translation_scale(a[moving], b[moving], rx)
+    if turning.sum() >= MIN_PAIRS:
+        misfit = float(np.median(_pair_angles(a[turning], b[turning], rx)))
+    if moving.sum() >= 10 and scale.handeye_translation is not None and np.isfinite(scale.ratio):
         sol = np.concatenate([scale.handeye_translation, [1.0 / scale.ratio]])
+        am, bm = a[moving], b[moving]
         m = np.concatenate(
-            [a[:, :3, :3] - np.eye(3), -np.einsum("ij,pj->pi", rx, b[:, :3, 3])[:, :, None]],
+            [am[:, :3, :3] - np.eye(3), -np.einsum("ij,pj->pi", rx, bm[:, :3, 3])[:, :, None]],
             axis=2,
         )
-        norms = np.linalg.norm(np.einsum("pij,j->pi", m, sol) + a[:, :3, 3], axis=1)
-        more = _wrong_samples(pairs, norms)
-        keep = ~np.isin(pairs, more).any(axis=1)
-        if more.size and keep.sum() >= 6:
+        norms = np.linalg.norm(np.einsum("pij,j->pi", m, sol) + am[:, :3, 3], axis=1)
+        more = _wrong_samples(pairs[moving], norms)
+        keep = moving & ~np.isin(pairs, more).any(axis=1)
+        if more.size and keep.sum() >= MIN_PAIRS:
             scale = translation_scale(a[keep], b[keep], rx)
             wrong = np.union1d(wrong, more)
-    return _Evaluation(_Fit(label, misfit, scale.residual), rx, scale, wrong)
+    ratio = scale.ratio if scale.determined else float("nan")
+    return _Evaluation(_Fit(label, misfit, scale.residual, ratio), rx, scale, wrong)
+
+
+def _deg(angle: float, digits: int = 2) -> str:
+    """A misfit angle (rad) for a message, or what it means when the data cannot tell."""
+    if not np.isfinite(angle):
+        return "(too few pairs turn to compare)"
+    return f"{np.degrees(angle):.{digits}f} deg"
+
+
+def _key(value: float) -> float:
+    return value if np.isfinite(value) else np.inf
 
 
 def diagnose_readings(
@@ -587,32 +709,38 @@ def diagnose_readings(
     tolerances: Tolerances,
     pairs: np.ndarray,
     given_valid: bool = True,
+    moving: np.ndarray | None = None,
 ) -> tuple[str | None, _Evaluation | None]:
     """``None`` and the evaluation of the data as given (``R_X``, the scale found, the samples
     whose pairs misfit far more than the others') when they agree with the model; else a message
     naming the reading that fits (an alternative of the joints, of the poses, or one of each),
     or saying by how much nothing does.
 
-    The rotations decide first (their agreement does not depend on the hand-eye transform); the
-    translations (after the best hand-eye transform and scale, median over the pairs, robust to
-    a few wrong samples) decide between readings the rotations cannot tell apart: two parallel
-    joints swapped turn the flange alike and move it differently. A reading is named only when
-    it fits 3 times better than the data as given; ``given_valid`` False (readings beyond the
-    joint limits) lets any reading that fits be named."""
+    Only motions that carry information count: the rotations over the pairs that turn
+    (:func:`turning_pairs`), the translations over the pairs that move (``moving``, default
+    all: :func:`moving_pairs` leaves out a configuration recorded again). The rotations decide
+    first (their agreement does not depend on the hand-eye transform); the translations (after
+    the best hand-eye transform and scale, median over the pairs, robust to a few wrong samples)
+    decide between readings the rotations cannot tell apart: two parallel joints swapped turn
+    the flange alike and move it differently. A reading is named only when it fits (both within
+    the tolerances, with a plausible scale: :meth:`_Fit.fits`) and 3 times better than the data
+    as given; ``given_valid`` False (readings beyond the joint limits) lets any reading that
+    fits be named. What the data cannot tell (too few pairs turn, ``R_X`` not determined) is
+    never a reason to refuse."""
     tol, tol_t = tolerances.rotation, tolerances.translation
+    moving = np.ones(len(pairs), dtype=bool) if moving is None else np.asarray(moving, bool)
     flange = fk(q) if given_valid else None
     evaluation = None
     given_motions = _motions(poses, pairs)
     if flange is not None:
-        evaluation = _evaluate("", _motions(flange, pairs), given_motions, pairs, tol)
+        evaluation = _evaluate("", _motions(flange, pairs), given_motions, pairs, tol, moving)
         given = evaluation.fit
-        if given.misfit <= tol / 5 and given.translation <= tol_t / 2:
-            return None, evaluation  # the right data: nothing else to try
+        if not given.misfit > tol / 5 and not given.translation > tol_t / 2:
+            return None, evaluation  # the right data (or data that cannot tell): nothing to try
     else:
         given = _Fit("", np.inf, np.inf)
     fits: list[_Fit] = []
     reads: dict = {None: given_motions}  # each reading's motions, computed once
-    rank = _misfit_rank(pairs)
     for jr in [None, *joints]:
         flange_jr = flange if jr is None else fk(jr.joints(q))
         if flange_jr is None:
@@ -627,30 +755,32 @@ def diagnose_readings(
             if pr not in reads:
                 reads[pr] = _motions(pr.poses(poses), pairs)  # type: ignore[union-attr]
             moved = moved or _motions(flange_jr, pairs)
-            if _surely_misfit(moved, reads[pr], rank, tol):
+            if _surely_misfit(moved, reads[pr], pairs, moving, tol):
                 continue  # its rotations do not fit: not a reading that fits, never named
-            fits.append(_evaluate(label, moved, reads[pr], pairs, tol).fit)
-    fitting = [f for f in fits if f.misfit <= tol]
-    best = min(fitting, key=lambda f: (f.translation, f.misfit), default=None)
+            fits.append(_evaluate(label, moved, reads[pr], pairs, tol, moving).fit)
+    fitting = [f for f in fits if f.fits(tolerances)]
+    best = min(fitting, key=lambda f: (_key(f.translation), _key(f.misfit)), default=None)
     if best is not None:
-        if given.misfit > tol:
-            better = best.misfit < given.misfit / RATIO
+        if given.misfit > tol:  # (a reading whose pairs barely turn fits in rotation)
+            better = not best.misfit >= given.misfit / RATIO
         else:  # the rotations agree as given: the translations must be 3x better, or the
             # rotations 3x better with translations as good
             better = best.translation < given.translation / RATIO or (
                 best.misfit < given.misfit / RATIO and best.translation <= given.translation
             )
         if better:
-            alike = [f.label for f in fitting if f.translation <= 1.5 * best.translation + 1e-6]
+            alike = [
+                f.label for f in fitting if _key(f.translation) <= 1.5 * best.translation + 1e-6
+            ] or [best.label]
             alike = sorted(alike, key=lambda label: label.count(" and "))[:3]
             return (
                 f"{' or '.join(alike)}: read that way the relative rotations agree with the "
-                f"commanded ones to {np.degrees(best.misfit):.2f} deg and the relative "
-                f"translations to {best.translation * 1e3:.3g} mm (median); as given "
+                f"commanded ones to {_deg(best.misfit)} and the relative translations to "
+                f"{best.translation * 1e3:.3g} mm (median); as given "
                 + (
                     "some joint readings are beyond their limits"
                     if not given_valid
-                    else f"they disagree by {np.degrees(given.misfit):.1f} deg and "
+                    else f"they disagree by {_deg(given.misfit, 1)} and "
                     + (
                         f"{given.translation * 1e3:.3g} mm"
                         if np.isfinite(given.translation)
@@ -662,14 +792,15 @@ def diagnose_readings(
     if not given_valid:
         return None, None  # the caller names the readings beyond the limits
     if given.misfit > tol:
-        a, b = relative(flange, pairs), relative(poses, pairs)
+        turning = turning_pairs(_motions(flange, pairs), given_motions, moving, tol)
+        a, b = relative(flange, pairs[turning]), relative(poses, pairs[turning])
         return (
             f"measured relative rotations disagree with the commanded ones by a median "
-            f"{np.degrees(given.misfit):.1f} deg (their rotation angles alone by "
-            f"{np.degrees(angle_misfit(a, b)):.1f} deg; expected < {np.degrees(tol):.1f} deg for "
-            "any hand-eye transform), and no other reading of the columns (joint order, signs "
-            "and unit; quaternion order; pose direction) fits. Check the robot model, and "
-            "whether these samples belong to this robot",
+            f"{np.degrees(given.misfit):.1f} deg over the {turning.sum()} pairs that turn (their "
+            f"rotation angles alone by {np.degrees(angle_misfit(a, b)):.1f} deg; expected < "
+            f"{np.degrees(tol):.1f} deg for any hand-eye transform), and no other reading of the "
+            "columns (joint order, signs and unit; quaternion order; pose direction) fits. Check "
+            "the robot model, and whether these samples belong to this robot",
             evaluation,
         )
     if given.translation > tol_t:
@@ -677,7 +808,7 @@ def diagnose_readings(
             f"measured relative translations disagree with the commanded ones by a median "
             f"{given.translation * 1e3:.4g} mm after the best hand-eye transform (expected < "
             f"{tol_t * 1e3:.3g} mm, translation_mm in dataset.yaml tolerances), while the "
-            f"rotations agree to {np.degrees(given.misfit):.2f} deg, and no other reading of "
+            f"rotations agree to {_deg(given.misfit)}, and no other reading of "
             "the columns fits. Check the x, y, z columns (order, signs), the robot model's "
             "link lengths, and whether the poses are of the flange-mounted camera",
             evaluation,
@@ -729,29 +860,31 @@ def check_inputs(
             "flange: looks like millimetres (give metres)"
         )
     pairs = check_pairs(len(q))
+    moving = moving_pairs(q, pairs, model.prismatic)
     joints = joint_readings(model, q, tolerances.joint_limit, joint_unit)
     measured = pose_readings(mode, poses_given, pose_angle_unit)
     few = bool(problems) and all("a mistyped reading" in p for p in problems)
     message, given = diagnose_readings(
-        q, poses, fk, joints, measured, tolerances, pairs, given_valid=not problems or few
+        q, poses, fk, joints, measured, tolerances, pairs, not problems or few, moving
     )
     if message and not (problems and few):
         raise RelcalError(f"{where}: {message}")
     if problems:
         raise RelcalError(f"{where}: " + "\n".join(problems))
     rx, scale = given.rx, given.scale  # type: ignore[union-attr]
+    misfit = given.fit.misfit  # type: ignore[union-attr]
     if scale is None or not scale.determined:
-        return scale or Scale(float("nan"), float("inf"), False)
-    if not scale.determined:
-        return scale
+        scale = scale or Scale(float("nan"), float("inf"), False)
+        return replace(scale, rotation_misfit=misfit)
     off = scale.ratio - 1.0
     if abs(off) > tolerances.scale and abs(off) > 3 * scale.std * scale.ratio:
         raise RelcalError(f"{where}: {scale_message(scale.ratio, board, poses_given)}")
     if handeye is not None:
-        message = guess_problem(handeye, rx, scale.handeye_translation)
+        tx = scale.handeye_translation if scale.translation_known else None
+        message = guess_problem(handeye, rx, tx)
         if message:
             raise RelcalError(f"{spec}: {message}")
-    return scale
+    return replace(scale, rotation_misfit=misfit)
 
 
 def guess_problem(
@@ -886,9 +1019,9 @@ def check_dataset(dataset, measurements) -> dict:
         joint_unit=getattr(dataset, "joint_unit", None),
         pose_angle_unit=getattr(dataset, "pose_angle_unit", None),
     )
-    pairs = check_pairs(len(usable))
-    misfit, _ = rotation_misfit(relative(fk(dataset.model, q), pairs), relative(poses, pairs))
-    out: dict = {"rotation_misfit_deg": float(np.degrees(misfit))}
+    out: dict = {}
+    if np.isfinite(scale.rotation_misfit):  # over the pairs that turn
+        out["rotation_misfit_deg"] = float(np.degrees(scale.rotation_misfit))
     if scale.determined:
         out["translation_scale"] = float(scale.ratio)
         out["translation_scale_std"] = float(scale.std * scale.ratio)
@@ -898,20 +1031,21 @@ def check_dataset(dataset, measurements) -> dict:
 
 
 def check_result(dataset, problem, result, what: str | None = None) -> None:
-    """:func:`check_corrections` on an identification result (``problem.full_layout`` order).
-    Hand-eye corrections count only when the start was estimated from the data: a guess given in
-    dataset.yaml may be rough (its plausibility is checked against the data beforehand). The
-    nuisance frames of the other kinds (a tracker's instrument transform and marker, a
-    coincidence's tool point and group points) are free by design and never checked. With
-    ``what`` (how the samples are called, e.g. ``points``), refused corrections below 3 standard
-    deviations are named as not determined by the data."""
+    """:func:`check_corrections` on an identification result (``problem.full_layout`` order):
+    the kinematic corrections. The measurement frames are free: a tracker's instrument transform
+    and marker, a coincidence's tool point and group points, a board transform, and the hand-eye
+    transform, whether its start was given (a guess in dataset.yaml may be rough; its
+    plausibility is checked against the data beforehand, :func:`guess_problem`) or estimated
+    from the data (:func:`~relcal.calibration.handeye.solve_handeye` with the nominal
+    kinematics: what the motions leave undetermined there, such as the translation along the one
+    axis that two tool orientations turn about, the geometry may determine, and the fit then
+    moves it far from the start, rightly). A wrong input shows in the kinematic corrections
+    checked here and in the inputs' checks; the frames' shift from the baseline's is warned of
+    (:func:`frame_shifts`). With ``what`` (how the samples are called, e.g. ``points``), refused
+    corrections below 3 standard deviations are named as not determined by the data."""
     layout = problem.full_layout
-    free = ("board", "instrument", "marker", "tool_point", "point")
-    keep = [
-        k
-        for k, kind in enumerate(layout.kinds)
-        if kind not in free and (kind != "handeye" or dataset.handeye is None)
-    ]
+    free = ("board", "instrument", "marker", "tool_point", "point", "handeye")
+    keep = [k for k, kind in enumerate(layout.kinds) if kind not in free]
     try:
         check_corrections(
             [layout.names[k] for k in keep],
