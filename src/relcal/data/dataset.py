@@ -14,6 +14,12 @@
       rpy: [0.0, 0.0, 0.0]     # deg  (OpenCV's calibrateHandEye) gives the starting guess)
     joint_unit: deg            # deg | rad (prismatic joints always in m)
     pose_angle_unit: rad       # rad | deg: unit of roll, pitch, yaw columns (default rad)
+    euler: xyz                 # the roll, pitch, yaw columns' rotation sequence, as SciPy's
+                               #   Rotation.from_euler: xyz (default, URDF: Rz(yaw) Ry(pitch)
+                               #   Rx(roll)), XYZ intrinsic (R = Rx Ry Rz), ZYX, ...
+    position_unit: m           # m | mm: unit of the x, y, z columns (default m)
+    decimal: "."               # "." | ",": the decimal mark of the table's numbers (a decimal
+                               #   comma needs semicolons or tabs between the columns)
     columns: {x: x1, roll: phix1}   # relcal column name: the file's header, for other layouts
     samples: samples.csv
     tolerances:                # optional plausibility thresholds (defaults shown)
@@ -34,8 +40,9 @@ column per joint, named ``q1`` .. ``qn`` or by the model's joint names (``torso_
 matched by name in any order), then what was measured, one of:
 
 - ``image``: a path relative to the folder;
-- a pose ``x, y, z, qx, qy, qz, qw`` (metres, unit quaternion) or ``x, y, z, roll, pitch, yaw``
-  (URDF convention ``R = Rz(yaw) Ry(pitch) Rx(roll)``, in ``pose_angle_unit``): the camera in the
+- a pose ``x, y, z, qx, qy, qz, qw`` (``position_unit``, unit quaternion) or ``x, y, z, roll,
+  pitch, yaw`` (by default the URDF convention ``R = Rz(yaw) Ry(pitch) Rx(roll)``, another
+  sequence by ``euler``; angles in ``pose_angle_unit``): the camera in the
   board frame (eye-in-hand), the board in the camera frame (eye-to-hand), or a motion-capture
   rigid body in the instrument's frame; the instrument-to-base transform cancels;
 - a position ``x, y, z`` alone: a laser tracker's reflector or a marker, in the instrument's
@@ -59,7 +66,7 @@ from scipy.spatial.transform import Rotation
 from relcal import geometry as tf
 from relcal.checks import check_instance, describe
 from relcal.errors import ArgumentError, RelcalError, excerpt, printable
-from relcal.io import load_yaml, note_input, read_table, validate
+from relcal.io import load_yaml, note_input, read_table, table_delimiter, validate
 from relcal.limits import check_input_size
 from relcal.robot.loading import get_robot
 from relcal.robot.model import (
@@ -132,6 +139,9 @@ class _DatasetSpec(pydantic.BaseModel):
     handeye: _Frame | None = None
     joint_unit: Literal["deg", "rad"] = "deg"
     pose_angle_unit: Literal["deg", "rad"] = "rad"
+    euler: str = "xyz"
+    position_unit: Literal["m", "mm"] = "m"
+    decimal: Literal[".", ","] = "."
     columns: dict[str, str] = {}
     samples: str = "samples.csv"
     tolerances: _Tolerances | None = None
@@ -152,6 +162,30 @@ class _DatasetSpec(pydantic.BaseModel):
         if value is True:
             return "auto"
         return value
+
+    @pydantic.field_validator("euler")
+    @classmethod
+    def _euler_sequence(cls, value: str) -> str:
+        """A sequence SciPy's ``Rotation.from_euler`` takes: three axes of x, y, z, all lower
+        case (extrinsic, about the fixed frame) or all upper case (intrinsic, about the moving
+        one), no axis twice in a row."""
+        if not is_euler_sequence(value):
+            raise ValueError(
+                "expected three axes of x, y, z, all lower case (extrinsic: xyz is the URDF's "
+                "roll, pitch, yaw) or all upper case (intrinsic: XYZ), no axis twice in a row"
+            )
+        return value
+
+
+def is_euler_sequence(value: str) -> bool:
+    """Whether ``value`` is a rotation sequence of SciPy's ``Rotation.from_euler`` (``xyz``,
+    ``ZYX``, ``zyz``, ...)."""
+    return bool(
+        len(value) == 3
+        and (value.islower() or value.isupper())
+        and set(value.lower()) <= set("xyz")
+        and value[0].lower() != value[1].lower() != value[2].lower()
+    )
 
 
 @dataclass(frozen=True)
@@ -527,7 +561,14 @@ def load_dataset(folder: str | Path) -> Dataset:
     if spec.handeye is not None:
         handeye = tf.from_xyz_rpy(np.array(spec.handeye.xyz), np.radians(spec.handeye.rpy))
     table = read_sample_table(
-        root / spec.samples, model, spec.joint_unit, spec.pose_angle_unit, spec.columns
+        root / spec.samples,
+        model,
+        spec.joint_unit,
+        spec.pose_angle_unit,
+        spec.columns,
+        euler=spec.euler,
+        position_unit=spec.position_unit,
+        decimal=spec.decimal,
     )
     ids, q, images, poses = table.ids, table.q, table.images, table.poses
     groups, distances = _coincidence_spec(spec, spec_path, table)
@@ -764,13 +805,27 @@ def read_sample_table(
     joint_unit: str,
     pose_angle_unit: str = "rad",
     columns: dict[str, str] | None = None,
+    *,
+    euler: str = "xyz",
+    position_unit: str = "m",
+    decimal: str = ".",
 ) -> SampleTable:
-    """Parse the samples table; errors name the file, the line and the column."""
+    """Parse the samples table; errors name the file, the line and the column.
+
+    ``euler``: the rotation sequence of roll, pitch, yaw columns (SciPy's ``from_euler``);
+    ``position_unit``: ``"m"`` or ``"mm"`` for x, y, z; ``decimal``: the numbers' decimal mark.
+    """
     header, data = read_table(path, "sample")
+    if decimal == "," and table_delimiter(path) == ",":
+        raise RelcalError(
+            f"{path} line 1: header: columns separated by commas, but dataset.yaml declares "
+            "decimal: ','; a table with decimal commas separates its columns by semicolons or "
+            "tabs (fix: decimal: '.', or export the table with semicolons)"
+        )
     header = _rename(path, header, columns or {}, model)
     joints = _joint_columns(path, header, model)
     if "group" in header:
-        return _coincidence_table(path, header, data, joints, model, joint_unit)
+        return _coincidence_table(path, header, data, joints, model, joint_unit, decimal)
     measured, meas_cols = _measured_columns(path, header)
     dupes = sorted({h for h in header if header.count(h) > 1})
     if dupes:
@@ -795,14 +850,14 @@ def read_sample_table(
             )
         seen[sid] = line_no
         ids.append(sid)
-        q.append([parse_number(path, line_no, c, row[col[c]]) for c in joints])
+        q.append([parse_number(path, line_no, c, row[col[c]], decimal) for c in joints])
         if measured == "image":
             name = row[col["image"]].strip()
             if not name:
                 raise RelcalError(f"{path} line {line_no}: image: empty; expected an image path")
             images.append(path.parent / name)
         else:
-            values.append([parse_number(path, line_no, c, row[col[c]]) for c in meas_cols])
+            values.append([parse_number(path, line_no, c, row[col[c]], decimal) for c in meas_cols])
     _no_repeated_samples(path, ids, lines, q, images if measured == "image" else values)
     q_arr = _joint_values(path, np.array(q, dtype=float), model, joint_unit)
     pose_arr = None
@@ -819,10 +874,12 @@ def read_sample_table(
     elif meas_cols == POSE_COLUMNS:
         pose_arr = _poses(path, np.array(values), lines)
     elif meas_cols == RPY_COLUMNS:
-        pose_arr = _rpy_poses(path, np.array(values), pose_angle_unit)
+        pose_arr = _rpy_poses(path, np.array(values), pose_angle_unit, euler)
     else:
         pose_arr = np.broadcast_to(np.eye(4), (len(values), 4, 4)).copy()
         pose_arr[:, :3, 3] = values
+    if pose_arr is not None and position_unit == "mm":
+        pose_arr[:, :3, 3] /= 1000.0
     return SampleTable(
         tuple(ids),
         q_arr,
@@ -834,7 +891,13 @@ def read_sample_table(
 
 
 def _coincidence_table(
-    path: Path, header: list[str], data: list, joints: list[str], model: RobotModel, unit: str
+    path: Path,
+    header: list[str],
+    data: list,
+    joints: list[str],
+    model: RobotModel,
+    unit: str,
+    decimal: str = ".",
 ) -> SampleTable:
     """A table of coincidence samples: ``id`` (optional), ``group``, optional ``placement``
     (prefixed to the group as ``PLACEMENT/GROUP``), and the joints."""
@@ -867,7 +930,7 @@ def _coincidence_table(
             group = f"{place}/{group}" if place else group
         ids.append(sid)
         groups.append(group)
-        q.append([parse_number(path, line_no, c, row[col[c]]) for c in joints])
+        q.append([parse_number(path, line_no, c, row[col[c]], decimal) for c in joints])
     q_arr = _joint_values(path, np.array(q, dtype=float), model, unit)
     poses = np.broadcast_to(np.eye(4), (len(ids), 4, 4)).copy()
     return SampleTable(tuple(ids), q_arr, None, poses, "coincidence", tuple(groups))
@@ -896,14 +959,28 @@ def _no_repeated_samples(path: Path, ids, lines, q, measured) -> None:
         )
 
 
-def parse_number(path: Path, line_no: int, column: str, text: str) -> float:
-    """A finite float from a CSV cell; errors name the file, the line and the column."""
-    try:
-        value = float(text)
-    except ValueError:
-        hint = " (a decimal comma? write 0.5, not 0,5)" if "," in text else ""
+def parse_number(path: Path, line_no: int, column: str, text: str, decimal: str = ".") -> float:
+    """A finite float from a CSV cell, with ``decimal`` its decimal mark (``"."`` or ``","``);
+    errors name the file, the line and the column."""
+    cell = text.strip()
+    if decimal == "," and "." in cell:
         raise RelcalError(
-            f"{path} line {line_no}: {column}: expected a number, got {excerpt(text.strip())}{hint}"
+            f"{path} line {line_no}: {column}: expected a number with a decimal comma "
+            f"(dataset.yaml declares decimal: ','), got {excerpt(cell)}: a decimal point, or a "
+            "thousands separator (fix: export the table without thousands separators, or "
+            "decimal: '.' if the whole table uses points)"
+        )
+    try:
+        value = float(cell.replace(",", ".") if decimal == "," else cell)
+    except ValueError:
+        hint = (
+            " (a decimal comma? declare decimal: ',' in dataset.yaml, with semicolons between "
+            "the columns)"
+            if "," in cell and decimal == "."
+            else ""
+        )
+        raise RelcalError(
+            f"{path} line {line_no}: {column}: expected a number, got {excerpt(cell)}{hint}"
         ) from None
     if not np.isfinite(value):
         raise RelcalError(f"{path} line {line_no}: {column}: expected a finite number, got {text}")
@@ -1010,8 +1087,9 @@ def _poses(path: Path, values: np.ndarray, lines: list[int]) -> np.ndarray:
     return tf.homogeneous(rot, values[:, :3])
 
 
-def _rpy_poses(path: Path, values: np.ndarray, unit: str) -> np.ndarray:
-    """Poses from ``x, y, z, roll, pitch, yaw`` with ``R = Rz(yaw) Ry(pitch) Rx(roll)``."""
+def _rpy_poses(path: Path, values: np.ndarray, unit: str, euler: str = "xyz") -> np.ndarray:
+    """Poses from ``x, y, z, roll, pitch, yaw``: the three angles of the rotation sequence
+    ``euler`` (SciPy's ``from_euler``; ``xyz``: ``R = Rz(yaw) Ry(pitch) Rx(roll)``)."""
     rpy = values[:, 3:]
     if unit == "rad" and len(rpy) and np.abs(rpy).max() > 2 * np.pi + 0.1:
         raise RelcalError(
@@ -1026,7 +1104,7 @@ def _rpy_poses(path: Path, values: np.ndarray, unit: str) -> np.ndarray:
         )
     if unit == "deg":
         rpy = np.radians(rpy)
-    return tf.homogeneous(Rotation.from_euler("xyz", rpy).as_matrix(), values[:, :3])
+    return tf.homogeneous(Rotation.from_euler(euler, rpy).as_matrix(), values[:, :3])
 
 
 def write_samples(
