@@ -134,6 +134,7 @@ class Scale:
     handeye_translation: np.ndarray | None = None  # (3,) t_X of the fit, m
     residual: float = float("nan")  # RMS of the fit's translation rows, m
     translation_known: bool = True  # the pairs turn enough about every axis to fix t_X
+    motion: float = float("nan")  # median length of the commanded relative translations, m
     rotation_misfit: float = float("nan")  # median over the pairs that turn, rad (check_inputs)
 
 
@@ -184,7 +185,8 @@ def translation_scale(
     # stacked R_A - I turns by at least PURE_TRANSLATION (rms over the pairs kept)
     weakest = np.linalg.svd(rows[:, :3], compute_uv=False)[-1] / np.sqrt(max(len(rows) // 3, 1))
     known = bool(weakest > 2 * np.sin(PURE_TRANSLATION / 2))
-    return Scale(1.0 / s, rel, bool(rel < 0.01 and s > 0), sol[:3], typical, known)
+    motion = float(np.median(np.linalg.norm(commanded[:, :3, 3], axis=1)))
+    return Scale(1.0 / s, rel, bool(rel < 0.01 and s > 0), sol[:3], typical, known, motion)
 
 
 def reorder_w_first(poses: np.ndarray) -> np.ndarray:
@@ -876,8 +878,7 @@ def check_inputs(
     if scale is None or not scale.determined:
         scale = scale or Scale(float("nan"), float("inf"), False)
         return replace(scale, rotation_misfit=misfit)
-    off = scale.ratio - 1.0
-    if abs(off) > tolerances.scale and abs(off) > 3 * scale.std * scale.ratio:
+    if scale_problem(scale, tolerances):
         raise RelcalError(f"{where}: {scale_message(scale.ratio, board, poses_given)}")
     if handeye is not None:
         tx = scale.handeye_translation if scale.translation_known else None
@@ -885,6 +886,19 @@ def check_inputs(
         if message:
             raise RelcalError(f"{spec}: {message}")
     return replace(scale, rotation_misfit=misfit)
+
+
+def scale_problem(scale: Scale, tolerances: Tolerances = Tolerances()) -> bool:
+    """Whether a determined translation scale is off: beyond ``tolerances.scale`` and beyond 3
+    times what the data can tell, the larger of its standard deviation and the translations'
+    misfit relative to their length (a robot's geometric errors stretch and turn the relative
+    translations by a few percent over a small region, such as one ISO 9283 cube: that is
+    model error, not a wrong unit or board size)."""
+    if not scale.determined:
+        return False
+    off = abs(scale.ratio - 1.0)
+    relative = scale.residual / scale.motion if scale.motion > 0 else 0.0
+    return bool(off > tolerances.scale and off > 3 * max(scale.std * scale.ratio, relative))
 
 
 def guess_problem(
