@@ -41,6 +41,7 @@ from relcal.calibration.handeye import (
     align_rotations,
     handeye_rotation,
     rotation_vectors,
+    solve_handeye,
 )
 from relcal.calibration.noise import robust_scale
 from relcal.errors import RelcalError
@@ -230,7 +231,7 @@ def joint_problems(
             "a mistyped reading or a wrong row? fix or remove "
             + ("it" if len(bad) == 1 else "them")
             if few
-            else "wrong joint order, unit or model?"
+            else "wrong joint order or unit, or another robot or chain (root and tip links)?"
         )
         out.append(
             f"sample {ids[k]}: q{j + 1} ({names[j]}) = {values[k] * conv:.6g} {unit} is outside "
@@ -875,6 +876,15 @@ def check_inputs(
         raise RelcalError(f"{where}: " + "\n".join(problems))
     rx, scale = given.rx, given.scale  # type: ignore[union-attr]
     misfit = given.fit.misfit  # type: ignore[union-attr]
+    x = handeye
+    if x is None:
+        try:
+            x = solve_handeye(fk(q), poses)
+        except RelcalError:
+            x = None  # the motions fix no hand-eye transform: nothing to tell
+    moved = None if x is None else moved_frame(model, q, poses, x, fk)
+    if moved is not None:
+        raise RelcalError(f"{where}: {moved_message(ids, moved[0], moved[1], len(q), mode)}")
     if scale is None or not scale.determined:
         scale = scale or Scale(float("nan"), float("inf"), False)
         return replace(scale, rotation_misfit=misfit)
@@ -899,6 +909,185 @@ def scale_problem(scale: Scale, tolerances: Tolerances = Tolerances()) -> bool:
     off = abs(scale.ratio - 1.0)
     relative = scale.residual / scale.motion if scale.motion > 0 else 0.0
     return bool(off > tolerances.scale and off > 3 * max(scale.std * scale.ratio, relative))
+
+
+MOVED_LENGTH = 0.005  # m: a step of the fixed frame smaller than this is not named
+MOVED_ANGLE = np.radians(0.5)  # rad: likewise for its rotation
+MOVED_FIT = 3.0  # the step stands this many times out of the residuals, and shrinks them so
+
+
+def _frame_deviations(world: np.ndarray, reference: np.ndarray) -> np.ndarray:
+    """``(N, 6)``: each sample's fixed frame against ``reference``, translation (m) then rotation
+    vector times :data:`LEVER` (m)."""
+    vec = tf.to_vector(tf.invert(reference) @ world)
+    vec[:, 3:] *= LEVER
+    return vec
+
+
+def _frame_design(model, q, poses, handeye, fk) -> tuple[np.ndarray, np.ndarray]:
+    """The deviations ``(N * 6,)`` of each sample's fixed frame ``W_k = C_k X^-1 F_k^-1`` from
+    their centre, and their linearised dependence ``(N * 6, P + 12)`` on every geometric
+    parameter and on ``X`` (finite differences of the nominal model), with one common frame."""
+    from relcal.robot.kinematics import apply_errors, make_layout
+    from relcal.robot.kinematics import fk as model_fk
+
+    n = len(q)
+    inv_x = tf.invert(handeye)
+    world = poses @ inv_x @ tf.invert(fk(q))
+    reference = tf.homogeneous(
+        Rotation.from_matrix(world[:, :3, :3]).mean().as_matrix(), np.median(world[:, :3, 3], 0)
+    )
+    dev = _frame_deviations(world, reference)
+    layout = make_layout(model)
+    step = 1e-6
+    columns = []
+    for j in range(layout.size):
+        bump = np.zeros(layout.size)
+        bump[j] = step
+        w = poses @ inv_x @ tf.invert(model_fk(apply_errors(model, layout, bump), q))
+        columns.append(((_frame_deviations(w, reference) - dev) / step).reshape(-1))
+    for j in range(6):
+        vec = np.zeros(6)
+        vec[j] = step
+        w = poses @ tf.invert(handeye @ tf.from_vector(vec)) @ tf.invert(fk(q))
+        columns.append(((_frame_deviations(w, reference) - dev) / step).reshape(-1))
+    common = np.tile(np.eye(6), (n, 1))
+    return dev.reshape(-1), np.concatenate([np.stack(columns, axis=1), common], axis=1)
+
+
+class _Steps:
+    """Robust fits of the frame deviations with and without a step between two groups."""
+
+    def __init__(self, target: np.ndarray, design: np.ndarray) -> None:
+        self.target, self.design, self.n = target, design, len(target) // 6
+
+    def fit(self, matrix: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """A Huber fit (three reweightings at 1.5 robust standard deviations of the samples'
+        residual norms, so that a few wrong samples do not pass for a step): the solution and
+        the residuals ``(N, 6)``."""
+        norm = np.linalg.norm(matrix, axis=0)
+        norm[norm == 0] = 1.0
+        scaled = matrix / norm
+        weight = np.ones(self.n)
+        for _ in range(3):
+            rows = np.repeat(weight, 6)
+            sol = np.linalg.lstsq(scaled * rows[:, None], self.target * rows, rcond=1e-8)[0]
+            res = (self.target - scaled @ sol).reshape(self.n, 6)
+            size = np.linalg.norm(res, axis=1)
+            scale = 1.5 * max(robust_scale(size), float(np.median(size)), 1e-12)
+            weight = np.sqrt(np.minimum(1.0, scale / np.maximum(size, 1e-300)))
+        return sol / norm, res
+
+    def split(self, group: np.ndarray):
+        """The step between ``group`` and the rest, each sample moved to the side its residual
+        fits, until nothing moves: (group, step (6,), residuals) or None."""
+        n = self.n
+        jump = after = None
+        for _ in range(6):
+            if min(group.sum(), n - group.sum()) < 3:
+                return None
+            indicator = np.zeros((n, 6, 6))
+            indicator[group] = np.eye(6)
+            sol, after = self.fit(np.concatenate([self.design, indicator.reshape(-1, 6)], 1))
+            jump = sol[-6:]
+            as_a = np.linalg.norm(after + np.where(group[:, None], jump, 0.0), axis=1)
+            as_b = np.linalg.norm(after - np.where(group[:, None], 0.0, jump), axis=1)
+            new = as_b < as_a
+            if np.array_equal(new, group):
+                break
+            group = new
+        return group, jump, after
+
+
+def _typical(res: np.ndarray) -> float:
+    return float(np.sqrt(np.median(np.sum(res**2, axis=1))))
+
+
+MOVED_SEARCH = 300  # samples the search for a step uses (chosen by their joints, not order)
+
+
+def moved_frame(
+    model,
+    q: np.ndarray,
+    poses: np.ndarray,
+    handeye: np.ndarray,
+    fk: Callable[[np.ndarray], np.ndarray],
+) -> tuple[np.ndarray, np.ndarray] | None:
+    """Samples that see the fixed frame (the board, an eye-to-hand camera, the instrument)
+    moved: ``(indices of the smaller group, the step (6,): m, rad)``, or None.
+
+    Each sample's fixed frame ``W_k = C_k X^-1 F_k^-1`` (``poses`` ``(N, 4, 4)``, ``handeye``
+    ``X``, ``fk`` the nominal kinematics) scatters with the robot's geometric errors, as a
+    smooth function of the configuration; a moved board adds a step that no geometry explains.
+    So the deviations of the ``W_k`` are fitted by the linearised effect of every geometric
+    parameter and of ``X`` and one common frame (:func:`_frame_design`; robustly: a few wrong
+    samples are down-weighted); then the samples are split in two and a step between the groups
+    fitted too, each sample moved to the side its residual fits until none moves, started from
+    each of the 5 samples that fit worst. The search runs on at most :data:`MOVED_SEARCH`
+    samples (every k-th in the order of their joint values: the same whatever the row order),
+    the split found is then settled on all. A step beyond :data:`MOVED_LENGTH` or
+    :data:`MOVED_ANGLE`, :data:`MOVED_FIT` times the typical residual left, that makes the
+    typical residual of the smaller group as many times smaller, with at least 3 samples on
+    each side, is a moved frame."""
+    n = len(q)
+    if n < 8:
+        return None
+    search = np.arange(n)
+    if n > MOVED_SEARCH:
+        order = np.lexsort(np.asarray(q, dtype=float).T[::-1])
+        search = np.sort(order[:: int(np.ceil(n / MOVED_SEARCH))])
+    target, design = _frame_design(model, q[search], poses[search], handeye, fk)
+    steps = _Steps(target, design)
+    _, residual = steps.fit(design)
+    size = np.linalg.norm(residual, axis=1)
+    best = None
+    for seed in np.argsort(-size, kind="stable")[:5]:  # nearer to it than to a perfect fit
+        found = steps.split(np.linalg.norm(residual - residual[seed], axis=1) < size)
+        if found is not None and (best is None or _typical(found[2]) < _typical(best[2])):
+            best = found
+    if best is None or not _stands(best, residual):
+        return None
+    if len(search) < n:  # settled on every sample, from the step found
+        target, design = _frame_design(model, q, poses, handeye, fk)
+        steps = _Steps(target, design)
+        _, residual = steps.fit(design)
+        near = np.linalg.norm(residual - best[1], axis=1) < np.linalg.norm(residual, axis=1)
+        best = steps.split(near)
+        if best is None or not _stands(best, residual):
+            return None
+    group, jump, _ = best
+    smaller = group if group.sum() <= len(group) - group.sum() else ~group
+    jump = jump.copy()
+    jump[3:] /= LEVER
+    return np.flatnonzero(smaller), jump
+
+
+def _stands(found: tuple, residual: np.ndarray) -> bool:
+    """Whether a step (:meth:`_Steps.split`) is a moved frame: beyond :data:`MOVED_LENGTH` or
+    :data:`MOVED_ANGLE`, :data:`MOVED_FIT` times the typical residual left, and making the
+    typical residual of the smaller group as many times smaller."""
+    group, jump, after = found
+    smaller = group if group.sum() <= len(group) - group.sum() else ~group
+    stands = np.linalg.norm(jump) > MOVED_FIT * _typical(after)
+    better = _typical(residual[smaller]) > MOVED_FIT * _typical(after[smaller])
+    big = np.linalg.norm(jump[:3]) > MOVED_LENGTH or np.linalg.norm(jump[3:]) > MOVED_ANGLE * LEVER
+    return bool(big and stands and better)
+
+
+def moved_message(
+    ids: Sequence[str], moved: np.ndarray, jump: np.ndarray, n: int, mode: str
+) -> str:
+    """The refusal naming the samples that saw the fixed frame moved (:func:`moved_frame`)."""
+    what = "the camera" if mode == "eye_to_hand" else "the board (or the instrument)"
+    names = [str(ids[k]) for k in moved]
+    listed = ", ".join(names[:8]) + (f" and {len(names) - 8} more" if len(names) > 8 else "")
+    return (
+        f"samples {listed} ({len(names)} of {n}) see {what} {np.linalg.norm(jump[:3]) * 1e3:.3g}"
+        f" mm and {np.degrees(np.linalg.norm(jump[3:])):.3g} deg from where the other "
+        f"{n - len(names)} see it, a step no error of the robot's geometry explains: it moved "
+        "during the session. Calibrate each placement as a dataset of its own, or leave one "
+        "group out (fix: remove those samples)"
+    )
 
 
 def guess_problem(
@@ -1011,11 +1200,9 @@ def check_dataset(dataset, measurements) -> dict:
 
     usable = np.flatnonzero(measurements.ok)
     if len(usable) < 4:
+        check_joint_dataset(dataset, measurements)
         return {}
-    spec = dataset.spec_path or dataset.root / "dataset.yaml"
-    where = str(spec.parent / "samples.csv") if dataset.poses is not None else str(spec)
-    if dataset.spec_path is None:  # Dataset.from_arrays: no file to name
-        where = "poses (Dataset.from_arrays)" if dataset.poses is not None else "images"
+    where, spec = _where(dataset)
     q, poses = dataset.q[usable], measurements.poses[usable]
     scale = check_inputs(
         dataset.model,
@@ -1028,7 +1215,7 @@ def check_dataset(dataset, measurements) -> dict:
         handeye=dataset.handeye,
         board=dataset.board,
         poses_given=dataset.poses is not None,
-        spec=str(spec),
+        spec=spec,
         tolerances=Tolerances.from_display(dataset.tolerances),
         joint_unit=getattr(dataset, "joint_unit", None),
         pose_angle_unit=getattr(dataset, "pose_angle_unit", None),
@@ -1042,6 +1229,139 @@ def check_dataset(dataset, measurements) -> dict:
         if dataset.board is not None and dataset.poses is None:
             out["board_spacing_from_data_m"] = float(dataset.board.spacing / scale.ratio)
     return out
+
+
+def _where(dataset) -> tuple[str, str]:
+    """The file named in messages about samples (the samples file, dataset.yaml for images, the
+    arrays of :meth:`Dataset.from_arrays`) and the dataset.yaml."""
+    spec = dataset.spec_path or dataset.root / "dataset.yaml"
+    where = str(spec.parent / "samples.csv") if dataset.poses is not None else str(spec)
+    if dataset.spec_path is None:  # Dataset.from_arrays: no file to name
+        kind = {"position": "points", "coincidence": "joints"}.get(dataset.measured, "poses")
+        where = f"{kind} (Dataset.from_arrays)" if dataset.poses is not None else "images"
+    return where, str(spec)
+
+
+def point_misfit(flange: np.ndarray, points: np.ndarray) -> float:
+    """Median distance (m) of measured points ``(N, 3)`` from the modelled ``T F_k m`` with the
+    instrument transform ``T`` and the marker ``m`` that fit best
+    (:func:`~relcal.calibration.handeye.solve_instrument`); NaN when the points do not span
+    three dimensions (nothing to tell)."""
+    from relcal.calibration.handeye import solve_instrument
+
+    try:
+        instrument, marker = solve_instrument(flange, points)
+    except RelcalError:
+        return float("nan")
+    in_base = flange[:, :3, :3] @ marker + flange[:, :3, 3]
+    modelled = in_base @ instrument[:3, :3].T + instrument[:3, 3]
+    return float(np.median(np.linalg.norm(points - modelled, axis=1)))
+
+
+def check_points(
+    model,
+    q: np.ndarray,
+    points: np.ndarray,
+    ids: Sequence[str],
+    where: str,
+    *,
+    fk: Callable[[np.ndarray], np.ndarray],
+    tolerances: Tolerances = Tolerances(),
+    joint_unit: str | None = None,
+) -> float:
+    """The checks of absolute points (a tracker's reflector, a marker) before anything is fitted,
+    those of poses where they apply: readings beyond the joint limits, points beyond any cell
+    (:func:`position_problems`), and the chain: the points against the commanded flange
+    positions with the best instrument transform and marker (:func:`point_misfit`), within
+    ``tolerances.translation`` (median) when the data are this robot's, in its joint order and
+    unit. When they are not, the joint readings that might have been meant
+    (:func:`joint_readings`) are tried and one that fits (3 times better, and within the
+    tolerance) is named with its fix. Returns the median misfit (m; NaN when the points cannot
+    tell). ``q`` ``(N, n)`` rad, ``points`` ``(N, 3)`` m."""
+    poses = tf.homogeneous(np.broadcast_to(np.eye(3), (len(points), 3, 3)), points)
+    units = position_problems(poses, ids)
+    if units:
+        raise RelcalError(f"{where}: " + "\n".join(units))
+    problems = joint_problems(
+        q, model.lower, model.upper, model.prismatic, model.joint_names, ids, tolerances.joint_limit
+    )
+    few = bool(problems) and all("a mistyped reading" in p for p in problems)
+    tol = tolerances.translation
+    given = point_misfit(fk(q), points) if not problems or few else np.inf
+    if not given > tol / 2 and not problems:
+        return given
+    tried = []
+    for reading in joint_readings(model, q, tolerances.joint_limit, joint_unit):
+        misfit = point_misfit(fk(reading.joints(q)), points)  # type: ignore[misc]
+        if misfit <= tol:
+            tried.append((misfit, reading.label))
+    tried.sort()
+    if tried and not tried[0][0] >= given / RATIO:
+        best = tried[0][0]
+        alike = [label for m, label in tried if m <= 1.5 * best + 1e-6][:3]
+        as_given = (
+            "some joint readings are beyond their limits"
+            if not np.isfinite(given)
+            else f"they disagree by {given * 1e3:.3g} mm"
+        )
+        raise RelcalError(
+            f"{where}: {' or '.join(alike)}: read that way the measured points agree with the "
+            f"commanded flange positions to {best * 1e3:.3g} mm (median, after the best "
+            f"instrument transform and marker); as given {as_given}"
+        )
+    if problems and not few:
+        raise RelcalError(f"{where}: " + "\n".join(problems))
+    if given > tol:
+        raise RelcalError(
+            f"{where}: measured points disagree with the commanded flange positions by a median "
+            f"{given * 1e3:.4g} mm after the best instrument transform and marker (expected < "
+            f"{tol * 1e3:.3g} mm, translation_mm in dataset.yaml tolerances), and no other "
+            "reading of the joint columns (order, signs, unit) fits. Check the robot model (its "
+            "root and tip links: another arm?), and whether these samples belong to this robot"
+        )
+    if problems:
+        raise RelcalError(f"{where}: " + "\n".join(problems))
+    return given
+
+
+def check_point_dataset(dataset, measurements) -> dict:
+    """:func:`check_points` on the usable samples of a loaded dataset of points; returns what
+    the checks measured (the median point misfit at the nominal model, mm)."""
+    from relcal.robot.kinematics import fk
+
+    usable = np.flatnonzero(measurements.ok)
+    where, _ = _where(dataset)
+    misfit = check_points(
+        dataset.model,
+        dataset.q[usable],
+        measurements.poses[usable, :3, 3],
+        [dataset.ids[i] for i in usable],
+        where,
+        fk=lambda v: fk(dataset.model, v),
+        tolerances=Tolerances.from_display(dataset.tolerances),
+        joint_unit=getattr(dataset, "joint_unit", None),
+    )
+    return {"point_misfit_mm": float(misfit * 1e3)} if np.isfinite(misfit) else {}
+
+
+def check_joint_dataset(dataset, measurements) -> None:
+    """The joint readings of a loaded dataset's usable samples against the model's limits
+    (:func:`joint_problems`): the check every kind shares, also where nothing else about the
+    measurements can be checked before a fit (coincidences: their points are unknown)."""
+    usable = np.flatnonzero(measurements.ok)
+    where, _ = _where(dataset)
+    model = dataset.model
+    problems = joint_problems(
+        dataset.q[usable],
+        model.lower,
+        model.upper,
+        model.prismatic,
+        model.joint_names,
+        [dataset.ids[i] for i in usable],
+        Tolerances.from_display(dataset.tolerances).joint_limit,
+    )
+    if problems:
+        raise RelcalError(f"{where}: " + "\n".join(problems))
 
 
 def check_result(dataset, problem, result, what: str | None = None) -> None:

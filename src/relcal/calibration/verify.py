@@ -917,8 +917,11 @@ def verify_session(
         (checked before anything is read).
     RelcalError
         Not a calibration folder (no ``model.yaml`` or ``results.json``, or unreadable), a
-        session of a robot with other joints, or too few usable samples (below 4; 3 for
-        coincidence data) to refit the session's nuisance transforms.
+        session of a robot with other joints, session data that the checks before a calibration
+        refuse (joint readings beyond the limits, absurd magnitudes, measurements that are not
+        this robot's in this joint order and unit:
+        :meth:`~relcal.calibration.kinds.MeasurementKind.check_data`), or too few usable samples
+        (below 4; 3 for coincidence data) to refit the session's nuisance transforms.
 
     Examples
     --------
@@ -933,6 +936,7 @@ def verify_session(
     >>> assessment.verdict, assessment.n_samples
     ('holds', 48)
     """
+    from relcal.calibration.kinds.dispatch import kind_of
     from relcal.data.imaging import measure
 
     check_session(calibration, dataset, measurements, folds, seed, progress)
@@ -940,6 +944,9 @@ def verify_session(
     files = files or load_calibration(calibration)
     if measurements is None:
         measurements = measure(dataset, progress=progress)
+    # the input gate of calibrate, on the session: limits, magnitudes, chain (another robot or
+    # arm, a wrong unit or order is refused here as it is before a calibration)
+    kind_of(dataset, measurements).check_data()
     kind = session_kind(dataset.measured)
     usable = np.flatnonzero(measurements.ok)
     ver = verify(
