@@ -1003,6 +1003,7 @@ def _typical(res: np.ndarray) -> float:
     return float(np.sqrt(np.median(np.sum(res**2, axis=1))))
 
 
+MOVED_REDUNDANCY = 2.0  # rows beyond the parameters (with a step), per parameter, to tell one
 MOVED_SEARCH = 300  # samples the search for a step uses (chosen by their joints, not order)
 
 
@@ -1028,7 +1029,8 @@ def moved_frame(
     the split found is then settled on all. A step beyond :data:`MOVED_LENGTH` or
     :data:`MOVED_ANGLE`, :data:`MOVED_FIT` times the typical residual left, that makes the
     typical residual of the smaller group as many times smaller, with at least 3 samples on
-    each side, is a moved frame."""
+    each side, is a moved frame. Fewer samples than :data:`MOVED_REDUNDANCY` rows per parameter
+    beyond the parameters tell nothing (the geometry fits any split of them)."""
     n = len(q)
     if n < 8:
         return None
@@ -1037,6 +1039,10 @@ def moved_frame(
         order = np.lexsort(np.asarray(q, dtype=float).T[::-1])
         search = np.sort(order[:: int(np.ceil(n / MOVED_SEARCH))])
     target, design = _frame_design(model, q[search], poses[search], handeye, fk)
+    norm = np.linalg.norm(design, axis=0)
+    rank = np.linalg.matrix_rank(design / np.where(norm > 0, norm, 1.0), tol=1e-6)
+    if len(target) - rank - 6 < MOVED_REDUNDANCY * (rank + 6):
+        return None  # the geometry would fit any split: too few samples to tell a step
     steps = _Steps(target, design)
     _, residual = steps.fit(design)
     size = np.linalg.norm(residual, axis=1)
@@ -1428,6 +1434,9 @@ STD_REFUSE = 10.0  # ... by more than this for the median parameter: refused
 # distinct ones): compared only from this many training samples, refused only from the next.
 STD_MIN_SAMPLES = 20
 STD_REFUSE_SAMPLES = 40
+# Below STD_MIN_SAMPLES a bootstrap is rough (a factor of a few), never orders of magnitude off:
+# a median predicted std this many times below it is refused whatever the number of samples.
+STD_FEW = 100.0
 
 
 def nongeometric_problems(
@@ -1573,9 +1582,11 @@ def check_calibration(
     grossly inconsistent with the bootstrap's; returns warnings: frames moved from the
     baseline's, zero offsets that put training samples beyond the joint limits, standard
     deviations more than :data:`STD_WARN` apart (from :data:`STD_MIN_SAMPLES` training samples;
-    refused from :data:`STD_REFUSE_SAMPLES`). ``what``: how the samples are called (points,
-    placements) for the messages; ``q``: the training joint values; ``links``: whether the link
-    corrections are checked here (False: the measurement kind checked them, its frames free).
+    refused from :data:`STD_REFUSE_SAMPLES`; with fewer samples refused when :data:`STD_FEW`
+    times apart, orders of magnitude no rough bootstrap explains). ``what``: how the samples are
+    called (points, placements) for the messages; ``q``: the training joint values;
+    ``links``: whether the link corrections are checked here (False: the measurement kind
+    checked them, its frames free).
     """
     if links:
         check_result(dataset, problem, result, what)
@@ -1602,4 +1613,22 @@ def check_calibration(
         if refuse and n >= STD_REFUSE_SAMPLES:
             raise RelcalError(f"{where}: {refuse}")
         warnings += std_warnings
+    elif bootstrap is not None:
+        ratio = median_std_ratio(result.std, bootstrap)
+        if ratio > STD_FEW:
+            raise RelcalError(
+                f"{where}: the predicted standard deviations are {ratio:.3g}x below the "
+                f"bootstrap's for the median parameter: the noise learned from {n} training "
+                "samples is not a noise level (a fit that leaves almost no residual), and every "
+                f"interval would be meaningless; collect more samples ({STD_MIN_SAMPLES} or more) "
+                "and calibrate again"
+            )
     return warnings
+
+
+def median_std_ratio(predicted: np.ndarray, bootstrap: np.ndarray) -> float:
+    """The median over the parameters estimated by both of the bootstrap's standard deviation
+    over the predicted one (NaN when none is)."""
+    predicted, bootstrap = np.asarray(predicted, float), np.asarray(bootstrap, float)
+    both = np.isfinite(predicted) & np.isfinite(bootstrap) & (predicted > 0) & (bootstrap > 0)
+    return float(np.median(bootstrap[both] / predicted[both])) if both.any() else float("nan")

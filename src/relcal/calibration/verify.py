@@ -870,6 +870,18 @@ def check_session(
     check_flag(progress, "progress")
 
 
+def check_session_inputs(dataset, measurements) -> None:
+    """The input gate of ``calibrate`` on a session to verify
+    (:meth:`~relcal.calibration.kinds.MeasurementKind.check_data` of its kind): joint readings
+    beyond the limits, absurd magnitudes, measurements that are not this robot's in this joint
+    order and unit (another arm, a wrong unit) and a board moved during the session are refused
+    here as they are before a calibration, naming the likely cause. Every entry point of
+    ``verify`` (the command, :func:`verify_session`) calls it."""
+    from relcal.calibration.kinds.dispatch import kind_of
+
+    kind_of(dataset, measurements).check_data()
+
+
 def verify_session(
     calibration: CalibrationFiles | str | Path,
     dataset,
@@ -936,7 +948,6 @@ def verify_session(
     >>> assessment.verdict, assessment.n_samples
     ('holds', 48)
     """
-    from relcal.calibration.kinds.dispatch import kind_of
     from relcal.data.imaging import measure
 
     check_session(calibration, dataset, measurements, folds, seed, progress)
@@ -944,9 +955,7 @@ def verify_session(
     files = files or load_calibration(calibration)
     if measurements is None:
         measurements = measure(dataset, progress=progress)
-    # the input gate of calibrate, on the session: limits, magnitudes, chain (another robot or
-    # arm, a wrong unit or order is refused here as it is before a calibration)
-    kind_of(dataset, measurements).check_data()
+    check_session_inputs(dataset, measurements)
     kind = session_kind(dataset.measured)
     usable = np.flatnonzero(measurements.ok)
     ver = verify(
