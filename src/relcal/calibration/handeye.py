@@ -158,12 +158,25 @@ def refine_handeye(commanded: np.ndarray, measured: np.ndarray, guess: np.ndarra
 
 def solve_handeye(flange: np.ndarray, measured: np.ndarray) -> np.ndarray:
     """``X`` ``(4, 4)`` from flange poses ``F_k`` and measured poses ``C_k`` ``(N, 4, 4)``: all
-    pairs, or :data:`GUESS_PAIRS` random ones of a larger set (linear in the samples). ``R_X``
-    from the motions that carry information (:func:`handeye_rotation`), ``t_X`` by least squares
-    (the part no rotation fixes left at zero), then :func:`refine_handeye`."""
+    pairs, or :data:`GUESS_PAIRS` random ones of a larger set (linear in the samples).
+
+    When the rotations of the pairs that turn determine ``R_X`` (:func:`handeye_rotation` on
+    them alone), Park and Martin's closed form on every pair (the rotation vectors aligned,
+    then ``t_X`` by least squares). Otherwise (every
+    pair turning about one axis, or none: the cubes of an ISO 9283 test at one or two tool
+    orientations) from the motions that carry information: ``R_X`` from the rotations and the
+    translations of the pairs that move without turning (:func:`handeye_rotation`), ``t_X`` by
+    least squares where rotations fix it and zero where none does
+    (:func:`handeye_translation`), then :func:`refine_handeye`."""
     pairs = capped_pairs(len(flange), GUESS_PAIRS)
     a, b = tf.relative(flange, pairs), tf.relative(measured, pairs)
     turning, still = informative_pairs(a, b)
+    rotations_tell = handeye_rotation(a, b, turning, np.zeros(len(pairs), dtype=bool))[1]
+    if len(pairs) >= 2 and rotations_tell:
+        rot = align_rotations(a, b)
+        lhs = (a[:, :3, :3] - np.eye(3)).reshape(-1, 3)
+        rhs = (np.einsum("ij,pj->pi", rot, b[:, :3, 3]) - a[:, :3, 3]).reshape(-1)
+        return tf.homogeneous(rot, np.linalg.lstsq(lhs, rhs, rcond=None)[0])
     rot, known = handeye_rotation(a, b, turning, still)
     if len(pairs) < 2 or not known:
         raise RelcalError(

@@ -926,8 +926,9 @@ def _frame_deviations(world: np.ndarray, reference: np.ndarray) -> np.ndarray:
 
 def _frame_design(model, q, poses, handeye, fk) -> tuple[np.ndarray, np.ndarray]:
     """The deviations ``(N * 6,)`` of each sample's fixed frame ``W_k = C_k X^-1 F_k^-1`` from
-    their centre, and their linearised dependence ``(N * 6, P + 12)`` on every geometric
-    parameter and on ``X`` (finite differences of the nominal model), with one common frame."""
+    their centre, and their linearised dependence ``(N * 6, G + 12)`` on every geometric
+    parameter (not the non-geometric candidates the model may carry) and on ``X`` (finite
+    differences of the nominal model), with one common frame."""
     from relcal.robot.kinematics import apply_errors, make_layout
     from relcal.robot.kinematics import fk as model_fk
 
@@ -941,8 +942,8 @@ def _frame_design(model, q, poses, handeye, fk) -> tuple[np.ndarray, np.ndarray]
     layout = make_layout(model)
     step = 1e-6
     columns = []
-    for j in range(layout.size):
-        bump = np.zeros(layout.size)
+    for j in np.flatnonzero(layout.is_geometric()):  # non-geometric candidates: not a smooth
+        bump = np.zeros(layout.size)  # effect of the geometry, and the fit would follow a step
         bump[j] = step
         w = poses @ inv_x @ tf.invert(model_fk(apply_errors(model, layout, bump), q))
         columns.append(((_frame_deviations(w, reference) - dev) / step).reshape(-1))
