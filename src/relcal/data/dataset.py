@@ -4,9 +4,12 @@
 
     robot: a465                # built-in name, a model YAML or URDF path (relative to the
                                # folder), an inline model mapping, or a URDF chain:
-                               # {urdf: robot.urdf, root: base_link, tip: tool0}
+                               # {urdf: robot.urdf, root: base_link, tip: tool0}; may be left
+                               # out when the samples give flange poses (fx .. fqw)
     hayati: auto               # auto | off: Hayati's beta for parallel consecutive axes
     mode: eye_in_hand          # eye_in_hand (camera on the flange) | eye_to_hand (board on it)
+                               # | robot_world (camera or marker on the flange, measured in a
+                               # fixed world frame; relcal handeye reports both transforms)
     board: board.yaml          # path or inline mapping (needed when samples have images)
     camera: camera.yaml        # path, inline mapping, or "calibrate" (from the same images)
     handeye:                   # guess of flange-from-camera (eye-in-hand) or flange-from-board
@@ -31,6 +34,8 @@
     tool: {xyz: [0, 0, 0.03]}  # coincidence: guess of the tool point in the tip frame (m)
     distances:                 # coincidence: known distances between groups' points (m)
       - {groups: [front/hole_0, front/hole_1], distance: 0.050, std: 0.0002}
+    frames: {base: base_link, flange: tool0, camera: camera_optical}  # relcal handeye's
+                               #   frame names in its exports (also world, marker)
     joint_limits:              # optional: the cell's limits, narrower than the robot's, in
       elbow: [-170, 170]       #   joint_unit (prismatic joints in m); plan and capture keep them
 
@@ -47,6 +52,10 @@ matched by name in any order), then what was measured, one of:
   rigid body in the instrument's frame; the instrument-to-base transform cancels;
 - a position ``x, y, z`` alone: a laser tracker's reflector or a marker, in the instrument's
   frame (calibrated with the instrument transform and the marker position estimated);
+- flange poses ``fx, fy, fz, fqx, fqy, fqz, fqw`` (the flange in the robot's base frame as the
+  controller logs it, m, unit quaternion x first) beside the measured columns: with no
+  ``robot:`` they stand for the robot (a pose chain, :mod:`relcal.data.flange`, reproduces
+  them) and no joint columns are needed;
 - nothing but a ``group`` (coincidence samples: the tool point seated at the same unknown point
   for every sample of a group, e.g. a ball in a socket), named ``PLACEMENT/NAME``
   (``front/hole_0``), or with a ``placement`` column that is prefixed to the group's name.
@@ -81,6 +90,8 @@ POSE_COLUMNS = ("x", "y", "z", "qx", "qy", "qz", "qw")
 RPY_COLUMNS = ("x", "y", "z", "roll", "pitch", "yaw")
 POSITION_COLUMNS = ("x", "y", "z")
 Measured = Literal["image", "pose", "position", "coincidence"]
+Mode = Literal["eye_in_hand", "eye_to_hand", "robot_world"]
+MODES = ("eye_in_hand", "eye_to_hand", "robot_world")
 COINCIDENCE_COLUMNS = ("group", "placement")
 
 
@@ -88,6 +99,17 @@ class _Frame(pydantic.BaseModel):
     model_config = pydantic.ConfigDict(extra="forbid")
     xyz: tuple[pydantic.FiniteFloat, pydantic.FiniteFloat, pydantic.FiniteFloat] = (0.0, 0.0, 0.0)
     rpy: tuple[pydantic.FiniteFloat, pydantic.FiniteFloat, pydantic.FiniteFloat] = (0.0, 0.0, 0.0)
+
+
+class _Frames(pydantic.BaseModel):
+    """``frames:``: the names ``relcal handeye`` writes into its exports (tf, URDF)."""
+
+    model_config = pydantic.ConfigDict(extra="forbid")
+    base: str | None = None  # the robot's base frame (base_link)
+    flange: str | None = None  # the flange or tool frame the poses are of (tool0)
+    camera: str | None = None  # the camera (or marker) frame
+    world: str | None = None  # the fixed frame: board, tracker, world
+    marker: str | None = None  # eye-to-hand: the board on the flange
 
 
 class _Tolerances(pydantic.BaseModel):
@@ -131,9 +153,9 @@ class _UrdfRobot(pydantic.BaseModel):
 
 class _DatasetSpec(pydantic.BaseModel):
     model_config = pydantic.ConfigDict(extra="forbid")
-    robot: str | dict[str, Any]
+    robot: str | dict[str, Any] | None = None  # None: the samples' flange poses stand for it
     hayati: Literal["auto", "off"] = "auto"
-    mode: Literal["eye_in_hand", "eye_to_hand"] = "eye_in_hand"
+    mode: Mode = "eye_in_hand"
     board: str | dict[str, Any] | None = None
     camera: str | dict[str, Any] | None = None
     handeye: _Frame | None = None
@@ -152,6 +174,7 @@ class _DatasetSpec(pydantic.BaseModel):
     # the cell's own limits, narrower than the robot's (joint name or qK -> [lower, upper] in
     # joint_unit, prismatic joints in m): what plan and capture keep to
     joint_limits: dict[str, tuple[float, float]] | None = None
+    frames: _Frames | None = None  # relcal handeye: frame names of the exports
 
     @pydantic.field_validator("hayati", mode="before")
     @classmethod
@@ -201,9 +224,10 @@ class Dataset:
         The dataset folder (where relative paths of ``dataset.yaml`` start).
     model : RobotModel
         The nominal robot.
-    mode : {"eye_in_hand", "eye_to_hand"}
-        Camera on the flange looking at a fixed board, or a fixed camera and the board on the
-        flange.
+    mode : {"eye_in_hand", "eye_to_hand", "robot_world"}
+        Camera on the flange looking at a fixed board, a fixed camera and the board on the
+        flange, or a camera or marker on the flange measured in a fixed world frame (as
+        eye-in-hand; ``relcal handeye`` reports the world frame too).
     handeye : (4, 4) ndarray of float or None
         Guess of the flange-from-camera (or flange-from-board) transform, m; None to estimate
         it from the data.
@@ -237,6 +261,13 @@ class Dataset:
     distances : tuple of (str, str, float, float)
         Coincidence samples: known distances between groups as
         ``(group_a, group_b, distance_m, std_m)``.
+    flange : (N, 4, 4) ndarray of float or None
+        Flange poses logged by the controller (columns ``fx`` .. ``fqw``), m; when the dataset
+        names no robot, ``model`` is the pose chain that reproduces them
+        (:func:`relcal.data.flange.flange_chain`).
+    frames : dict of str to str or None
+        ``frames:`` of dataset.yaml: the frame names ``relcal handeye`` exports with (``base``,
+        ``flange``, ``camera``, ``world``, ``marker``).
     """
 
     root: Path
@@ -261,6 +292,8 @@ class Dataset:
     groups: tuple[str, ...] | None = None
     tool_point: np.ndarray | None = None
     distances: tuple[tuple[str, str, float, float], ...] = ()
+    flange: np.ndarray | None = None  # (N, 4, 4) logged flange poses (fx .. fqw), when given
+    frames: dict[str, str] | None = None  # relcal handeye: frame names of its exports
 
     @classmethod
     def from_arrays(
@@ -404,8 +437,8 @@ def _from_arrays(
         raise ArgumentError(f"hayati: {hayati!r}; use 'auto' or 'off'")
     if hayati == "auto":
         model = auto_hayati(model)
-    if mode not in ("eye_in_hand", "eye_to_hand"):
-        raise ArgumentError(f"mode: {mode!r}; use 'eye_in_hand' or 'eye_to_hand'")
+    if mode not in MODES:
+        raise ArgumentError(f"mode: {mode!r}; use 'eye_in_hand', 'eye_to_hand' or 'robot_world'")
     if joint_unit not in ("rad", "deg"):
         raise ArgumentError(f"joint_unit: {joint_unit!r}; use 'rad' or 'deg'")
     n = model.n_joints
@@ -549,6 +582,8 @@ def load_dataset(folder: str | Path) -> Dataset:
         )
     spec = validate(_DatasetSpec, data, spec_path, node)
 
+    if spec.robot is None:
+        return _flange_dataset(root, spec, spec_path)
     model = _robot(root, spec.robot, spec_path, node)
     if spec.hayati == "auto":
         model = auto_hayati(model)
@@ -609,6 +644,77 @@ def load_dataset(folder: str | Path) -> Dataset:
         distances=distances,
         joint_unit=spec.joint_unit,
         pose_angle_unit=spec.pose_angle_unit if table.rpy else None,
+        flange=table.flange,
+        frames=_frame_names(spec),
+    )
+
+
+def _frame_names(spec: _DatasetSpec) -> dict[str, str] | None:
+    return None if spec.frames is None else spec.frames.model_dump(exclude_none=True)
+
+
+def _flange_dataset(root: Path, spec: _DatasetSpec, spec_path: Path) -> Dataset:
+    """A dataset with no ``robot:``: the samples' flange poses stand for the robot (a pose chain
+    whose joint values reproduce them)."""
+    from relcal.data.flange import flange_chain
+
+    path = root / spec.samples
+    table = read_sample_table(
+        path,
+        None,
+        spec.joint_unit,
+        spec.pose_angle_unit,
+        spec.columns,
+        euler=spec.euler,
+        position_unit=spec.position_unit,
+        decimal=spec.decimal,
+    )
+    extra = [k for k in ("joint_limits", "tool", "measurement") if getattr(spec, k)]
+    if spec.distances:
+        extra.append("distances")
+    if extra:
+        raise RelcalError(
+            f"{spec_path}: {', '.join(extra)}: needs a robot (robot:); without one the flange "
+            "poses stand for it"
+        )
+    model, q = flange_chain(table.flange)
+    handeye = None
+    if spec.handeye is not None:
+        handeye = tf.from_xyz_rpy(np.array(spec.handeye.xyz), np.radians(spec.handeye.rpy))
+    board = camera = None
+    if table.images is not None:
+        from relcal.vision.boards import load_board
+        from relcal.vision.camera import load_camera
+
+        if spec.board is None:
+            raise RelcalError(f"{spec_path}: board: required when the samples have images")
+        board = _board(root, spec.board, spec_path, load_board)
+        if spec.camera is None:
+            raise RelcalError(
+                f"{spec_path}: camera: required when the samples have images (a file, a mapping "
+                "or 'calibrate')"
+            )
+        camera = _camera(root, spec.camera, spec_path, load_camera)
+    tolerances = spec.tolerances.model_dump(exclude_none=True) if spec.tolerances else None
+    return Dataset(
+        root,
+        model,
+        spec.mode,
+        handeye,
+        table.ids,
+        q,
+        table.images,
+        table.poses,
+        board,
+        camera,
+        spec_path,
+        tolerances,
+        table.measured,
+        robot_id=spec.robot_id or root.resolve().name,
+        joint_unit=None,
+        pose_angle_unit=spec.pose_angle_unit if table.rpy else None,
+        flange=table.flange,
+        frames=_frame_names(spec),
     )
 
 
@@ -712,6 +818,7 @@ class SampleTable:
     measured: Measured
     groups: tuple[str, ...] | None = None  # coincidence: each sample's group (PLACEMENT/NAME)
     rpy: bool = False  # the poses came as roll, pitch, yaw
+    flange: np.ndarray | None = None  # (N, 4, 4) flange poses (fx .. fqw), when given
 
 
 def read_samples(
@@ -722,17 +829,23 @@ def read_samples(
     return t.ids, t.q, t.images, t.poses
 
 
-def _rename(path: Path, header: list[str], columns: dict[str, str], model: RobotModel) -> list[str]:
+def _rename(
+    path: Path, header: list[str], columns: dict[str, str], model: RobotModel | None
+) -> list[str]:
     """The header with the file's names replaced by relcal's (``columns``: relcal name -> the
     file's name), each mapped name required."""
-    known = ["id", "image", *POSE_COLUMNS, *RPY_COLUMNS[3:], *COINCIDENCE_COLUMNS]
-    known += [f"q{i + 1}" for i in range(model.n_joints)] + list(model.joint_names)
+    from relcal.data.flange import FLANGE_COLUMNS
+
+    known = ["id", "image", *POSE_COLUMNS, *RPY_COLUMNS[3:], *COINCIDENCE_COLUMNS, *FLANGE_COLUMNS]
+    if model is not None:
+        known += [f"q{i + 1}" for i in range(model.n_joints)] + list(model.joint_names)
     unknown = [ours for ours in columns if ours not in known]
     if unknown:
+        joints = "" if model is None else f", q1..q{model.n_joints} or the joint names"
         raise RelcalError(
             f"{path}: dataset.yaml columns: unknown column name(s) {', '.join(unknown)}; relcal's "
-            f"names are id, image, x, y, z, qx, qy, qz, qw, roll, pitch, yaw, q1..q{model.n_joints}"
-            " or the joint names"
+            "names are id, image, x, y, z, qx, qy, qz, qw, roll, pitch, yaw, fx, fy, fz, fqx, "
+            f"fqy, fqz, fqw{joints}"
         )
     inverse = {theirs.strip(): ours for ours, theirs in columns.items()}
     missing = [theirs for theirs in inverse if theirs not in header]
@@ -803,7 +916,7 @@ def _measured_columns(path: Path, header: list[str]) -> tuple[Measured, tuple[st
 
 def read_sample_table(
     path: Path,
-    model: RobotModel,
+    model: RobotModel | None,
     joint_unit: str,
     pose_angle_unit: str = "rad",
     columns: dict[str, str] | None = None,
@@ -816,6 +929,8 @@ def read_sample_table(
 
     ``euler``: the rotation sequence of roll, pitch, yaw columns (SciPy's ``from_euler``);
     ``position_unit``: ``"m"`` or ``"mm"`` for x, y, z; ``decimal``: the numbers' decimal mark.
+    ``model`` None: no robot, the flange poses (``fx`` .. ``fqw``, m) are required instead of
+    joint columns (``q`` of the table is then ``(N, 0)``).
     """
     header, data = read_table(path, "sample")
     if decimal == "," and table_delimiter(path) == ",":
@@ -825,7 +940,8 @@ def read_sample_table(
             "tabs (fix: decimal: '.', or export the table with semicolons)"
         )
     header = _rename(path, header, columns or {}, model)
-    joints = _joint_columns(path, header, model)
+    joints = [] if model is None else _joint_columns(path, header, model)
+    flange_cols = _flange_columns(path, header, model is None)
     if "group" in header:
         return _coincidence_table(path, header, data, joints, model, joint_unit, decimal)
     measured, meas_cols = _measured_columns(path, header)
@@ -852,7 +968,9 @@ def read_sample_table(
             )
         seen[sid] = line_no
         ids.append(sid)
-        q.append([parse_number(path, line_no, c, row[col[c]], decimal) for c in joints])
+        q.append(
+            [parse_number(path, line_no, c, row[col[c]], decimal) for c in (*joints, *flange_cols)]
+        )
         if measured == "image":
             name = row[col["image"]].strip()
             if not name:
@@ -861,7 +979,11 @@ def read_sample_table(
         else:
             values.append([parse_number(path, line_no, c, row[col[c]], decimal) for c in meas_cols])
     _no_repeated_samples(path, ids, lines, q, images if measured == "image" else values)
-    q_arr = _joint_values(path, np.array(q, dtype=float), model, joint_unit)
+    q_arr, flange = np.array(q, dtype=float).reshape(len(q), -1), None
+    if flange_cols:
+        q_arr, flange = q_arr[:, : len(joints)], _flange(path, q_arr[:, len(joints) :], lines)
+    if model is not None:
+        q_arr = _joint_values(path, q_arr, model, joint_unit)
     pose_arr = None
     if measured == "image":
         for line_no, image in zip(lines, images, strict=True):
@@ -889,7 +1011,56 @@ def read_sample_table(
         pose_arr,
         measured,
         meas_cols == RPY_COLUMNS,
+        flange=flange,
     )
+
+
+def _flange_columns(path: Path, header: list[str], required: bool) -> tuple[str, ...]:
+    """The flange-pose columns ``fx`` .. ``fqw`` when the header has them (all or none);
+    ``required``: the dataset names no robot, so they stand for it."""
+    from relcal.data.flange import FLANGE_COLUMNS
+
+    present = [c for c in FLANGE_COLUMNS if c in header]
+    if required and "group" in header:
+        raise RelcalError(
+            f"{path} line 1: header: coincidence samples (a 'group' column) need a robot: give "
+            "robot: in dataset.yaml"
+        )
+    if present and len(present) < len(FLANGE_COLUMNS) or required and not present:
+        missing = [c for c in FLANGE_COLUMNS if c not in header]
+        why = (
+            "dataset.yaml names no robot, so the samples must give the flange poses: "
+            if required and not present
+            else "flange poses need all seven columns: "
+        )
+        raise RelcalError(
+            f"{path} line 1: header: {why}{', '.join(FLANGE_COLUMNS)} (the flange in the robot's "
+            f"base frame, m, unit quaternion x first); missing {', '.join(missing)} (or give "
+            "robot: and joint columns in dataset.yaml)"
+        )
+    return FLANGE_COLUMNS if present else ()
+
+
+def _flange(path: Path, values: np.ndarray, lines: list[int]) -> np.ndarray:
+    """Flange poses ``(N, 4, 4)`` from rows ``fx .. fqw``; the quaternions must be unit ones and
+    the positions in metres."""
+    from relcal.data.flange import flange_poses
+
+    norms = np.linalg.norm(values[:, 3:], axis=1)
+    bad = np.flatnonzero(np.abs(norms - 1) > 1e-3)
+    if bad.size:
+        raise RelcalError(
+            f"{path} line {lines[bad[0]]}: fqx, fqy, fqz, fqw: expected a unit quaternion (x "
+            f"first), the norm is {norms[bad[0]]:.4f}"
+        )
+    reach = np.abs(values[:, :3]).max() if len(values) else 0.0
+    if reach > 20.0:
+        k = int(np.argmax(np.abs(values[:, :3]).max(axis=1)))
+        raise RelcalError(
+            f"{path} line {lines[k]}: fx, fy, fz: {reach:.1f} from the robot's base: flange "
+            "positions are in metres (millimetres given?)"
+        )
+    return flange_poses(values)
 
 
 def _coincidence_table(
