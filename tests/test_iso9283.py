@@ -163,7 +163,7 @@ def test_two_cubes_calibrate_with_defaults(recording):
     cal = calibrate(Dataset.from_arrays(model, q[rows], poses[rows]))
     assert cal.result.converged
     off = tf.invert(scenario.handeye) @ cal.handeye
-    assert np.linalg.norm(off[:3, 3]) < 0.005
+    assert np.linalg.norm(off[:3, 3]) < 0.015  # its translation along that axis: weakly
     # (about the flange's z axis it carries theta_off[6], which no relative data separate)
     assert np.degrees(np.linalg.norm(tf.log_rotation(off[:3, :3]))) < 2.0
     assert cal.validation.improvement() > 5

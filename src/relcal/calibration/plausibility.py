@@ -1081,12 +1081,19 @@ def _stands(found: tuple, residual: np.ndarray) -> bool:
     return bool(big and stands and better)
 
 
+def _natural(name: str) -> tuple:
+    """A sort key that puts ``s2`` before ``s10``."""
+    import re
+
+    return tuple((0, int(p), "") if p.isdigit() else (1, 0, p) for p in re.split(r"(\d+)", name))
+
+
 def moved_message(
     ids: Sequence[str], moved: np.ndarray, jump: np.ndarray, n: int, mode: str
 ) -> str:
     """The refusal naming the samples that saw the fixed frame moved (:func:`moved_frame`)."""
     what = "the camera" if mode == "eye_to_hand" else "the board (or the instrument)"
-    names = [str(ids[k]) for k in moved]
+    names = sorted((str(ids[k]) for k in moved), key=_natural)
     listed = ", ".join(names[:8]) + (f" and {len(names) - 8} more" if len(names) > 8 else "")
     return (
         f"samples {listed} ({len(names)} of {n}) see {what} {np.linalg.norm(jump[:3]) * 1e3:.3g}"
