@@ -516,8 +516,13 @@ def test_real_parameters_outside_the_combinations_are_shown_identified(mukca_set
 def test_another_robots_joints_or_a_wrong_distance_are_refused(mukca_sets):
     ds = mukca_sets["panda_1"]
     iiwa = load_urdf(URDF["iiwa14"], None, "ball_link")
-    with pytest.raises(RelcalError, match="dataset.yaml: the nominal robot.*mm RMS apart.*joints"):
+    # the Panda's readings beyond the iiwa's joint limits: the gate every kind shares names it
+    with pytest.raises(RelcalError, match="is outside the model's limits.*another robot"):
         calibrate(replace(ds, model=iiwa, tool_point=np.zeros(3)), **PLAIN)
+    # within the limits (the iiwa's ranges widened), the coincidences themselves tell
+    wide = replace(iiwa, lower=np.full(7, -np.pi * 2), upper=np.full(7, np.pi * 2))
+    with pytest.raises(RelcalError, match="dataset.yaml: the nominal robot.*mm RMS apart.*joints"):
+        calibrate(replace(ds, model=wide, tool_point=np.zeros(3)), **PLAIN)
     wrong = tuple((a, b, 0.1, s) for a, b, _, s in ds.distances)  # another plate's spacing
     with pytest.raises(RelcalError, match="100 mm given, 5[0-9].[0-9] mm between the points"):
         calibrate(replace(ds, distances=wrong), **PLAIN)

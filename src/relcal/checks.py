@@ -45,6 +45,27 @@ def _regular(value: Any) -> bool:
     return True
 
 
+def real_array(value: Any, name: str, dtype: type = float) -> np.ndarray:
+    """``value`` as an array of ``dtype``; complex numbers are refused naming ``name`` unless
+    every imaginary part is zero (NumPy would drop them with a warning only: a joint value
+    ``0.3+0.1j`` is not a reading). Other conversions fail as NumPy's do (TypeError,
+    ValueError), for the caller's message."""
+    arr = np.asarray(value)
+    if np.iscomplexobj(arr):
+        imag = np.abs(arr.imag)
+        if np.any(imag != 0):
+            k = np.unravel_index(int(np.argmax(imag != 0)), arr.shape) if arr.ndim else ()
+            at = f"{name}[{', '.join(str(int(i)) for i in k)}]" if k else name
+            raise ArgumentError(
+                f"{at} = {arr[k] if k else arr}: complex, expected real numbers "
+                f"({int(np.count_nonzero(imag))} of {arr.size} with an imaginary part); a "
+                "computation upstream produced complex values (a square root or logarithm of a "
+                "negative number?): take the real values only where that is meant"
+            )
+        arr = arr.real
+    return np.asarray(arr, dtype=dtype)
+
+
 def check_instance(value: Any, cls: type | tuple[type, ...], name: str, expected: str) -> Any:
     """``value`` must be an instance of ``cls``; ``expected`` says what, with how to get one."""
     if not isinstance(value, cls):
@@ -153,7 +174,9 @@ def check_array(
         + ")"
     )
     try:
-        arr = np.asarray(value, dtype=dtype)
+        arr = real_array(value, name, dtype)
+    except ArgumentError:
+        raise
     except (TypeError, ValueError):
         raise ArgumentError(
             f"{name}: expected numbers of shape {want}, got {describe(value)}"
@@ -187,7 +210,7 @@ def check_joints(q: Any, n_joints: int, name: str = "q", model: str = "") -> np.
         if np.isfinite(q).all():  # the common case, fast: fk is a hot path
             return q
     try:
-        arr = np.asarray(q, dtype=float)
+        arr = real_array(q, name)
     except (TypeError, ValueError):
         arr = q
     if isinstance(arr, np.ndarray) and arr.ndim == 1:

@@ -862,6 +862,18 @@ def check_session(
     check_flag(progress, "progress")
 
 
+def check_session_inputs(dataset, measurements) -> None:
+    """The input gate of ``calibrate`` on a session to verify
+    (:meth:`~relcal.calibration.kinds.MeasurementKind.check_data` of its kind): joint readings
+    beyond the limits, absurd magnitudes, measurements that are not this robot's in this joint
+    order and unit (another arm, a wrong unit) and a board moved during the session are refused
+    here as they are before a calibration, naming the likely cause. Every entry point of
+    ``verify`` (the command, :func:`verify_session`) calls it."""
+    from relcal.calibration.kinds.dispatch import kind_of
+
+    kind_of(dataset, measurements).check_data()
+
+
 def verify_session(
     calibration: CalibrationFiles | str | Path,
     dataset,
@@ -909,9 +921,12 @@ def verify_session(
         (checked before anything is read).
     RelcalError
         Not a calibration folder (no ``model.yaml`` or ``results.json``, or unreadable), a
-        session of a robot with other joints, a session that holds the calibration's own
-        training samples, or too few usable samples (below 4; 3 for coincidence data) to refit
-        the session's nuisance transforms.
+        session of a robot with other joints, session data that the checks before a calibration
+        refuse (joint readings beyond the limits, absurd magnitudes, measurements that are not
+        this robot's in this joint order and unit:
+        :meth:`~relcal.calibration.kinds.MeasurementKind.check_data`), a session that holds the
+        calibration's own training samples, or too few usable samples (below 4; 3 for
+        coincidence data) to refit the session's nuisance transforms.
 
     Examples
     --------
@@ -937,6 +952,7 @@ def verify_session(
     files = files or load_calibration(calibration)
     if measurements is None:
         measurements = measure(dataset, progress=progress)
+    check_session_inputs(dataset, measurements)
     kind = session_kind(dataset.measured)
     usable = np.flatnonzero(measurements.ok)
     repeated = check_new_session(files, dataset, measurements, usable)

@@ -42,7 +42,13 @@ verdict and exit status:
 def run(args: argparse.Namespace) -> int:
     import numpy as np
 
-    from relcal.calibration.verify import NUISANCE, assess, session_kind, verify
+    from relcal.calibration.verify import (
+        NUISANCE,
+        assess,
+        check_session_inputs,
+        session_kind,
+        verify,
+    )
     from relcal.data.dataset import load_dataset
     from relcal.data.imaging import measure
     from relcal.errors import RelcalError
@@ -70,6 +76,7 @@ def run(args: argparse.Namespace) -> int:
                 "relcal.calibration.verify.verify(..., tool_points=(calibrated, baseline))"
             )
         m = measure(dataset, workers=args.workers, progress=not args.quiet, max_rms=args.max_rms)
+        check_session_inputs(dataset, m)  # the gate of calibrate, on the session
         usable = np.flatnonzero(m.ok)
         ids = [dataset.ids[i] for i in usable]
         groups = None if dataset.groups is None else [dataset.groups[i] for i in usable]

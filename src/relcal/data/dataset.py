@@ -74,7 +74,7 @@ import pydantic
 from scipy.spatial.transform import Rotation
 
 from relcal import geometry as tf
-from relcal.checks import check_instance, describe
+from relcal.checks import check_instance, describe, real_array
 from relcal.errors import ArgumentError, RelcalError, excerpt, printable
 from relcal.io import load_yaml, note_input, read_table, table_delimiter, validate
 from relcal.limits import check_input_size
@@ -396,7 +396,9 @@ class Dataset:
 def _array(name: str, value, what: str) -> np.ndarray:
     """``value`` as a float array, or a RelcalError naming the argument."""
     try:
-        out = np.asarray(value, dtype=float)
+        out = real_array(value, name)
+    except ArgumentError:
+        raise
     except (TypeError, ValueError) as exc:
         raise ArgumentError(
             f"{name}: expected {what}, got {type(value).__name__} ({exc})"
