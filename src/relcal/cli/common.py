@@ -339,3 +339,76 @@ def pairing_arg(parser: argparse.ArgumentParser, calibration: bool = True) -> No
     parser.add_argument(
         "--pairing", "--pairs", dest="pairs", choices=PAIRINGS, default="auto", help=help_
     )
+
+
+# ------------------------------------------------------------ the run's destinations and inputs
+
+# Options whose values are never paths (link names, topics, ids, drivers' options, URLs).
+_NOT_PATHS = {"robot_id", "run_a", "run_b", "format", "command", "fleet_command"}
+_NOT_PATH_METAVARS = {"LINK", "TOPIC", "ID", "KEY=VALUE", "tcp://HOST:8786", "NAME"}
+
+
+def _chosen_actions(parser: argparse.ArgumentParser, args: argparse.Namespace) -> list:
+    """The argparse actions of the (sub)command ``args`` was parsed for."""
+    actions = []
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            chosen = action.choices.get(getattr(args, action.dest, None) or "")
+            if chosen is not None:
+                actions += _chosen_actions(chosen, args)
+        else:
+            actions.append(action)
+    return actions
+
+
+def _option_name(action: argparse.Action) -> str:
+    return action.option_strings[0] if action.option_strings else action.dest.upper()
+
+
+def declare_run(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
+    """Before any work: every option that names an output (typed :func:`output_file` or
+    :func:`output_folder`) is declared as a destination of the run
+    (:func:`relcal.outputset.declare`), every other argument that names an existing file or
+    folder is noted as an input, and the registry (``--registry`` or ``$RELCAL_REGISTRY``) is
+    noted as one; a destination that is an input, the registry, an existing registry, the
+    working folder, or given twice is refused now, and every later write of the run checks the
+    destinations again against what it has read (see :mod:`relcal.outputset`)."""
+    from relcal.outputset import File, Folder, declare, note_input, note_registry
+
+    destinations: list = []
+    for action in _chosen_actions(parser, args):
+        value = getattr(args, action.dest, None)
+        if value is None or action.dest in ("help", "version"):
+            continue
+        name = _option_name(action)
+        if action.type is output_file:
+            destinations.append(File(value, b"", name))
+        elif action.type is output_folder:
+            destinations.append(Folder(value, what=name))
+        elif action.dest == "registry" or action.dest in _NOT_PATHS or action.choices:
+            continue
+        elif action.metavar in _NOT_PATH_METAVARS:
+            continue
+        else:
+            for text in value if isinstance(value, list) else [value]:
+                if isinstance(text, str) and text.strip():
+                    path = text[1:] if text.startswith("@") else text
+                    if os.path.lexists(path):
+                        note_input(path)
+    if any(a.dest == "registry" for a in _chosen_actions(parser, args)):
+        where = getattr(args, "registry", None) or os.environ.get("RELCAL_REGISTRY")
+        path = _registry_file(where)
+        if path is not None:
+            note_registry(path)
+    declare(*destinations)
+
+
+def _registry_file(where: str | None) -> str | None:
+    """The SQLite file a ``--registry`` value names (a path or ``sqlite:///PATH``), else None."""
+    if not where or not where.strip():
+        return None
+    if "://" not in where:
+        return os.path.expanduser(where)
+    if where.startswith("sqlite:///") and len(where) > len("sqlite:///"):
+        return where[len("sqlite:///") :].split("?", 1)[0]
+    return None

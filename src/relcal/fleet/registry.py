@@ -8,8 +8,8 @@ cells at one server. The schema is versioned by the Alembic migrations shipped i
 Concurrent writers are safe: every record is one short ``INSERT`` transaction; SQLite runs in WAL
 mode with a busy timeout (readers never block the writer, writers queue), and a write that still
 finds the database locked is retried with a randomised back-off. Migrations of a SQLite file are
-serialised by a lock file beside it (``NAME.lock``, its only companion besides SQLite's own
-``-wal`` and ``-shm``).
+serialised by a lock file beside it (``NAME.lock``, present only while a migration runs: it is
+removed when the lock is released; besides it, SQLite's own ``-wal`` and ``-shm``).
 
 **Opening is checking.** :func:`open_for_writing` runs before any computation and refuses, with a
 message naming the registry, a path that is a folder, a device, a file this run reads (an input
@@ -241,21 +241,15 @@ def _retry(action: Callable[[], T], what: str) -> T:
 
 @contextlib.contextmanager
 def _file_lock(path: Path | None) -> Iterator[None]:
-    """An exclusive lock on ``path`` (POSIX ``flock``); a no-op without a path or ``fcntl``."""
+    """An exclusive lock on ``path`` (:func:`relcal.outputset.exclusive`: the file is removed
+    when the lock is released); a no-op without a path."""
     if path is None:
         yield
         return
-    try:
-        import fcntl
-    except ImportError:  # not POSIX: rely on the retries
+    from relcal.outputset import exclusive
+
+    with exclusive(path, f"registry {path.with_suffix('')} (migration lock)"):
         yield
-        return
-    with open(path, "a") as handle:
-        fcntl.flock(handle, fcntl.LOCK_EX)
-        try:
-            yield
-        finally:
-            fcntl.flock(handle, fcntl.LOCK_UN)
 
 
 def _alembic_config(connection: sa.Connection):
@@ -549,8 +543,11 @@ class Registry:
         self.path = _sqlite_path(self.engine.url)
         self._create = False  # a SQLite file to create with the first record
         if self.path is not None:
+            from relcal.outputset import note_registry
+
             self.name = str(self.path)
             exists = check_sqlite_path(self.path, write)
+            note_registry(self.path)  # never an output of this run
             if not exists and write:
                 self._create = True
                 return
@@ -565,8 +562,8 @@ class Registry:
 
         SQLite's driver commits each DDL statement of a migration on its own, so a check beside
         another process's migration can see its tables before its revision and take the file
-        for another program's: a refusal is confirmed under the migration lock when a relcal
-        process has made one (the lock file exists), and none is created for a file refused."""
+        for another program's: a refusal is confirmed under the migration lock (whose file is
+        removed again when it is released)."""
 
         def check() -> None:
             with self.engine.connect() as conn:
@@ -580,7 +577,7 @@ class Registry:
                 check()
             except RelcalError:
                 lock = _lock_path(self.engine.url)
-                if locked or lock is None or not lock.exists():
+                if locked or lock is None:
                     raise
                 with _file_lock(lock):  # a migration may be under way: look once it is done
                     check()
