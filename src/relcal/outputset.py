@@ -360,7 +360,7 @@ def _manifest_files(folder: Path) -> set[str]:
     except (OSError, ValueError) as exc:
         raise RelcalError(
             f"{folder / MARKER}: unreadable ({exc}); relcal cannot tell its files from yours "
-            f"there: move the folder away or delete {MARKER}"
+            "there: move the folder away (or give another --out)"
         ) from None
     return {str(f) for f in files}
 
@@ -609,17 +609,30 @@ def _lock_fd(lock: Path, what: str, wait: bool) -> int | None:
         os.close(fd)
 
 
+_LOCKS: dict[Path, list] = {}  # lock files this process holds: [descriptor, depth]
+
+
 @contextmanager
 def exclusive(lock: str | Path, what: str, wait: bool = True) -> Iterator[None]:
     """Hold the lock file ``lock`` for the block: concurrent relcal runs that take the same lock
     wait for it (``wait``) or are refused with a message naming ``what`` (``wait=False``). The
     file holds the holder's process id and is removed when the block ends (a run killed with
-    SIGKILL leaves it, unlocked: the next run takes it and removes it)."""
-    lock = Path(lock)
+    SIGKILL leaves it, unlocked: the next run takes it and removes it). Re-entrant within the
+    process: a block that holds the lock already takes it again without waiting."""
+    lock = Path(os.path.abspath(lock))
+    if lock in _LOCKS:  # held by this process already (re-entrant)
+        _LOCKS[lock][1] += 1
+        try:
+            yield
+        finally:
+            _LOCKS[lock][1] -= 1
+        return
     fd = _lock_fd(lock, what, wait)
+    _LOCKS[lock] = [fd, 1]
     try:
         yield
     finally:
+        del _LOCKS[lock]
         if fd is not None:
             try:  # removed while still held: a waiting run then finds it gone and retries
                 if os.path.samestat(os.fstat(fd), os.stat(lock)):
