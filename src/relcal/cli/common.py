@@ -279,7 +279,7 @@ def output_file(text: str) -> str:
     try:
         check_file(File(text, b"", "file"))
     except RelcalError as exc:
-        raise ArgumentTypeError(str(exc).removeprefix(f"file {text}: ")) from None
+        raise ArgumentTypeError(str(exc).removeprefix("file ")) from None
     return text
 
 
