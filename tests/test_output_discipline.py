@@ -300,3 +300,35 @@ def test_a_file_output_is_never_written_into_an_existing_registry_by_the_api(tmp
     with pytest.raises(RelcalError, match="registry"):
         write_set(File(path, "{}"))
     assert digest(path) == before
+
+
+# ------------------------------------------- after an interrupt: every output committed, named
+
+
+@pytest.mark.parametrize(
+    ("point", "code"), [("term-during-install", 143), ("kill-after-insert", -9)]
+)
+def test_verify_writes_its_json_and_its_record_as_one_and_says_so(
+    registry, tmp_path_factory, point, code
+):
+    """``verify --registry --json``: the JSON and the verification record are one transaction.
+    SIGTERM during the install: both are in place and the message lists both (the registry
+    record included); a kill after the insert: neither."""
+    from test_transaction import run_driver
+
+    path, cal = registry
+    session = synthetic_dataset(tmp_path_factory.mktemp("session") / "s", n=14, seed=5).root
+    out = session.parent / "v.json"
+    with sqlite3.connect(path) as conn:
+        before = conn.execute("SELECT count(*) FROM verifications").fetchone()[0]
+    argv = ["verify", str(cal), str(session), "--quiet", "--registry", str(path)]
+    done = run_driver(point, [*argv, "--json", str(out)])
+    assert done.returncode == code, done.stderr
+    with sqlite3.connect(path) as conn:
+        after = conn.execute("SELECT count(*) FROM verifications").fetchone()[0]
+    if code == 143:
+        assert after == before + 1 and json.loads(out.read_text())["verification_id"] == after
+        assert f"--json {out}" in done.stderr, done.stderr
+        assert f"registry {path} verification {after}" in done.stderr, done.stderr
+    else:
+        assert after == before and not out.exists()

@@ -447,9 +447,13 @@ class PendingRecord:
     does not exist yet, ``prepare`` creates and migrates it under the migration lock (held until
     the end), and ``rollback`` removes it again."""
 
-    def __init__(self, registry: Registry, record: dict[str, Any]) -> None:
+    def __init__(
+        self, registry: Registry, record: dict[str, Any], table: sa.Table | None = None
+    ) -> None:
         self.registry = registry
-        self.row = _row(record)
+        self.table = calibrations if table is None else table
+        self.row = _row(record) if table is None else _verification_row(record)
+        self.what = "calibration" if table is None else "verification"
         self.run_id: int | None = None
         self._conn: sa.Connection | None = None
         self._txn = None
@@ -468,7 +472,7 @@ class PendingRecord:
             conn = reg.engine.connect()
             txn = conn.begin()
             try:
-                key = conn.execute(calibrations.insert().values(**self.row)).inserted_primary_key
+                key = conn.execute(self.table.insert().values(**self.row)).inserted_primary_key
             except BaseException:
                 txn.rollback()
                 conn.close()
@@ -476,7 +480,7 @@ class PendingRecord:
             self._conn, self._txn = conn, txn
             return int(key[0])
 
-        self.run_id = _retry(insert, f"recording the calibration of {self.row.get('robot_id')}")
+        self.run_id = _retry(insert, f"recording the {self.what} of {self.row.get('robot_id')}")
 
     def commit(self) -> None:
         try:
@@ -484,7 +488,7 @@ class PendingRecord:
         except sa.exc.DBAPIError as exc:
             self._close(remove=self._created)
             raise RelcalError(
-                f"registry {self.registry.name}: recording the calibration failed: {_reason(exc)}"
+                f"registry {self.registry.name}: recording the {self.what} failed: {_reason(exc)}"
             ) from None
         self._close()
         self.registry._create = False
@@ -512,7 +516,20 @@ class PendingRecord:
             self._lock = None
 
     def describe(self) -> str:
+        if self.what == "verification":
+            return f"registry {self.registry.name} verification {self.run_id}"
         return f"registry {self.registry.name} run {self.run_id}"
+
+
+def _verification_row(record: dict[str, Any]) -> dict[str, Any]:
+    """The table row of a verification record (``uid`` and ``created_at`` filled in)."""
+    row = dict(record)
+    row.setdefault("uid", uuid.uuid4().hex)
+    row.setdefault("created_at", datetime.now(UTC))
+    unknown = set(row) - set(verifications.c.keys())
+    if unknown:
+        raise ValueError(f"unknown verification fields: {sorted(unknown)}")
+    return row
 
 
 def _row(record: dict[str, Any]) -> dict[str, Any]:
@@ -644,15 +661,20 @@ class Registry:
             query = query.where(calibrations.c.robot_id == robot_id)
         return self._select(query)
 
+    def pending_verification(self, record: dict[str, Any]) -> PendingRecord:
+        """A verification record as a :class:`relcal.outputset.Journal` (see :meth:`pending`):
+        written in one transaction with the files that report it."""
+        return PendingRecord(self, record, verifications)
+
     def add_verification(self, record: dict[str, Any]) -> int:
         """Store one verification (the keys of :class:`VerificationRun` but ``id``; ``uid`` and
         ``created_at`` are filled in when missing); its id."""
-        row = dict(record)
-        row.setdefault("uid", uuid.uuid4().hex)
-        row.setdefault("created_at", datetime.now(UTC))
-        unknown = set(row) - set(verifications.c.keys())
-        if unknown:
-            raise ValueError(f"unknown verification fields: {sorted(unknown)}")
+        if self._create:  # a new SQLite file: created (and migrated) with its first record
+            pending = self.pending_verification(record)
+            pending.prepare()
+            pending.commit()
+            return int(pending.run_id)  # type: ignore[arg-type]
+        row = _verification_row(record)
 
         def insert() -> int:
             with self.engine.begin() as conn:
@@ -671,6 +693,9 @@ class Registry:
             query = query.where(verifications.c.robot_id == robot_id)
         if calibration_id is not None:
             query = query.where(verifications.c.calibration_id == calibration_id)
+
+        if self._create:  # not created yet: no verifications
+            return []
 
         def read() -> list[VerificationRun]:
             with self.engine.connect() as conn:
