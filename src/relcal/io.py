@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import csv
+import io
 import json
 import re
 from pathlib import Path
@@ -13,7 +14,7 @@ import pydantic
 import yaml
 
 from relcal.errors import RelcalError, excerpt, printable
-from relcal.limits import check_input_size, check_yaml_nodes
+from relcal.limits import check_yaml_nodes, read_input
 from relcal.outputset import File, Folder, note_input, write_set
 
 __all__ = ["File", "Folder", "note_input", "write_set"]
@@ -82,11 +83,16 @@ def read_table(path: str | Path, what: str) -> tuple[list[str], list[TableRow]]:
     note_input(path)
     if path.is_dir():
         raise RelcalError(f"{path}: is a directory, expected a CSV file")
-    check_input_size(path, "csv")
     rows: list[TableRow] = []
     line_num = 0
     try:
-        with open(path, newline="", encoding="utf-8-sig") as handle:
+        data = read_input(path, "csv")
+        try:
+            text = data.decode("utf-8-sig")
+        except UnicodeDecodeError as exc:
+            line_num = data[: exc.start].count(b"\n")
+            raise
+        with io.StringIO(text, newline="") as handle:
             first = ""
             for raw in handle:
                 if raw.strip() and not raw.lstrip().startswith("#"):
@@ -106,7 +112,7 @@ def read_table(path: str | Path, what: str) -> tuple[list[str], list[TableRow]]:
         raise RelcalError(f"{path}: file not found") from None
     except UnicodeDecodeError:
         raise RelcalError(
-            f"{path}: not a text file (not UTF-8 near line {line_num + 1}); expected a CSV table"
+            f"{path}: not a text file (not UTF-8 at line {line_num + 1}); expected a CSV table"
         ) from None
     except csv.Error as exc:
         raise RelcalError(f"{path} line {line_num + 1}: cannot read: {exc}") from None
@@ -147,9 +153,8 @@ def load_yaml(path: str | Path) -> tuple[Any, yaml.Node | None]:
     note_input(path)
     if path.is_dir():
         raise RelcalError(f"{path}: is a folder, expected a YAML file")
-    check_input_size(path, "yaml")
     try:
-        text = path.read_text(encoding="utf-8-sig")
+        text = read_input(path, "yaml").decode("utf-8-sig")
     except FileNotFoundError:
         raise RelcalError(f"{path}: file not found") from None
     except UnicodeDecodeError:

@@ -1,8 +1,9 @@
 """Bounds on what relcal reads and allocates, each checked before the work with a message that
 names the input, the size found, the limit, and how to go on.
 
-- **Input files** (:func:`check_input_size`): a file larger than the cap of its kind is refused
-  before a byte is read. The caps are generous (a calibration's CSV of 200 MB holds millions of
+- **Input files** (:func:`check_input_size`, :func:`read_input`): a file larger than the cap of
+  its kind is refused before a byte is read, a device (``/dev/zero``) is refused, and a pipe is
+  read only up to the cap. The caps are generous (a calibration's CSV of 200 MB holds millions of
   samples) and each can be raised with an environment variable, ``RELCAL_MAX_<KIND>_MB``
   (``RELCAL_MAX_CSV_MB=500``).
 - **YAML aliases** (:func:`check_yaml_nodes`): a document whose aliases expand to more than
@@ -60,12 +61,22 @@ def input_cap(kind: str) -> int:
 
 
 def check_input_size(path: str | Path, kind: str) -> None:
-    """Refuse ``path`` before reading it when it is larger than the cap of its ``kind``
-    (a missing or unreadable file is left to the reader's own message)."""
+    """Refuse ``path`` before reading it when it is larger than the cap of its ``kind``, or a
+    device or socket (``/dev/zero`` never ends, ``/dev/random`` is noise: neither is a file of
+    data); a missing or unreadable file is left to the reader's own message. A pipe has no
+    size: read it with :func:`read_input`, which stops at the cap."""
+    import stat
+
     try:
-        size = os.stat(path).st_size
+        info = os.stat(path)
     except OSError:
         return
+    if stat.S_ISCHR(info.st_mode) or stat.S_ISBLK(info.st_mode) or stat.S_ISSOCK(info.st_mode):
+        raise RelcalError(
+            f"{path}: a device, not a file (not read: it may never end); give the {kind} file "
+            "itself"
+        )
+    size = info.st_size
     cap = input_cap(kind)
     if size > cap:
         raise RelcalError(
@@ -73,6 +84,23 @@ def check_input_size(path: str | Path, kind: str) -> None:
             f"files (not read); a wrong file? If it is right, raise the limit with "
             f"RELCAL_MAX_{kind.upper()}_MB"
         )
+
+
+def read_input(path: str | Path, kind: str) -> bytes:
+    """The bytes of the input file ``path`` of ``kind``: refused as :func:`check_input_size`
+    does, and read at most up to the cap (a pipe or a file that grows while read stops there:
+    refused, not read to the end). ``OSError`` is left to the caller's message."""
+    check_input_size(path, kind)
+    cap = input_cap(kind)
+    with open(path, "rb") as handle:
+        data = handle.read(cap + 1)
+    if len(data) > cap:
+        raise RelcalError(
+            f"{path}: more than the {_megabytes(cap)} limit for {kind} input files (read "
+            f"stopped there); a wrong file? If it is right, raise the limit with "
+            f"RELCAL_MAX_{kind.upper()}_MB"
+        )
+    return data
 
 
 def _megabytes(n: float) -> str:
@@ -157,7 +185,17 @@ AUTO_ALL_PAIRS = 300  # pairing ``auto``: all pairs up to this many samples, ``b
 
 def resolve_pairing(pairing: str, n_samples: int) -> str:
     """The pairing ``auto`` stands for with ``n_samples`` samples (``all`` up to
-    :data:`AUTO_ALL_PAIRS`, ``board`` above); any other pairing is itself."""
+    :data:`AUTO_ALL_PAIRS`, ``board`` above); any other pairing is itself. Anything but one of
+    the pairings' names is refused, naming ``pairing``."""
+    names = ("auto", "all", "consecutive", "star", "board")
+    if not isinstance(pairing, str) or pairing not in names:
+        from relcal.checks import describe  # (NumPy: only on this error path)
+        from relcal.errors import ArgumentError
+
+        raise ArgumentError(
+            f"pairing: unknown {describe(pairing)}; expected one of "
+            + ", ".join(repr(n) for n in names)
+        )
     if pairing != "auto":
         return pairing
     return "all" if n_samples <= AUTO_ALL_PAIRS else "board"

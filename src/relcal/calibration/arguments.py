@@ -3,10 +3,18 @@ primitives are :mod:`relcal.checks`)."""
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from typing import Any
 
 from relcal.calibration.selection import WEIGHTINGS
-from relcal.checks import check_choice, check_flag, check_names, check_number, describe
+from relcal.checks import (
+    check_choice,
+    check_flag,
+    check_names,
+    check_number,
+    check_seed,
+    describe,
+)
 from relcal.data.dataset import check_dataset
 from relcal.data.imaging import check_measurements
 from relcal.errors import ArgumentError
@@ -37,14 +45,18 @@ def check_calibrate(
     if measurements is not None:
         check_measurements(measurements, dataset)
     check_number(holdout, "holdout", 0, 1, high_open=True)
-    check_number(seed, "seed", integer=True)
+    check_seed(seed)
     check_choice(pairing, "pairing", ("auto", "consecutive", "star", "all", "board"))
     check_choice(method, "method", ("lm", "published"))
     check_choice(loss, "loss", ("linear", "huber", "cauchy", "soft_l1"))
     check_choice(selection, "selection", SELECTIONS)
     check_number(select_folds, "select_folds", 2, integer=True)
     if holdout_ids is not None:
-        if isinstance(holdout_ids, str) or not all(isinstance(i, str) for i in holdout_ids):
+        if (
+            isinstance(holdout_ids, str)
+            or not isinstance(holdout_ids, Iterable)
+            or not all(isinstance(i, str) for i in holdout_ids)
+        ):
             raise ArgumentError(
                 f"holdout_ids: expected a list of sample ids (strings), got "
                 f"{describe(holdout_ids)}"
@@ -61,3 +73,36 @@ def check_calibrate(
     check_names(weightings, "weightings", WEIGHTINGS, "['plain']")
     check_flag(keep_outliers, "keep_outliers")
     check_choice(priors, "priors", PRIORS)
+    check_training_share(dataset, holdout, holdout_ids)
+
+
+MIN_TRAINING = 4  # samples a calibration trains on at the very least (kinds' usable minimum)
+
+
+def check_training_share(dataset: Any, holdout: float, holdout_ids: Any) -> None:
+    """Refuse a split that leaves fewer than :data:`MIN_TRAINING` samples to train on (every
+    sample held out, or all but a few), naming ``holdout_ids`` or ``holdout``, before any work.
+    Coincidence data hold out whole placements: their kind checks them."""
+    if getattr(dataset, "measured", None) == "coincidence":
+        return
+    ids = list(dataset.ids)
+    n = len(ids)
+    if holdout_ids is not None:
+        held = len(set(holdout_ids) & set(ids))
+        left = n - held
+        if left < MIN_TRAINING:
+            raise ArgumentError(
+                f"holdout_ids: holds out {held} of the {n} samples, leaving {left} to train on; "
+                f"a calibration needs at least {MIN_TRAINING} (and many more to be useful): "
+                "hold out fewer samples"
+            )
+    elif holdout > 0:
+        held = max(2, int(round(holdout * n)))
+        left = n - held
+        if left < MIN_TRAINING:
+            most = max(0.0, (n - MIN_TRAINING) / n) if n else 0.0
+            raise ArgumentError(
+                f"holdout: {holdout:g} of {n} samples holds out {held}, leaving {left} to train "
+                f"on; a calibration needs at least {MIN_TRAINING}: give holdout at most "
+                f"{most:.2f}" + (" (or 0: no validation)" if most < 0.1 else "")
+            )

@@ -61,8 +61,9 @@ from relcal.calibration.measurement import (
 )
 from relcal.calibration.selection import plain_whiteners
 from relcal.calibration.validate import rms_draws, stats
-from relcal.checks import check_flag, check_number, check_path
+from relcal.checks import check_flag, check_number, check_path, check_seed
 from relcal.errors import RelcalError
+from relcal.limits import read_input
 from relcal.robot.kinematics import Layout, fk
 from relcal.robot.model import RobotModel
 
@@ -840,7 +841,7 @@ def load_calibration(folder: str | Path) -> CalibrationFiles:
     path = folder / "results.json"
     note_input(path)
     try:
-        results = json.loads(path.read_text())
+        results = json.loads(read_input(path, "text"))
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise RelcalError(f"{path}: cannot read: {exc}") from None
     if not isinstance(results, dict):
@@ -866,7 +867,7 @@ def check_session(
     if measurements is not None:
         check_measurements(measurements, dataset)
     check_number(folds, "folds", 2, integer=True)
-    check_number(seed, "seed", 0, integer=True)
+    check_seed(seed)
     check_flag(progress, "progress")
 
 

@@ -44,6 +44,7 @@ from relcal.capture.loop import Sample
 from relcal.data.dataset import joints_in_unit
 from relcal.errors import RelcalError
 from relcal.io import yaml_text
+from relcal.limits import read_input
 from relcal.outputset import _signals_held, check_parent, exclusive, inputs, note_written
 from relcal.robot.model import RobotModel, dump_model, library_names
 from relcal.vision.boards import Board, board_to_spec
@@ -347,7 +348,7 @@ class DatasetWriter:
     def _resume(self, spec: dict) -> None:
         path = self.root / LOG
         try:
-            self.log = json.loads(path.read_text())
+            self.log = json.loads(read_input(path, "text"))
         except (OSError, ValueError) as exc:
             raise RelcalError(f"{path}: --resume: cannot read the capture log: {exc}") from None
         what = f"--resume {self.root}"
@@ -389,7 +390,10 @@ class DatasetWriter:
             if logged:
                 raise RelcalError(f"{path}: missing, but {LOG} records {len(logged)} samples")
             return
-        lines = path.read_text().splitlines()
+        try:
+            lines = read_input(path, "csv").decode("utf-8").splitlines()
+        except (OSError, UnicodeDecodeError) as exc:
+            raise RelcalError(f"{path}: --resume: cannot read the samples: {exc}") from None
         header = lines[0].split(",") if lines else []
         if header != ["id", *self.columns, "image"]:
             raise RelcalError(f"{path} line 1: header {header} is not the one this capture writes")

@@ -253,12 +253,11 @@ def _ids(text: str) -> list[str]:
     if text.startswith("@"):
         from relcal.errors import RelcalError
         from relcal.io import note_input
-        from relcal.limits import check_input_size
+        from relcal.limits import read_input
 
         note_input(text[1:])
-        check_input_size(text[1:], "text")
         try:
-            lines = Path(text[1:]).read_text(encoding="utf-8-sig").splitlines()
+            lines = read_input(text[1:], "text").decode("utf-8-sig").splitlines()
         except UnicodeDecodeError:
             raise RelcalError(f"--holdout-ids {text}: not a text file (one id per line)") from None
         except OSError as exc:

@@ -58,10 +58,11 @@ def covered_ranges(model_path: Path):
     import json
 
     from relcal.calibration.verify import JointRanges
+    from relcal.limits import read_input
 
     doc_path = Path(model_path).parent / "results.json"
     try:
-        doc = json.loads(doc_path.read_text())
+        doc = json.loads(read_input(doc_path, "text"))
         return JointRanges.from_dict(doc["joint_ranges"])
     except (OSError, ValueError, KeyError, TypeError):
         return None
@@ -103,17 +104,18 @@ def validated_error(model_path: Path) -> dict | None:
     import hashlib
     import json
 
+    from relcal.limits import read_input
     from relcal.reporting.outputs import RUN_ID_PREFIX
 
     results = model_path.parent / "results.json"
     if model_path.name != "model.yaml" or not results.is_file():
         return None
     try:
-        doc = json.loads(results.read_text(encoding="utf-8"))
+        doc = json.loads(read_input(results, "text"))
         entry = {f["file"]: f for f in doc["artifacts"]["files"]}["model.yaml"]
     except (OSError, ValueError, KeyError, TypeError):
         return None  # not a relcal calibration set (or an older one): nothing to say
-    data = model_path.read_bytes()
+    data = read_input(model_path, "yaml")
     if data.startswith(RUN_ID_PREFIX.encode()):
         data = data.split(b"\n", 1)[1] if b"\n" in data else b""
     held = entry.get("held_out") or {}

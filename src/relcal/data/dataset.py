@@ -47,7 +47,8 @@ matched by name in any order), then what was measured, one of:
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+import difflib
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal
@@ -57,7 +58,7 @@ import pydantic
 from scipy.spatial.transform import Rotation
 
 from relcal import geometry as tf
-from relcal.checks import check_instance, describe
+from relcal.checks import check_choice, check_instance, check_number, check_path, describe
 from relcal.errors import ArgumentError, RelcalError, excerpt, printable
 from relcal.io import load_yaml, note_input, read_table, validate
 from relcal.limits import check_input_size
@@ -361,17 +362,27 @@ def _from_arrays(
 ) -> Dataset:  # fmt: skip
     """:meth:`Dataset.from_arrays`, with the checks at the boundary."""
     if isinstance(model, str | Path):
-        model = get_robot(model)
+        model = get_robot(check_path(model, "model", "a RobotModel or a robot name/file"))
     if not isinstance(model, RobotModel):
         raise ArgumentError(f"model: expected a RobotModel or a robot name/file, got {model!r}")
-    if hayati not in ("auto", "off"):
-        raise ArgumentError(f"hayati: {hayati!r}; use 'auto' or 'off'")
+    check_choice(hayati, "hayati", ("auto", "off"))
+    check_choice(mode, "mode", ("eye_in_hand", "eye_to_hand"))
+    check_choice(joint_unit, "joint_unit", ("rad", "deg"))
+    root = check_path(root, "root", "the folder the dataset stands for (relative paths)")
+    if robot_id is not None and (not isinstance(robot_id, str) or not robot_id.strip()):
+        raise ArgumentError(f"robot_id: expected a robot's name (a str), got {describe(robot_id)}")
+    tolerances = _check_tolerances(tolerances)
+    if ids is not None and (
+        isinstance(ids, str | bytes)
+        or not isinstance(ids, Sequence | np.ndarray)
+        or not all(isinstance(i, str | int | np.integer) and not isinstance(i, bool) for i in ids)
+    ):
+        raise ArgumentError(
+            f"ids: expected one id per sample (a list of str), got {describe(ids)}"
+            + ("; a single id is ['s1'], not 's1'" if isinstance(ids, str) else "")
+        )
     if hayati == "auto":
         model = auto_hayati(model)
-    if mode not in ("eye_in_hand", "eye_to_hand"):
-        raise ArgumentError(f"mode: {mode!r}; use 'eye_in_hand' or 'eye_to_hand'")
-    if joint_unit not in ("rad", "deg"):
-        raise ArgumentError(f"joint_unit: {joint_unit!r}; use 'rad' or 'deg'")
     n = model.n_joints
     q = _array("q", q, f"joint values of shape (N, {n})")
     if q.ndim != 2 or q.shape[1] != n:
@@ -446,7 +457,7 @@ def _from_arrays(
     if len(ids) != len(q) or len(set(ids)) != len(ids):
         raise ArgumentError(f"ids: {len(ids)} ids for {len(q)} samples; each sample one unique id")
     return cls(
-        Path(root),
+        root,
         model,
         mode,
         handeye,
@@ -457,10 +468,33 @@ def _from_arrays(
         board,
         camera,
         None,
-        dict(tolerances) if tolerances else None,
+        tolerances,
         measured,
         robot_id=robot_id,
     )
+
+
+def _check_tolerances(tolerances: Any) -> dict[str, float] | None:
+    """``tolerances`` as ``tolerances:`` of dataset.yaml takes them (names in mm, deg and
+    percent, each above 0): an unknown name or a value that is not a positive number is
+    refused here, naming it, not blamed on the data later."""
+    if tolerances is None:
+        return None
+    known = ", ".join(_Tolerances.model_fields)
+    if not isinstance(tolerances, Mapping):
+        raise ArgumentError(
+            f"tolerances: expected a mapping of thresholds ({known}), got {describe(tolerances)}"
+        )
+    for key, value in tolerances.items():
+        if key not in _Tolerances.model_fields:
+            hint = difflib.get_close_matches(str(key), list(_Tolerances.model_fields), n=1)
+            raise ArgumentError(
+                f"tolerances: unknown {describe(key)}"
+                + (f" (did you mean {hint[0]!r}?)" if hint else "")
+                + f"; expected one of {known}"
+            )
+        check_number(value, f"tolerances[{key!r}]", 0, low_open=True)
+    return {str(k): float(v) for k, v in tolerances.items()} or None
 
 
 def _resolve(root: Path, value: str | dict | None, loader, what: str, spec: Path):
@@ -500,8 +534,7 @@ def load_dataset(folder: str | Path) -> Dataset:
     >>> dataset.robot_id, dataset.measured, dataset.q.shape
     ('tiago-pro-right-arm', 'pose', (48, 8))
     """
-    check_instance(folder, str | Path, "folder", "a dataset folder path (str or Path)")
-    root = Path(folder)
+    root = check_path(folder, "folder", "a dataset folder path")
     spec_path = root / "dataset.yaml"
     if not root.is_dir():
         raise RelcalError(f"{root}: not a dataset folder (expected a folder with dataset.yaml)")

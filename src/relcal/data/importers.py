@@ -264,7 +264,15 @@ def _mukca_joints(path: Path, n_joints: int):
 
     note_input(path)
     rows = []
-    for line_no, line in enumerate(path.read_text(encoding="utf-8").splitlines(), start=1):
+    from relcal.limits import read_input
+
+    try:
+        text = read_input(path, "csv").decode("utf-8")
+    except UnicodeDecodeError:
+        raise RelcalError(f"{path}: not a text file (not UTF-8); expected joint values") from None
+    except OSError as exc:
+        raise RelcalError(f"{path}: cannot read: {exc.strerror or exc}") from None
+    for line_no, line in enumerate(text.splitlines(), start=1):
         if not line.strip():
             continue
         cells = [c for c in line.replace(";", ",").split(",") if c.strip()]

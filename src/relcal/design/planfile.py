@@ -82,9 +82,11 @@ def read_plan(path: str | Path, model: RobotModel, joint_unit: str | None = None
         The file is missing or malformed, names another robot or other joints, or its values
         are not numbers; the message names the file and line.
     """
+    from relcal.limits import read_input
+
     path = Path(path)
     try:
-        text = path.read_text(encoding="utf-8-sig")
+        text = read_input(path, "csv").decode("utf-8-sig")
     except FileNotFoundError:
         raise RelcalError(f"{path}: plan file not found") from None
     except (OSError, UnicodeDecodeError) as exc:
