@@ -136,7 +136,7 @@ def test_every_argument_of_the_wrong_kind_is_refused_by_name(calls, name):
     [
         ({"seed": 2**70}, ("seed", "2**63 - 1")),
         ({"seed": -1}, ("seed", "[0, inf)")),
-        ({"holdout": 0.99}, ("holdout", "leaving 0 to train on", "at most 0.67")),
+        ({"holdout": 0.99}, ("holdout", "leaving 0 to train on", "give holdout at most")),
         ("all-held-out", ("holdout_ids", "holds out 12 of the 12 samples")),
     ],
 )
@@ -149,8 +149,11 @@ def test_the_issues_calibrate_arguments_and_the_suggested_fix(calls, change, wor
         relcal.calibrate(**{**base, **change})
     for word in words:
         assert word in str(info.value), info.value
-    if "holdout" in change:  # the suggestion: at most 0.67 of these 12 samples
-        cal = relcal.calibrate(**{**base, "holdout": 0.67})
+    if "holdout" in change:  # the suggestion, followed: the largest share that leaves enough
+        import re
+
+        most = float(re.search(r"at most ([0-9.]+)", str(info.value)).group(1))
+        cal = relcal.calibrate(**{**base, "holdout": most})
         assert len(cal.train) == 4 and len(cal.test) == 8
 
 

@@ -122,7 +122,26 @@ def read_table(path: str | Path, what: str) -> tuple[list[str], list[TableRow]]:
         raise RelcalError(f"{path}: empty; expected a header line and one line per {what}")
     if len(rows) < 2:
         raise RelcalError(f"{path}: no {what}s after the header line")
+    _check_separators(path, rows, delimiter)
     return [h.strip() for h in rows[0]], rows[1:]
+
+
+def _check_separators(path: Path, rows: list[TableRow], delimiter: str) -> None:
+    """Refuse a data row whose fields are separated by another character than the header's
+    (a tab-separated row under a comma-separated header reads as one field holding them all),
+    naming both separators; any other miscount is left to the reader's own message."""
+    width = len(rows[0])
+    for row in rows[1:]:
+        if len(row) == width:
+            continue
+        line = delimiter.join(row)
+        for other, name in DELIMITERS.items():
+            if other != delimiter and len(line.split(other)) == width:
+                raise RelcalError(
+                    f"{path} line {row.line}: fields separated by {name}, but the header (line "
+                    f"{rows[0].line}) by {DELIMITERS[delimiter]}; use one separator throughout "
+                    "the file"
+                )
 
 
 class _Loader(getattr(yaml, "CSafeLoader", yaml.SafeLoader)):  # libyaml's parser when built

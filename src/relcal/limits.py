@@ -6,6 +6,8 @@ names the input, the size found, the limit, and how to go on.
   read only up to the cap. The caps are generous (a calibration's CSV of 200 MB holds millions of
   samples) and each can be raised with an environment variable, ``RELCAL_MAX_<KIND>_MB``
   (``RELCAL_MAX_CSV_MB=500``).
+- **YAML keys** (:func:`check_yaml_nodes`): a mapping that gives a key twice is refused (YAML
+  forbids it; a parser would silently keep one value).
 - **YAML aliases** (:func:`check_yaml_nodes`): a document whose aliases expand to more than
   ``RELCAL_MAX_YAML_ALIAS_NODES`` nodes beyond its own (a "billion laughs" file: 471 bytes that
   expand to 10^9 values), or that refers to itself, or nests deeper than ``MAX_YAML_DEPTH``, is
@@ -148,6 +150,8 @@ def check_yaml_nodes(path: str | Path, root) -> None:
             continue
         if key in size:
             continue
+        if isinstance(node, yaml.MappingNode):
+            _check_unique_keys(path, node)
         on_path.add(key)
         stack.append((node, True))
         for child in children(node):
@@ -158,6 +162,26 @@ def check_yaml_nodes(path: str | Path, root) -> None:
                 )
             if id(child) not in size:
                 stack.append((child, False))
+
+
+def _check_unique_keys(path: str | Path, node) -> None:
+    """Refuse a mapping that gives one key twice (YAML forbids it; PyYAML would keep the last
+    silently, and the first value, the one a reader sees first, would be ignored)."""
+    seen: dict[str, int] = {}
+    for key, _ in node.value:
+        if key.tag == "tag:yaml.org,2002:merge" or not hasattr(key, "value"):
+            continue
+        if not isinstance(key.value, str):
+            continue
+        line = key.start_mark.line + 1
+        if key.value in seen:
+            from relcal.errors import printable
+
+            raise RelcalError(
+                f"{path} line {line}: key '{printable(key.value, 60)}' given twice (first on "
+                f"line {seen[key.value]}); YAML keeps only one of them: delete or merge one"
+            )
+        seen[key.value] = line
 
 
 def memory_limit() -> int:

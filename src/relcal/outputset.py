@@ -208,10 +208,8 @@ def _is_set(folder: Path) -> bool:
 
 def _is_input_inside(folder: Path) -> Path | None:
     real = _real(folder)
-    for p in sorted(_INPUTS):
-        if p == real or real in p.parents:
-            return p
-    return None
+    hits = [p for p in _INPUTS if p == real or real in p.parents]
+    return max(hits, key=lambda p: (len(p.parts), str(p))) if hits else None  # the file read
 
 
 def is_registry(path: str | Path) -> bool:

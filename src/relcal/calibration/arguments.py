@@ -87,6 +87,8 @@ def check_training_share(dataset: Any, holdout: float, holdout_ids: Any) -> None
         return
     ids = list(dataset.ids)
     n = len(ids)
+    if n < MIN_TRAINING:  # too few at all: the kind's own refusal says so, not the split's
+        return
     if holdout_ids is not None:
         held = len(set(holdout_ids) & set(ids))
         left = n - held
@@ -97,12 +99,21 @@ def check_training_share(dataset: Any, holdout: float, holdout_ids: Any) -> None
                 "hold out fewer samples"
             )
     elif holdout > 0:
-        held = max(2, int(round(holdout * n)))
+        held = _held(holdout, n)
         left = n - held
         if left < MIN_TRAINING:
-            most = max(0.0, (n - MIN_TRAINING) / n) if n else 0.0
+            fits = [h / 100 for h in range(99, 0, -1) if n - _held(h / 100, n) >= MIN_TRAINING]
+            fix = (
+                f"give holdout at most {fits[0]:.2f}"
+                if fits
+                else f"give holdout 0 (no validation: {n} samples are too few to hold 2 out)"
+            )
             raise ArgumentError(
                 f"holdout: {holdout:g} of {n} samples holds out {held}, leaving {left} to train "
-                f"on; a calibration needs at least {MIN_TRAINING}: give holdout at most "
-                f"{most:.2f}" + (" (or 0: no validation)" if most < 0.1 else "")
+                f"on; a calibration needs at least {MIN_TRAINING}: {fix}"
             )
+
+
+def _held(holdout: float, n: int) -> int:
+    """Samples a random split holds out (:func:`relcal.calibration.validate.split`)."""
+    return max(2, int(round(holdout * n)))

@@ -209,7 +209,7 @@ def _run(argv: Sequence[str] | None) -> int:
         from relcal.outputset import tracking
 
         with tracking(), np.errstate(all="ignore"):
-            declare_run(parser, args)  # every destination checked before any work
+            declare_run(parser, args, list(sys.argv[1:] if argv is None else argv))
             code = func(args)
         _interrupt_noted()  # swallowed by a library: whatever was written is whole, and says so
         return code

@@ -97,20 +97,21 @@ def json_arg(parser: argparse.ArgumentParser, what: str) -> None:
 
 
 def _number(text: str) -> float:
+    from relcal.numbers import NotANumber, parse_number
+
     try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"'{text}' is not a number") from None
-    if not math.isfinite(value):
-        raise argparse.ArgumentTypeError(f"'{text}': expected a finite number")
-    return value
+        return parse_number(text)
+    except NotANumber as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
 
 
 def _integer(text: str) -> int:
-    try:
-        return int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"'{text}' is not a whole number") from None
+    import re
+
+    if not re.fullmatch(r"\s*[-+]?\d+\s*", text):
+        hint = " (no underscores: write the digits alone)" if "_" in text else ""
+        raise argparse.ArgumentTypeError(f"'{text}' is not a whole number{hint}")
+    return int(text)
 
 
 def finite_float(text: str) -> float:
@@ -247,9 +248,11 @@ def noise_levels(text: str) -> str:
     """``POS_MM,ORI_DEG[,JOINT_DEG]`` non-negative standard deviations, or ``none``."""
     if text.strip().lower() == "none":
         return "none"
+    from relcal.numbers import parse_number
+
     parts = text.split(",")
     try:
-        values = [float(p) for p in parts]
+        values = [parse_number(p) for p in parts]
     except ValueError:
         values = []
     if not 2 <= len(values) <= 3 or any(not math.isfinite(v) or v < 0 for v in values):
@@ -345,6 +348,7 @@ def pairing_arg(parser: argparse.ArgumentParser, calibration: bool = True) -> No
 
 # Options whose values are never paths (link names, topics, ids, drivers' options, URLs).
 _NOT_PATHS = {"robot_id", "run_a", "run_b", "format", "command", "fleet_command"}
+_READ_IN_FOLDERS = ("dataset.yaml", "model.yaml", "results.json")  # a dataset's, a calibration's
 _NOT_PATH_METAVARS = {"LINK", "TOPIC", "ID", "KEY=VALUE", "tcp://HOST:8786", "NAME"}
 
 
@@ -365,7 +369,9 @@ def _option_name(action: argparse.Action) -> str:
     return action.option_strings[0] if action.option_strings else action.dest.upper()
 
 
-def declare_run(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
+def declare_run(
+    parser: argparse.ArgumentParser, args: argparse.Namespace, argv: list[str] | None = None
+) -> None:
     """Before any work: every option that names an output (typed :func:`output_file` or
     :func:`output_folder`) is declared as a destination of the run
     (:func:`relcal.outputset.declare`), every other argument that names an existing file or
@@ -395,12 +401,20 @@ def declare_run(parser: argparse.ArgumentParser, args: argparse.Namespace) -> No
                     path = text[1:] if text.startswith("@") else text
                     if os.path.lexists(path):
                         note_input(path)
+                        for name in _READ_IN_FOLDERS:  # named in messages: the file read
+                            if os.path.isdir(path) and os.path.isfile(os.path.join(path, name)):
+                                note_input(os.path.join(path, name))
     if any(a.dest == "registry" for a in _chosen_actions(parser, args)):
         where = getattr(args, "registry", None) or os.environ.get("RELCAL_REGISTRY")
         path = _registry_file(where)
         if path is not None:
             note_registry(path)
-    declare(*destinations)
+    order = list(argv or [])
+
+    def given_at(item) -> int:  # the command line's order: a repeat names the earlier option
+        return order.index(item.what) if item.what in order else len(order)
+
+    declare(*sorted(destinations, key=given_at))
 
 
 def _registry_file(where: str | None) -> str | None:

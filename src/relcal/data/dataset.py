@@ -62,6 +62,8 @@ from relcal.checks import check_choice, check_instance, check_number, check_path
 from relcal.errors import ArgumentError, RelcalError, excerpt, printable
 from relcal.io import load_yaml, note_input, read_table, validate
 from relcal.limits import check_input_size
+from relcal.numbers import NotANumber
+from relcal.numbers import parse_number as _parse_number
 from relcal.robot.loading import get_robot
 from relcal.robot.model import (
     RobotModel,
@@ -930,17 +932,12 @@ def _no_repeated_samples(path: Path, ids, lines, q, measured) -> None:
 
 
 def parse_number(path: Path, line_no: int, column: str, text: str) -> float:
-    """A finite float from a CSV cell; errors name the file, the line and the column."""
+    """A finite float from a CSV cell, read strictly (:mod:`relcal.numbers`: ``4_1.67`` is no
+    number); errors name the file, the line, the column and the likely cause."""
     try:
-        value = float(text)
-    except ValueError:
-        hint = " (a decimal comma? write 0.5, not 0,5)" if "," in text else ""
-        raise RelcalError(
-            f"{path} line {line_no}: {column}: expected a number, got {excerpt(text.strip())}{hint}"
-        ) from None
-    if not np.isfinite(value):
-        raise RelcalError(f"{path} line {line_no}: {column}: expected a finite number, got {text}")
-    return value
+        return _parse_number(text)
+    except NotANumber as exc:
+        raise RelcalError(f"{path} line {line_no}: {column}: {printable(exc)}") from None
 
 
 def _joint_values(path: Path, q: np.ndarray, model: RobotModel, unit: str) -> np.ndarray:
