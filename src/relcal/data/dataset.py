@@ -642,7 +642,45 @@ def _coincidence_spec(spec: _DatasetSpec, spec_path: Path, table: SampleTable):
                 "are in metres (0.05 for 50 mm)"
             )
         distances.append((d.groups[0], d.groups[1], float(d.distance), float(d.std)))
+    _check_single_samples(spec, spec_path, table, distances)
     return table.groups, tuple(distances)
+
+
+def _check_single_samples(spec, spec_path: Path, table: SampleTable, distances: list) -> None:
+    """Refuse a group with a single sample: its point is unknown, so the one sample is fitted
+    to it exactly and tells nothing about the kinematics but, through a distance, one number
+    (often a misspelt group name, or a socket visited once; with every group single, a group
+    column that holds sample ids). Named, with the closest other group and what to do."""
+    import difflib
+    from collections import Counter
+
+    counts = Counter(table.groups)
+    in_distance = {name for a, b, _, _ in distances for name in (a, b)}
+    single = [g for g, n in counts.items() if n == 1]
+    if not single:
+        return
+    group = single[0]
+    sid = table.ids[table.groups.index(group)]
+    others = [g for g in counts if g != group and counts[g] > 1]
+    names = {g.rpartition("/")[2] for g in others}
+    plausible = "/" in group and group.rpartition("/")[2] in names  # hole_1 of another placement
+    hint = [] if plausible else difflib.get_close_matches(group, others, n=1, cutoff=0.6)
+    more = f" ({len(single)} groups have a single sample: {', '.join(single[:5])}" + (
+        " ...)" if len(single) > 5 else ")"
+    )
+    raise RelcalError(
+        f"{spec_path.parent / spec.samples}: group '{printable(group, 60)}' has a single sample "
+        f"(id {printable(sid, 40)}){more if len(single) > 1 else ''}: its point is unknown, "
+        "so one sample is fitted to it exactly and tells nothing about the kinematics"
+        + (
+            " (its distance to another group, one number, hardly more)"
+            if group in in_distance
+            else ""
+        )
+        + (f"; a misspelt '{printable(hint[0], 60)}'?" if hint else "")
+        + "; record two or more samples in that group, or remove the row"
+        + (" and the distances: entries that name the group" if group in in_distance else "")
+    )
 
 
 def _robot(root: Path, value: str | dict, spec_path: Path, node) -> RobotModel:
