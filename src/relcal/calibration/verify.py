@@ -40,7 +40,7 @@ from __future__ import annotations
 
 import json
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Literal
 
@@ -776,6 +776,8 @@ class CalibrationFiles:
     folder: Path
     model: RobotModel
     results: dict
+    # why model.yaml is not the file the calibration validated (hand-edited since), else None
+    changed: str | None = None
 
     def covered_ranges(self) -> tuple[JointRanges | None, str]:
         """The joint ranges the calibration covered and where they come from: its results
@@ -805,6 +807,10 @@ class CalibrationFiles:
 
     @property
     def reference(self) -> Reference | None:
+        """The held-out error at calibration; None when model.yaml was changed since (that
+        error is of another file: comparing with it would blame the robot for the edit)."""
+        if self.changed is not None:
+            return None
         return Reference.from_results(self.results)
 
     @property
@@ -846,7 +852,41 @@ def load_calibration(folder: str | Path) -> CalibrationFiles:
         raise RelcalError(f"{path}: cannot read: {exc}") from None
     if not isinstance(results, dict):
         raise RelcalError(f"{path}: not a relcal results document")
-    return CalibrationFiles(folder, load_model(folder / "model.yaml"), results)
+    model = load_model(folder / "model.yaml")
+    record = model_file_record(folder / "model.yaml", results)
+    changed = None
+    if record is not None and not record["matches"]:
+        changed = (
+            f"{folder / 'model.yaml'} was changed since the calibration (its SHA-256 is not the "
+            "one results.json records for the file it validated): the numbers here are of the "
+            "edited file, and its held-out error at calibration is unknown, so a difference is "
+            "no sign of a change of the robot; verify the file relcal wrote (or recalibrate)"
+        )
+    return CalibrationFiles(folder, model, results, changed)
+
+
+def model_file_record(model_path: Path, results: dict) -> dict | None:
+    """What ``results`` (a results document of ``relcal calibrate``) records for the model file
+    at ``model_path``: ``{"position_rms_mm", "n_samples", "matches"}``, ``matches`` False when
+    the file's SHA-256 (after the run's comment line) is not the recorded one (the file was
+    changed since); None without such a record (an older or another document)."""
+    import hashlib
+
+    from relcal.calibration.artifacts import RUN_ID_PREFIX
+
+    try:
+        entry = {f["file"]: f for f in results["artifacts"]["files"]}["model.yaml"]
+        data = read_input(model_path, "yaml")
+    except (OSError, KeyError, TypeError):
+        return None
+    if data.startswith(RUN_ID_PREFIX.encode()):
+        data = data.split(b"\n", 1)[1] if b"\n" in data else b""
+    held = entry.get("held_out") or {}
+    return {
+        "position_rms_mm": held.get("position_rms_mm"),
+        "n_samples": held.get("n_samples"),
+        "matches": hashlib.sha256(data).hexdigest() == entry.get("sha256"),
+    }
 
 
 def check_session(
@@ -958,4 +998,7 @@ def verify_session(
     )
     settings = files.results.get("settings") or {}
     same = FORMULATIONS.get(settings.get("formulation")) == kind
-    return ver, assess(ver, files.reference if same else None, files.covered_ranges()[0], seed=seed)
+    a = assess(ver, files.reference if same else None, files.covered_ranges()[0], seed=seed)
+    if files.changed is not None:  # said first: the edit, not the robot, is the news
+        a = replace(a, warnings=(files.changed, *a.warnings))
+    return ver, a

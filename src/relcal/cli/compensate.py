@@ -101,29 +101,19 @@ def validated_error(model_path: Path) -> dict | None:
     records for that very file (``artifacts``, matched by the SHA-256 of its content after the
     run's comment line): ``{"position_rms_mm", "n_samples", "matches"}``; ``matches`` False when
     the file was changed since. None without such a record."""
-    import hashlib
     import json
 
+    from relcal.calibration.verify import model_file_record
     from relcal.limits import read_input
-    from relcal.reporting.outputs import RUN_ID_PREFIX
 
     results = model_path.parent / "results.json"
     if model_path.name != "model.yaml" or not results.is_file():
         return None
     try:
         doc = json.loads(read_input(results, "text"))
-        entry = {f["file"]: f for f in doc["artifacts"]["files"]}["model.yaml"]
-    except (OSError, ValueError, KeyError, TypeError):
-        return None  # not a relcal calibration set (or an older one): nothing to say
-    data = read_input(model_path, "yaml")
-    if data.startswith(RUN_ID_PREFIX.encode()):
-        data = data.split(b"\n", 1)[1] if b"\n" in data else b""
-    held = entry.get("held_out") or {}
-    return {
-        "position_rms_mm": held.get("position_rms_mm"),
-        "n_samples": held.get("n_samples"),
-        "matches": hashlib.sha256(data).hexdigest() == entry.get("sha256"),
-    }
+    except (OSError, ValueError):
+        return None  # not a relcal calibration set: nothing to say
+    return model_file_record(model_path, doc) if isinstance(doc, dict) else None
 
 
 def validation_note(model_path: Path, found: dict | None) -> str | None:

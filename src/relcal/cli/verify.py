@@ -40,6 +40,8 @@ verdict and exit status:
 
 
 def run(args: argparse.Namespace) -> int:
+    from dataclasses import replace
+
     import numpy as np
 
     from relcal.calibration.verify import NUISANCE, assess, session_kind, verify
@@ -87,6 +89,12 @@ def run(args: argparse.Namespace) -> int:
             )
             reference, why = source.reference_for(kind)
             a = assess(ver, reference, source.ranges, seed=args.seed)
+        if source.changed is not None:  # said first: the edit, not the robot, is the news
+            a = replace(a, warnings=(source.changed, *a.warnings))
+            why = why or (
+                "model.yaml was changed since the calibration: the held-out error results.json "
+                "records is of the file relcal wrote, not of this one"
+            )
         robot_id = args.robot_id or (source.run.robot_id if source.run else dataset.robot_id)
         session = dataset.root.resolve().name
         calibration = {
