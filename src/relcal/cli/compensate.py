@@ -116,6 +116,27 @@ def validated_error(model_path: Path) -> dict | None:
     return model_file_record(model_path, doc) if isinstance(doc, dict) else None
 
 
+def check_same_robot(given: str, nominal, model_path: str, calibrated) -> None:
+    """Refuse a --nominal robot that is not the one calibrated (another robot's model would
+    turn every target into a wild joint move or a target "not reached"), naming both and the
+    library robot the calibrated model comes from when there is one."""
+    from relcal.calibration.compensate import robot_mismatch
+    from relcal.errors import RelcalError
+    from relcal.robot.loading import get_robot
+    from relcal.robot.model import library_names
+
+    why = robot_mismatch(nominal, calibrated)
+    if why is None:
+        return
+    base = calibrated.name.removesuffix(" (calibrated)")
+    hint = next((n for n in library_names() if get_robot(n).name == base), None)
+    raise RelcalError(
+        f"--nominal {given} ({nominal.name}) is not the robot of the calibrated model "
+        f"{model_path} ({calibrated.name}): {why}; give --nominal the robot that was calibrated"
+        + (f" (--nominal {hint})" if hint else " (its model file or URDF)")
+    )
+
+
 def validation_note(model_path: Path, found: dict | None) -> str | None:
     """One line on what the model file's held-out error is, for standard error."""
     if found is None:
@@ -160,11 +181,8 @@ def run(args: argparse.Namespace) -> int:
     calibrated = load_model(args.model)
     validated = validated_error(Path(args.model))
     nominal = get_robot(args.nominal) if args.nominal else None
-    if nominal is not None and nominal.n_joints != calibrated.n_joints:
-        raise RelcalError(
-            f"--nominal {args.nominal} has {nominal.n_joints} joints, the calibrated model "
-            f"{calibrated.n_joints}"
-        )
+    if nominal is not None:
+        check_same_robot(args.nominal, nominal, args.model, calibrated)
     ids, poses, q_program = read_targets(Path(args.targets), calibrated, args.joint_unit)
     if poses is None:
         check_limits(Path(args.targets), calibrated, ids, q_program, args.joint_unit)
