@@ -52,10 +52,12 @@ def run_history(args: argparse.Namespace) -> int:
         runs = runs[-args.last :]
         checks = checks[-args.last :]
     by_model: dict[int, object] = {}  # each robot model's runs compared among themselves only
+    previous: dict[int, str] = {}  # the run each is compared with
     for model in dict.fromkeys(r.model_name for r in runs):
         same = [r for r in runs if r.model_name == model]
         found = consecutive(same, args.alpha, common=not args.as_recorded)
         by_model.update({r.id: c for r, c in zip(same, found, strict=True)})
+        previous.update({b.id: str(a.id) for a, b in zip(same, same[1:], strict=False)})
     comparisons = [by_model[r.id] for r in runs]
     mixed = mixed_models(args.robot_id, runs)
     if args.json:
@@ -67,9 +69,9 @@ def run_history(args: argparse.Namespace) -> int:
                 "runs": [
                     {
                         **run_document(r),
-                        "drift": drift_summary(c, str(runs[k - 1].id) if k else None),
+                        "drift": drift_summary(c, previous.get(r.id)),
                     }
-                    for k, (r, c) in enumerate(zip(runs, comparisons, strict=True))
+                    for r, c in zip(runs, comparisons, strict=True)
                 ],
                 "verifications": [verification_run_document(v) for v in checks],
                 "robot_models": list(dict.fromkeys(r.model_name for r in runs)),
