@@ -301,3 +301,71 @@ def check_calibration_memory(
         f"{where}: {n_samples:,} samples with --pairing {shown} ({count}, {n_params} parameters)",
         remedy + "; or raise RELCAL_MAX_MEMORY_MB if the machine has the memory",
     )
+
+
+# Coincidence data estimate a point per group: the identification Jacobian has 3 rows per sample
+# (and one per known distance) and 3 columns per group besides the robot's, and is dense.
+# Measured on simulated UR5e coincidence sets (`relcal simulate --coincidence`, 2 sockets per
+# placement, `relcal calibrate` with its defaults, 2 shared cores): 360 samples in 60 groups
+# 8 s and 179 MB; 720 in 120, 24 s and 240 MB; 1440 in 120, 34 s and 251 MB; 1800 in 6, 4 s
+# and 190 MB. Seconds ~ 5 + 2.9e-8 m n^2 + 1.5e-7 n^3 (the solver's SVDs, m rows, n columns);
+# memory ~ 150 MB + 128 bytes per Jacobian entry (its weighted and scaled copies).
+COINCIDENCE_SECONDS = (5.0, 2.9e-8, 1.5e-7)
+COINCIDENCE_BYTES_PER_ENTRY = 128
+MINUTES = 10.0  # default bound of a computation's estimated time (RELCAL_MAX_MINUTES)
+
+
+def _duration(seconds: float) -> str:
+    if seconds < 120:
+        return f"{seconds:.0f} s"
+    if seconds < 7200:
+        return f"{seconds / 60:,.0f} minutes"
+    return f"{seconds / 3600:,.0f} hours"
+
+
+def time_limit() -> float:
+    """The seconds a computation may plan for: ``RELCAL_MAX_MINUTES`` (default 10) x 60."""
+    return _env_number("RELCAL_MAX_MINUTES", MINUTES) * 60.0
+
+
+def coincidence_cost(
+    n_samples: int, n_groups: int, n_distances: int, n_params: int
+) -> tuple[float, float]:
+    """Estimated ``(bytes, seconds)`` of a calibration of coincidence samples: ``n_params``
+    parameters of the robot (its largest candidate model), the tool point and ``n_groups``
+    group points (see the measurements above)."""
+    rows = 3.0 * n_samples + n_distances
+    cols = float(n_params + 3 + 3 * n_groups)
+    a, b, c = COINCIDENCE_SECONDS
+    return (
+        BASE_BYTES + COINCIDENCE_BYTES_PER_ENTRY * rows * cols,
+        a + b * rows * cols**2 + c * cols**3,
+    )
+
+
+def check_coincidence_size(
+    n_samples: int, n_groups: int, n_distances: int, n_params: int, where: str
+) -> None:
+    """Refuse coincidence data whose calibration would need more memory or time than the
+    limits (``RELCAL_MAX_MEMORY_MB``, ``RELCAL_MAX_MINUTES``), before any work, with the
+    estimate, the cause (the points of many groups are as many unknowns) and the remedies."""
+    need, seconds = coincidence_cost(n_samples, n_groups, n_distances, n_params)
+    limit, allowed = memory_limit(), time_limit()
+    if need <= limit and seconds <= allowed:
+        return
+    what = (
+        f"{where}: {n_samples:,} coincidence samples in {n_groups:,} groups ({3 * n_groups:,} "
+        f"unknown group coordinates besides {n_params + 3} parameters of the robot and tool "
+        "point, all in one dense fit)"
+    )
+    remedy = (
+        "calibrate fewer placements at a time (a placement's groups share nothing with the "
+        "others' but the robot), or fewer samples per group"
+    )
+    if need > limit:
+        check_memory(need, what, remedy + "; or raise RELCAL_MAX_MEMORY_MB if the machine has it")
+    raise RelcalError(
+        f"{what} would take about {_duration(seconds)} (estimated from measured runs), "
+        f"above the limit of {allowed / 60:g} minutes (RELCAL_MAX_MINUTES); {remedy}; or raise "
+        "RELCAL_MAX_MINUTES to wait for it"
+    )

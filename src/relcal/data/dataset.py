@@ -565,7 +565,7 @@ def load_dataset(folder: str | Path) -> Dataset:
         root / spec.samples, model, spec.joint_unit, spec.pose_angle_unit, spec.columns
     )
     ids, q, images, poses = table.ids, table.q, table.images, table.poses
-    groups, distances = _coincidence_spec(spec, spec_path, table)
+    groups, distances = _coincidence_spec(spec, spec_path, table, model)
     board = camera = None
     if images is not None:
         from relcal.vision.boards import load_board
@@ -604,7 +604,7 @@ def load_dataset(folder: str | Path) -> Dataset:
     )
 
 
-def _coincidence_spec(spec: _DatasetSpec, spec_path: Path, table: SampleTable):
+def _coincidence_spec(spec: _DatasetSpec, spec_path: Path, table: SampleTable, model):
     """The groups of coincidence samples and the known distances, checked against each other."""
     if table.measured != "coincidence":
         if spec.measurement == "coincidence":
@@ -643,7 +643,25 @@ def _coincidence_spec(spec: _DatasetSpec, spec_path: Path, table: SampleTable):
             )
         distances.append((d.groups[0], d.groups[1], float(d.distance), float(d.std)))
     _check_single_samples(spec, spec_path, table, distances)
+    _check_size(spec, spec_path, table, distances, model)
     return table.groups, tuple(distances)
+
+
+def _check_size(spec, spec_path: Path, table: SampleTable, distances: list, model) -> None:
+    """Refuse coincidence data too large to calibrate within the memory and time limits
+    (:func:`relcal.limits.check_coincidence_size`), before anything is computed: the robot's
+    largest candidate model counted (its geometry, a joint scale and a harmonic per joint)."""
+    from relcal.limits import check_coincidence_size
+    from relcal.robot.kinematics import make_layout
+
+    n_params = make_layout(model).size + 3 * model.n_joints
+    check_coincidence_size(
+        len(table.ids),
+        len(set(table.groups)),
+        len(distances),
+        n_params,
+        str(spec_path.parent / spec.samples),
+    )
 
 
 def _check_single_samples(spec, spec_path: Path, table: SampleTable, distances: list) -> None:
