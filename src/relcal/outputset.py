@@ -607,7 +607,7 @@ def _lock_fd(lock: Path, what: str, wait: bool) -> int | None:
         os.close(fd)
 
 
-_LOCKS: dict[Path, list] = {}  # lock files this process holds: [descriptor, depth]
+_LOCKS: dict[tuple, list] = {}  # lock files held, by (thread, path): [descriptor, depth]
 
 
 @contextmanager
@@ -616,21 +616,25 @@ def exclusive(lock: str | Path, what: str, wait: bool = True) -> Iterator[None]:
     wait for it (``wait``) or are refused with a message naming ``what`` (``wait=False``). The
     file holds the holder's process id and is removed when the block ends (a run killed with
     SIGKILL leaves it, unlocked: the next run takes it and removes it). Re-entrant within the
-    process: a block that holds the lock already takes it again without waiting."""
+    thread: a block that holds the lock already takes it again without waiting (another thread
+    of the process waits for it, as another process does)."""
+    import threading
+
     lock = Path(os.path.abspath(lock))
-    if lock in _LOCKS:  # held by this process already (re-entrant)
-        _LOCKS[lock][1] += 1
+    key = (threading.get_ident(), lock)  # another thread waits, as another process does
+    if key in _LOCKS:  # held by this thread already (re-entrant)
+        _LOCKS[key][1] += 1
         try:
             yield
         finally:
-            _LOCKS[lock][1] -= 1
+            _LOCKS[key][1] -= 1
         return
     fd = _lock_fd(lock, what, wait)
-    _LOCKS[lock] = [fd, 1]
+    _LOCKS[key] = [fd, 1]
     try:
         yield
     finally:
-        del _LOCKS[lock]
+        del _LOCKS[key]
         if fd is not None:
             try:  # removed while still held: a waiting run then finds it gone and retries
                 if os.path.samestat(os.fstat(fd), os.stat(lock)):
