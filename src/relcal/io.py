@@ -70,6 +70,16 @@ def _delimiter(path: Path, header: str) -> str:
     return best
 
 
+def table_delimiter(path: str | Path) -> str:
+    """The delimiter :func:`read_table` reads ``path`` with (call it after :func:`read_table`,
+    which checks the file)."""
+    with open(path, newline="", encoding="utf-8-sig") as handle:
+        for raw in handle:
+            if raw.strip() and not raw.lstrip().startswith("#"):
+                return _delimiter(Path(path), raw)
+    return ","
+
+
 def read_table(path: str | Path, what: str) -> tuple[list[str], list[TableRow]]:
     """The stripped header and the data rows of a CSV file (blank lines dropped; each row keeps
     its line number in ``row.line``).
@@ -132,7 +142,7 @@ def _check_separators(path: Path, rows: list[TableRow], delimiter: str) -> None:
     naming both separators; any other miscount is left to the reader's own message."""
     width = len(rows[0])
     for row in rows[1:]:
-        if len(row) == width:
+        if len(row) != 1 or width == 1:  # (a row the header's separator splits at all: its own)
             continue
         line = delimiter.join(row)
         for other, name in DELIMITERS.items():
