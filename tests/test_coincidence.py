@@ -319,9 +319,11 @@ def test_mukca_import_keeps_every_joint_row_and_reads_no_pose_file(tmp_path):
     assert len(ds.distances) == 9 and ds.distances[0][2:] == (0.05, 1e-4)
     assert ds.robot_id == "panda_2" and ds.model.n_joints == 7
     text = (done.folder / "dataset.yaml").read_text()
-    assert str(URDF["panda"].resolve()) in text  # referenced, not copied
+    assert "urdf: robot.urdf" in text and str(URDF["panda"].parent) not in text  # a copy
+    assert (done.folder / "robot.urdf").read_bytes() == URDF["panda"].read_bytes()
     assert {p.name for p in done.folder.iterdir()} - {".relcal-set.json"} == {
         "dataset.yaml",
+        "robot.urdf",
         "samples.csv",
     }
 

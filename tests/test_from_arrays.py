@@ -115,9 +115,9 @@ def test_reprs_are_short(positioner):
     for obj, words in (
         (dataset, ["205 samples", "poses given", "eye_to_hand"]),
         (dataset.model, ["2 joints", "standard DH"]),
-        (cal, ["205 samples", "2 outliers", "held out", "exported", "mm"]),
+        (cal, ["205 samples", "1 outliers", "held out", "exported", "mm"]),
         (cal.result, ["converged", "rank"]),
-        (cal.problem, ["pairs", "invariant formulation"]),
+        (cal.problem, ["samples", "board formulation"]),
         (relcal.get_robot("a465"), ["6 joints"]),
     ):
         text = repr(obj)

@@ -162,14 +162,19 @@ def test_history_of_one_robot_id_with_two_robot_models_says_so(data, tmp_path, c
 
 
 def test_compensate_with_another_robots_nominal_names_the_mismatch(data, tmp_path, capsys):
+    """Another robot's nominal model, with other joint names (UR5e) or the same ones (PUMA 560:
+    waist, shoulder, ... as the A465): refused naming both robots, not "not reached"; doing
+    what the message says (leave --nominal out) compensates."""
     root, _, _ = data
     (tmp_path / "p.csv").write_text("id,q1,q2,q3,q4,q5,q6\nt1,10,-40,30,0,20,5\n")
-    argv = ["compensate", "--model", root / "cal" / "model.yaml", "--targets", tmp_path / "p.csv"]
+    argv = ["compensate", root / "cal", "--targets", tmp_path / "p.csv"]
     code, out, err = run(capsys, *argv, "--nominal", "ur5e")
+    assert code == 2 and out == "" and "another robot" in err, err
+    code, out, err = run(capsys, *argv, "--nominal", "puma560")
     assert code == 2 and out == "", err
-    assert "--nominal ur5e (Universal Robots UR5e) is not the robot of the calibrated model" in err
-    assert "flanges are up to" in err and "(--nominal a465)" in err, err
-    code, out, err = run(capsys, *argv, "--nominal", "a465", "--quiet")  # the suggestion
+    assert "--nominal puma560 (Unimation PUMA 560) is not the robot the calibration" in err, err
+    assert "flanges are up to" in err and "leave --nominal out" in err, err
+    code, out, err = run(capsys, *argv, "--quiet")  # the suggestion
     assert code == 0 and out.splitlines()[1].startswith("t1,"), err
 
 

@@ -381,7 +381,8 @@ def test_a_fleet_interrupted_after_its_first_session_is_consistent(tmp_path):
         write_session(root / f"r{i}" / "s1", make_robot("a465", f"r{i}", 60 + i), 300 + i, n=20)
     path = tmp_path / "h.sqlite"
     cli = "import sys; from relcal.cli import main; sys.exit(main(sys.argv[1:]))"
-    argv = [sys.executable, "-c", cli, "fleet", "calibrate", str(root)]
+    cal = tmp_path / "cal"
+    argv = [sys.executable, "-c", cli, "fleet", "calibrate", str(root), "--out", str(cal)]
     argv += ["--workers", "1", "--registry", str(path), "--quiet"]
     proc = subprocess.Popen(
         argv,
@@ -404,12 +405,22 @@ def test_a_fleet_interrupted_after_its_first_session_is_consistent(tmp_path):
     assert rows, err
     recorded = {outputs for _, outputs in rows}
     for session in sorted(root.glob("r*/s1")):
-        out = session / "calibration"
+        out = cal / session.relative_to(root)
         if str(out.resolve()) in recorded:
             whole_set(out)
         else:
             assert not out.exists(), (session, err)
-    leftovers = [p for p in root.rglob(".calibration.tmp-*")]
+    leftovers = [p for p in tmp_path.rglob("*.tmp-*")]
+    assert sorted(p.name for p in root.rglob("*") if p.is_dir() and p.name != "images") == [
+        "r0",
+        "r1",
+        "r2",
+        "r3",
+        "s1",
+        "s1",
+        "s1",
+        "s1",
+    ]  # nothing written into the input tree
     assert leftovers == [], leftovers
     if proc.returncode == 130:
         assert "already written" in err, err

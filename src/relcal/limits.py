@@ -207,13 +207,16 @@ def _size(n: float) -> str:
 AUTO_ALL_PAIRS = 300  # samples whose all pairs the hand-eye guess and verify's checks may form
 
 
-def resolve_pairing(pairing: str, n_samples: int) -> str:
-    """The pairing ``auto`` stands for: ``board``, each pose against ``W F(q) X`` with the world
-    (board) transform ``W`` estimated, whatever the number of samples (the maximum-likelihood
-    form of independent pose noise, one measurement per sample, invariant to the order of the
-    samples: docs/explanation/relative-formulation.md); any other pairing is itself.
-    ``n_samples`` is kept for callers that resolve by size. Anything but one of the pairings'
-    names is refused, naming ``pairing``."""
+def resolve_pairing(pairing: str, n_samples: int, formulation: str = "invariant") -> str:
+    """The pairing ``auto`` stands for: for camera (or mocap) poses, ``formulation``
+    ``invariant`` (what calibrate fits), ``board``, each pose against ``W F(q) X`` with the
+    world (board) transform ``W`` estimated, whatever the number of samples (the
+    maximum-likelihood form of independent pose noise, one measurement per sample, invariant to
+    the order of the samples: docs/explanation/relative-formulation.md); for the base-frame
+    formulations of a simulation (``published``, ``absolute``), which cannot take a board, all
+    pairs up to :data:`AUTO_ALL_PAIRS` samples (``board`` above, refused by them). Any other
+    pairing is itself; anything but one of the pairings' names is refused, naming
+    ``pairing``."""
     names = ("auto", "all", "consecutive", "star", "board")
     if not isinstance(pairing, str) or pairing not in names:
         from relcal.checks import describe  # (NumPy: only on this error path)
@@ -225,7 +228,9 @@ def resolve_pairing(pairing: str, n_samples: int) -> str:
         )
     if pairing != "auto":
         return pairing
-    return "board"
+    if formulation in ("invariant", "board"):
+        return "board"
+    return "all" if n_samples <= AUTO_ALL_PAIRS else "board"
 
 
 def pair_count(n_samples: int, pairing: str) -> int:

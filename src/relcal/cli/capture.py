@@ -66,6 +66,7 @@ def run(args: argparse.Namespace) -> int:
     from relcal.io import File, note_input
     from relcal.outputset import check
 
+    plan_robot(args)
     model = load_robot(args)
     limits = None
     if args.limits:  # the cell's limits, as relcal plan takes them; kept in dataset.yaml
@@ -210,6 +211,40 @@ def _capture(args, model, plan, board, settings, intrinsics, handeye, limits) ->
     return 0 if doc["recorded"] + doc["recorded_before"] > 0 else 1
 
 
+def plan_robot(args: argparse.Namespace) -> None:
+    """The robot of ``args.plan``'s header into ``args.robot`` (``--root``, ``--tip``) when
+    ``--robot`` is not given; a built-in robot named only by its full name (older plans) is
+    found by that name. A ``--robot`` that names another robot than the plan is refused."""
+    from relcal.design.planfile import plan_header
+    from relcal.errors import RelcalError
+    from relcal.robot.loading import library_by_title
+
+    name, _, source = plan_header(args.plan)
+    if args.robot is not None:
+        if name is not None:
+            given = load_robot(args)
+            if given.name != name:
+                raise RelcalError(
+                    f"--robot {args.robot} is '{given.name}', the plan {args.plan} was made for "
+                    f"'{name}': leave --robot out to capture with the plan's robot, or plan "
+                    "again for this one"
+                )
+        return
+    if source is not None:
+        args.robot = source.robot
+        if args.root is None and args.tip is None:
+            args.root, args.tip = source.root, source.tip
+        return
+    builtin = library_by_title(name) if name is not None else None
+    if builtin is None:
+        raise RelcalError(
+            f"{args.plan}: the plan does not say how to load its robot"
+            + (f" ('{name}')" if name else "")
+            + ": give --robot (a built-in name, a model YAML or a URDF file)"
+        )
+    args.robot = builtin
+
+
 def context_options(pairs: list[str] | None) -> list[str]:
     """The options as given, for the capture log."""
     return list(pairs or [])
@@ -249,7 +284,12 @@ def register(sub: argparse._SubParsersAction) -> None:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument("plan", metavar="PLAN", help="the plan CSV (relcal plan --out)")
-    robot_args(p)
+    robot_args(
+        p,
+        default=None,
+        help="the robot, only to override the plan's (its header names the robot it was made "
+        "for; refused when it contradicts the plan): built-in name, model YAML or URDF file",
+    )
     p.add_argument(
         "--robot-driver", required=True, metavar="NAME", help="robot driver (listed below)"
     )

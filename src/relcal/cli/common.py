@@ -38,12 +38,15 @@ def register_all(sub: argparse._SubParsersAction) -> None:
         importlib.import_module(f"relcal.cli.{name}").register(sub)
 
 
-def robot_args(parser: argparse.ArgumentParser) -> None:
-    """``--robot`` and ``--hayati``, shared by every command that takes a robot model."""
+def robot_args(
+    parser: argparse.ArgumentParser, default: str | None = "a465", help: str | None = None
+) -> None:
+    """``--robot`` and ``--hayati``, shared by every command that takes a robot model
+    (``default`` None: the command finds the robot elsewhere, ``help`` says where)."""
     parser.add_argument(
         "--robot",
-        default="a465",
-        help="built-in robot name, model YAML path or URDF file (.urdf) (default a465)",
+        default=default,
+        help=help or "built-in robot name, model YAML path or URDF file (.urdf) (default a465)",
     )
     parser.add_argument(
         "--root",
@@ -321,16 +324,17 @@ def registry_arg(parser: argparse.ArgumentParser) -> None:
 # relcal.calibration.measurement.PAIRINGS, written out here so that the parsers import no NumPy
 PAIRINGS = ("auto", "all", "consecutive", "star", "board")
 PAIRS_HELP = (
-    "how relative poses are compared: auto (default: all pairs up to 300 usable samples, board "
-    "above), all (every pair: quadratic), consecutive, star, or board (each pose against the "
-    "board, its transform estimated: the information of all pairs, linear in the samples); "
-    "--pairs is its former name"
+    "how poses are compared: auto (default: board), board (each pose against the world (board) "
+    "transform, which is estimated: the maximum-likelihood form, linear in the samples and "
+    "independent of their order), or relative pairs: all (every pair: quadratic), "
+    "consecutive, star; --pairs is its former name"
 )
 SIMULATION_PAIRS_HELP = (
     "how the poses are compared, as calibrate's --pairing and with its default: auto (default: "
-    "all pairs up to 300 poses, board above, what calibrate uses for these poses), all (every "
-    "pair), consecutive, star, or board (each camera pose against the board, its transform "
-    "board.* estimated; frame-invariant formulation only); --pairs is its former name"
+    "board for the frame-invariant formulation, what calibrate uses; for the published and "
+    "absolute formulations all pairs up to 300 poses), all (every pair), consecutive, star, "
+    "or board (each camera pose against the board, its transform board.* estimated; "
+    "frame-invariant formulation only); --pairs is its former name"
 )
 
 

@@ -64,6 +64,7 @@ matched by name in any order), then what was measured, one of:
 from __future__ import annotations
 
 import difflib
+import re
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -877,6 +878,42 @@ def _robot(root: Path, value: str | dict, spec_path: Path, node) -> RobotModel:
     )
 
 
+def robot_from_file(
+    path: str | Path, root: str | None = None, tip: str | None = None
+) -> RobotModel:
+    """A robot from a file as a user names it: a model YAML, a URDF (``root``, ``tip``), a
+    URDF chain mapping (``urdf: FILE``, ``root:``, ``tip:``, the file relative to the YAML), or
+    a ``dataset.yaml`` (its ``robot:`` entry). ``root``/``tip`` fill in what a mapping leaves
+    out; a mapping that names other links is refused."""
+    path = Path(path)
+    if path.suffix.lower() not in (".yaml", ".yml"):
+        return get_robot(path, root, tip)
+    data, node = load_yaml(path)
+    if isinstance(data, dict) and "robot" in data and "joints" not in data:
+        data = data["robot"]
+        if not isinstance(data, dict):
+            if root is not None or tip is not None:
+                raise RelcalError(
+                    f"{path}: robot: {excerpt(str(data), 60)} is not a URDF chain: --root and "
+                    "--tip apply to URDF robots only"
+                )
+            return _robot(path.parent, data, path, None)
+    if isinstance(data, dict) and "urdf" in data:
+        data = dict(data)
+        for key, value in (("root", root), ("tip", tip)):
+            if value is None:
+                continue
+            if data.get(key) not in (None, value):
+                raise RelcalError(
+                    f"{path}: {key}: {data[key]}, but --{key} {value} was given: which chain?"
+                )
+            data[key] = value
+        return _robot(path.parent, data, path, None)
+    if root is not None or tip is not None:
+        raise RelcalError(f"{path}: a robot model file: --root and --tip apply to URDF robots only")
+    return get_robot(path)
+
+
 def _board(root: Path, value, spec_path: Path, load_board):
     if isinstance(value, dict):
         from relcal.vision.boards import BoardSpec
@@ -1288,26 +1325,165 @@ def read_joints(path: str | Path, model: RobotModel, joint_unit: str = "deg") ->
     return joints_from_unit(model, _read_columns(path, header, data, joints), joint_unit)
 
 
+PLAN_COMMENT = re.compile(
+    r"#\s*relcal plan:\s*robot\s+(?P<robot>.*?),\s*joint unit\s+(?P<unit>\w+)\s*$"
+)  # the first line of relcal's plan files (relcal.design.planfile)
+ROTATIONS = {
+    "quaternion": ("qx", "qy", "qz", "qw"),
+    "rpy": ("roll", "pitch", "yaw"),
+    "rotation vector": ("rx", "ry", "rz"),
+}
+
+
+@dataclass(frozen=True)
+class Targets:
+    """What a target file holds: ``ids`` and ``lines`` (its line numbers), and either tool
+    ``poses`` ``(N, 4, 4)`` in the base frame (m) or joint values ``q`` ``(N, n)`` (rad, m); a
+    relcal plan file's ``plan_robot`` and ``unit`` when its first line states them."""
+
+    ids: list[str]
+    lines: list[int]
+    poses: np.ndarray | None
+    q: np.ndarray | None
+    plan_robot: str | None = None
+    unit: str | None = None
+
+
+def _plan_comment(path: Path) -> tuple[str | None, str | None]:
+    """``(robot, unit)`` of a relcal plan's comment line, or ``(None, None)``."""
+    try:
+        with open(path, encoding="utf-8-sig") as handle:
+            for raw in handle:
+                if not raw.strip():
+                    continue
+                if not raw.lstrip().startswith("#"):
+                    break
+                found = PLAN_COMMENT.match(raw.strip())
+                if found:
+                    return found["robot"], found["unit"]
+    except (OSError, UnicodeDecodeError):
+        pass  # read_table names what is wrong with the file
+    return None, None
+
+
+def read_target_file(
+    path: str | Path,
+    model: RobotModel,
+    joint_unit: str | None = None,
+    pose_angle_unit: str = "deg",
+    robot_name: str | None = None,
+) -> Targets:
+    """Targets from a CSV: ``id`` and either tool poses or joint values, nothing else.
+
+    Poses: ``x, y, z`` (m, base frame) and one rotation: ``qx, qy, qz, qw`` (unit quaternion),
+    ``roll, pitch, yaw`` (``R = Rz(yaw) Ry(pitch) Rx(roll)``, in ``pose_angle_unit``) or ``rx,
+    ry, rz`` (rotation vector, rad, as a UR controller writes poses). Joints: one column per
+    joint of ``model``, named as the model names them or ``q1 .. qn`` (angles in ``joint_unit``,
+    prismatic joints in m); relcal's plan file (``# relcal plan: robot NAME, joint unit UNIT``)
+    is read in its unit, and refused when it names another robot than ``robot_name`` (default
+    the model's). A file whose columns do not fit the robot (another number of joints, unknown
+    names, extra columns) is refused, never truncated; errors name the file, line and column.
+    """
+    path = Path(path)
+    plan_robot, plan_unit = _plan_comment(path)
+    if plan_unit is not None and plan_unit not in ("deg", "rad"):
+        raise RelcalError(f"{path} line 1: joint unit '{plan_unit}': expected deg or rad")
+    if plan_unit is not None and joint_unit is not None and joint_unit != plan_unit:
+        raise RelcalError(
+            f"{path} line 1: the plan states joint unit {plan_unit}, but --joint-unit "
+            f"{joint_unit} was given; leave --joint-unit out (the file says its unit)"
+        )
+    expected_robot = robot_name or model.name
+    if plan_robot is not None and plan_robot != expected_robot:
+        raise RelcalError(
+            f"{path} line 1: the plan is for robot '{plan_robot}', the calibration is of "
+            f"'{expected_robot}': targets of another robot"
+        )
+    header, data = read_table(path, "target")
+    if "id" not in header:
+        raise RelcalError(f"{path} line {data[0].line - 1 if data else 1}: header: no id column")
+    fields = [h for h in header if h != "id"]
+    lines = [row.line for row in data]
+    named, numbered = list(model.joint_names), [f"q{i + 1}" for i in range(model.n_joints)]
+    unit = plan_unit or joint_unit or "deg"
+    header_line = (data[0].line - 1) if data else 1
+    if set(POSITION_COLUMNS) <= set(fields):
+        rotation = [k for k, cols in ROTATIONS.items() if set(cols) <= set(fields)]
+        if len(rotation) != 1:
+            raise RelcalError(
+                f"{path} line {header_line}: header: x, y, z and "
+                + (
+                    f"two rotations ({' and '.join(rotation)}): keep one"
+                    if rotation
+                    else "no rotation: expected qx, qy, qz, qw or roll, pitch, yaw or rx, ry, rz"
+                )
+            )
+        columns = [*POSITION_COLUMNS, *ROTATIONS[rotation[0]]]
+        extra = [h for h in fields if h not in columns]
+        if extra:
+            raise RelcalError(
+                f"{path} line {header_line}: header: unexpected column(s) {', '.join(extra)}; "
+                f"a pose target is id, {', '.join(columns)}"
+            )
+        values = _read_columns(path, header, data, columns)
+        ids = [row[header.index("id")].strip() for row in data]
+        if rotation[0] == "quaternion":
+            poses = _poses(path, values, lines)
+        elif rotation[0] == "rpy":
+            rpy = values[:, 3:]
+            if pose_angle_unit == "rad" and np.abs(rpy).max() > 2 * np.pi + 0.1:
+                raise RelcalError(
+                    f"{path}: roll, pitch, yaw reach {np.abs(rpy).max():.1f}, which looks like "
+                    "degrees, but --pose-angle-unit is rad"
+                )
+            if pose_angle_unit == "deg":
+                rpy = np.radians(rpy)
+            poses = tf.homogeneous(Rotation.from_euler("xyz", rpy).as_matrix(), values[:, :3])
+        else:
+            poses = tf.homogeneous(Rotation.from_rotvec(values[:, 3:]).as_matrix(), values[:, :3])
+        _check_reach(path, values[:, :3], lines)
+        return Targets(ids, lines, poses, None, plan_robot, plan_unit)
+    columns = named if set(named) <= set(fields) else numbered
+    if sorted(fields) != sorted(columns):
+        joints_like = [h for h in fields if h in named or re.fullmatch(r"q\d+", h)]
+        if len(joints_like) == len(fields) and len(fields) != model.n_joints:
+            why = (
+                f"{len(fields)} joint columns ({', '.join(fields)}), but '{expected_robot}' has "
+                f"{model.n_joints} joints ({', '.join(named)}): targets of another robot?"
+            )
+        else:
+            unknown = [h for h in fields if h not in columns]
+            missing = [c for c in columns if c not in fields]
+            why = (
+                f"expected id and either x, y, z with a rotation (qx, qy, qz, qw; roll, pitch, "
+                f"yaw; rx, ry, rz) or the joints of '{expected_robot}' ({', '.join(named)}, or "
+                f"{numbered[0]}..{numbered[-1]})"
+                + (f"; unknown column(s) {', '.join(unknown)}" if unknown else "")
+                + (f"; missing {', '.join(missing)}" if missing and not unknown else "")
+            )
+        raise RelcalError(f"{path} line {header_line}: header: {why}")
+    values = _read_columns(path, header, data, columns)
+    ids = [row[header.index("id")].strip() for row in data]
+    q = joints_from_unit(model, values, unit)  # (the caller checks the joint limits)
+    return Targets(ids, lines, None, q, plan_robot, plan_unit)
+
+
+def _check_reach(path: Path, xyz: np.ndarray, lines: list[int]) -> None:
+    """Positions beyond any arm's reach look like millimetres."""
+    far = np.flatnonzero(np.linalg.norm(xyz, axis=1) > 20.0)
+    if far.size:
+        raise RelcalError(
+            f"{path} line {lines[far[0]]}: x, y, z is {np.linalg.norm(xyz[far[0]]):.4g} m from "
+            "the base: positions are in metres (millimetres given?)"
+        )
+
+
 def read_targets(
     path: str | Path, model: RobotModel, joint_unit: str = "deg"
 ) -> tuple[list[str], np.ndarray | None, np.ndarray | None]:
-    """``(ids, poses (N, 4, 4) or None, q (N, n) or None)`` from a CSV of targets: ``id`` and
-    either tool poses ``x..qw`` in the base frame (m, unit quaternion) or joints ``q1..qn`` (a
-    joint program; angles in ``joint_unit``, prismatic joints in m)."""
-    path = Path(path)
-    header, data = read_table(path, "target")
-    joints = [f"q{i + 1}" for i in range(model.n_joints)]
-    columns = list(POSE_COLUMNS) if set(POSE_COLUMNS) <= set(header) else joints
-    if not set(columns) <= set(header) or "id" not in header:
-        raise RelcalError(
-            f"{path} line 1: header: expected id and either {', '.join(POSE_COLUMNS)} or "
-            f"{', '.join(joints)}"
-        )
-    values = _read_columns(path, header, data, columns)
-    ids = [row[header.index("id")].strip() for row in data]
-    if columns == joints:
-        return ids, None, joints_from_unit(model, values, joint_unit)
-    return ids, _poses(path, values, [row.line for row in data]), None
+    """``(ids, poses (N, 4, 4) or None, q (N, n) or None)`` of :func:`read_target_file`."""
+    found = read_target_file(path, model, joint_unit)
+    return found.ids, found.poses, found.q
 
 
 def _read_columns(path: Path, header: list[str], data: list, columns) -> np.ndarray:

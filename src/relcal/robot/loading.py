@@ -68,3 +68,14 @@ def get_robot(
         f"unknown robot '{name}': expected one of {', '.join(library_names())}, a model YAML file "
         "path or a URDF file (.urdf)"
     )
+
+
+def library_by_title(title: str) -> str | None:
+    """The built-in robot (its short name, ``ur5e``) whose model is named ``title``
+    (``Universal Robots UR5e``), or None."""
+    for name in library_names():
+        ref = resources.files("relcal.robot") / "library" / f"{name}.yaml"
+        with resources.as_file(ref) as path:
+            if load_model(path).name == title:
+                return name
+    return None

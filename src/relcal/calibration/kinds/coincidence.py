@@ -62,8 +62,8 @@ class CoincidenceKind(PointKind):
         return np.array([placement_of(g) for g in self.dataset.groups])
 
     def placements(self) -> tuple[str, ...]:
-        """The placements of the usable samples, in order of first appearance."""
-        return tuple(dict.fromkeys(self.placement_of_samples()[self.usable()]))
+        """The placements of the usable samples, by name (an order of the data alone)."""
+        return tuple(sorted(set(self.placement_of_samples()[self.usable()])))
 
     def split(
         self, holdout: float, seed: int, holdout_ids: Sequence[str] | None

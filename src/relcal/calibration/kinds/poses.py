@@ -97,10 +97,13 @@ class PoseKind(MeasurementKind):
         return check_dataset(ds, self.measurements)  # a wrong unit, order or board
 
     def training(self, train: np.ndarray, previous: Training | None = None) -> Training:
-        if previous is not None:  # the frame guesses and the analysis of the first training set
-            problem = self.problem_on(train, previous.problem.handeye, previous.problem.board)
-            return replace(previous, samples=train, problem=problem)
         ds = self.dataset
+        if previous is not None:  # the frame guesses of the first training set (the fits'
+            # frame parameters are moves from them), the analysis of these samples (a wrong
+            # sample, an inverted pose, bends the Jacobian at nominal through its residual)
+            problem = self.problem_on(train, previous.problem.handeye, previous.problem.board)
+            ident = check_pose_set(problem, str(ds.spec_path), refuse=False)
+            return Training(train, problem, ident, geometric_columns(problem, ident.subset))
         handeye = ds.handeye
         if handeye is None:
             handeye = solve_handeye(fk(ds.model, ds.q[train]), self.measurements.poses[train])
