@@ -137,7 +137,7 @@ def test_every_argument_of_the_wrong_kind_is_refused_by_name(calls, name):
         ({"seed": 2**70}, ("seed", "2**63 - 1")),
         ({"seed": -1}, ("seed", "[0, inf)")),
         ({"holdout": 0.99}, ("holdout", "leaving 0 to train on", "give holdout at most")),
-        ("all-held-out", ("holdout_ids", "holds out 12 of the 12 samples")),
+        ("all-held-out", ("holdout_ids", "holds out 12 of the 12 samples", "hold out at most")),
     ],
 )
 def test_the_issues_calibrate_arguments_and_the_suggested_fix(calls, change, words):
@@ -149,12 +149,16 @@ def test_the_issues_calibrate_arguments_and_the_suggested_fix(calls, change, wor
         relcal.calibrate(**{**base, **change})
     for word in words:
         assert word in str(info.value), info.value
-    if "holdout" in change:  # the suggestion, followed: the largest share that leaves enough
-        import re
+    import re
 
-        most = float(re.search(r"at most ([0-9.]+)", str(info.value)).group(1))
-        cal = relcal.calibrate(**{**base, "holdout": most})
-        assert len(cal.train) == 4 and len(cal.test) == 8
+    found = re.search(r"at most ([0-9.]+)", str(info.value))
+    most = found.group(1) if found else None
+    if "holdout" in change:  # the suggestion, followed: the largest share that leaves enough
+        cal = relcal.calibrate(**{**base, "holdout": float(most)})
+        assert len(cal.test) >= 2 and len(cal.train) + len(cal.test) == 12
+    if "holdout_ids" in change:  # hold out at most that many
+        cal = relcal.calibrate(**{**base, "holdout_ids": list(dataset.ids[: int(most)])})
+        assert len(cal.test) == int(most)
 
 
 def test_an_empty_path_is_never_the_working_folder(calls):
