@@ -148,6 +148,7 @@ def test_concurrent_writers_lose_nothing(calibrated, tmp_path):
         runs = registry.runs("arm1")
     assert len(runs) == n_proc * count
     assert {r.session for r in runs} == {f"w{w}-{k}" for w in range(n_proc) for k in range(count)}
+    assert not (tmp_path / "shared.sqlite.lock").exists()  # the migration lock: removed
 
 
 def test_opening_waits_for_a_migration_under_way(calibrated, tmp_path):
