@@ -28,6 +28,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
+from relcal.data.order import natural
 from relcal.robot.kinematics import fk
 from relcal.robot.model import RobotModel
 
@@ -230,6 +231,6 @@ def describe(coverage: Coverage, model: RobotModel, ids: list[str]) -> dict:
         "configurations": coverage.n_configurations,
         "repeated_samples": coverage.n_repeated,
         "still_joints": still,
-        "singular_samples": [ids[k] for k in singular.samples],
+        "singular_samples": natural(ids[k] for k in singular.samples),
         "limits": limits,
     }
