@@ -11,7 +11,9 @@ from __future__ import annotations
 
 import contextlib
 import io
+import json
 import os
+import resource
 import shutil
 import subprocess
 import sys
@@ -50,14 +52,17 @@ class Checkout:
         self.env = dict(os.environ, OPENBLAS_NUM_THREADS="1", MPLBACKEND="Agg")
         self.env["PATH"] = f"{Path(sys.executable).parent}{os.pathsep}{self.env['PATH']}"
         self.done: dict[str, float] = {}  # command -> seconds it took
+        self.cpu: dict[str, float] = {}  # command -> CPU seconds of its processes
         self.printed: dict[str, str] = {}  # command -> its output (stdout and stderr, in order)
+        self.outputs = base / "outputs"  # each command's output, to read after a run
+        self.outputs.mkdir()
 
     def run(self, command: str, where: str) -> str:
         """Run ``command`` once (a command printed on several pages runs once) and return what
         it printed."""
         if command in self.done:
             return self.printed[command]
-        start = time.perf_counter()
+        start, before = time.perf_counter(), resource.getrusage(resource.RUSAGE_CHILDREN)
         done = subprocess.run(
             ["bash", "-c", command],
             cwd=self.root,
@@ -68,7 +73,11 @@ class Checkout:
             timeout=600,
         )
         self.done[command] = time.perf_counter() - start
+        after = resource.getrusage(resource.RUSAGE_CHILDREN)
+        self.cpu[command] = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
         self.printed[command] = done.stdout
+        n = len(self.done)
+        (self.outputs / f"{n:03d}.txt").write_text(f"$ {command}\n{done.stdout}")
         assert done.returncode == 0, (
             f"{where}: `{command}` exited {done.returncode}\n{done.stdout[-6000:]}"
         )
@@ -93,11 +102,13 @@ class Checkout:
 def checkout(tmp_path_factory):
     box = Checkout(tmp_path_factory.mktemp("docs-commands"))
     yield box
-    total = sum(box.done.values())
-    slowest = sorted(box.done.items(), key=lambda kv: -kv[1])[:5]
-    print(f"\ndocs commands: {len(box.done)} run in {total:.1f} s; slowest:")
-    for command, seconds in slowest:
-        print(f"  {seconds:6.1f} s  {command}")
+    timings = {c: [box.done[c], box.cpu[c]] for c in box.done}
+    (box.outputs / "timings.json").write_text(json.dumps(timings, indent=1))
+    total, cpu = sum(box.done.values()), sum(box.cpu.values())
+    slowest = sorted(box.done, key=lambda c: -box.cpu[c])[:8]
+    print(f"\ndocs commands: {len(box.done)} run in {total:.1f} s ({cpu:.1f} s CPU); slowest:")
+    for command in slowest:
+        print(f"  {box.done[command]:6.1f} s  {box.cpu[command]:6.1f} s CPU  {command}")
 
 
 def _source(figure, page_blocks):
