@@ -158,7 +158,7 @@ def _line_regex(line: str, search: bool = False) -> tuple[re.Pattern, list[str]]
     parts, shown = [], []
     for k, segment in enumerate(line.split(ELLIPSIS)):
         if k:
-            parts.append(".*?")
+            parts.append(".+?")
         at = 0
         for m in NUMBER.finditer(segment):
             parts.append(_text_regex(segment[at : m.start()]))
@@ -170,12 +170,22 @@ def _line_regex(line: str, search: bool = False) -> tuple[re.Pattern, list[str]]
     return re.compile(body if search else rf"\s*{body}\s*"), shown
 
 
+def _names(line: str) -> list[bool]:
+    """For each number of a page's ``line``: whether it is part of a name (``joint3``,
+    ``theta_off[3]``, ``p001``), which a new output keeps, unlike a measured figure."""
+    out = []
+    for segment in line.split(ELLIPSIS):
+        for m in NUMBER.finditer(segment):
+            before = segment[m.start() - 1] if m.start() else " "
+            out.append(before.isalnum() or before in "_[")
+    return out
+
+
 def _text_regex(text: str) -> str:
-    return (
-        r"\s+".join(re.escape(w) for w in re.split(r"\s+", text))
-        if text.strip()
-        else (r"\s*" if text else "")
-    )
+    """``text`` literally, each run of blanks as one or more blanks."""
+    if not text.strip():
+        return r"\s+" if text else ""
+    return r"\s+".join(re.escape(w) for w in re.split(r"\s+", text))
 
 
 def _lines(text: str) -> list[str]:
@@ -183,18 +193,23 @@ def _lines(text: str) -> list[str]:
     return [line.strip() for line in text.splitlines() if line.strip()]
 
 
-def _align(page: list[str], printed: list[str], numbers: bool) -> list[int] | None:
+def _align(page: list[str], printed: list[str], numbers: str) -> list[int] | None:
     """For each of the ``page``'s lines the index of the ``printed`` line it shows (-1 for an
     ``...`` line), in order, covering the whole output; None if there is no such alignment.
-    ``numbers``: figures compared to the digits shown (else any number goes)."""
+    ``numbers``: ``"all"`` compared to the digits shown, ``"names"`` only the numbers that are
+    part of a name (an index such as ``joint3`` stays what it is, measured figures may change)."""
     compiled = [None if p.strip() == ELLIPSIS else _line_regex(p) for p in page]
+    names = [_names(p) for p in page]
 
     def fits(i: int, j: int) -> bool:
         regex, shown = compiled[i]
         m = regex.fullmatch(printed[j])
         if m is None:
             return False
-        return not numbers or all(map(same_figure, shown, m.groups()))
+        pairs = zip(shown, m.groups(), strict=True)
+        if numbers == "names":
+            pairs = [ab for ab, name in zip(pairs, names[i], strict=True) if name]
+        return all(a == b if numbers == "names" else same_figure(a, b) for a, b in pairs)
 
     seen: dict[tuple[int, int], list[int] | None] = {}
 
@@ -226,14 +241,20 @@ def _align(page: list[str], printed: list[str], numbers: bool) -> list[int] | No
         sys.setrecursionlimit(limit)
 
 
+def _structure(page: list[str], printed: list[str]) -> list[int] | None:
+    """The alignment of the page's lines with the output's whatever the measured figures (a
+    row ``d[panda_joint3]`` stays that row)."""
+    return _align(page, printed, "names")
+
+
 def match_output(shown: str, printed: str) -> str | None:
     """None when the ``text output`` block ``shown`` is what ``printed`` says, line by line
     (blank lines aside; ``...`` lines for lines left out, ``...`` in a line for any text) with
     every figure to the digits shown; else what differs, for the test's message."""
     page, out = _lines(shown), _lines(printed)
-    if _align(page, out, numbers=True) is not None:
+    if _align(page, out, "all") is not None:
         return None
-    structure = _align(page, out, numbers=False)
+    structure = _structure(page, out)
     if structure is None:
         return (
             "the block's lines are not the output's (a line changed, was added or removed: "
@@ -257,7 +278,7 @@ def updated_output(shown: str, printed: str) -> str:
     wildcards kept, each figure the printed one to the digits shown; the whole output when the
     lines no longer correspond (a person elides again)."""
     page, out = _lines(shown), _lines(printed)
-    structure = _align(page, out, numbers=False)
+    structure = _structure(page, out)
     if structure is None:
         return "\n".join(line.rstrip() for line in printed.strip("\n").splitlines())
     lines = shown.splitlines()
@@ -290,7 +311,7 @@ def _formatted(shown: str, printed: str) -> str:
         text = f"{m}e{int(x)}" if not exponent.startswith(("+", "-0", "0")) else text
     else:
         text = f"{value:.{decimals}f}"
-    if shown.startswith("+") and value >= 0:
+    if (shown.startswith("+") or printed.startswith("+")) and value >= 0:
         text = "+" + text
     return text
 
@@ -320,9 +341,14 @@ def _shown(page: Path) -> str:
 
 def quoted_figures(page: Path) -> list[Figure]:
     """The figures of ``page``'s prose tied to an output by a ``<!--out ...-->`` marker right
-    after them (outside code blocks)."""
+    after them (outside code blocks and inline code)."""
     text = page.read_text()
-    spans = [(b.start, b.end) for b in blocks(page)]
+    fenced = [(m.start(), m.end()) for m in FENCE.finditer(text)]
+    masked = text
+    for a, b in fenced:  # inline code is looked for outside the fenced blocks
+        masked = masked[:a] + " " * (b - a) + masked[b:]
+    inline = re.finditer(r"``[^\n]*?``|`[^`\n]*`", masked)
+    spans = fenced + [(m.start(), m.end()) for m in inline]
     out = []
     for m in MARKER.finditer(text):
         if any(a <= m.start() < b for a, b in spans):
@@ -343,17 +369,29 @@ def quoted_figures(page: Path) -> list[Figure]:
     return out
 
 
+ANCHOR = " >> "  # in a prose pattern: the lines after the first one that fits what precedes
+
+
 def figure_in(figure: Figure, printed: str) -> str | None:
-    """The number that ``figure``'s pattern locates in ``printed`` (the first line it fits),
-    or None."""
-    before, _, after = figure.pattern.partition("{}")
-    regex, _ = _line_regex(f"{before}\0{after}", search=True)
+    """The number that ``figure``'s pattern locates in ``printed`` (the first line it fits,
+    after the lines that fit its anchors, ``A >> B >> pattern``), or None."""
+    *anchors, pattern = figure.pattern.split(ANCHOR)
+    lines = _lines(printed)
+    for anchor in anchors:
+        regex = _line_regex(anchor, search=True)[0]
+        at = next((k for k, line in enumerate(lines) if regex.search(line)), None)
+        if at is None:
+            return None
+        lines = lines[at + 1 :]
+    before, _, after = pattern.partition("{}")
+    regex, shown = _line_regex(f"{before}\0{after}", search=True)
     regex = re.compile(regex.pattern.replace(re.escape("\0"), f"({NUMBER.pattern})", 1))
-    for line in _lines(printed):
-        m = regex.search(line)
-        if m:
-            k = len(_line_regex(before, search=True)[1])  # numbers of the pattern before {}
-            return m.group(k + 1)
+    k = len(_line_regex(before, search=True)[1])  # numbers of the pattern before {}
+    for line in lines:
+        for m in regex.finditer(line):
+            context = m.groups()[:k] + m.groups()[k + 1 :]  # the pattern's own numbers
+            if all(map(same_figure, shown, context)):  # (theta_off[4] is not theta_off[3])
+                return m.group(k + 1)
     return None
 
 

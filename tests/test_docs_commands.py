@@ -13,6 +13,7 @@ import contextlib
 import io
 import json
 import os
+import re
 import resource
 import shutil
 import subprocess
@@ -38,6 +39,7 @@ from helpers_docs import (
 )
 
 PAGES = pages()
+PROGRESS = re.compile(r"\d+%\|.*\|\s*\d+/\d+ \[|\r")  # a tqdm progress bar's line
 LABELS = {b.label: b for page in PAGES for b in blocks(page) if b.label}
 
 
@@ -75,13 +77,15 @@ class Checkout:
         self.done[command] = time.perf_counter() - start
         after = resource.getrusage(resource.RUSAGE_CHILDREN)
         self.cpu[command] = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
-        self.printed[command] = done.stdout
+        # What stays on a terminal: progress bars (tqdm, on standard error) left out.
+        printed = [line for line in done.stdout.splitlines() if not PROGRESS.search(line)]
+        self.printed[command] = "\n".join(printed) + "\n" if printed else ""
         n = len(self.done)
         (self.outputs / f"{n:03d}.txt").write_text(f"$ {command}\n{done.stdout}")
         assert done.returncode == 0, (
             f"{where}: `{command}` exited {done.returncode}\n{done.stdout[-6000:]}"
         )
-        return done.stdout
+        return self.printed[command]
 
     def run_block(self, block) -> str:
         """Run a runnable `sh` block; its commands' outputs, in order."""
