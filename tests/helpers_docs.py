@@ -177,7 +177,7 @@ def _names(line: str) -> list[bool]:
     for segment in line.split(ELLIPSIS):
         for m in NUMBER.finditer(segment):
             before = segment[m.start() - 1] if m.start() else " "
-            out.append(before.isalnum() or before in "_[")
+            out.append((before.isalnum() or before in "_[") and "." not in m.group())
     return out
 
 
