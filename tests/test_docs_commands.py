@@ -125,7 +125,37 @@ def _source(figure, page_blocks):
     return earlier[-1]
 
 
-@pytest.mark.parametrize("page", PAGES, ids=[str(p.relative_to(ROOT)) for p in PAGES])
+def _groups(pages: list[Path]) -> dict[Path, str]:
+    """Pages that share a command, or quote another page's run (label=), in one group: with
+    ``--dist loadgroup`` (pyproject's addopts) a group runs in one worker, so that each command
+    runs once in the whole test run, and a page finds the outputs it quotes."""
+    parent = {p: p for p in pages}
+
+    def root(p: Path) -> Path:
+        while parent[p] != p:
+            p = parent[p]
+        return p
+
+    owner: dict[str, Path] = {}
+    for page in pages:
+        for block in blocks(page):
+            if block.language == "sh" and block.runs:
+                for command in block.commands():
+                    parent[root(page)] = root(owner.setdefault(command, page))
+        for figure in quoted_figures(page):
+            if figure.label in LABELS:
+                parent[root(page)] = root(LABELS[figure.label].page)
+    return {p: str(root(p).relative_to(ROOT)) for p in pages}
+
+
+GROUPS = _groups(PAGES)
+
+
+@pytest.mark.parametrize(
+    "page",
+    [pytest.param(p, marks=pytest.mark.xdist_group(f"docs:{GROUPS[p]}")) for p in PAGES],
+    ids=[str(p.relative_to(ROOT)) for p in PAGES],
+)
 def test_page_commands_run_as_printed(page, checkout, monkeypatch, request):
     """Every command runs as printed, and every figure the page quotes (``text output``
     blocks, ``<!--out ...-->`` figures in prose) is what the commands print, to the digits
