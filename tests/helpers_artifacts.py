@@ -1,6 +1,7 @@
 """A simulated UR5e with first harmonics planted on its joints, as a poses dataset folder."""
 
 import numpy as np
+import pytest
 from conftest import random_q
 from helpers_sim import BOARD, HANDEYE
 
@@ -39,3 +40,38 @@ def ur5e_with_harmonics(root, n: int = 48, seed: int = 5, noise=(2e-5, 3.5e-5)):
     text = write_samples(root / "samples.csv", ids, np.degrees(q), poses=poses)
     (root / "samples.csv").write_text(text)
     return true_model
+
+
+# --- each file's own held-out number (tests/test_artifact_numbers.py) ---------------------------
+
+
+def model_file(cal):
+    (model,) = [a for a in cal.artifacts if a.name == "model.yaml"]
+    return model
+
+
+def files_carry_the_validated_number(cal):
+    """model.yaml always; every written file when nothing was refitted (they all hold the
+    validated model then)."""
+    val = cal.validation
+    assert val is not None
+    want = val.rms("calibrated")
+    assert model_file(cal).rms() == pytest.approx(want, rel=1e-9, abs=1e-9)
+    if cal.geometry is None:
+        for art in cal.artifacts:
+            assert art.written, (art.name, art.refused)
+            assert art.rms() == pytest.approx(want, rel=1e-7), art.name
+    assert want < val.rms("before")  # a real correction: the test could fail by doubling it
+
+
+def relative_rms(cal, loaded, handeye) -> float:
+    """Position RMS (mm) of ``model^-1 measured`` over the validation's pairs, recomputed from
+    the file's forward kinematics and the hand-eye that accompanies it."""
+    val = cal.validation
+    poses = cal.measurements.poses
+    tool = fk(loaded, cal.dataset.q) @ handeye
+    i, j = val.pairs.T
+    model = np.linalg.inv(tool[i]) @ tool[j]
+    measured = np.linalg.inv(poses[i]) @ poses[j]
+    error = np.linalg.inv(model) @ measured
+    return float(np.sqrt(np.mean(np.sum(error[:, :3, 3] ** 2, axis=1)))) * 1e3

@@ -69,9 +69,14 @@ def _held_out(doc: dict, dataset) -> np.ndarray:
     return np.array([where[i] for i in ids])
 
 
+def _transform(doc: dict) -> np.ndarray:
+    """A transform of the JSON documents (``xyz_m``, ``rpy_deg``: URDF roll-pitch-yaw)."""
+    return tf.from_xyz_rpy(np.array(doc["xyz_m"]), np.radians(doc["rpy_deg"]))
+
+
 def _point_rms(flange: np.ndarray, frames: dict, measured: np.ndarray) -> np.ndarray:
     """Per-point error norms (mm) of ``T F(q) m`` against the measured points."""
-    instrument, marker = np.array(frames["instrument"]), np.array(frames["marker_m"])
+    instrument, marker = _transform(frames["instrument"]), np.array(frames["marker_xyz_m"])
     predicted = (instrument @ flange @ np.r_[marker, 1.0])[:, :3]
     return np.linalg.norm(measured - predicted, axis=1) * 1e3
 
@@ -253,7 +258,7 @@ def test_ur5e_harmonics_urdf_error_matches_yourdfpy(tmp_path, capsys):
     for k in np.unique(pairs):
         robot.update_cfg(dict(zip(names, dataset.q[k], strict=True)))
         flange[int(k)] = robot.get_transform("tool0", "base_link")
-    errors = relative_errors(flange, np.array(urdf["frames"]["handeye"]))
+    errors = relative_errors(flange, _transform(urdf["frames"]["handeye"]))
     rms = float(np.sqrt(np.mean(errors**2)))
     assert rms == pytest.approx(urdf["held_out"]["position_rms_mm"], rel=1e-8)
     assert f"robot.urdf (geometry only, refitted): {rms:.3f} mm" in text
@@ -261,7 +266,7 @@ def test_ur5e_harmonics_urdf_error_matches_yourdfpy(tmp_path, capsys):
     model = load_model(tmp_path / "cal" / "model.yaml")
     assert model.harmonic_c.any()
     flange = dict(enumerate(fk(model, dataset.q)))
-    errors = relative_errors(flange, np.array(full["frames"]["handeye"]))
+    errors = relative_errors(flange, _transform(full["frames"]["handeye"]))
     validated = np.array([p["calibrated_mm"] for p in doc["validation"]["pairs"]])
     np.testing.assert_allclose(errors, validated, rtol=0, atol=1e-8)
     assert full["held_out"]["position_rms_mm"] < rms

@@ -23,6 +23,7 @@ ALL_HELP = [
     *([c] for c in ("simulate", "measure", "calibrate", "import", "compensate", "board")),
     *([c] for c in ("observability", "study", "plan", "capture", "fleet", "history", "compare")),
     ["verify"],
+    ["handeye"],
     ["fleet", "calibrate"],
 ]
 

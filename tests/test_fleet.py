@@ -154,6 +154,50 @@ def test_fleet_summaries_are_per_robot_model():
     assert unknown["model"] is None and unknown["n_failed"] == 1
 
 
+def test_fleet_summaries_never_pool_two_kinds_of_held_out_error():
+    """One robot model, sessions of relative poses and of tracker points: their held-out errors
+    measure different things (pairs of poses, absolute points), so each kind gets its own
+    median and none is taken over both (the summary read 33.863 -> 12.537 mm, the median of
+    the TIAGo Pro's poses and points sessions)."""
+    from relcal.fleet.report import fleet_report
+    from relcal.fleet.runner import model_summaries
+    from relcal.fleet.text import fleet_text
+
+    def entry(session, metric, base, after):
+        return {
+            "session": session,
+            "model": "tiago",
+            "robot_id": "arm",
+            "status": "ok",
+            "held_out_metric": metric,
+            "baseline_position_rms_mm": base,
+            "calibrated_position_rms_mm": after,
+        }
+
+    entries = [
+        entry("poses-1", "pairs of poses", 37.0, 20.0),
+        entry("poses-2", "pairs of poses", 41.0, 22.0),
+        entry("points-1", "points", 30.0, 4.0),
+        entry("points-2", "points", 34.0, 6.0),
+    ]
+    (summary,) = model_summaries(entries)
+    by_metric = {h["metric"]: h for h in summary["held_out"]}
+    assert set(by_metric) == {"pairs of poses", "points"}
+    assert by_metric["pairs of poses"]["n_sessions"] == 2
+    assert by_metric["pairs of poses"]["median_calibrated_position_rms_mm"] == 21.0
+    assert by_metric["points"]["median_baseline_position_rms_mm"] == 32.0
+    assert summary["median_calibrated_position_rms_mm"] is None  # no median over both kinds
+    text = fleet_text(entries, [summary])
+    assert "on pairs of poses 39.000 -> 21.000 mm (median of 2)" in text
+    assert "on points 32.000 -> 5.000 mm (median of 2)" in text
+    # what medians over both kinds would print: 35.5 -> 13.0 mm
+    assert "35.500" not in text and "13.000" not in text
+    doc = {"models": [summary], "seconds": 1.0, "alpha": 0.01}
+    html = fleet_report(doc, entries)
+    assert ">21.000<" in html and ">5.000<" in html
+    assert "35.500" not in html and "13.000" not in html
+
+
 def test_fleet_report_renders_in_chromium(fleet_run, tmp_path):
     from test_report_browser import check_page, check_rendering, check_section_drawn
 

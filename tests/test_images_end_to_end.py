@@ -93,3 +93,19 @@ def test_camera_scaled_keeps_the_field_of_view():
     half = DEFAULT_CAMERA.scaled(0.5)
     assert half == CAMERA
     assert DEFAULT_CAMERA.scaled(1) is DEFAULT_CAMERA
+
+
+def test_image_files_carry_the_validated_number(calibration, tmp_path):
+    """Camera poses measured from the rendered images: model.yaml, which holds the validated
+    model, carries the validated number, and recomputed from the file read back and the
+    hand-eye beside it, the relative pose errors of the validation's pairs give it again."""
+    from helpers_artifacts import files_carry_the_validated_number, model_file, relative_rms
+
+    from relcal.calibration.artifacts import read_back
+
+    _, _, cal = calibration
+    assert cal.dataset.images is not None
+    files_carry_the_validated_number(cal)
+    model = model_file(cal)
+    loaded = read_back("model.yaml", model.content, cal.dataset.model, tmp_path)
+    assert relative_rms(cal, loaded, cal.handeye) == pytest.approx(model.rms(), rel=1e-9)

@@ -212,7 +212,8 @@ def test_calibrate_records_and_history_compare_read(tmp_path, capsys, monkeypatc
     assert "DRIFT" in text and "chi-square" in text
     doc = json.loads((tmp_path / "c.json").read_text())
     change = next(p for p in doc["parameters"] if p["name"] == "d[4]")
-    assert change["difference"] == pytest.approx(3e-4, abs=4 * change["std"])
+    assert change["unit"] == "mm"  # as results.json gives it
+    assert change["difference"] == pytest.approx(0.3, abs=4 * change["std"])
     assert change["flagged"] and doc["flagged"] == ["d[4]"]
 
 

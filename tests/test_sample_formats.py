@@ -313,3 +313,117 @@ def test_the_report_names_what_the_fit_compared(tmp_path, rng):
     html = calibration_report(cal, results_document(cal))
     assert f"<td>training points</td><td>{len(cal.train) - len(cal.outliers)}</td>" in html
     assert "training pairs" not in html
+
+
+# --- tables as spreadsheets export them: decimal commas, millimetres, other Euler sequences -----
+
+
+def _rx(a):
+    c, s = np.cos(a), np.sin(a)
+    return np.array([[1, 0, 0], [0, c, -s], [0, s, c]])
+
+
+def _ry(a):
+    c, s = np.cos(a), np.sin(a)
+    return np.array([[c, 0, s], [0, 1, 0], [-s, 0, c]])
+
+
+def _rz(a):
+    c, s = np.cos(a), np.sin(a)
+    return np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]])
+
+
+_SPREADSHEET_YAML = """robot: a465
+joint_unit: rad
+decimal: ","
+position_unit: mm
+euler: XYZ
+pose_angle_unit: deg
+columns: {x: mx, y: my, z: mz, roll: mrx, pitch: mry, yaw: mrz}
+"""
+
+
+def _spreadsheet(root, rows, yaml_text=_SPREADSHEET_YAML, delimiter=";"):
+    """A table as a German spreadsheet writes it: semicolons, decimal commas, mm, degrees."""
+    root.mkdir(parents=True, exist_ok=True)
+    (root / "dataset.yaml").write_text(yaml_text)
+    header = ["stamp", *[f"q{i}" for i in range(1, 7)], "mx", "my", "mz", "mrx", "mry", "mrz"]
+    text = [delimiter.join(header)]
+    for row in rows:
+        text.append(delimiter.join(f"{v:.10g}".replace(".", ",") for v in row))
+    (root / "samples.csv").write_text("\n".join(text) + "\n")
+    return root
+
+
+def test_decimal_commas_millimetres_and_intrinsic_xyz(tmp_path):
+    """Semicolons with decimal commas, positions in mm, intrinsic X-Y-Z Euler angles in degrees
+    (R = Rx(a) Ry(b) Rz(c), built here by hand): read as the same poses in m."""
+    rng = np.random.default_rng(3)
+    q = rng.uniform(-1, 1, (6, 6))
+    xyz_mm = rng.uniform(-900, 900, (6, 3))
+    angles = rng.uniform(-170, 170, (6, 3))
+    rows = np.column_stack([np.arange(6) * 1e13, q, xyz_mm, angles])
+    data = load_dataset(_spreadsheet(tmp_path / "ds", rows))
+    np.testing.assert_allclose(data.q, q, atol=1e-9)
+    np.testing.assert_allclose(data.poses[:, :3, 3], xyz_mm / 1000, atol=1e-12)
+    for pose, (a, b, c) in zip(data.poses, np.radians(angles), strict=True):
+        np.testing.assert_allclose(pose[:3, :3], _rx(a) @ _ry(b) @ _rz(c), atol=1e-9)
+
+
+@pytest.mark.parametrize(
+    ("change", "expected"),
+    [
+        ({"delimiter": ","}, "columns separated by commas, but dataset.yaml declares decimal"),
+        ({"yaml_text": _SPREADSHEET_YAML.replace("XYZ", "XXY")}, "euler"),
+        ({"yaml_text": _SPREADSHEET_YAML.replace("mm", "cm")}, "position_unit"),
+    ],
+)
+def test_spreadsheet_declarations_refused_with_the_cause(tmp_path, change, expected):
+    rows = np.column_stack([np.zeros(6), np.full((6, 6), 0.5), np.arange(36).reshape(6, 6) + 0.5])
+    with pytest.raises(RelcalError, match=expected):
+        load_dataset(_spreadsheet(tmp_path / "ds", rows, **change))
+
+
+def test_decimal_point_in_a_decimal_comma_table_named(tmp_path):
+    rows = np.column_stack([np.zeros(6), np.full((6, 6), 0.25), np.arange(36).reshape(6, 6) + 0.5])
+    root = _spreadsheet(tmp_path / "ds", rows)
+    lines = (root / "samples.csv").read_text().splitlines()
+    lines[3] = lines[3].replace("0,25", "0.25", 1)  # the first joint of line 4
+    (root / "samples.csv").write_text("\n".join(lines) + "\n")
+    with pytest.raises(RelcalError, match=r"samples.csv line 4: q1: expected a number with a"):
+        load_dataset(root)
+
+
+def test_undeclared_decimal_comma_points_to_the_declaration(tmp_path):
+    rows = np.column_stack([np.zeros(6), np.full((6, 6), 0.25), np.arange(36).reshape(6, 6) + 0.5])
+    root = _spreadsheet(tmp_path / "ds", rows)
+    (root / "dataset.yaml").write_text(_SPREADSHEET_YAML.replace('decimal: ","\n', ""))
+    with pytest.raises(RelcalError, match=r"declare decimal: ',' in dataset.yaml"):
+        load_dataset(root)
+
+
+@pytest.mark.skipif(not (DATA / "ipa_ur10").is_dir(), reason="real data not available")
+def test_real_ipa_ur10_table_read_as_exported(tmp_path):
+    """The IPA UR10 tracker table, decimal commas and all: the first row's pose is the one its
+    text says (mm -> m, intrinsic XYZ degrees computed by hand)."""
+    source = DATA / "ipa_ur10" / "measurements_joint_configurations.csv"
+    root = tmp_path / "ipa"
+    root.mkdir()
+    (root / "dataset.yaml").write_text(
+        "robot: ur5e\njoint_unit: rad\ndecimal: ','\nposition_unit: mm\neuler: XYZ\n"
+        "pose_angle_unit: deg\nsamples: " + str(source) + "\ncolumns: {q1: shoulder_pan_joint, "
+        "q2: shoulder_lift_joint, q3: elbow_joint, q4: wrist_1_joint, q5: wrist_2_joint, "
+        "q6: wrist_3_joint, x: measurement_x, y: measurement_y, z: measurement_z, "
+        "roll: measurement_rx, pitch: measurement_ry, yaw: measurement_rz}\n"
+    )
+    data = load_dataset(root)
+    assert data.q.shape == (1495, 6)
+    header, first = source.read_text().splitlines()[:2]
+    cells = dict(zip(header.split(";"), first.split(";"), strict=True))
+    value = {k: float(v.replace(",", ".")) for k, v in cells.items() if k != "Timestamp"}
+    np.testing.assert_allclose(
+        data.poses[0, :3, 3], [value[f"measurement_{a}"] / 1000 for a in "xyz"], atol=1e-12
+    )
+    a, b, c = np.radians([value[f"measurement_r{a}"] for a in "xyz"])
+    np.testing.assert_allclose(data.poses[0, :3, :3], _rx(a) @ _ry(b) @ _rz(c), atol=1e-9)
+    assert data.q[0, 0] == value["shoulder_pan_joint"]

@@ -27,9 +27,11 @@ from relcal.calibration.pipeline import cross_validate
 from relcal.calibration.selection import plain_whiteners, whitened
 from relcal.calibration.validate import held_out, pooled, stats
 from relcal.cli import main
+from relcal.data.dataset import load_dataset
 from relcal.data.importers import import_rct_positioner
 from relcal.reporting.documents import validation_document
-from relcal.robot.model import auto_hayati
+from relcal.robot.kinematics import fk
+from relcal.robot.model import auto_hayati, load_model
 
 
 def test_moment_design_is_the_pair_covariance_map(rng):
@@ -148,7 +150,8 @@ def test_selection_keeps_the_baseline_when_nothing_is_planted(tmp_path):
 def test_calibration_that_hurts_exits_1_and_writes_nothing(tmp_path, capsys):
     """Force every parameter in (--selection all) on 12 samples with no error: when the held-out
     error exceeds the baseline's beyond its interval, the command fails and leaves no outputs;
-    when it exceeds it within the interval, it says so and writes."""
+    when it exceeds it within the interval, it says so and writes the baseline, never the worse
+    model, with the verdict "do not deploy"."""
     out = tmp_path / "out"
     for seed in range(12):
         syn = synthetic_dataset(
@@ -163,14 +166,58 @@ def test_calibration_that_hurts_exits_1_and_writes_nothing(tmp_path, capsys):
         doc = json.loads((tmp_path / f"r{seed}.json").read_text())
         ratio = doc["validation"]["ratio_to_baseline"]["position_mm"]
         assert ratio["ci95"][0] <= 1.0
-        assert ("slightly worse than the baseline" in captured.out) == (
-            ratio["after_over_before"] > 1
-        )
+        worse = ratio["after_over_before"] > 1
+        assert ("worse than the baseline" in captured.out) == worse
+        assert doc["exported"] == ("baseline" if worse else "calibrated")
+        if worse:
+            assert doc["verdict"]["code"] == "do not deploy"
+            assert "calibrated model is" in doc["verdict"]["text"]
+            assert "the baseline was written" in captured.out
+            nominal = load_dataset(syn.root).model
+            written = load_model(out / "model.yaml")
+            q = np.zeros((1, nominal.n_joints))
+            np.testing.assert_allclose(fk(written, q), fk(nominal, q), atol=1e-12)
+            for entry in doc["artifacts"]["files"]:  # each file is the baseline, ratio 1
+                held = entry["held_out"]
+                assert held["position_rms_mm"] == pytest.approx(
+                    doc["validation"]["baseline"]["position_mm"]["rms"], rel=1e-9
+                )
         shutil.rmtree(out)
     else:
         pytest.fail("no seed made the forced model significantly worse than the baseline")
     assert "worse than the baseline" in captured.err and "nothing was written" in captured.err
     assert not out.exists() and not (tmp_path / f"r{seed}.json").exists()
+
+
+def test_a_model_worse_than_the_baseline_is_not_exported(tmp_path, capsys):
+    """Every parameter forced in (--selection all) on 20 samples with no error: the calibrated
+    model is 1.05x worse than the baseline on the held-out samples, within the interval. The
+    baseline is written (the nominal kinematics, every file's own number the baseline's) and
+    said so; the verdict is "do not deploy", naming how much worse the rejected model was
+    (it read "collect more samples: 0.95x better" and wrote the worse model)."""
+    syn = synthetic_dataset(tmp_path / "d", n=20, noise=(3e-4, 5e-4), seed=7, errors=0)
+    out, doc_path = tmp_path / "out", tmp_path / "r.json"
+    argv = ["calibrate", str(syn.root), "--out", str(out), "--selection", "all", "--seed", "0"]
+    assert main([*argv, "--json", str(doc_path)]) == 0
+    captured = capsys.readouterr().out
+    doc = json.loads(doc_path.read_text())
+    ratio = doc["validation"]["ratio_to_baseline"]["position_mm"]
+    assert ratio["after_over_before"] > 1 and ratio["ci95"][0] < 1  # worse, not beyond doubt
+    assert doc["exported"] == "baseline" and doc["model_selection"]["chosen"] != "hand-eye only"
+    assert "worse than the baseline" in doc["model_selection"]["export_reason"]
+    verdict = doc["verdict"]
+    assert verdict["code"] == "do not deploy" and verdict["factor"] is None
+    assert f"calibrated model is {ratio['after_over_before']:.3g}x worse" in verdict["text"]
+    assert f"verdict: {verdict['text']}" in captured
+    assert "the baseline was written" in captured
+    nominal = load_dataset(syn.root).model
+    written = load_model(out / "model.yaml")
+    q = np.radians(np.linspace(-40.0, 40.0, 5 * nominal.n_joints)).reshape(5, -1)
+    np.testing.assert_allclose(fk(written, q), fk(nominal, q), atol=1e-12)
+    baseline = doc["validation"]["baseline"]["position_mm"]["rms"]
+    for entry in doc["artifacts"]["files"]:
+        assert entry["written"]
+        assert entry["held_out"]["position_rms_mm"] == pytest.approx(baseline, rel=1e-9)
 
 
 def test_published_position_run_labels_every_exactly_recovered_parameter(a465):

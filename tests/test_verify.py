@@ -72,14 +72,16 @@ def test_real_tiago_calibration_verified_on_the_other_session(tmp_path):
     ratio = doc["ratio_to_baseline"]["position_mm"]
     assert ratio["ci95"][1] < 1.0  # it beats the nominal URDF on the new session
     at = doc["at_calibration"]["position_mm"]
-    assert at["rms"] == pytest.approx(4.48, abs=0.01) and at["n_samples"] == 24
+    # 4.48 mm before the held-out split drew from the samples in their content's order (issue
+    # 28: the split depends on the data alone, not on the rows' order); 24 samples either way
+    assert at["rms"] == pytest.approx(4.71, abs=0.01) and at["n_samples"] == 24
     assert doc["ratio_to_calibration"]["position_mm"]["ci99"][0] > 2.0  # far worse than then
     assert len(doc["samples"]) == 48 and doc["joint_ranges"]["checked"]
     # the session's nuisance, fitted to all its points: the instrument close to the identity
     # (the data's README), the new marker near the gripper
     frames = doc["nuisance"]["fitted_to_all_samples"]["calibrated"]["values"]
-    assert np.linalg.norm(frames["instrument_xyz_m"]) < 0.05
-    assert np.degrees(np.abs(frames["instrument_rpy_rad"])).max() < 3.0
+    assert np.linalg.norm(frames["instrument"]["xyz_m"]) < 0.05
+    assert np.abs(frames["instrument"]["rpy_deg"]).max() < 3.0  # deg, as in results.json
     assert 0.1 < np.linalg.norm(frames["marker_xyz_m"]) < 0.2
 
 
@@ -234,12 +236,12 @@ def test_joint_ranges_are_recorded_and_a_session_beyond_them_is_warned(tmp_path)
     ranges["joints"][1].update(lower=-0.1, upper=0.1)
     results.write_text(json.dumps(doc))
     code, out = _verify(tmp_path, first / "calibration", second)
-    outside = out["joint_ranges"]["outside"]
-    assert [o["joint"] for o in outside] == [ranges["joints"][1]["name"]]
-    assert outside[0]["n_samples"] > 10
+    outside = {o["joint"]: o for o in out["joint_ranges"]["outside"]}
+    narrowed = outside[ranges["joints"][1]["name"]]  # (others may reach a little beyond too)
+    assert narrowed["n_samples"] > 10
     assert any("outside the ranges the calibration covered" in w for w in out["warnings"])
-    flagged = [s for s in out["samples"] if s["outside_range"]]
-    assert len(flagged) == outside[0]["n_samples"]
+    flagged = [s for s in out["samples"] if 1 in s["outside_range"]]
+    assert len(flagged) == narrowed["n_samples"]
     # an older results.json without the ranges: they come from its training samples again
     del doc["joint_ranges"]
     results.write_text(json.dumps(doc))

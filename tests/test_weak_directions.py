@@ -166,7 +166,7 @@ def test_tiago_pro_with_a_narrow_wrist_calibrates_and_names_the_wrist(tmp_path):
     weak = doc["identification"]["weak_directions"]
     assert any("arm_right_7_joint" in text for text in weak), weak
     html = report.read_text()
-    assert "Weakly determined directions" in html and "arm_right_7_joint): held by its" in html
+    assert "Weakly determined directions" in html and "a[arm_right_7_joint]: held by its" in html
     assert doc["settings"]["priors"]["length_mm"] == 1.0
 
 

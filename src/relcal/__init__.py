@@ -22,7 +22,8 @@ identification problem), :func:`identify` with :class:`SolverOptions` giving a :
 :func:`import_rosbag` (a recorded calibration run to a dataset folder), :func:`plan` with a
 :class:`Cell` (joint configurations that identify the parameters well), :func:`write_calibration`
 (a calibration's files, written as one set), :func:`verify_session` (a finished calibration on a
-new session: does it still hold?).
+new session: does it still hold?), :func:`handeye` (the hand-eye transform alone, every closed
+form beside the refined estimate, scored on the same held-out samples).
 """
 
 from __future__ import annotations
@@ -55,6 +56,8 @@ _API = {
     "calibrated_urdf": "relcal.robot.export",
     "fk": "relcal.robot.kinematics",
     "get_robot": "relcal.robot.loading",
+    "handeye": "relcal.calibration.handeye_job",
+    "HandEye": "relcal.calibration.handeye_job",
     "identify": "relcal.calibration.identify",
     "import_rosbag": "relcal.data.rosbag",
     "load_dataset": "relcal.data.dataset",
@@ -74,6 +77,7 @@ __all__ = [
     "Calibration",
     "Cell",
     "Dataset",
+    "HandEye",
     "Identifiability",
     "Layout",
     "Measurements",
@@ -91,6 +95,7 @@ __all__ = [
     "calibrated_urdf",
     "fk",
     "get_robot",
+    "handeye",
     "identify",
     "import_rosbag",
     "load_dataset",
@@ -120,6 +125,7 @@ def __dir__() -> list[str]:
 
 
 if TYPE_CHECKING:  # for type checkers and editors: the same names, imported eagerly
+    from relcal.calibration.handeye_job import HandEye, handeye
     from relcal.calibration.identifiability import Identifiability, analyse_problem
     from relcal.calibration.identify import Result, SolverOptions, identify
     from relcal.calibration.measurement import Problem, make_pairs

@@ -69,6 +69,16 @@ def _delimiter(path: Path, header: str) -> str:
     return best
 
 
+def table_delimiter(path: str | Path) -> str:
+    """The delimiter :func:`read_table` reads ``path`` with (call it after :func:`read_table`,
+    which checks the file)."""
+    with open(path, newline="", encoding="utf-8-sig") as handle:
+        for raw in handle:
+            if raw.strip() and not raw.lstrip().startswith("#"):
+                return _delimiter(Path(path), raw)
+    return ","
+
+
 def read_table(path: str | Path, what: str) -> tuple[list[str], list[TableRow]]:
     """The stripped header and the data rows of a CSV file (blank lines dropped; each row keeps
     its line number in ``row.line``).

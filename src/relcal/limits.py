@@ -152,15 +152,18 @@ def _size(n: float) -> str:
     return f"{n / 2**30:.1f} GiB" if n >= 2**30 else f"{n / 2**20:.0f} MiB"
 
 
-AUTO_ALL_PAIRS = 300  # pairing ``auto``: all pairs up to this many samples, ``board`` above
+AUTO_ALL_PAIRS = 300  # samples whose all pairs the hand-eye guess and verify's checks may form
 
 
 def resolve_pairing(pairing: str, n_samples: int) -> str:
-    """The pairing ``auto`` stands for with ``n_samples`` samples (``all`` up to
-    :data:`AUTO_ALL_PAIRS`, ``board`` above); any other pairing is itself."""
+    """The pairing ``auto`` stands for: ``board``, each pose against ``W F(q) X`` with the world
+    (board) transform ``W`` estimated, whatever the number of samples (the maximum-likelihood
+    form of independent pose noise, one measurement per sample, invariant to the order of the
+    samples: docs/explanation/relative-formulation.md); any other pairing is itself.
+    ``n_samples`` is kept for callers that resolve by size."""
     if pairing != "auto":
         return pairing
-    return "all" if n_samples <= AUTO_ALL_PAIRS else "board"
+    return "board"
 
 
 def pair_count(n_samples: int, pairing: str) -> int:

@@ -24,14 +24,14 @@ from __future__ import annotations
 import tempfile
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import TYPE_CHECKING, Literal, Protocol
+from typing import TYPE_CHECKING, Any, Literal, Protocol
 
 import numpy as np
 
 from relcal import geometry as tf
-from relcal.calibration.identify import Result
-from relcal.calibration.measurement import Problem, pair_errors, tracker_frames
-from relcal.calibration.validate import PlacementValidation, Validation, spread_of, subset
+from relcal.calibration.identify import Result, calibrated_handeye
+from relcal.calibration.measurement import Problem, tracker_frames
+from relcal.calibration.validate import PlacementValidation, Validation
 from relcal.errors import RelcalError
 from relcal.io import load_yaml
 from relcal.robot.export import UR_SEGMENTS, _replace_origins, robot_files
@@ -59,9 +59,13 @@ class Calibration(Protocol):
     geometry: Result | None
     validation: Validation | PlacementValidation | None
     settings: dict
+    kind: Any  # relcal.calibration.kinds.MeasurementKind
 
     @property
     def exported(self) -> str: ...
+
+    @property
+    def exported_fit(self) -> Result: ...
 
     @property
     def model(self) -> RobotModel: ...
@@ -100,77 +104,89 @@ class Artifact:
 
 
 def held_out_errors(
-    cal: Calibration, model: RobotModel, params: np.ndarray
+    cal: Calibration, model: RobotModel, params: np.ndarray, name: str = "model.yaml"
 ) -> Validation | PlacementValidation | None:
     """The held-out errors of ``model`` (e.g. read back from a written file, its own kinematics
-    exactly as loaded) on the held-out samples and pairs of ``cal.validation``, with the
-    measurement frames of ``params`` (a parameter vector on ``cal.problem.full_layout``: its
-    kinematic part is ignored). The baseline and guess errors are ``cal.validation``'s; the
-    ``calibrated`` errors are those of ``model``. None without a validation."""
+    exactly as loaded) on the held-out samples of ``cal.validation``, measured by the
+    validation's own metric: the measurement kind's
+    :meth:`~relcal.calibration.kinds.MeasurementKind.validate`, handed ``model`` as the robot
+    (its errors zero) and the measurement frames of ``params`` (a parameter vector on
+    ``cal.problem.full_layout``: its kinematic part is ignored) as they accompany the file
+    ``name`` (:func:`accompanying`). The baseline and guess errors are ``cal.validation``'s; the
+    ``calibrated`` errors are those of ``model``. None without a validation.
+
+    Raises
+    ------
+    RelcalError
+        The kind scored other held-out evidence (pairs, samples) than the validation's.
+    """
+    from relcal.calibration.kinds import Training
+
     val = cal.validation
     if val is None:
         return None
+    if cal.kind is None:
+        raise RelcalError("a calibration without its measurement kind: its files cannot be scored")
     layout = make_layout(model)
-    nuisance = np.asarray(params, dtype=float)[cal.problem.layout.size :]
+    nuisance = accompanying(cal, params, name)[cal.problem.layout.size :]
+    problem = replace(cal.problem, model=model, layout=layout)
+    kind = replace(cal.kind, dataset=replace(cal.kind.dataset, model=model))
+    training = Training(cal.train, problem, cal.result.identifiability, np.zeros(0, dtype=int))
+    fit = replace(cal.result, params=np.concatenate([np.zeros(layout.size), nuisance]))
+    # the samples the validation scored: its held-out samples less those it left out as
+    # outliers (screened once, there; not again here)
+    test = np.setdiff1d(cal.test, val.outliers)
+    mine = kind.validate(training, fit, fit, test, screen=False)
+    if not _same_evidence(mine, val):
+        raise RelcalError("the held-out samples of an artifact differ from the validation's")
+    return replace(val, calibrated=mine.calibrated)
+
+
+def _same_evidence(
+    mine: Validation | PlacementValidation | None, val: Validation | PlacementValidation
+) -> bool:
+    """Both validations scored the same held-out pairs (or samples), in the same order."""
+    if mine is None or type(mine) is not type(val):
+        return False
     if isinstance(val, PlacementValidation):
-        from relcal.calibration.coincidence import make_coincidence, split_params
-
-        ds = cal.dataset
-        samples = val.samples
-        groups = [ds.groups[k] for k in samples]
-        held = make_coincidence(ds.model, ds.q[samples], groups, ds.distances, np.zeros(3))
-        _, tool, _ = split_params(cal.problem, params)
-        spread = spread_of(model, ds.q[samples], held, tool)
-        return replace(val, calibrated=spread)
-    problem = _everything(cal, model, layout)
-    if problem.formulation == "board":  # validated on relative poses, as PoseKind.validate
-        relative = replace(problem, formulation="invariant", pairs=val.pairs)
-        nuisance = nuisance[: relative.full_layout.size - layout.size]  # the hand-eye
-        errors = pair_errors(relative, np.concatenate([np.zeros(layout.size), nuisance]))
-        return replace(val, calibrated=errors)
-    samples = np.unique(val.pairs)
-    pairing = cal.settings.get("pairing") or "all"
-    test = subset(problem, samples, pairing)
-    if problem.formulation in ("absolute", "tracker"):
-        pairs = np.stack([samples, samples], axis=1)
-    else:
-        pairs = samples[test.pair_indices()]
-    if not np.array_equal(pairs, val.pairs):
-        raise RelcalError("the held-out pairs of an artifact differ from the validation's")
-    errors = pair_errors(test, np.concatenate([np.zeros(layout.size), nuisance]))
-    return replace(val, calibrated=errors)
+        return np.array_equal(mine.samples, val.samples)
+    return np.array_equal(mine.pairs, val.pairs)
 
 
-def _everything(cal: Calibration, model: RobotModel, layout) -> Problem:
-    """The calibration's problem on every sample of the dataset, unweighted, with ``model``."""
-    return replace(
-        cal.problem,
-        model=model,
-        layout=layout,
-        q=cal.dataset.q,
-        poses=cal.measurements.poses,
-        pairs=None,
-        weights=None,
-        pair_weights=None,
-    )
+#: The files that hold the whole chain to the tip, its tool transform included (the others, UR's
+#: and Franka's kinematics files, hold the joints' origins only: the tool stays the nominal one).
+HOLD_THE_TOOL = ("model.yaml", "robot.urdf", "origin_corrections.yaml")
 
 
-def frames(cal: Calibration, fit: Result) -> dict:
-    """The measurement frames that accompany a file's kinematics in its validation (SI units,
-    transforms ``(4, 4)`` as nested lists): ``handeye`` (relative poses), ``instrument`` and
-    ``marker_m`` (points), ``tool_point_m`` (coincidences)."""
+def accompanying(cal: Calibration, params: np.ndarray, name: str = "model.yaml") -> np.ndarray:
+    """``params`` (on ``cal.problem.full_layout``) with the measurement frames as they accompany
+    the exported file ``name``: unchanged, except for coincidences when the file holds the tool
+    transform (:data:`HOLD_THE_TOOL`): it ends at the tool point
+    (:attr:`~relcal.calibration.outcome.Calibration.model`), so the tool point that accompanies
+    the file is zero in its tip frame (adding the fitted one again would count it twice)."""
+    params = np.array(params, dtype=float)
+    if cal.problem.formulation == "coincidence" and name in HOLD_THE_TOOL:
+        n = cal.problem.layout.size
+        params[n : n + 3] = -cal.problem.coincidence.tool_point  # guess + delta = 0
+    return params
+
+
+def frames(cal: Calibration, fit: Result, name: str = "model.yaml") -> dict[str, np.ndarray]:
+    """The measurement frames that accompany file ``name``'s kinematics in its validation (SI):
+    ``handeye`` ``(4, 4)`` (relative poses), ``instrument`` ``(4, 4)`` and ``marker`` ``(3,)``
+    (points), ``tool_point`` ``(3,)`` (coincidences: zero for a file that holds it,
+    :func:`accompanying`)."""
     problem = cal.problem
     if problem.formulation == "tracker":
         instrument, marker = tracker_frames(problem, fit.params)
-        return {"instrument": instrument.tolist(), "marker_m": [float(v) for v in marker]}
+        return {"instrument": instrument, "marker": np.asarray(marker, dtype=float)}
     if problem.formulation == "coincidence":
         from relcal.calibration.coincidence import split_params
 
-        _, tool, _ = split_params(problem, fit.params)
-        return {"tool_point_m": [float(v) for v in tool]}
-    if problem.formulation == "invariant":
-        n = problem.layout.size
-        return {"handeye": (problem.handeye @ tf.from_vector(fit.params[n:])).tolist()}
+        _, tool, _ = split_params(problem, accompanying(cal, fit.params, name))
+        return {"tool_point": np.asarray(tool, dtype=float)}
+    if problem.formulation in ("invariant", "board"):
+        return {"handeye": calibrated_handeye(problem, fit)}
     return {}
 
 
@@ -238,16 +254,17 @@ def export_artifacts(cal: Calibration) -> tuple[Artifact, ...]:
     docstring); a geometry-only file worse than the baseline, or unmeasured while it differs
     from the validated model, is refused."""
     nominal = cal.dataset.model
-    refit = cal.geometry is not None
-    geometry_fit = cal.geometry if refit else cal.result
-    entries = [("model.yaml", dump_model(cal.model).encode(), "full model", False, cal.result)]
+    exported = cal.exported_fit
+    refit = cal.geometry is not None and exported is cal.result
+    geometry_fit = cal.geometry if refit else exported
+    entries = [("model.yaml", dump_model(cal.model).encode(), "full model", False, exported)]
     for name, content in robot_files(cal.geometry_model).items():
         entries.append((name, content, "geometry only", refit, geometry_fit))
     out = []
     with tempfile.TemporaryDirectory(prefix="relcal-artifacts-") as tmp:
         for name, content, holds, is_refit, fit in entries:
             loaded = read_back(name, content, nominal, Path(tmp))
-            validation = held_out_errors(cal, loaded, fit.params)
+            validation = held_out_errors(cal, loaded, fit.params, name)
             refused = _refusal(cal, validation, is_refit) if holds == "geometry only" else None
             out.append(Artifact(name, content, holds, is_refit, validation, fit, refused))
     return tuple(out)

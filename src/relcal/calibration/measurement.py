@@ -526,6 +526,59 @@ def board_guess(tip: np.ndarray, poses: np.ndarray, handeye: np.ndarray) -> np.n
     return out
 
 
+def fit_world(
+    model: RobotModel, handeye: np.ndarray, q: np.ndarray, poses: np.ndarray
+) -> np.ndarray:
+    """The world (board) transform ``W`` ``(4, 4)`` that best places the measured poses ``C_k``
+    ``(N, 4, 4)`` at ``W F(q_k) X`` with the kinematics ``model`` and the hand-eye ``X`` held:
+    the board formulation's plain least squares (rotation rows times :func:`board_lever`) over
+    ``W`` alone, from :func:`board_guess`. What a fit in which ``W`` cancels (relative poses)
+    implies for the world frame."""
+    from scipy.optimize import least_squares
+
+    board = board_guess(fk(model, q), poses, handeye)
+    rows = np.r_[np.ones(3), np.full(3, board_lever(poses))]
+    problem = Problem(
+        model, Layout((), (), ()), q, poses, "board", "pose", None, handeye, board=board,
+        weights=rows,
+    )  # fmt: skip
+
+    def cost(w: np.ndarray) -> np.ndarray:
+        return residuals(problem, np.r_[np.zeros(6), w], jacobian=False)
+
+    def jac(w: np.ndarray) -> np.ndarray:
+        return residuals(problem, np.r_[np.zeros(6), w])[1][:, 6:]
+
+    w = least_squares(cost, np.zeros(6), jac=jac, method="lm", xtol=1e-14, ftol=1e-14).x
+    return board_frame(problem, np.r_[np.zeros(6), w])
+
+
+def world_of(problem: Problem, params: np.ndarray) -> np.ndarray:
+    """The world (board) transform ``W`` ``(4, 4)`` of a pose fit ``params`` of ``problem``: the
+    fit's own (board formulation), or, for a relative fit in which ``W`` cancels, the one that
+    best places ``problem``'s poses with the fit's kinematics and hand-eye (:func:`fit_world`)."""
+    if problem.formulation == "board":
+        return board_frame(problem, params)
+    model, handeye = split_params(problem, params)
+    return fit_world(model, handeye, problem.q, problem.poses)
+
+
+def world_errors(
+    problem: Problem,
+    params: np.ndarray,
+    model: RobotModel,
+    q: np.ndarray,
+    poses: np.ndarray,
+) -> np.ndarray:
+    """Errors ``(N, 6)`` (m, rad) of poses ``(N, 4, 4)`` at joints ``q`` predicted in the world
+    frame, ``W F(q) X`` with ``model``'s kinematics and the frames ``W`` (:func:`world_of`) and
+    ``X`` of the fit ``params`` of the pose problem ``problem``: the translation and rotation
+    vector of ``(W F X)^-1 C``, whose norms are the world-frame position and angle errors."""
+    world = world_of(problem, params)
+    _, handeye = split_params(problem, params)
+    return tf.to_vector(tf.invert(world @ fk(model, q) @ handeye) @ poses)
+
+
 def board_lever(poses: np.ndarray) -> float:
     """The median distance (m) of the cameras ``(N, 4, 4)`` (poses in the board frame) from the
     board's origin; 0.1 m at least."""

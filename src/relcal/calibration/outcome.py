@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import functools
 from dataclasses import dataclass, replace
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 
@@ -93,6 +93,10 @@ class Calibration:
         The chosen columns without their non-geometric terms, refitted: the best model a
         geometry-only file (URDF, UR and Franka files) can hold, validated on its own at
         export; None when the chosen model has no non-geometric term.
+    kind : MeasurementKind or None
+        The measurement kind that made it (:mod:`relcal.calibration.kinds`): its ``validate``,
+        the held-out metric of :attr:`validation`, measures each exported file too
+        (:attr:`artifacts`).
     """
 
     dataset: Dataset
@@ -115,6 +119,9 @@ class Calibration:
     # the chosen columns without the non-geometric terms, refitted: what a geometry-only file
     # (URDF, vendor files) can hold; None when the chosen model has no non-geometric term
     geometry: Result | None = None
+    # the measurement kind (relcal.calibration.kinds.MeasurementKind) that made it: its
+    # ``validate`` is the held-out metric, which measures each exported file too (artifacts)
+    kind: Any = None
 
     def __repr__(self) -> str:
         from relcal._repr import plural, short
@@ -143,17 +150,26 @@ class Calibration:
         return self.result.std
 
     @property
-    def exported(self) -> str:
-        """``calibrated``, or ``baseline`` when the hand-eye transform alone was chosen."""
+    def selected_baseline(self) -> bool:
+        """Model selection chose the candidate without kinematic correction (the data support
+        none): :attr:`result` is the baseline's fit."""
         chosen = self.selection[self.chosen].candidate if self.selection else None
-        baseline = chosen is not None and chosen.name in BASELINE_CANDIDATES
-        return "baseline" if baseline else "calibrated"
+        return chosen is not None and chosen.name in BASELINE_CANDIDATES
+
+    def verdict(self):
+        """The :class:`~relcal.calibration.verdict.Verdict` on the exported model: its held-out
+        evidence, and what the samples cannot show (``settings["coverage"]["limits"]``: a joint
+        that never moved, every sample singular)."""
+        from relcal.calibration.verdict import verdict
+
+        limits = tuple(self.settings.get("coverage", {}).get("limits", ()))
+        return verdict(self.validation, self.exported, self.problem.formulation, limits)
 
     @property
     def worse(self) -> bool:
-        """The exported calibrated model's held-out RMS (position; the spread of coincidences)
-        exceeds the baseline's."""
-        if self.validation is None or self.exported == "baseline":
+        """The chosen calibrated model's held-out RMS (position; the spread of coincidences)
+        exceeds the baseline's: it is not exported (:attr:`exported`)."""
+        if self.validation is None or self.selected_baseline:
             return False
         return self.validation.rms("calibrated") > self.validation.rms("before")
 
@@ -166,33 +182,71 @@ class Calibration:
         return self.validation.ratio()["ci95"][0] > 1.0
 
     @property
+    def exported(self) -> str:
+        """``calibrated``, or ``baseline``: model selection chose the measurement frames alone
+        (the data support no kinematic correction), or the chosen model is :attr:`worse` than
+        the baseline on the held-out samples (a model worse than what the user has without
+        calibration is never the answer)."""
+        return "baseline" if self.selected_baseline or self.worse else "calibrated"
+
+    @property
+    def exported_fit(self) -> Result:
+        """The fit of the exported model: :attr:`result`, or :attr:`baseline` when the chosen
+        model is :attr:`worse` than it."""
+        return self.baseline if self.worse else self.result
+
+    @property
+    def export_reason(self) -> str | None:
+        """Why the baseline is exported, in words (None: the calibrated model is)."""
+        if self.selected_baseline:
+            return "the data support no kinematic correction"
+        if not self.worse:
+            return None
+        chosen = self.selection[self.chosen].candidate.name if self.selection else "calibrated"
+        what = "spread" if isinstance(self.validation, PlacementValidation) else "position"
+        return (
+            f"the chosen model ({chosen}) is worse than the baseline on the held-out samples "
+            f"({what} RMS {self.validation.rms('calibrated'):.3f} mm against "
+            f"{self.validation.rms('before'):.3f} mm)"
+        )
+
+    @property
     def model(self) -> RobotModel:
         """The exported robot model (the identified errors applied; only the non-geometric
         terms of the chosen model switched on). Coincidence data: the tool transform ends at
         the estimated tool point (:func:`relcal.calibration.coincidence.with_tool_point`), so
         the model alone (model.yaml, the URDF's tip) predicts the ball centre it was fitted
-        with, whatever the tool point absorbed."""
+        with, whatever the tool point absorbed. When the chosen model is :attr:`worse` than
+        the baseline, the baseline's: the nominal kinematics."""
         layout = self.problem.layout
-        model = calibrated_model(self.problem.model, layout, self.result.params)
-        if self.problem.formulation == "coincidence":
-            from relcal.calibration.coincidence import split_params, with_tool_point
-
-            model = with_tool_point(model, split_params(self.problem, self.result.params)[1])
+        model = self._model_of(self.exported_fit.params)
+        if self.worse:
+            return exported_model(model, set())
         if not self.selection:
             return model
         columns = self.selection[self.chosen].candidate.columns
         return exported_model(model, {layout.kinds[c] for c in columns if c < layout.size})
 
+    def _model_of(self, params: np.ndarray) -> RobotModel:
+        """The nominal model with the errors of ``params`` applied; for coincidences its tool
+        transform ends at the tool point of ``params``
+        (:func:`relcal.calibration.coincidence.with_tool_point`)."""
+        model = calibrated_model(self.problem.model, self.problem.layout, params)
+        if self.problem.formulation == "coincidence":
+            from relcal.calibration.coincidence import split_params, with_tool_point
+
+            model = with_tool_point(model, split_params(self.problem, params)[1])
+        return model
+
     @property
     def geometry_model(self) -> RobotModel:
         """The model of the geometry-only files (URDF, UR and Franka files): :attr:`model` when
         the chosen model has no non-geometric term, otherwise the geometry-only refit
-        (:attr:`geometry`) with every non-geometric term off."""
-        if self.geometry is None:
+        (:attr:`geometry`) with every non-geometric term off (coincidences: its tool transform
+        ends at the refit's own tool point, as :attr:`model`'s at the chosen fit's)."""
+        if self.geometry is None or self.worse:
             return self.model
-        layout = self.problem.layout
-        model = calibrated_model(self.problem.model, layout, self.geometry.params)
-        return exported_model(model, set())
+        return exported_model(self._model_of(self.geometry.params), set())
 
     @functools.cached_property
     def artifacts(self):
@@ -212,8 +266,8 @@ class Calibration:
             before, after = val.baseline.as_errors(), val.calibrated.as_errors()
             return Comparison(before, after, "held-out placements", len(val.samples))
         if val is not None:
-            source = (
-                "held-out points" if self.problem.formulation == "tracker" else "held-out pairs"
+            source = {"points": "held-out points", "poses": "held-out poses"}.get(
+                val.what, "held-out pairs"
             )
             return Comparison(val.before, val.after, source, len(val.pairs))
         problem = replace(self.problem, weights=None, pair_weights=None)
@@ -226,8 +280,9 @@ class Calibration:
 
     @property
     def handeye(self) -> np.ndarray:
-        """The calibrated hand-eye transform ``X`` ``(4, 4)``."""
-        return calibrated_handeye(self.problem, self.result)
+        """The hand-eye transform ``X`` ``(4, 4)`` of the exported model's fit
+        (:attr:`exported_fit`)."""
+        return calibrated_handeye(self.problem, self.exported_fit)
 
 
 def exported_model(model: RobotModel, kinds: set[str]) -> RobotModel:

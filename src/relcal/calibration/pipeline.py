@@ -20,6 +20,7 @@ import numpy as np
 
 from relcal._renamed import UNSET, renamed
 from relcal.calibration.arguments import check_calibrate
+from relcal.calibration.coverage import describe
 from relcal.calibration.identify import Result, SolverOptions, identify_lm, identify_published
 from relcal.calibration.kinds import MeasurementKind, NoiseModel, Training
 from relcal.calibration.kinds.dispatch import kind_of
@@ -43,6 +44,7 @@ from relcal.calibration.selection import (
 )
 from relcal.data.dataset import Dataset
 from relcal.data.imaging import Measurements, measure
+from relcal.data.order import in_canonical_order
 from relcal.errors import RelcalError
 from relcal.robot.model import NONGEOMETRIC
 from relcal.robot.priors import Priors
@@ -64,6 +66,7 @@ def cross_validate(
 
     check_number(k, "k", 2, integer=True)
     check_number(seed, "seed", integer=True)
+    dataset, measurements = in_canonical_order(dataset, measurements)
     if measurements is None:
         measurements = measure(dataset)
     kind = kind_of(dataset, measurements, options.get("pairing", "auto"))
@@ -195,10 +198,13 @@ def calibrate(
         dataset, measurements, holdout, seed, pairing, method, loss, holdout_ids, select_folds,
         selection, nongeometric, weightings, keep_outliers, priors,
     )  # fmt: skip
+    # The samples in their content's order: what follows depends on the data alone.
+    dataset, measurements = in_canonical_order(dataset, measurements)
     if measurements is None:
         measurements = measure(dataset)
     kind = kind_of(dataset, measurements, pairing)
     train, test = kind.split(holdout, seed, holdout_ids)
+    coverage = _coverage(kind, test, holdout_ids)
     dataset = replace(dataset, model=candidate_model(dataset.model, nongeometric))
     if priors == "none":
         dataset = replace(dataset, model=replace(dataset.model, priors=Priors(enabled=False)))
@@ -353,6 +359,7 @@ def calibrate(
         **({"weak_directions": weak} if weak else {}),
         **({"dropped_candidates": dropped} if dropped else {}),
         **({} if plausibility is None else {"plausibility": plausibility}),
+        "coverage": coverage,
         **noise.settings,
         **kind.settings(training),
         **kind.result_settings(training, result),
@@ -375,7 +382,22 @@ def calibrate(
         bootstrap_std=boot,
         warnings=tuple(warnings),
         geometry=geometry,
+        kind=kind,  # its validate measures each exported file (calibration.artifacts)
     )
+
+
+def _coverage(kind: MeasurementKind, test: np.ndarray, holdout_ids) -> dict:
+    """What the usable samples cover (:func:`relcal.calibration.coverage.describe`), how many
+    distinct configurations are held out, and the samples held out only because they repeat a
+    configuration of a sample named in ``holdout_ids``."""
+    ds = kind.dataset
+    usable = kind.usable()
+    doc = describe(kind.coverage, ds.model, [ds.ids[i] for i in usable])
+    doc["held_out_configurations"] = len(np.unique(kind.configurations()[test]))
+    if holdout_ids is not None:
+        named = set(holdout_ids)
+        doc["held_out_with_repeats"] = [ds.ids[i] for i in test if ds.ids[i] not in named]
+    return doc
 
 
 def _geometry_only(

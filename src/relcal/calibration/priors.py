@@ -23,6 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from relcal.calibration.measurement import Problem, residuals
+from relcal.robot.kinematics import label_joints, parameter_label
 from relcal.robot.model import RobotModel
 from relcal.robot.priors import prior_std
 
@@ -100,6 +101,7 @@ class WeakDirection:
     data_std: float
     joint_travel: float | None = None
     joint_prismatic: bool = False
+    label: str = ""  # the name shown (:func:`relcal.robot.kinematics.parameter_label`)
 
     def describe(self) -> str:
         """One line in words, with the joint's name and the units a person reads."""
@@ -112,9 +114,10 @@ class WeakDirection:
         if self.joint_travel is not None:
             t_unit, t_conv = ("mm", 1e3) if self.joint_prismatic else ("deg", 180 / np.pi)
             travel = f"; {self.joint} moved over {self.joint_travel * t_conv:.3g} {t_unit}"
-        where = f" ({self.joint})" if self.joint else ""
+        shown = self.label or self.name
+        where = f" ({self.joint})" if self.joint and f"[{self.joint}]" not in shown else ""
         return (
-            f"{self.name}{where}: held by its prior of {self.prior_std * conv:.3g} {unit} "
+            f"{shown}{where}: held by its prior of {self.prior_std * conv:.3g} {unit} "
             f"(estimate +- {self.posterior_std * conv:.3g} {unit}; {alone}{travel})"
         )
 
@@ -177,6 +180,7 @@ def weak_directions(
                 data,
                 travel,
                 prismatic,
+                parameter_label(layout.names[k], label_joints(model)),
             )
         )
     return out

@@ -29,6 +29,9 @@ from relcal.calibration.noise import robust_scale
 from relcal.robot.model import RobotModel
 
 _KINDS = (("position_mm", slice(0, 3), 1e3), ("orientation_deg", slice(3, 6), 180 / np.pi))
+#: Formulations whose measurements are single samples (pairs ``(k, k)``): absolute poses, poses
+#: against the board (world) transform, tracker points.
+PER_SAMPLE = ("absolute", "board", "tracker")
 
 
 def _norms(errors: np.ndarray, cols: slice, scale: float) -> np.ndarray:
@@ -64,20 +67,24 @@ _LAST_RESAMPLER: tuple = ()
 RESAMPLE_KEEP_BYTES = 2**25  # 32 MB: the counts of 2000 draws of up to 8000 samples
 
 
-def _resampler(pairs: np.ndarray, n_boot: int, seed: int):
+def _resampler(pairs: np.ndarray, n_boot: int, seed: int, units: np.ndarray | None = None):
     """The paired bootstrap over the *samples* of ``pairs`` ``(P, 2)``: a function mapping a value
     per pair ``(P,)`` to its sum in each of ``n_boot`` draws (a pair counts as often as both its
     samples are drawn; per-sample values, pairs ``(k, k)``, once per draw of their sample), and
-    the mask of draws holding at least one pair. The same pairs, ``n_boot`` and ``seed`` give
-    the same function (the last one is reused, not rebuilt)."""
+    the mask of draws holding at least one pair. With ``units`` (a label per sample index, e.g.
+    the configuration of :func:`~relcal.calibration.coverage.configuration_clusters`), whole
+    units are drawn: the repeats of one configuration are one piece of evidence. The same
+    pairs, units, ``n_boot`` and ``seed`` give the same function (the last one is reused)."""
     global _LAST_RESAMPLER
     pairs = np.ascontiguousarray(pairs)
-    digest = hashlib.blake2b(pairs.tobytes(), digest_size=16).digest()
-    key = (pairs.shape, pairs.dtype.str, digest, int(n_boot), seed)
+    digest = hashlib.blake2b(pairs.tobytes(), digest_size=16)
+    if units is not None:
+        digest.update(np.ascontiguousarray(units[np.unique(pairs)], dtype=np.int64).tobytes())
+    key = (pairs.shape, pairs.dtype.str, digest.digest(), int(n_boot), seed)
     last = _LAST_RESAMPLER
     if last and last[0] == key:
         return last[1]
-    made = _make_resampler(pairs, n_boot, seed)
+    made = _make_resampler(pairs, n_boot, seed, units)
     n = len(np.unique(pairs))
     if n_boot * n * _count_dtype(n).itemsize <= RESAMPLE_KEEP_BYTES:
         _LAST_RESAMPLER = (key, made)
@@ -101,7 +108,7 @@ def _draw_counts(n: int, n_boot: int, seed: int) -> np.ndarray:
     return counts.astype(_count_dtype(n))
 
 
-def _make_resampler(pairs: np.ndarray, n_boot: int, seed: int):
+def _make_resampler(pairs: np.ndarray, n_boot: int, seed: int, units: np.ndarray | None = None):
     """:func:`_resampler`, built. Its function also takes several values per pair ``(P, k)``
     and returns ``(n_boot, k)``: the draws' per-pair weights ``counts[i] counts[j]`` are formed
     once per chunk of draws for all ``k`` columns (forming them is what costs)."""
@@ -109,7 +116,11 @@ def _make_resampler(pairs: np.ndarray, n_boot: int, seed: int):
     i, j = index.reshape(pairs.shape).T
     per_sample = bool(np.all(i == j))
     n = len(samples)
-    counts = _draw_counts(n, n_boot, seed)
+    if units is None:
+        counts = _draw_counts(n, n_boot, seed)
+    else:  # each sample counts as often as its unit is drawn
+        _, unit = np.unique(np.asarray(units)[samples], return_inverse=True)
+        counts = _draw_counts(int(unit.max()) + 1, n_boot, seed)[:, unit]
 
     chunk = max(1, min(n_boot, RESAMPLE_CHUNK // max(len(pairs), 1)))
 
@@ -138,15 +149,18 @@ def ratio_interval(
     after: np.ndarray,
     n_boot: int = 2000,
     seed: int = 0,
+    units: np.ndarray | None = None,
 ) -> dict[str, dict[str, float]]:
     """The ratio of RMS after to RMS before, with a 95 % interval from a paired bootstrap over
-    the held-out *samples* (each pair counts as often as both its samples are drawn).
+    the held-out *samples* (each pair counts as often as both its samples are drawn), or over
+    their ``units`` (configurations) when given.
 
     Pairs share samples (``n`` samples make ``n (n - 1) / 2`` pairs), so resampling pairs would
-    pretend far more independent evidence than there is. Per-sample errors (absolute and
-    tracker formulations) come as pairs ``(k, k)`` and count once per draw of their sample.
+    pretend far more independent evidence than there is; repeats of one configuration share its
+    kinematic error, so resampling them one by one would too. Per-sample errors come as pairs
+    ``(k, k)`` and count once per draw of their sample.
     """
-    resampled, drawn = _resampler(pairs, n_boot, seed)
+    resampled, drawn = _resampler(pairs, n_boot, seed, units)
     kinds = []
     for key, cols, scale in _KINDS:
         b2, a2 = _norms(before, cols, scale) ** 2, _norms(after, cols, scale) ** 2
@@ -165,12 +179,16 @@ def ratio_interval(
 
 
 def rms_draws(
-    pairs: np.ndarray, errors: np.ndarray, n_boot: int = 2000, seed: int = 0
+    pairs: np.ndarray,
+    errors: np.ndarray,
+    n_boot: int = 2000,
+    seed: int = 0,
+    units: np.ndarray | None = None,
 ) -> dict[str, np.ndarray]:
     """The RMS error norms (mm, deg) in each draw of the paired bootstrap over the samples of
-    ``pairs`` that :func:`ratio_interval` uses (the same draws for the same ``seed``), per kind
-    (``position_mm``, ``orientation_deg``; kinds without values left out)."""
-    resampled, drawn = _resampler(pairs, n_boot, seed)
+    ``pairs`` (or their ``units``) that :func:`ratio_interval` uses (the same draws for the same
+    ``seed``), per kind (``position_mm``, ``orientation_deg``; kinds without values left out)."""
+    resampled, drawn = _resampler(pairs, n_boot, seed, units)
     kinds = []
     for key, cols, scale in _KINDS:
         e2 = _norms(errors, cols, scale) ** 2
@@ -182,24 +200,33 @@ def rms_draws(
 
 
 def rms_interval(
-    pairs: np.ndarray, errors: np.ndarray, n_boot: int = 2000, seed: int = 0
+    pairs: np.ndarray,
+    errors: np.ndarray,
+    n_boot: int = 2000,
+    seed: int = 0,
+    units: np.ndarray | None = None,
 ) -> dict[str, list[float]]:
     """The 95 % interval of the RMS error norms (mm, deg) by :func:`rms_draws`."""
     return {
         key: [float(v) for v in np.percentile(boot, [2.5, 97.5])]
-        for key, boot in rms_draws(pairs, errors, n_boot, seed).items()
+        for key, boot in rms_draws(pairs, errors, n_boot, seed, units).items()
     }
 
 
 @dataclass(frozen=True)
 class Validation:
-    """Held-out errors ``(P, 6)`` (position m, rotation rad) per pair of held-out samples.
+    """Held-out errors ``(P, 6)`` (position m, rotation rad) per held-out sample (``pairs``
+    ``(k, k)``: each pose predicted in the world frame, each point in the instrument's) or per
+    pair of held-out samples (relative poses).
 
-    ``guess``: nominal kinematics with the hand-eye guess. ``baseline``: nominal kinematics with
-    the hand-eye transform fitted on the training samples, the best a user gets without
-    kinematic calibration (None where there is none, e.g. a simulation that knows the truth).
-    ``calibrated``: the chosen model. Every ratio is relative to :attr:`before`, the baseline
-    when there is one.
+    ``guess``: nominal kinematics with the frame guesses. ``baseline``: nominal kinematics with
+    the frames (hand-eye, world, instrument) fitted on the training samples, the best a user gets
+    without kinematic calibration (None where there is none, e.g. a simulation that knows the
+    truth). ``calibrated``: the chosen model. Every ratio is relative to :attr:`before`, the
+    baseline when there is one. ``units``: the configuration of every sample of the data set
+    (:func:`~relcal.calibration.coverage.configuration_clusters`), which the bootstrap draws
+    whole (None: each sample its own); ``what``: how the evidence is named (``poses``,
+    ``points``, ``pairs of poses``).
     """
 
     pairs: np.ndarray  # (P, 2) sample indices into the full data set
@@ -209,6 +236,25 @@ class Validation:
     # held-out samples that fit badly under every model (:func:`held_out_outliers`), left out
     # of the pairs above
     outliers: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=int))
+    units: np.ndarray | None = None
+    what: str = "pairs of poses"
+
+    @property
+    def samples(self) -> np.ndarray:
+        """The held-out samples the errors rest on (sorted dataset indices)."""
+        return np.unique(self.pairs)
+
+    @property
+    def n_configurations(self) -> int:
+        """The distinct configurations among :attr:`samples`."""
+        if self.units is None:
+            return len(self.samples)
+        return len(np.unique(self.units[self.samples]))
+
+    def interval(self, before: np.ndarray, after: np.ndarray) -> dict[str, dict[str, float]]:
+        """:func:`ratio_interval` of two of this validation's error arrays, drawn as its
+        :attr:`units` say."""
+        return ratio_interval(self.pairs, before, after, units=self.units)
 
     @property
     def before(self) -> np.ndarray:
@@ -230,7 +276,7 @@ class Validation:
 
     def ratio(self) -> dict[str, float | list[float]]:
         """``{"after_over_before", "ci95"}`` of the position RMS (:func:`ratio_interval`)."""
-        return ratio_interval(self.pairs, self.before, self.calibrated)["position_mm"]
+        return self.interval(self.before, self.calibrated)["position_mm"]
 
 
 def pooled(validations: list):
@@ -249,6 +295,8 @@ def pooled(validations: list):
         calibrated=np.concatenate([v.calibrated for v in validations]),
         baseline=np.concatenate([v.baseline for v in validations]) if has_baseline else None,
         outliers=np.concatenate([v.outliers for v in validations]).astype(int),
+        units=validations[0].units,  # the data set's configurations, the same in every fold
+        what=validations[0].what,
     )
 
 
@@ -261,7 +309,9 @@ def subset(
     """The problem restricted to some samples, re-paired among themselves; all pairs capped at
     ``max_pairs`` drawn at random (:func:`~relcal.calibration.measurement.capped_pairs`)."""
     samples = np.asarray(samples)
-    if pairing == "all" and max_pairs is not None:
+    if problem.formulation in PER_SAMPLE:
+        pairs = problem.pairs  # each sample its own measurement
+    elif pairing == "all" and max_pairs is not None:
         pairs = capped_pairs(len(samples), max_pairs)
     else:
         pairs = make_pairs(len(samples), pairing)
@@ -273,8 +323,8 @@ def _scores(problem: Problem, params: np.ndarray, samples, partners, sigma=None)
     formulations: its own error), in units of ``sigma`` (default: robust levels of these
     errors); and ``sigma``."""
     samples, partners = np.asarray(samples), np.asarray(partners)
-    if problem.formulation in ("absolute", "tracker"):
-        errors = pair_errors(problem, params)[samples][:, None, :]
+    if problem.formulation in PER_SAMPLE:
+        errors = pair_errors(subset(problem, samples), params)[:, None, :]
     else:
         # every (sample, partner) but a sample with itself, sample by sample
         slot, where = np.divmod(np.arange(len(samples) * len(partners)), len(partners))
@@ -340,16 +390,21 @@ def held_out(
     baseline: Result | None = None,
     train: np.ndarray | None = None,
     max_pairs: int | None = None,
+    *,
+    guess: np.ndarray | None = None,
+    units: np.ndarray | None = None,
 ) -> Validation:
     """Errors on pairs among ``samples`` (which the identification did not use), or on each
-    sample alone (as pairs ``(k, k)``) for the per-pose formulations, of the nominal model with
-    the frame guesses, the ``baseline`` fit (if given) and ``result``.
+    sample alone (as pairs ``(k, k)``) for the per-sample formulations (:data:`PER_SAMPLE`), of
+    the nominal model with the frame guesses (``guess``, parameters; default zeros), the
+    ``baseline`` fit (if given) and ``result``.
 
     With the ``train`` samples, held-out samples that fit badly under both the calibrated model
     and the baseline (:func:`held_out_outliers`) are left out of the pairs and listed in
     ``outliers``, as outliers among the training samples are left out of the fit (while at
     least 2 held-out samples remain). ``max_pairs``: at most that many of the pairs, drawn at
-    random (a large held-out set: the statistics stay linear in the samples)."""
+    random (a large held-out set: the statistics stay linear in the samples). ``units``: the
+    configuration of each sample of ``problem`` (:attr:`Validation.units`)."""
     samples = np.asarray(samples)
     outliers = np.zeros(0, dtype=int)
     if train is not None:
@@ -358,30 +413,53 @@ def held_out(
         if len(samples) - len(outliers) >= 2:
             samples = np.setdiff1d(samples, outliers)
     test = subset(problem, samples, pairing, max_pairs)
-    if problem.formulation in ("absolute", "tracker"):
+    if problem.formulation in PER_SAMPLE:
         pairs = np.stack([samples, samples], axis=1)
+        what = "poses" if problem.formulation == "board" else "points"
     else:
         pairs = samples[test.pair_indices()]
+        what = "pairs of poses"
     return Validation(
         pairs=pairs,
-        guess=pair_errors(test, np.zeros_like(result.params)),
+        guess=pair_errors(test, np.zeros_like(result.params) if guess is None else guess),
         calibrated=pair_errors(test, result.params),
         baseline=None if baseline is None else pair_errors(test, baseline.params),
         outliers=outliers,
+        units=units,
+        what=what,
     )
+
+
+def split_units(units: np.ndarray, fraction: float, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """Training and held-out indices of samples grouped in ``units`` ``(N,)`` (labels 0 .. m-1:
+    the configurations of :func:`~relcal.calibration.coverage.configuration_clusters`), whole
+    units held out: a random share ``fraction`` of the units (seeded), at least 2 samples, at
+    least one unit left for training. With one sample per unit, a random share of the samples."""
+    units = np.asarray(units, dtype=int)
+    n_units = int(units.max()) + 1
+    order = np.random.default_rng(seed).permutation(n_units)
+    reached = np.cumsum(np.bincount(units, minlength=n_units)[order])
+    n_take = max(int(round(fraction * n_units)), int(np.searchsorted(reached, 2)) + 1)
+    held = np.isin(units, order[: min(n_take, n_units - 1)])
+    return np.flatnonzero(~held), np.flatnonzero(held)
+
+
+def unit_folds(units: np.ndarray, k: int, seed: int = 0) -> list[np.ndarray]:
+    """``k`` disjoint held-out index sets of whole ``units`` covering all samples (the units
+    shuffled with ``seed``); with one sample per unit, ``k`` folds of the samples."""
+    units = np.asarray(units, dtype=int)
+    order = np.random.default_rng(seed).permutation(int(units.max()) + 1)
+    return [np.flatnonzero(np.isin(units, part)) for part in np.array_split(order, k)]
 
 
 def split(n_samples: int, fraction: float, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
     """Random training and held-out sample indices (held-out share ``fraction``)."""
-    order = np.random.default_rng(seed).permutation(n_samples)
-    n_test = max(2, int(round(fraction * n_samples)))
-    return np.sort(order[n_test:]), np.sort(order[:n_test])
+    return split_units(np.arange(n_samples), fraction, seed)
 
 
 def folds(n_samples: int, k: int, seed: int = 0) -> list[np.ndarray]:
     """``k`` disjoint held-out index sets covering all samples (shuffled with ``seed``)."""
-    order = np.random.default_rng(seed).permutation(n_samples)
-    return [np.sort(f) for f in np.array_split(order, k)]
+    return unit_folds(np.arange(n_samples), k, seed)
 
 
 def error_norms(errors: np.ndarray) -> dict[str, np.ndarray]:

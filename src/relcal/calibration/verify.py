@@ -6,8 +6,9 @@ question a user asks before trusting a model: does it still predict better than 
 kinematics? The kinematics of both models are frozen; only what belongs to the session is
 refitted, the same way for both:
 
-- relative poses (``pose``): the hand-eye transform ``X`` (camera or marker mounting); the board
-  (or instrument) placement ``W`` cancels in ``C_i^-1 C_j``;
+- poses (``pose``): the hand-eye transform ``X`` (camera or marker mounting) and the world
+  transform ``W`` (board or instrument placement); each held-out pose is predicted in the world
+  frame, ``W F(q) X``, as calibrate validates;
 - tracker points (``position``): the instrument-to-base transform ``T`` and the marker ``m``;
 - coincidence samples (``coincidence``): the points of the groups (a new placement of the
   plate); the tool point belongs to the robot's tool, a re-seated ball is the same ball, so it
@@ -17,7 +18,7 @@ The nominal baseline is the session's nominal robot with the same nuisance refit
 gets without kinematic calibration, given this session's data. To keep the nuisance from
 flattering either model on the samples it was fitted to, it is **cross-fitted**: the samples are
 split into K folds, each fold's nuisance is fitted on the other folds' samples, and the fold is
-evaluated with it (pairs among the fold's samples for relative poses, each sample for points).
+evaluated with it (each sample: a pose in the world frame, a point, a coincidence).
 Every sample's error is thus a prediction.
 
 The verdict (:func:`assess`) compares the RMS error of both models with a paired bootstrap over
@@ -40,22 +41,20 @@ from __future__ import annotations
 
 import json
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Literal
 
 import numpy as np
 
+from relcal import geometry as tf
 from relcal.calibration.handeye import solve_handeye, solve_instrument
 from relcal.calibration.identify import calibrated_handeye, identify_lm
 from relcal.calibration.measurement import (
-    AUTO_ALL_PAIRS,
-    VALIDATION_PAIRS,
     Problem,
+    board_frame,
     board_guess,
     board_lever,
-    capped_pairs,
-    make_pairs,
     pair_errors,
     tracker_frames,
 )
@@ -85,16 +84,22 @@ RANGE_SLACK_SHARE = 0.05  # of the covered span
 EXIT_STATUS = {"holds": 0, "degraded": 1, "inconclusive": 1, "worse": 1}
 
 NUISANCE = {
-    "pose": "the hand-eye transform X (camera or marker mounting)",
+    "pose": "the hand-eye transform X (camera or marker mounting) and the world transform W "
+    "(board or instrument placement)",
     "position": "the instrument-to-base transform T and the marker position m",
     "coincidence": "the point of each group",
 }
 FROZEN = {
-    "pose": "the kinematics of both models (the board placement cancels in relative poses)",
+    "pose": "the kinematics of both models",
     "position": "the kinematics of both models",
     "coincidence": "the kinematics and the tool point of both models (the robot's tool)",
 }
-FORMULATIONS = {"invariant": "pose", "tracker": "position", "coincidence": "coincidence"}
+FORMULATIONS = {
+    "invariant": "pose",
+    "board": "pose",
+    "tracker": "position",
+    "coincidence": "coincidence",
+}
 
 
 def session_kind(measured: str) -> Kind:
@@ -257,8 +262,8 @@ def fold_indices(
 
 
 def max_folds(kind: Kind, n: int) -> int:
-    """The most folds ``n`` samples allow: a fold of relative poses needs a pair (2 samples)."""
-    return n // 2 if kind == "pose" else n
+    """The most folds ``n`` samples allow: one sample a fold at most."""
+    return n
 
 
 PLAIN = np.diag(plain_whiteners(1)[0]).copy()  # rows of a relative pose: m, and 0.1 m/rad
@@ -266,34 +271,31 @@ PLAIN = np.diag(plain_whiteners(1)[0]).copy()  # rows of a relative pose: m, and
 
 @dataclass(frozen=True)
 class Nuisance:
-    """What one fit of a session's nuisance found, for the report (SI units)."""
+    """What one fit of a session's nuisance found, for the report: ``frames`` by name, SI
+    (``handeye`` or ``instrument`` ``(4, 4)``, ``marker`` and ``tool_point`` ``(3,)``,
+    ``group_points`` ``(G, 3)``; the documents serialize them)."""
 
-    values: dict[str, list[float]]  # e.g. {"handeye_xyz_m": [...], "handeye_rpy_rad": [...]}
+    frames: dict[str, np.ndarray]
     converged: bool
 
 
-def _pose_problem(model: RobotModel, q, poses, handeye, fit: bool = False) -> Problem:
-    """Relative poses of a session with the kinematics frozen: all pairs up to
-    :data:`~relcal.calibration.measurement.AUTO_ALL_PAIRS` samples; above, the board formulation
-    for a ``fit`` of the nuisance and at most
-    :data:`~relcal.calibration.measurement.VALIDATION_PAIRS` random pairs for the errors (linear
-    in the samples, as calibrate's ``--pairs auto``)."""
-    n = len(q)
-    if n > AUTO_ALL_PAIRS and fit:
-        weights = PLAIN.copy()
-        weights[3:] = board_lever(poses)
-        board = board_guess(fk(model, q), poses, handeye)
-        return Problem(model, EMPTY, q, poses, "board", "pose", None, handeye, weights, board=board)
-    pairs = capped_pairs(n, VALIDATION_PAIRS) if n > AUTO_ALL_PAIRS else make_pairs(n, "all")
-    return Problem(model, EMPTY, q, poses, "invariant", "pose", pairs, handeye, PLAIN)
+def _pose_problem(model: RobotModel, q, poses, handeye) -> Problem:
+    """A session's poses against ``W F(q) X`` with the kinematics frozen (the board formulation,
+    as calibrate's default pairing): the nuisance ``X`` and ``W`` to fit."""
+    weights = PLAIN.copy()
+    weights[3:] = board_lever(poses)
+    board = board_guess(fk(model, q), poses, handeye)
+    return Problem(model, EMPTY, q, poses, "board", "pose", None, handeye, weights, board=board)
 
 
-def _fit_pose(model: RobotModel, q, poses) -> tuple[np.ndarray, bool]:
-    """The hand-eye transform ``X`` fitted to relative poses with the kinematics frozen."""
+def _fit_pose(model: RobotModel, q, poses) -> tuple[tuple[np.ndarray, np.ndarray], bool]:
+    """The hand-eye ``X`` and the world transform ``W`` fitted to poses with the kinematics
+    frozen."""
     guess = solve_handeye(fk(model, q), poses)
-    problem = _pose_problem(model, q, poses, guess, fit=True)
+    problem = _pose_problem(model, q, poses, guess)
     result = identify_lm(problem)
-    return calibrated_handeye(problem, result), bool(result.converged)
+    world = board_frame(problem, result.params)
+    return (calibrated_handeye(problem, result), world), bool(result.converged)
 
 
 def _fit_points(model: RobotModel, q, points_poses) -> tuple[tuple[np.ndarray, np.ndarray], bool]:
@@ -340,10 +342,11 @@ def _fold_errors(
 ) -> tuple[np.ndarray, np.ndarray, bool]:
     """Pairs ``(P, 2)`` (sample indices) and errors ``(P, 6)`` of ``model`` on the ``test``
     samples, with the nuisance fitted on the ``train`` samples; and whether that fit converged."""
-    if kind == "pose":
-        handeye, ok = _fit_pose(model, q[train], poses[train])
-        held = _pose_problem(model, q[test], poses[test], handeye)
-        return test[held.pair_indices()], pair_errors(held, np.zeros(6)), ok
+    if kind == "pose":  # each held-out pose predicted in the world frame
+        (handeye, world), ok = _fit_pose(model, q[train], poses[train])
+        predicted = world @ fk(model, q[test]) @ handeye
+        errors = tf.to_vector(tf.invert(predicted) @ poses[test])
+        return np.stack([test, test], axis=1), errors, ok
     if kind == "position":
         (instrument, marker), ok = _fit_points(model, q[train], poses[train])
         held = Problem(
@@ -373,26 +376,15 @@ def _nuisance_all(
     tool_point: np.ndarray | None,
 ) -> Nuisance:
     """The nuisance fitted to every sample of the session (shown, never used for the errors)."""
-    from relcal.geometry import to_xyz_rpy
-
     if kind == "pose":
-        handeye, ok = _fit_pose(model, q, poses)
-        xyz, rpy = to_xyz_rpy(handeye)
-        return Nuisance({"handeye_xyz_m": xyz.tolist(), "handeye_rpy_rad": rpy.tolist()}, ok)
+        (handeye, world), ok = _fit_pose(model, q, poses)
+        return Nuisance({"handeye": handeye, "world": world}, ok)
     if kind == "position":
         (instrument, marker), ok = _fit_points(model, q, poses)
-        xyz, rpy = to_xyz_rpy(instrument)
-        values = {
-            "instrument_xyz_m": xyz.tolist(),
-            "instrument_rpy_rad": rpy.tolist(),
-            "marker_xyz_m": marker.tolist(),
-        }
-        return Nuisance(values, ok)
+        return Nuisance({"instrument": instrument, "marker": np.asarray(marker)}, ok)
     n_groups = int(groups.max()) + 1
     points = _group_points(_tool_points(model, q, tool_point), groups, n_groups)
-    return Nuisance(
-        {"tool_point_m": list(map(float, tool_point)), "groups_m": points.tolist()}, True
-    )
+    return Nuisance({"tool_point": np.asarray(tool_point, float), "group_points": points}, True)
 
 
 @dataclass(frozen=True)
@@ -423,7 +415,7 @@ class Verification:
     @property
     def scheme(self) -> str:
         """How the nuisance was fitted, in words."""
-        where = "pairs among the fold's samples" if self.kind == "pose" else "each sample"
+        where = "each pose in the world frame" if self.kind == "pose" else "each sample"
         return (
             f"{self.n_folds}-fold cross-fitting: each fold evaluated ({where}) with "
             f"{NUISANCE[self.kind]} fitted on the other folds' samples"
@@ -743,7 +735,7 @@ def _verdict(
                 "the calibration is the nominal kinematics (no correction); " + degraded,
             )
         return "holds", (
-            "the calibration exported the nominal kinematics (the data supported no correction); "
+            "the calibration exported the nominal kinematics (no correction); "
             f"on this session it predicts as at calibration (position RMS "
             f"{cal['position_mm']['rms']:.3f} mm)"
         )
@@ -917,21 +909,26 @@ def verify_session(
         (checked before anything is read).
     RelcalError
         Not a calibration folder (no ``model.yaml`` or ``results.json``, or unreadable), a
-        session of a robot with other joints, or too few usable samples (below 4; 3 for
-        coincidence data) to refit the session's nuisance transforms.
+        session of a robot with other joints, a session that holds the calibration's own
+        training samples, or too few usable samples (below 4; 3 for coincidence data) to refit
+        the session's nuisance transforms.
 
     Examples
     --------
-    A calibration written to a folder, verified on a session (here the same one, to keep the
-    example short and self-contained; a real check uses a new session):
+    A calibration written to a folder, verified on a session (here the half of the samples it
+    did not use, to keep the example short and self-contained; a real check uses a session
+    recorded after the calibration, and the calibration's own training samples are refused):
 
     >>> import tempfile, relcal
+    >>> from relcal.data.order import take
     >>> dataset = relcal.load_dataset("examples/tiago-pro-poses")  # from the repository root
+    >>> cal = relcal.calibrate(dataset, holdout=0.5, nongeometric="none")
     >>> out = tempfile.mkdtemp() + "/cal"
-    >>> files = relcal.write_calibration(relcal.calibrate(dataset, nongeometric="none"), out)
-    >>> verification, assessment = relcal.verify_session(out, dataset)
+    >>> files = relcal.write_calibration(cal, out)
+    >>> session = take(cal.dataset, cal.test)
+    >>> verification, assessment = relcal.verify_session(out, session)
     >>> assessment.verdict, assessment.n_samples
-    ('holds', 48)
+    ('holds', 24)
     """
     from relcal.data.imaging import measure
 
@@ -942,6 +939,7 @@ def verify_session(
         measurements = measure(dataset, progress=progress)
     kind = session_kind(dataset.measured)
     usable = np.flatnonzero(measurements.ok)
+    repeated = check_new_session(files, dataset, measurements, usable)
     ver = verify(
         files.model,
         dataset.model,
@@ -957,4 +955,52 @@ def verify_session(
     )
     settings = files.results.get("settings") or {}
     same = FORMULATIONS.get(settings.get("formulation")) == kind
-    return ver, assess(ver, files.reference if same else None, files.covered_ranges()[0], seed=seed)
+    reference = files.reference if same else None
+    assessment = assess(ver, reference, files.covered_ranges()[0], seed=seed)
+    if repeated:
+        assessment = replace(assessment, warnings=(*assessment.warnings, repeated))
+    return ver, assessment
+
+
+def check_new_session(
+    files: CalibrationFiles, dataset, measurements, usable: np.ndarray
+) -> str | None:
+    """Refuse a session that holds samples of the calibration's own training set (its joints
+    and measurement again: verifying on the data it was fitted to says nothing); return a
+    warning when the session's configurations repeat training configurations (a new
+    measurement there shows the model only where it was fitted), else None."""
+    from scipy.spatial import cKDTree
+
+    from relcal.calibration.coverage import SAME_M, SAME_RAD
+    from relcal.data.order import sample_digests
+
+    training = files.results.get("training") or {}
+    ids = [dataset.ids[i] for i in usable]
+    digests = training.get("digests") or []
+    if digests:
+        groups = None if dataset.groups is None else [dataset.groups[i] for i in usable]
+        poses = None if dataset.measured == "coincidence" else measurements.poses[usable]
+        own = np.isin(sample_digests(dataset.q[usable], poses, groups), digests)
+        if own.any():
+            named = ", ".join(ids[k] for k in np.flatnonzero(own)[:5])
+            raise RelcalError(
+                f"{int(own.sum())} of the session's {len(ids)} samples are the calibration's own "
+                f"training samples (the same joints and measurement: {named}"
+                f"{', ...' if own.sum() > 5 else ''}): verifying on the data a model was fitted "
+                "to says nothing of a new session; verify on a session recorded after the "
+                "calibration (its held-out samples were already validated by relcal calibrate)"
+            )
+    configurations = np.asarray(training.get("configurations") or [], dtype=float)
+    model = dataset.model
+    if configurations.ndim != 2 or configurations.shape[1] != model.n_joints:
+        return None
+    scale = np.where(model.prismatic, SAME_M, SAME_RAD)
+    near, _ = cKDTree(configurations / scale).query(dataset.q[usable] / scale, p=np.inf)
+    repeats = near <= 1.0
+    if not repeats.any():
+        return None
+    return (
+        f"{int(repeats.sum())} of the session's {len(ids)} samples repeat configurations of the "
+        "calibration's training set (joints within 0.5 deg): there the session shows the model "
+        "where it was fitted, not elsewhere; verify at other configurations too"
+    )

@@ -236,9 +236,10 @@ def _calibrate(args, dataset, out, holdout_ids, registry) -> int:
         print(calibration_summary(doc))
         if cal.worse:
             print(
-                "note: on this held-out split the calibrated model is slightly worse than the "
-                "baseline, within the sampling interval (no evidence of harm; cross-validation "
-                "on the training samples chose it); --kfold K measures it on every sample"
+                "note: on this held-out split the calibrated model is worse than the baseline, "
+                "within the sampling interval: the baseline was written (nominal kinematics "
+                "with the measurement frames fitted); --kfold K measures the calibration on "
+                "every sample"
             )
         print(f"written: {out}/" + ", ".join(p.name for p in written if p.parent == out))
         if args.report:

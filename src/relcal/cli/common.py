@@ -29,6 +29,7 @@ COMMANDS = [
     "fleet",
     "history",
     "verify",
+    "handeye",
 ]
 
 

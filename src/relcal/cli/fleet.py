@@ -148,6 +148,7 @@ def fleet_document(args, sessions, entries, elapsed: float, registry) -> dict:
         "baseline_orientation_rms_deg",
         "calibrated_position_rms_mm",
         "calibrated_orientation_rms_deg",
+        "held_out_metric",
         "kfold",
         "kfold_baseline_position_rms_mm",
         "kfold_calibrated_position_rms_mm",

@@ -4,9 +4,12 @@
 
     robot: a465                # built-in name, a model YAML or URDF path (relative to the
                                # folder), an inline model mapping, or a URDF chain:
-                               # {urdf: robot.urdf, root: base_link, tip: tool0}
+                               # {urdf: robot.urdf, root: base_link, tip: tool0}; may be left
+                               # out when the samples give flange poses (fx .. fqw)
     hayati: auto               # auto | off: Hayati's beta for parallel consecutive axes
     mode: eye_in_hand          # eye_in_hand (camera on the flange) | eye_to_hand (board on it)
+                               # | robot_world (camera or marker on the flange, measured in a
+                               # fixed world frame; relcal handeye reports both transforms)
     board: board.yaml          # path or inline mapping (needed when samples have images)
     camera: camera.yaml        # path, inline mapping, or "calibrate" (from the same images)
     handeye:                   # guess of flange-from-camera (eye-in-hand) or flange-from-board
@@ -14,6 +17,12 @@
       rpy: [0.0, 0.0, 0.0]     # deg  (OpenCV's calibrateHandEye) gives the starting guess)
     joint_unit: deg            # deg | rad (prismatic joints always in m)
     pose_angle_unit: rad       # rad | deg: unit of roll, pitch, yaw columns (default rad)
+    euler: xyz                 # the roll, pitch, yaw columns' rotation sequence, as SciPy's
+                               #   Rotation.from_euler: xyz (default, URDF: Rz(yaw) Ry(pitch)
+                               #   Rx(roll)), XYZ intrinsic (R = Rx Ry Rz), ZYX, ...
+    position_unit: m           # m | mm: unit of the x, y, z columns (default m)
+    decimal: "."               # "." | ",": the decimal mark of the table's numbers (a decimal
+                               #   comma needs semicolons or tabs between the columns)
     columns: {x: x1, roll: phix1}   # relcal column name: the file's header, for other layouts
     samples: samples.csv
     tolerances:                # optional plausibility thresholds (defaults shown)
@@ -25,6 +34,8 @@
     tool: {xyz: [0, 0, 0.03]}  # coincidence: guess of the tool point in the tip frame (m)
     distances:                 # coincidence: known distances between groups' points (m)
       - {groups: [front/hole_0, front/hole_1], distance: 0.050, std: 0.0002}
+    frames: {base: base_link, flange: tool0, camera: camera_optical}  # relcal handeye's
+                               #   frame names in its exports (also world, marker)
     joint_limits:              # optional: the cell's limits, narrower than the robot's, in
       elbow: [-170, 170]       #   joint_unit (prismatic joints in m); plan and capture keep them
 
@@ -34,12 +45,17 @@ column per joint, named ``q1`` .. ``qn`` or by the model's joint names (``torso_
 matched by name in any order), then what was measured, one of:
 
 - ``image``: a path relative to the folder;
-- a pose ``x, y, z, qx, qy, qz, qw`` (metres, unit quaternion) or ``x, y, z, roll, pitch, yaw``
-  (URDF convention ``R = Rz(yaw) Ry(pitch) Rx(roll)``, in ``pose_angle_unit``): the camera in the
+- a pose ``x, y, z, qx, qy, qz, qw`` (``position_unit``, unit quaternion) or ``x, y, z, roll,
+  pitch, yaw`` (by default the URDF convention ``R = Rz(yaw) Ry(pitch) Rx(roll)``, another
+  sequence by ``euler``; angles in ``pose_angle_unit``): the camera in the
   board frame (eye-in-hand), the board in the camera frame (eye-to-hand), or a motion-capture
   rigid body in the instrument's frame; the instrument-to-base transform cancels;
 - a position ``x, y, z`` alone: a laser tracker's reflector or a marker, in the instrument's
   frame (calibrated with the instrument transform and the marker position estimated);
+- flange poses ``fx, fy, fz, fqx, fqy, fqz, fqw`` (the flange in the robot's base frame as the
+  controller logs it, m, unit quaternion x first) beside the measured columns: with no
+  ``robot:`` they stand for the robot (a pose chain, :mod:`relcal.data.flange`, reproduces
+  them) and no joint columns are needed;
 - nothing but a ``group`` (coincidence samples: the tool point seated at the same unknown point
   for every sample of a group, e.g. a ball in a socket), named ``PLACEMENT/NAME``
   (``front/hole_0``), or with a ``placement`` column that is prefixed to the group's name.
@@ -59,7 +75,7 @@ from scipy.spatial.transform import Rotation
 from relcal import geometry as tf
 from relcal.checks import check_instance, describe
 from relcal.errors import ArgumentError, RelcalError, excerpt, printable
-from relcal.io import load_yaml, note_input, read_table, validate
+from relcal.io import load_yaml, note_input, read_table, table_delimiter, validate
 from relcal.limits import check_input_size
 from relcal.robot.loading import get_robot
 from relcal.robot.model import (
@@ -74,6 +90,8 @@ POSE_COLUMNS = ("x", "y", "z", "qx", "qy", "qz", "qw")
 RPY_COLUMNS = ("x", "y", "z", "roll", "pitch", "yaw")
 POSITION_COLUMNS = ("x", "y", "z")
 Measured = Literal["image", "pose", "position", "coincidence"]
+Mode = Literal["eye_in_hand", "eye_to_hand", "robot_world"]
+MODES = ("eye_in_hand", "eye_to_hand", "robot_world")
 COINCIDENCE_COLUMNS = ("group", "placement")
 
 
@@ -81,6 +99,17 @@ class _Frame(pydantic.BaseModel):
     model_config = pydantic.ConfigDict(extra="forbid")
     xyz: tuple[pydantic.FiniteFloat, pydantic.FiniteFloat, pydantic.FiniteFloat] = (0.0, 0.0, 0.0)
     rpy: tuple[pydantic.FiniteFloat, pydantic.FiniteFloat, pydantic.FiniteFloat] = (0.0, 0.0, 0.0)
+
+
+class _Frames(pydantic.BaseModel):
+    """``frames:``: the names ``relcal handeye`` writes into its exports (tf, URDF)."""
+
+    model_config = pydantic.ConfigDict(extra="forbid")
+    base: str | None = None  # the robot's base frame (base_link)
+    flange: str | None = None  # the flange or tool frame the poses are of (tool0)
+    camera: str | None = None  # the camera (or marker) frame
+    world: str | None = None  # the fixed frame: board, tracker, world
+    marker: str | None = None  # eye-to-hand: the board on the flange
 
 
 class _Tolerances(pydantic.BaseModel):
@@ -124,14 +153,17 @@ class _UrdfRobot(pydantic.BaseModel):
 
 class _DatasetSpec(pydantic.BaseModel):
     model_config = pydantic.ConfigDict(extra="forbid")
-    robot: str | dict[str, Any]
+    robot: str | dict[str, Any] | None = None  # None: the samples' flange poses stand for it
     hayati: Literal["auto", "off"] = "auto"
-    mode: Literal["eye_in_hand", "eye_to_hand"] = "eye_in_hand"
+    mode: Mode = "eye_in_hand"
     board: str | dict[str, Any] | None = None
     camera: str | dict[str, Any] | None = None
     handeye: _Frame | None = None
     joint_unit: Literal["deg", "rad"] = "deg"
     pose_angle_unit: Literal["deg", "rad"] = "rad"
+    euler: str = "xyz"
+    position_unit: Literal["m", "mm"] = "m"
+    decimal: Literal[".", ","] = "."
     columns: dict[str, str] = {}
     samples: str = "samples.csv"
     tolerances: _Tolerances | None = None
@@ -142,6 +174,7 @@ class _DatasetSpec(pydantic.BaseModel):
     # the cell's own limits, narrower than the robot's (joint name or qK -> [lower, upper] in
     # joint_unit, prismatic joints in m): what plan and capture keep to
     joint_limits: dict[str, tuple[float, float]] | None = None
+    frames: _Frames | None = None  # relcal handeye: frame names of the exports
 
     @pydantic.field_validator("hayati", mode="before")
     @classmethod
@@ -152,6 +185,30 @@ class _DatasetSpec(pydantic.BaseModel):
         if value is True:
             return "auto"
         return value
+
+    @pydantic.field_validator("euler")
+    @classmethod
+    def _euler_sequence(cls, value: str) -> str:
+        """A sequence SciPy's ``Rotation.from_euler`` takes: three axes of x, y, z, all lower
+        case (extrinsic, about the fixed frame) or all upper case (intrinsic, about the moving
+        one), no axis twice in a row."""
+        if not is_euler_sequence(value):
+            raise ValueError(
+                "expected three axes of x, y, z, all lower case (extrinsic: xyz is the URDF's "
+                "roll, pitch, yaw) or all upper case (intrinsic: XYZ), no axis twice in a row"
+            )
+        return value
+
+
+def is_euler_sequence(value: str) -> bool:
+    """Whether ``value`` is a rotation sequence of SciPy's ``Rotation.from_euler`` (``xyz``,
+    ``ZYX``, ``zyz``, ...)."""
+    return bool(
+        len(value) == 3
+        and (value.islower() or value.isupper())
+        and set(value.lower()) <= set("xyz")
+        and value[0].lower() != value[1].lower() != value[2].lower()
+    )
 
 
 @dataclass(frozen=True)
@@ -167,9 +224,10 @@ class Dataset:
         The dataset folder (where relative paths of ``dataset.yaml`` start).
     model : RobotModel
         The nominal robot.
-    mode : {"eye_in_hand", "eye_to_hand"}
-        Camera on the flange looking at a fixed board, or a fixed camera and the board on the
-        flange.
+    mode : {"eye_in_hand", "eye_to_hand", "robot_world"}
+        Camera on the flange looking at a fixed board, a fixed camera and the board on the
+        flange, or a camera or marker on the flange measured in a fixed world frame (as
+        eye-in-hand; ``relcal handeye`` reports the world frame too).
     handeye : (4, 4) ndarray of float or None
         Guess of the flange-from-camera (or flange-from-board) transform, m; None to estimate
         it from the data.
@@ -203,6 +261,13 @@ class Dataset:
     distances : tuple of (str, str, float, float)
         Coincidence samples: known distances between groups as
         ``(group_a, group_b, distance_m, std_m)``.
+    flange : (N, 4, 4) ndarray of float or None
+        Flange poses logged by the controller (columns ``fx`` .. ``fqw``), m; when the dataset
+        names no robot, ``model`` is the pose chain that reproduces them
+        (:func:`relcal.data.flange.flange_chain`).
+    frames : dict of str to str or None
+        ``frames:`` of dataset.yaml: the frame names ``relcal handeye`` exports with (``base``,
+        ``flange``, ``camera``, ``world``, ``marker``).
     """
 
     root: Path
@@ -227,6 +292,8 @@ class Dataset:
     groups: tuple[str, ...] | None = None
     tool_point: np.ndarray | None = None
     distances: tuple[tuple[str, str, float, float], ...] = ()
+    flange: np.ndarray | None = None  # (N, 4, 4) logged flange poses (fx .. fqw), when given
+    frames: dict[str, str] | None = None  # relcal handeye: frame names of its exports
 
     @classmethod
     def from_arrays(
@@ -368,8 +435,8 @@ def _from_arrays(
         raise ArgumentError(f"hayati: {hayati!r}; use 'auto' or 'off'")
     if hayati == "auto":
         model = auto_hayati(model)
-    if mode not in ("eye_in_hand", "eye_to_hand"):
-        raise ArgumentError(f"mode: {mode!r}; use 'eye_in_hand' or 'eye_to_hand'")
+    if mode not in MODES:
+        raise ArgumentError(f"mode: {mode!r}; use 'eye_in_hand', 'eye_to_hand' or 'robot_world'")
     if joint_unit not in ("rad", "deg"):
         raise ArgumentError(f"joint_unit: {joint_unit!r}; use 'rad' or 'deg'")
     n = model.n_joints
@@ -513,6 +580,8 @@ def load_dataset(folder: str | Path) -> Dataset:
         )
     spec = validate(_DatasetSpec, data, spec_path, node)
 
+    if spec.robot is None:
+        return _flange_dataset(root, spec, spec_path)
     model = _robot(root, spec.robot, spec_path, node)
     if spec.hayati == "auto":
         model = auto_hayati(model)
@@ -527,7 +596,14 @@ def load_dataset(folder: str | Path) -> Dataset:
     if spec.handeye is not None:
         handeye = tf.from_xyz_rpy(np.array(spec.handeye.xyz), np.radians(spec.handeye.rpy))
     table = read_sample_table(
-        root / spec.samples, model, spec.joint_unit, spec.pose_angle_unit, spec.columns
+        root / spec.samples,
+        model,
+        spec.joint_unit,
+        spec.pose_angle_unit,
+        spec.columns,
+        euler=spec.euler,
+        position_unit=spec.position_unit,
+        decimal=spec.decimal,
     )
     ids, q, images, poses = table.ids, table.q, table.images, table.poses
     groups, distances = _coincidence_spec(spec, spec_path, table)
@@ -566,6 +642,77 @@ def load_dataset(folder: str | Path) -> Dataset:
         distances=distances,
         joint_unit=spec.joint_unit,
         pose_angle_unit=spec.pose_angle_unit if table.rpy else None,
+        flange=table.flange,
+        frames=_frame_names(spec),
+    )
+
+
+def _frame_names(spec: _DatasetSpec) -> dict[str, str] | None:
+    return None if spec.frames is None else spec.frames.model_dump(exclude_none=True)
+
+
+def _flange_dataset(root: Path, spec: _DatasetSpec, spec_path: Path) -> Dataset:
+    """A dataset with no ``robot:``: the samples' flange poses stand for the robot (a pose chain
+    whose joint values reproduce them)."""
+    from relcal.data.flange import flange_chain
+
+    path = root / spec.samples
+    table = read_sample_table(
+        path,
+        None,
+        spec.joint_unit,
+        spec.pose_angle_unit,
+        spec.columns,
+        euler=spec.euler,
+        position_unit=spec.position_unit,
+        decimal=spec.decimal,
+    )
+    extra = [k for k in ("joint_limits", "tool", "measurement") if getattr(spec, k)]
+    if spec.distances:
+        extra.append("distances")
+    if extra:
+        raise RelcalError(
+            f"{spec_path}: {', '.join(extra)}: needs a robot (robot:); without one the flange "
+            "poses stand for it"
+        )
+    model, q = flange_chain(table.flange)
+    handeye = None
+    if spec.handeye is not None:
+        handeye = tf.from_xyz_rpy(np.array(spec.handeye.xyz), np.radians(spec.handeye.rpy))
+    board = camera = None
+    if table.images is not None:
+        from relcal.vision.boards import load_board
+        from relcal.vision.camera import load_camera
+
+        if spec.board is None:
+            raise RelcalError(f"{spec_path}: board: required when the samples have images")
+        board = _board(root, spec.board, spec_path, load_board)
+        if spec.camera is None:
+            raise RelcalError(
+                f"{spec_path}: camera: required when the samples have images (a file, a mapping "
+                "or 'calibrate')"
+            )
+        camera = _camera(root, spec.camera, spec_path, load_camera)
+    tolerances = spec.tolerances.model_dump(exclude_none=True) if spec.tolerances else None
+    return Dataset(
+        root,
+        model,
+        spec.mode,
+        handeye,
+        table.ids,
+        q,
+        table.images,
+        table.poses,
+        board,
+        camera,
+        spec_path,
+        tolerances,
+        table.measured,
+        robot_id=spec.robot_id or root.resolve().name,
+        joint_unit=None,
+        pose_angle_unit=spec.pose_angle_unit if table.rpy else None,
+        flange=table.flange,
+        frames=_frame_names(spec),
     )
 
 
@@ -669,6 +816,7 @@ class SampleTable:
     measured: Measured
     groups: tuple[str, ...] | None = None  # coincidence: each sample's group (PLACEMENT/NAME)
     rpy: bool = False  # the poses came as roll, pitch, yaw
+    flange: np.ndarray | None = None  # (N, 4, 4) flange poses (fx .. fqw), when given
 
 
 def read_samples(
@@ -679,17 +827,23 @@ def read_samples(
     return t.ids, t.q, t.images, t.poses
 
 
-def _rename(path: Path, header: list[str], columns: dict[str, str], model: RobotModel) -> list[str]:
+def _rename(
+    path: Path, header: list[str], columns: dict[str, str], model: RobotModel | None
+) -> list[str]:
     """The header with the file's names replaced by relcal's (``columns``: relcal name -> the
     file's name), each mapped name required."""
-    known = ["id", "image", *POSE_COLUMNS, *RPY_COLUMNS[3:], *COINCIDENCE_COLUMNS]
-    known += [f"q{i + 1}" for i in range(model.n_joints)] + list(model.joint_names)
+    from relcal.data.flange import FLANGE_COLUMNS
+
+    known = ["id", "image", *POSE_COLUMNS, *RPY_COLUMNS[3:], *COINCIDENCE_COLUMNS, *FLANGE_COLUMNS]
+    if model is not None:
+        known += [f"q{i + 1}" for i in range(model.n_joints)] + list(model.joint_names)
     unknown = [ours for ours in columns if ours not in known]
     if unknown:
+        joints = "" if model is None else f", q1..q{model.n_joints} or the joint names"
         raise RelcalError(
             f"{path}: dataset.yaml columns: unknown column name(s) {', '.join(unknown)}; relcal's "
-            f"names are id, image, x, y, z, qx, qy, qz, qw, roll, pitch, yaw, q1..q{model.n_joints}"
-            " or the joint names"
+            "names are id, image, x, y, z, qx, qy, qz, qw, roll, pitch, yaw, fx, fy, fz, fqx, "
+            f"fqy, fqz, fqw{joints}"
         )
     inverse = {theirs.strip(): ours for ours, theirs in columns.items()}
     missing = [theirs for theirs in inverse if theirs not in header]
@@ -760,17 +914,34 @@ def _measured_columns(path: Path, header: list[str]) -> tuple[Measured, tuple[st
 
 def read_sample_table(
     path: Path,
-    model: RobotModel,
+    model: RobotModel | None,
     joint_unit: str,
     pose_angle_unit: str = "rad",
     columns: dict[str, str] | None = None,
+    *,
+    euler: str = "xyz",
+    position_unit: str = "m",
+    decimal: str = ".",
 ) -> SampleTable:
-    """Parse the samples table; errors name the file, the line and the column."""
+    """Parse the samples table; errors name the file, the line and the column.
+
+    ``euler``: the rotation sequence of roll, pitch, yaw columns (SciPy's ``from_euler``);
+    ``position_unit``: ``"m"`` or ``"mm"`` for x, y, z; ``decimal``: the numbers' decimal mark.
+    ``model`` None: no robot, the flange poses (``fx`` .. ``fqw``, m) are required instead of
+    joint columns (``q`` of the table is then ``(N, 0)``).
+    """
     header, data = read_table(path, "sample")
+    if decimal == "," and table_delimiter(path) == ",":
+        raise RelcalError(
+            f"{path} line 1: header: columns separated by commas, but dataset.yaml declares "
+            "decimal: ','; a table with decimal commas separates its columns by semicolons or "
+            "tabs (fix: decimal: '.', or export the table with semicolons)"
+        )
     header = _rename(path, header, columns or {}, model)
-    joints = _joint_columns(path, header, model)
+    joints = [] if model is None else _joint_columns(path, header, model)
+    flange_cols = _flange_columns(path, header, model is None)
     if "group" in header:
-        return _coincidence_table(path, header, data, joints, model, joint_unit)
+        return _coincidence_table(path, header, data, joints, model, joint_unit, decimal)
     measured, meas_cols = _measured_columns(path, header)
     dupes = sorted({h for h in header if header.count(h) > 1})
     if dupes:
@@ -795,16 +966,22 @@ def read_sample_table(
             )
         seen[sid] = line_no
         ids.append(sid)
-        q.append([parse_number(path, line_no, c, row[col[c]]) for c in joints])
+        q.append(
+            [parse_number(path, line_no, c, row[col[c]], decimal) for c in (*joints, *flange_cols)]
+        )
         if measured == "image":
             name = row[col["image"]].strip()
             if not name:
                 raise RelcalError(f"{path} line {line_no}: image: empty; expected an image path")
             images.append(path.parent / name)
         else:
-            values.append([parse_number(path, line_no, c, row[col[c]]) for c in meas_cols])
+            values.append([parse_number(path, line_no, c, row[col[c]], decimal) for c in meas_cols])
     _no_repeated_samples(path, ids, lines, q, images if measured == "image" else values)
-    q_arr = _joint_values(path, np.array(q, dtype=float), model, joint_unit)
+    q_arr, flange = np.array(q, dtype=float).reshape(len(q), -1), None
+    if flange_cols:
+        q_arr, flange = q_arr[:, : len(joints)], _flange(path, q_arr[:, len(joints) :], lines)
+    if model is not None:
+        q_arr = _joint_values(path, q_arr, model, joint_unit)
     pose_arr = None
     if measured == "image":
         for line_no, image in zip(lines, images, strict=True):
@@ -819,10 +996,12 @@ def read_sample_table(
     elif meas_cols == POSE_COLUMNS:
         pose_arr = _poses(path, np.array(values), lines)
     elif meas_cols == RPY_COLUMNS:
-        pose_arr = _rpy_poses(path, np.array(values), pose_angle_unit)
+        pose_arr = _rpy_poses(path, np.array(values), pose_angle_unit, euler)
     else:
         pose_arr = np.broadcast_to(np.eye(4), (len(values), 4, 4)).copy()
         pose_arr[:, :3, 3] = values
+    if pose_arr is not None and position_unit == "mm":
+        pose_arr[:, :3, 3] /= 1000.0
     return SampleTable(
         tuple(ids),
         q_arr,
@@ -830,11 +1009,66 @@ def read_sample_table(
         pose_arr,
         measured,
         meas_cols == RPY_COLUMNS,
+        flange=flange,
     )
 
 
+def _flange_columns(path: Path, header: list[str], required: bool) -> tuple[str, ...]:
+    """The flange-pose columns ``fx`` .. ``fqw`` when the header has them (all or none);
+    ``required``: the dataset names no robot, so they stand for it."""
+    from relcal.data.flange import FLANGE_COLUMNS
+
+    present = [c for c in FLANGE_COLUMNS if c in header]
+    if required and "group" in header:
+        raise RelcalError(
+            f"{path} line 1: header: coincidence samples (a 'group' column) need a robot: give "
+            "robot: in dataset.yaml"
+        )
+    if present and len(present) < len(FLANGE_COLUMNS) or required and not present:
+        missing = [c for c in FLANGE_COLUMNS if c not in header]
+        why = (
+            "dataset.yaml names no robot, so the samples must give the flange poses: "
+            if required and not present
+            else "flange poses need all seven columns: "
+        )
+        raise RelcalError(
+            f"{path} line 1: header: {why}{', '.join(FLANGE_COLUMNS)} (the flange in the robot's "
+            f"base frame, m, unit quaternion x first); missing {', '.join(missing)} (or give "
+            "robot: and joint columns in dataset.yaml)"
+        )
+    return FLANGE_COLUMNS if present else ()
+
+
+def _flange(path: Path, values: np.ndarray, lines: list[int]) -> np.ndarray:
+    """Flange poses ``(N, 4, 4)`` from rows ``fx .. fqw``; the quaternions must be unit ones and
+    the positions in metres."""
+    from relcal.data.flange import flange_poses
+
+    norms = np.linalg.norm(values[:, 3:], axis=1)
+    bad = np.flatnonzero(np.abs(norms - 1) > 1e-3)
+    if bad.size:
+        raise RelcalError(
+            f"{path} line {lines[bad[0]]}: fqx, fqy, fqz, fqw: expected a unit quaternion (x "
+            f"first), the norm is {norms[bad[0]]:.4f}"
+        )
+    reach = np.abs(values[:, :3]).max() if len(values) else 0.0
+    if reach > 20.0:
+        k = int(np.argmax(np.abs(values[:, :3]).max(axis=1)))
+        raise RelcalError(
+            f"{path} line {lines[k]}: fx, fy, fz: {reach:.1f} from the robot's base: flange "
+            "positions are in metres (millimetres given?)"
+        )
+    return flange_poses(values)
+
+
 def _coincidence_table(
-    path: Path, header: list[str], data: list, joints: list[str], model: RobotModel, unit: str
+    path: Path,
+    header: list[str],
+    data: list,
+    joints: list[str],
+    model: RobotModel,
+    unit: str,
+    decimal: str = ".",
 ) -> SampleTable:
     """A table of coincidence samples: ``id`` (optional), ``group``, optional ``placement``
     (prefixed to the group as ``PLACEMENT/GROUP``), and the joints."""
@@ -867,7 +1101,7 @@ def _coincidence_table(
             group = f"{place}/{group}" if place else group
         ids.append(sid)
         groups.append(group)
-        q.append([parse_number(path, line_no, c, row[col[c]]) for c in joints])
+        q.append([parse_number(path, line_no, c, row[col[c]], decimal) for c in joints])
     q_arr = _joint_values(path, np.array(q, dtype=float), model, unit)
     poses = np.broadcast_to(np.eye(4), (len(ids), 4, 4)).copy()
     return SampleTable(tuple(ids), q_arr, None, poses, "coincidence", tuple(groups))
@@ -896,14 +1130,28 @@ def _no_repeated_samples(path: Path, ids, lines, q, measured) -> None:
         )
 
 
-def parse_number(path: Path, line_no: int, column: str, text: str) -> float:
-    """A finite float from a CSV cell; errors name the file, the line and the column."""
-    try:
-        value = float(text)
-    except ValueError:
-        hint = " (a decimal comma? write 0.5, not 0,5)" if "," in text else ""
+def parse_number(path: Path, line_no: int, column: str, text: str, decimal: str = ".") -> float:
+    """A finite float from a CSV cell, with ``decimal`` its decimal mark (``"."`` or ``","``);
+    errors name the file, the line and the column."""
+    cell = text.strip()
+    if decimal == "," and "." in cell:
         raise RelcalError(
-            f"{path} line {line_no}: {column}: expected a number, got {excerpt(text.strip())}{hint}"
+            f"{path} line {line_no}: {column}: expected a number with a decimal comma "
+            f"(dataset.yaml declares decimal: ','), got {excerpt(cell)}: a decimal point, or a "
+            "thousands separator (fix: export the table without thousands separators, or "
+            "decimal: '.' if the whole table uses points)"
+        )
+    try:
+        value = float(cell.replace(",", ".") if decimal == "," else cell)
+    except ValueError:
+        hint = (
+            " (a decimal comma? declare decimal: ',' in dataset.yaml, with semicolons between "
+            "the columns)"
+            if "," in cell and decimal == "."
+            else ""
+        )
+        raise RelcalError(
+            f"{path} line {line_no}: {column}: expected a number, got {excerpt(cell)}{hint}"
         ) from None
     if not np.isfinite(value):
         raise RelcalError(f"{path} line {line_no}: {column}: expected a finite number, got {text}")
@@ -1010,8 +1258,9 @@ def _poses(path: Path, values: np.ndarray, lines: list[int]) -> np.ndarray:
     return tf.homogeneous(rot, values[:, :3])
 
 
-def _rpy_poses(path: Path, values: np.ndarray, unit: str) -> np.ndarray:
-    """Poses from ``x, y, z, roll, pitch, yaw`` with ``R = Rz(yaw) Ry(pitch) Rx(roll)``."""
+def _rpy_poses(path: Path, values: np.ndarray, unit: str, euler: str = "xyz") -> np.ndarray:
+    """Poses from ``x, y, z, roll, pitch, yaw``: the three angles of the rotation sequence
+    ``euler`` (SciPy's ``from_euler``; ``xyz``: ``R = Rz(yaw) Ry(pitch) Rx(roll)``)."""
     rpy = values[:, 3:]
     if unit == "rad" and len(rpy) and np.abs(rpy).max() > 2 * np.pi + 0.1:
         raise RelcalError(
@@ -1026,7 +1275,7 @@ def _rpy_poses(path: Path, values: np.ndarray, unit: str) -> np.ndarray:
         )
     if unit == "deg":
         rpy = np.radians(rpy)
-    return tf.homogeneous(Rotation.from_euler("xyz", rpy).as_matrix(), values[:, :3])
+    return tf.homogeneous(Rotation.from_euler(euler, rpy).as_matrix(), values[:, :3])
 
 
 def write_samples(

@@ -36,6 +36,9 @@ class Measurements:
         The intrinsics used (given or calibrated).
     intrinsics_report : dict
         How the intrinsics were calibrated from the images, when they were.
+    detections : tuple of Detection or None
+        The board points found in each image (None where not found), images only: what a
+        reprojection-error fit (``relcal handeye``) needs.
     """
 
     poses: np.ndarray  # (N, 4, 4); NaN where rejected
@@ -45,6 +48,7 @@ class Measurements:
     covariance: np.ndarray | None = None  # (N, 6, 6) of (translation, rotation vector), or None
     camera: object = None  # the intrinsics used (given or calibrated)
     intrinsics_report: dict = field(default_factory=dict)
+    detections: tuple | None = None  # (N,) board points found per image, images only
 
 
 def check_measurements(measurements: Any, dataset: Dataset, name: str = "measurements") -> None:
@@ -149,12 +153,13 @@ def measure_dataset_images(
         if pose is None or reasons[k]:
             continue
         c = pose.T_board_camera
-        poses[k] = c if dataset.mode == "eye_in_hand" else tf.invert(c)
+        poses[k] = tf.invert(c) if dataset.mode == "eye_to_hand" else c  # robot_world: on it
         cov[k], rms[k] = pose.covariance, pose.rms
     ok = np.all(np.isfinite(poses), axis=(1, 2))
     if not ok.any():
         raise _never_found(dataset, reasons)
-    return Measurements(poses, ok, tuple(reasons), rms, cov, camera, report)
+    detections = tuple(r.detection for r in results)
+    return Measurements(poses, ok, tuple(reasons), rms, cov, camera, report, detections)
 
 
 def _never_found(dataset: Dataset, reasons: list[str]) -> RelcalError:

@@ -19,7 +19,7 @@ unidentifiable, which is why they are reported for the identifiable subset.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -44,7 +44,7 @@ from relcal.calibration.uncertainty import (
     parameter_covariance,
     predicted_accuracy,
 )
-from relcal.robot.kinematics import make_layout
+from relcal.robot.kinematics import make_layout, parameter_labels
 from relcal.robot.model import RobotModel
 
 
@@ -97,6 +97,13 @@ class Report:
     noise: Noise | None = None
     uncertainty: Uncertainty | None = None
     accuracy: Accuracy | None = None
+    # {name: label} where a parameter is shown by another name (robots loaded from a URDF:
+    # joint parameters named after their joints, relcal.robot.kinematics.parameter_label)
+    labels: dict[str, str] = field(default_factory=dict)
+
+    def label(self, name: str) -> str:
+        """The name parameter ``name`` is shown by (:attr:`labels`)."""
+        return self.labels.get(name, name)
 
     @property
     def not_estimated(self) -> list[str]:
@@ -151,4 +158,5 @@ def report(
         noise=noise,
         uncertainty=unc,
         accuracy=acc,
+        labels=parameter_labels(problem.model, names),
     )

@@ -208,6 +208,17 @@ class Comparison:
     def flagged(self) -> list[str]:
         return [p.name for p in self.parameters if p.flagged]
 
+    @property
+    def labels(self) -> dict[str, str]:
+        """``{name: label}`` of both runs (:attr:`Run.labels`; the later run's where both
+        name a parameter)."""
+        return {**self.run_a.labels, **self.run_b.labels}
+
+    def label(self, name: str) -> str:
+        """The name parameter ``name`` is shown by (:func:`relcal.robot.kinematics.parameter_label`,
+        as the calibrations showed it)."""
+        return self.labels.get(name, name)
+
 
 def common_parameters(a: Run, b: Run, include_handeye: bool = False) -> tuple[list[str], list[str]]:
     """Names compared (estimated and identifiable in both, hand-eye only if asked) and the names

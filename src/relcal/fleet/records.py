@@ -42,6 +42,22 @@ def held_out_errors(doc: dict) -> dict[str, float | None]:
     }
 
 
+def held_out_metric(doc: dict) -> str | None:
+    """What the held-out numbers of a results document measure, in the verdict's words
+    (:func:`relcal.calibration.verdict.held_out_what`: ``pairs of poses``, ``points``,
+    ``placements``; ``held_out_metric`` of the document), so that numbers of different kinds are
+    never pooled; for documents older than that key, read from the validation's shape. None
+    without a held-out set."""
+    if "held_out_metric" in doc:
+        return doc["held_out_metric"]
+    val = doc.get("validation") or {}
+    if not val:
+        return None
+    if val.get("held_out") == "placements":
+        return "placements"
+    return "points" if val.get("n_pairs") == val.get("n_samples") else "pairs of poses"
+
+
 def _sha256(path: Path) -> str:
     digest = hashlib.sha256()
     with open(path, "rb") as handle:
@@ -159,6 +175,7 @@ def calibration_record(
             "joint_ranges": doc.get("joint_ranges"),  # what `relcal verify` checks a session by
             **_tool_points(doc),
             "verdict": (doc.get("verdict") or {}).get("code"),
+            "held_out_metric": held_out_metric(doc),  # what `errors` measure
             # URDF robots: parameters named after their joints, as the calibration showed them
             "parameter_labels": doc.get("parameter_labels") or {},
             # every loadable file with its own held-out error (documents.artifacts_document)
@@ -204,3 +221,88 @@ def record_calibration(
         return None
     with registry:
         return registry.add(calibration_record(cal, doc, outputs))
+
+
+def handeye_record(
+    he: Any,
+    doc: dict,
+    dataset: Any,
+    outputs: str | Path | None = None,
+    session: str | None = None,
+    robot_id: str | None = None,
+) -> dict[str, Any]:
+    """The registry record of a hand-eye job (``relcal handeye``): a row of the calibrations
+    table whose ``settings.job`` is ``handeye`` and whose parameters are the delivered
+    transform(s), ``PARENT->CHILD.x`` .. ``.yaw`` (two transforms for robot-world) in m and rad
+    with their standard deviations (rotations: about the parent's axes); the held-out errors
+    of the exported estimate (and, as the baseline, of the best closed form) go where a
+    calibration's go."""
+    import math
+
+    from relcal import geometry as tf
+
+    root = Path(dataset.root).resolve()
+    parameters = []
+    for d in he.delivered:
+        xyz, rpy = tf.to_xyz_rpy(d.transform)
+        stds = [*d.xyz_std, *d.rotation_std]  # rotations: about the parent's axes
+        for k, (c, v) in enumerate(zip(("x", "y", "z", "roll", "pitch", "yaw"), (*xyz, *rpy),
+                                       strict=True)):  # fmt: skip
+            sd = float(stds[k])
+            known = math.isfinite(sd) and not d.undetermined
+            parameters.append(
+                {
+                    # named by the frames: never confused with a calibration's handeye.*
+                    # (corrections of a guess, not the transform itself)
+                    "name": f"{d.parent}->{d.child}.{c}",
+                    "unit": "m" if k < 3 else "rad",
+                    "value": float(v) if known else None,
+                    "std": sd if known else None,
+                    "calibration_std": sd if known else None,
+                    "identifiable": known,
+                    "estimated": known,
+                    "status": "estimated" if known else "not determined",
+                }
+            )
+    val = doc.get("validation") or {}
+    methods = {m["method"]: m for m in val.get("methods", [])}
+    mine = methods.get(he.exported or "refined") or {}
+    closed = [m for k, m in methods.items() if k != "refined" and m.get("position_mm")]
+    best = min(closed, key=lambda m: m["position_mm"]["rms"], default={})
+
+    def rms(entry: dict, key: str) -> float | None:
+        return (entry.get(key) or {}).get("rms")
+
+    estimated = [p for p in parameters if p["estimated"]]
+    return {
+        "robot_id": robot_id or dataset.robot_id or root.name,
+        "session": session or root.name,
+        "relcal_version": relcal.__version__,
+        "model_name": dataset.model.name,
+        "dataset_path": str(root),
+        "outputs_path": None if outputs is None else str(Path(outputs).resolve()),
+        "settings": {
+            **doc.get("settings", {}),
+            "job": "handeye",
+            "exported": he.exported,
+            "frames": {d.key: [d.parent, d.child] for d in he.delivered},
+            "verdict": (doc.get("verdict") or {}).get("code"),
+            "baseline": None if not best else f"closed form {best['title']}",
+        },
+        "input_hashes": input_hashes(root, dataset.images),
+        "converged": bool(he.fit.converged),
+        "rank": len(estimated),
+        "parameters": parameters,
+        "covariance": {
+            "names": [p["name"] for p in estimated],
+            "matrix": np.diag([p["std"] ** 2 for p in estimated]).tolist(),
+            "diagonal_only": True,
+        },
+        "errors": {
+            "baseline_position_rms_mm": rms(best, "position_mm"),
+            "baseline_orientation_rms_deg": rms(best, "orientation_deg"),
+            "calibrated_position_rms_mm": rms(mine, "position_mm"),
+            "calibrated_orientation_rms_deg": rms(mine, "orientation_deg"),
+        },
+        "validation": {k: v for k, v in val.items() if k != "samples"} or None,
+    }

@@ -139,6 +139,18 @@ class Run:
     def names(self) -> list[str]:
         return [p["name"] for p in self.parameters]
 
+    @property
+    def labels(self) -> dict[str, str]:
+        """``{name: label}`` where a parameter is shown by another name than its key (robots
+        loaded from a URDF: joint parameters named after their joints), as the calibration
+        showed them (:func:`relcal.robot.kinematics.parameter_label`); empty for older records
+        and robots with numbered joints."""
+        return dict(self.settings.get("parameter_labels") or {})
+
+    def label(self, name: str) -> str:
+        """The name parameter ``name`` is shown by (:attr:`labels`)."""
+        return self.labels.get(name, name)
+
     def parameter(self, name: str) -> dict:
         for p in self.parameters:
             if p["name"] == name:

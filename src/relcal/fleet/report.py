@@ -52,28 +52,37 @@ def _summary(doc: dict, entries: list[dict]) -> tuple:
         ("drift flagged", str(len(drifted)), ", ".join(e["robot_id"] for e in drifted) or "none"),
         ("time", f"{doc.get('seconds', 0):.1f} s", _where(doc)),
     ]
-    rows = [
-        [
+    rows = []
+    for m in models:
+        row = [
             m["model"] or "(unknown: failed before loading)",
             str(m["n_sessions"]),
             str(len(m["robots"])),
             str(m["n_ok"]),
             str(m["n_failed"]),
             ", ".join(m["drift_robots"]) or "none",
-            hk.fmt(m["median_baseline_position_rms_mm"], ".3f"),
-            hk.fmt(m["median_calibrated_position_rms_mm"], ".3f"),
         ]
-        for m in models
-    ]
+        held = m.get("held_out") or [{"metric": None}]
+        for h in held:  # one row per kind of held-out metric: never one median over two
+            rows.append(
+                row
+                + [
+                    h["metric"] or "–",
+                    hk.fmt(h.get("median_baseline_position_rms_mm"), ".3f"),
+                    hk.fmt(h.get("median_calibrated_position_rms_mm"), ".3f"),
+                ]
+            )
+            row = [""] * len(row)
     head = ["robot model", "sessions", "robots", "calibrated", "failed", "drift flagged"]
-    head += ["baseline mm", "calibrated mm"]
+    head += ["held out", "baseline mm", "calibrated mm"]
     return hk.section(
         "summary",
         "Summary",
         hk.cards(cards, "wide"),
         hk.paragraph(
             "Per robot model (robots of one model compare, of two do not): held-out position RMS, "
-            "median over the model's calibrated sessions."
+            "median over the model's calibrated sessions, one row per kind of held-out metric "
+            "(relative poses, points and placements measure different things)."
         ),
         hk.table(head, rows, "num"),
         hk.paragraph(
@@ -143,7 +152,7 @@ def _drift_cell(e: dict) -> Html | str:
         return "–"
     if drift["verdict"] == "agree":
         return hk.badge(True, f"agree (p={drift['p_value']:.2g})")
-    what = ", ".join(drift["flagged"]) or "as a whole"
+    what = ", ".join(drift.get("flagged_labels") or drift["flagged"]) or "as a whole"
     return hk.badge(False, no=f"drift: {what} (p={drift['p_value']:.2g})")
 
 
@@ -157,6 +166,7 @@ def _robots(entries: list[dict]) -> tuple:
                 e.get("robot_id", ""),
                 e.get("model") or "–",
                 hk.badge(ok, e["status"], e["status"]),
+                e.get("held_out_metric") or "–",
                 hk.fmt(e.get("baseline_position_rms_mm"), ".3f"),
                 hk.fmt(e.get("calibrated_position_rms_mm"), ".3f"),
                 hk.fmt(e.get("baseline_orientation_rms_deg"), ".4f"),
@@ -169,6 +179,7 @@ def _robots(entries: list[dict]) -> tuple:
         "robot",
         "model",
         "status",
+        "held out",
         "baseline mm",
         "calibrated mm",
         "baseline deg",
@@ -179,9 +190,11 @@ def _robots(entries: list[dict]) -> tuple:
         "robots",
         "Robots",
         hk.paragraph(
-            "Held-out errors: relative poses, RMS over the held-out pairs of each session; "
-            "coincidence sessions (a ball in sockets), RMS distance of the held-out placements' "
-            "samples from their sockets' refitted points (mm only)."
+            "Held-out errors, of the kind each session's data give (held out): poses, RMS over "
+            "the held-out poses predicted in the world frame; pairs of poses, RMS over the "
+            "held-out pairs; points, RMS over the held-out points (mm only); placements (a ball "
+            "in sockets), RMS distance of the held-out placements' samples from their sockets' "
+            "refitted points (mm only)."
         ),
         hk.table(head, rows, "num"),
     )
@@ -239,6 +252,9 @@ def parameter_figure(group: list[dict], model: str) -> tuple[Figure, list[str]]:
     """One small plot per parameter: each robot's identified error (+- std) per session; far
     values among the robots of this model in red. Returns the figure and the outliers."""
     names, points = _parameter_values(group)
+    labels: dict[str, str] = {}  # as the calibrations showed the parameters
+    for e in group:
+        labels |= (e["record"].get("settings") or {}).get("parameter_labels") or {}
     robots = sorted({e["robot_id"] for e in group})
     cols = 6
     rows = max(1, -(-len(names) // cols))
@@ -258,10 +274,11 @@ def parameter_figure(group: list[dict], model: str) -> tuple[Figure, list[str]]:
             ax.errorbar(x + jitter, v, yerr=s, fmt="none", ecolor=BEFORE, elinewidth=1)
             ax.scatter(x[~far] + jitter[~far], v[~far], s=10, color=AFTER, zorder=3)
             ax.scatter(x[far] + jitter[far], v[far], s=16, color=BAD, zorder=4)
+            label = labels.get(name, name)
             flagged += [
-                f"{name}: {pts[k][3]} ({v[k]:+.4f} {pts[k][4]})" for k in np.flatnonzero(far)
+                f"{label}: {pts[k][3]} ({v[k]:+.4f} {pts[k][4]})" for k in np.flatnonzero(far)
             ]
-            ax.set_title(f"{name} ({pts[0][4]})", fontsize=9)
+            ax.set_title(f"{label} ({pts[0][4]})", fontsize=9)
             ax.set_xticks(range(len(robots)))
             ax.set_xticklabels(robots if len(robots) <= 8 else [], rotation=90, fontsize=6)
             ax.tick_params(axis="y", labelsize=7)

@@ -117,7 +117,7 @@ def _calibrate(
     from relcal.calibration.pipeline import calibrate, cross_validate
     from relcal.data.dataset import load_dataset
     from relcal.data.imaging import measure
-    from relcal.fleet.records import calibration_record, held_out_errors
+    from relcal.fleet.records import calibration_record, held_out_errors, held_out_metric
     from relcal.outputset import Folder, check, inputs, new_run_id
     from relcal.reporting.documents import cross_validation_document, results_document
     from relcal.reporting.outputs import calibration_files
@@ -142,6 +142,7 @@ def _calibrate(
             f"baseline on the held-out samples ({what} RMS {val.rms('calibrated'):.3f} mm "
             f"against {val.rms('before'):.3f} mm); nothing written",
             **held_out_errors(doc),
+            "held_out_metric": held_out_metric(doc),
         }
     cross: dict[str, Any] = {}
     if kfold:
@@ -164,6 +165,7 @@ def _calibrate(
         "reason": None if cal.result.converged else "the identification did not converge",
         "outputs": str(out.resolve()),
         **held_out_errors(doc),
+        "held_out_metric": held_out_metric(doc),
         **cross,
         "record": record,
         # installed by the client with the record (install_session): the files of `relcal
@@ -317,9 +319,12 @@ def attach_drift(
 
 def model_summaries(entries: list[dict[str, Any]]) -> list[dict[str, Any]]:
     """Per robot model (the fleet's robots of one model are comparable, those of two are not):
-    sessions, robots, calibrated and failed sessions, robots flagged for drift, and the median
-    over its calibrated sessions of the baseline and calibrated held-out errors (mm, deg).
-    A session that failed before its model was known counts under its robot's model (from the
+    sessions, robots, calibrated and failed sessions, robots flagged for drift, and, per kind of
+    held-out metric (``held_out``: relative poses, points and placements measure different
+    things, so they are never pooled), the number of calibrated sessions and the median over
+    them of the baseline and calibrated held-out errors (mm, deg). The ``median_*`` keys of the
+    summary itself are those of the one metric when all its sessions share it, else None. A
+    session that failed before its model was known counts under its robot's model (from the
     robot's other sessions), else under ``model: None``."""
     import numpy as np
 
@@ -332,6 +337,12 @@ def model_summaries(entries: list[dict[str, Any]]) -> list[dict[str, Any]]:
         values = [v for v in values if v is not None]
         return float(np.median(values)) if values else None
 
+    keys = (
+        "baseline_position_rms_mm",
+        "calibrated_position_rms_mm",
+        "baseline_orientation_rms_deg",
+        "calibrated_orientation_rms_deg",
+    )
     out = []
     models = list(dict.fromkeys(e.get("model") for e in entries))
     for model in sorted(models, key=lambda m: (m is None, m or "")):
@@ -340,6 +351,13 @@ def model_summaries(entries: list[dict[str, Any]]) -> list[dict[str, Any]]:
         drifted = sorted(
             {e["robot_id"] for e in group if (e.get("drift") or {}).get("verdict") == "drift"}
         )
+        held_out = []
+        metrics = dict.fromkeys(e.get("held_out_metric") for e in ok)
+        for metric in sorted(metrics, key=lambda m: (m is None, m or "")):
+            mine = [e for e in ok if e.get("held_out_metric") == metric]
+            row: dict[str, Any] = {"metric": metric, "n_sessions": len(mine)}
+            row |= {f"median_{key}": median([e.get(key) for e in mine]) for key in keys}
+            held_out.append(row)
         summary = {
             "model": model,
             "n_sessions": len(group),
@@ -347,13 +365,10 @@ def model_summaries(entries: list[dict[str, Any]]) -> list[dict[str, Any]]:
             "n_ok": len(ok),
             "n_failed": len(group) - len(ok),
             "drift_robots": drifted,
+            "held_out": held_out,
         }
-        for key in (
-            "baseline_position_rms_mm",
-            "calibrated_position_rms_mm",
-            "baseline_orientation_rms_deg",
-            "calibrated_orientation_rms_deg",
-        ):
-            summary[f"median_{key}"] = median([e.get(key) for e in ok])
+        one = held_out[0] if len(held_out) == 1 else {}
+        for key in keys:
+            summary[f"median_{key}"] = one.get(f"median_{key}")
         out.append(summary)
     return out

@@ -6,6 +6,8 @@ from typing import Any
 
 from relcal.fleet.drift import Comparison, display
 from relcal.fleet.registry import Run, VerificationRun
+from relcal.reporting.quantities import parameter_json
+from relcal.robot.kinematics import relabel
 
 
 def _time(run: Run) -> str:
@@ -30,12 +32,23 @@ def _table(rows: list[list[str]], right: set[int] = frozenset()) -> list[str]:
     ]
 
 
+def run_metric(run: Run) -> str | None:
+    """What a run's held-out errors measure (``pairs of poses``, ``points``, ``placements``:
+    :func:`relcal.fleet.records.held_out_metric`), from its settings or, for older records,
+    its validation."""
+    if "held_out_metric" in run.settings:
+        return run.settings["held_out_metric"]
+    from relcal.fleet.records import held_out_metric
+
+    return held_out_metric({"validation": run.validation})
+
+
 def verdict_text(c: Comparison | None) -> str:
     if c is None:
         return ""
     if not c.drift:
         return f"agree (p={c.p_value:.2g})"
-    moved = ", ".join(c.flagged) or "as a whole"
+    moved = ", ".join(c.label(n) for n in c.flagged) or "as a whole"
     return f"DRIFT (p={c.p_value:.2g}; {moved})"
 
 
@@ -53,7 +66,8 @@ def history_text(
         head = f"{robot_id}: no calibration in {where}"
         return "\n".join([head, *verifications_text(list(verifications))])
     lines = [f"{robot_id} ({runs[-1].model_name}): {len(runs)} calibration(s) in {where}", ""]
-    rows = [["run", "time (UTC)", "session", "relcal", "held-out position RMS mm", "vs previous"]]
+    rows = [["run", "time (UTC)", "session", "relcal", "held-out position RMS mm", "held out"]]
+    rows[0].append("vs previous")
     for run, c in zip(runs, comparisons, strict=True):
         rows.append(
             [
@@ -62,12 +76,15 @@ def history_text(
                 run.session or "",
                 run.relcal_version,
                 _errors(run.errors) + ("" if run.converged else " (not converged)"),
+                run_metric(run) or "",
                 verdict_text(c),
             ]
         )
     lines += _table(rows, {0})
     lines += ["", "parameters (identified error in its kind's unit, +- one standard deviation):"]
-    labels = runs[-1].settings.get("parameter_labels") or {}  # URDF robots: joint names
+    labels: dict[str, str] = {}  # URDF robots: joint names, as each calibration showed them
+    for run in runs:
+        labels |= run.labels
     header = ["name", "unit"] + [f"run {r.id}" for r in runs]
     table = [header]
     never: dict[str, list[str]] = {"n/i": [], "-": []}
@@ -142,7 +159,7 @@ def comparison_text(c: Comparison) -> str:
         s = display(p.std, p.unit)[0]
         rows.append(
             [
-                p.name,
+                c.label(p.name),
                 unit,
                 f"{va:+.4f}",
                 f"{vb:+.4f}",
@@ -168,11 +185,11 @@ def comparison_text(c: Comparison) -> str:
     if rest:
         lines.append(
             "not compared (not estimated or not identifiable in both, or hand-eye): "
-            + ", ".join(rest)
+            + ", ".join(c.label(n) for n in rest)
         )
     if points:
         lines.append(f"not compared: the group points ({len(points) // 3}, each session's own)")
-    lines += [f"note: {n}" for n in c.notes]
+    lines += [f"note: {relabel(n, c.labels)}" for n in c.notes]
     return "\n".join(lines)
 
 
@@ -192,9 +209,31 @@ def run_document(run: Run) -> dict[str, Any]:
         "settings": run.settings,
         "input_hashes": run.input_hashes,
         "errors": run.errors,
-        "parameters": run.parameters,
-        "parameter_unit": "values and std in SI: m for lengths, rad for angles",
+        "held_out_metric": run_metric(run),
+        "parameters": [parameter_document(p, run.label(p["name"])) for p in run.parameters],
+        "parameter_unit": PARAMETER_UNIT,
     }
+
+
+#: How every JSON document gives a parameter's values (results.json, history, compare).
+PARAMETER_UNIT = (
+    "values in each parameter's unit, as results.json: mm for lengths, deg for angles, ppm for "
+    "joint scales, urad/Nm or um/N for compliances"
+)
+
+
+def parameter_document(p: dict, label: str) -> dict[str, Any]:
+    """A registry parameter (SI) as the JSON documents give it: ``name`` (the key), ``label``
+    (the name shown), ``unit`` and the values in the unit a person reads
+    (:func:`relcal.reporting.quantities.parameter_json`), as results.json does."""
+    out = {"name": p["name"], "label": label}
+    unit = parameter_json(None, p["unit"])[1]
+    out["unit"] = unit
+    for key in ("value", "std", "calibration_std"):
+        if key in p:
+            out[key] = parameter_json(p[key], p["unit"])[0]
+    out |= {k: v for k, v in p.items() if k not in (*out, "unit")}
+    return out
 
 
 def comparison_document(c: Comparison) -> dict[str, Any]:
@@ -210,21 +249,23 @@ def comparison_document(c: Comparison) -> dict[str, Any]:
         "p_value": c.p_value,
         "z_threshold": c.z_threshold,
         "flagged": c.flagged,
+        "parameter_labels": c.labels,  # the names the parameters are shown by
         "parameters": [
             {
                 "name": p.name,
-                "unit": p.unit,
-                "a": p.a,
-                "b": p.b,
-                "difference": p.difference,
-                "std": p.std,
+                "label": c.label(p.name),
+                "unit": parameter_json(None, p.unit)[1],
+                "a": parameter_json(p.a, p.unit)[0],
+                "b": parameter_json(p.b, p.unit)[0],
+                "difference": parameter_json(p.difference, p.unit)[0],
+                "std": parameter_json(p.std, p.unit)[0],
                 "z": p.z,
                 "p_value": p.p_value,
                 "flagged": p.flagged,
             }
             for p in c.parameters
         ],
-        "parameter_unit": "a, b, difference and std in SI: m for lengths, rad for angles",
+        "parameter_unit": PARAMETER_UNIT,
         "common_model": c.common_model,  # both refitted on it (their chosen models differed)
         "left_out": list(c.left_out),
         "one_sided": list(c.one_sided),  # of left_out: estimated in one run only
@@ -243,6 +284,7 @@ def drift_summary(c: Comparison | None, against: str | None) -> dict[str, Any] |
         "chi2": c.chi2,
         "dof": c.dof,
         "flagged": c.flagged,
+        "flagged_labels": [c.label(n) for n in c.flagged],  # as they are shown
     }
 
 
@@ -287,19 +329,23 @@ def fleet_text(
     """The sessions of a fleet run (status, held-out errors, drift), the failures, a summary per
     robot model, the latest verification of each robot (when a registry has them) and the
     comparison of the units of each model (``units``, :func:`relcal.fleet.units.compare_units`)."""
-    rows = [["session", "robot", "status", "held-out position RMS mm", "drift vs previous"]]
+    rows = [
+        ["session", "robot", "status", "held-out position RMS mm", "held out", "drift vs previous"]
+    ]
     for e in entries:
         drift = e.get("drift")
         text = ""
         if drift:
             text = f"{drift['verdict']} (p={drift['p_value']:.2g}"
-            text += f"; {', '.join(drift['flagged'])})" if drift["flagged"] else ")"
+            flagged = drift.get("flagged_labels") or drift["flagged"]
+            text += f"; {', '.join(flagged)})" if flagged else ")"
         rows.append(
             [
                 e["session"],
                 str(e.get("robot_id", "")),
                 e["status"],
                 _errors(e) if e["status"] != "failed" else "",
+                (e.get("held_out_metric") or "") if e["status"] != "failed" else "",
                 text,
             ]
         )
@@ -308,10 +354,17 @@ def fleet_text(
         if e["status"] == "failed":
             lines.append(f"failed {e['session']}: {e['reason']}")
     for m in models or []:
-        base, after = m["median_baseline_position_rms_mm"], m["median_calibrated_position_rms_mm"]
         errors = ""
-        if base is not None and after is not None:
-            errors = f"; held-out position RMS {base:.3f} -> {after:.3f} mm (median)"
+        for h in m.get("held_out") or []:  # one median per kind of metric, never pooled
+            base, after = (
+                h["median_baseline_position_rms_mm"],
+                h["median_calibrated_position_rms_mm"],
+            )
+            if base is not None and after is not None and h["metric"] is not None:
+                errors += (
+                    f"; held-out position RMS on {h['metric']} {base:.3f} -> {after:.3f} mm "
+                    f"(median of {h['n_sessions']})"
+                )
         lines.append(
             f"{m['model'] or '(model unknown)'}: {m['n_sessions']} sessions of "
             f"{len(m['robots'])} robots, {m['n_ok']} calibrated, {m['n_failed']} failed, drift: "

@@ -31,6 +31,7 @@ from scipy.stats import norm
 
 from relcal.errors import RelcalError
 from relcal.fleet.drift import display
+from relcal.robot.kinematics import parameter_label, relabel
 
 # the session's (or the instrument's) frames and points: not a property of the unit
 NUISANCE_PREFIXES = ("handeye.", "instrument.", "marker.", "tool_point.", "point[")
@@ -46,7 +47,8 @@ class UnitParameter:
 
 
 def joint_label(name: str, joints: list[str] | None) -> tuple[str, str | None]:
-    """The name a person reads, and the joint: ``theta_off[4]`` -> ``theta_off[panda_joint4]``
+    """The name a person reads (:func:`relcal.robot.kinematics.parameter_label`, the one that
+    names parameters everywhere), and the joint: ``theta_off[4]`` -> ``theta_off[panda_joint4]``
     when the 4th joint is called ``panda_joint4`` (``joints``: the chain's joint names, first
     joint first); other names (URDF origins, which already name their joint) unchanged."""
     match = _PER_JOINT.match(name)
@@ -56,7 +58,7 @@ def joint_label(name: str, joints: list[str] | None) -> tuple[str, str | None]:
     index = int(match.group(2)) - 1
     if not 0 <= index < len(joints):
         return name, None
-    return f"{match.group(1)}[{joints[index]}]", joints[index]
+    return parameter_label(name, joints), joints[index]
 
 
 def record_joints(record: dict) -> list[str] | None:
@@ -199,6 +201,13 @@ def compare_model_units(
         raise RelcalError("compare_model_units: two or more units of one model")
     values = {r: unit_parameters(units[r]) for r in robots}
     joints = next((j for j in (record_joints(units[r]) for r in robots) if j), None)
+    # as each unit's calibration showed its parameters (records older than the labels: the
+    # joints of the chain named)
+    settings = [units[r].get("settings") or {} for r in robots]
+    labelled = any("parameter_labels" in s for s in settings)
+    labels: dict[str, str] = {}
+    for one in settings:
+        labels |= one.get("parameter_labels") or {}
     names: list[str] = []
     for r in robots:
         names += [n for n in values[r] if n not in names]
@@ -211,6 +220,7 @@ def compare_model_units(
         s = np.array([values[r][name][0].std for r in have])
         diff, zs = leave_one_out_z(v, s)
         label, joint = joint_label(name, joints)
+        label = labels.get(name, name) if labelled else label
         rows.append(
             {
                 "name": name,
@@ -257,7 +267,7 @@ def compare_model_units(
         "z_threshold": threshold,
         "parameters": rows,
         "off": off,
-        "notes": _notes(robots, values, units, rows),
+        "notes": [relabel(n, labels) for n in _notes(robots, values, units, rows)],
     }
 
 

@@ -52,6 +52,14 @@ def _error_sets(cal: Calibration) -> tuple[np.ndarray, np.ndarray, str, str]:
             "identification did not use; before = nominal model with the instrument transform and "
             "marker fitted to the training points, after = calibrated model."
         )
+    elif c.source == "held-out poses":
+        sentence = (
+            f"Held-out validation: {c.count} poses that the identification did not use, each "
+            "predicted in the world frame (W F(q) X, the world and hand-eye transforms from the "
+            "training fit) against the measured one; before = the baseline (nominal kinematics "
+            "with the frames fitted on the training samples, the best a user gets without "
+            "kinematic calibration), after = the exported model."
+        )
     elif c.source == "held-out pairs":
         sentence = (
             f"Held-out validation: {c.count} pairs among {len(cal.test)} samples that the "
@@ -63,6 +71,11 @@ def _error_sets(cal: Calibration) -> tuple[np.ndarray, np.ndarray, str, str]:
         sentence = (
             f"No held-out samples: training residuals of {c.count} pairs "
             "(optimistic: the fit saw them)."
+        )
+    if cal.worse:  # after = the chosen model, which the baseline replaced
+        sentence += (
+            " The chosen model shown as after is worse than the baseline on these samples and "
+            "was not exported: the exported files hold the baseline."
         )
     return c.before, c.after, c.source, sentence
 
@@ -306,9 +319,10 @@ def _selection(doc: dict) -> Html:
     ]
     note = f"Chosen: {sel['chosen']} ({sel['weighting']}): {sel['reason']}."
     if sel["exported"] == "baseline":
+        reason = sel.get("export_reason") or "the data support no kinematic correction"
         note += (
-            " The data support no kinematic correction: the exported model is the nominal "
-            "kinematics with the fitted hand-eye transform."
+            f" {reason[0].upper()}{reason[1:]}: the exported model is the nominal kinematics "
+            "with the measurement frames fitted."
         )
     noise = doc.get("noise_model")
     if noise:
@@ -489,6 +503,7 @@ def calibration_report(cal: Calibration, doc: dict) -> str:
     before, after, label, sentence = errors
     unit, kind = {
         "held-out points": ("point", "Absolute position"),
+        "held-out poses": ("pose", "World-frame pose"),
         "held-out placements": ("sample", "Spread"),
     }.get(label, ("pair", "Relative pose"))
     with matplotlib.rc_context(PLOT_STYLE):

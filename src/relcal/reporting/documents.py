@@ -7,7 +7,6 @@ deg). The domain modules return dataclasses; only this module turns them into di
 from __future__ import annotations
 
 import hashlib
-import re
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -24,19 +23,20 @@ from relcal.calibration.validate import (
     PlacementValidation,
     Validation,
     pooled,
-    ratio_interval,
     stats,
 )
-from relcal.calibration.verdict import Verdict, verdict
+from relcal.calibration.verdict import Verdict, held_out_what
 from relcal.calibration.verify import FROZEN, Assessment, JointRanges, Verification
 from relcal.data.dataset import Dataset
 from relcal.data.imaging import Measurements
 from relcal.data.importers import Imported
+from relcal.data.order import sample_digests
 from relcal.design.criteria import Quality
 from relcal.design.observability import Report
 from relcal.design.plan import PlanResult
-from relcal.geometry import to_xyz_rpy
-from relcal.robot.kinematics import DISPLAY_UNITS
+from relcal.reporting.quantities import point_json, transform_json
+from relcal.robot.kinematics import DISPLAY_UNITS, relabel
+from relcal.robot.kinematics import parameter_labels as robot_parameter_labels
 from relcal.robot.model import KINDS, NONGEOMETRIC_KINDS, RobotModel, model_to_dict
 from relcal.sim.simulate import Simulation
 from relcal.sim.study import StudyResult
@@ -81,29 +81,12 @@ def parameter_status(cal: Calibration) -> list[str]:
     return out
 
 
-_INDEXED = re.compile(r"\b([a-z_]+)\[(\d+)\]")
-
-
 def parameter_labels(cal: Calibration) -> dict[str, str]:
-    """For a robot loaded from a URDF, each joint parameter's name with its joint's name
-    (``theta_off[3]`` -> ``theta_off[arm_right_2_joint]``), the way a person reads the URDF;
+    """Each parameter's label where it differs from its name
+    (:func:`relcal.robot.kinematics.parameter_labels`: for a robot loaded from a URDF, a joint
+    parameter named after its joint, ``theta_off[3]`` -> ``theta_off[arm_right_2_joint]``);
     empty for other robots (their joints are numbered)."""
-    model = cal.dataset.model
-    if model.urdf is None:
-        return {}
-    out = {}
-    for name in cal.problem.full_layout.names:
-        m = _INDEXED.fullmatch(name)
-        if m and 1 <= int(m.group(2)) <= model.n_joints:
-            out[name] = f"{m.group(1)}[{model.joint_names[int(m.group(2)) - 1]}]"
-    return out
-
-
-def relabel(text: str, labels: dict[str, str]) -> str:
-    """``text`` with every parameter name of ``labels`` (``kind[i]``) replaced by its label."""
-    if not labels:
-        return text
-    return _INDEXED.sub(lambda m: labels.get(m.group(0), m.group(0)), text)
+    return robot_parameter_labels(cal.dataset.model, cal.problem.full_layout.names)
 
 
 def residual_unit(cal: Calibration) -> str:
@@ -208,6 +191,7 @@ def selection_document(cal: Calibration) -> dict:
         "weighting": cal.settings.get("weighting"),
         "reason": cal.reason,
         "exported": cal.exported,
+        "export_reason": cal.export_reason,
         "parameters": [
             layout.names[k]
             for k in (cal.selection[cal.chosen].candidate.columns if cal.selection else [])
@@ -279,8 +263,10 @@ def validation_document(
     if isinstance(val, PlacementValidation):
         return placement_document(val, ids)
     doc: dict = {
+        "held_out": val.what,
         "n_pairs": len(val.pairs),
         "n_samples": len(np.unique(val.pairs)),
+        "n_configurations": val.n_configurations,
         "baseline_handeye_guess": stats(val.guess),
     }
     if ids is not None:  # held-out samples that fit badly under every model, left out
@@ -288,11 +274,9 @@ def validation_document(
     if val.baseline is not None:
         doc["baseline"] = stats(val.baseline)
     doc["calibrated"] = stats(val.calibrated)
-    doc["ratio_to_baseline"] = ratio_interval(val.pairs, val.before, val.calibrated)
+    doc["ratio_to_baseline"] = val.interval(val.before, val.calibrated)
     if val.baseline is not None:
-        doc["ratio_to_baseline_handeye_guess"] = ratio_interval(
-            val.pairs, val.guess, val.calibrated
-        )
+        doc["ratio_to_baseline_handeye_guess"] = val.interval(val.guess, val.calibrated)
     if ids is None:
         return doc
 
@@ -346,43 +330,47 @@ def pooled_artifacts(folds: Sequence[Calibration]) -> dict[str, dict]:
     return out
 
 
+def frames_json(frames: dict[str, np.ndarray]) -> dict:
+    """Measurement frames (SI arrays by name: transforms ``(4, 4)``, points ``(3,)`` or
+    ``(G, 3)``) as JSON, each quantity by its one serializer (:mod:`relcal.reporting.quantities`):
+    a transform ``{"xyz_m", "rpy_deg"}`` under its name, a point in m under ``NAME_xyz_m``."""
+    out: dict = {}
+    for name, value in frames.items():
+        value = np.asarray(value, dtype=float)
+        if value.shape == (4, 4):
+            out[name] = transform_json(value)
+        else:
+            out[f"{name}_xyz_m"] = point_json(value)
+    return out
+
+
 def _nuisance_frames(cal: Calibration) -> dict:
     """The estimated instrument-from-base transform and marker position (tracker formulation),
     or the tool point and the group points (coincidence)."""
     if cal.problem.formulation == "coincidence":
         from relcal.calibration.coincidence import split_params
 
-        _, tool, points = split_params(cal.problem, cal.result.params)
+        _, tool, points = split_params(cal.problem, cal.exported_fit.params)
         base_tool = split_params(cal.problem, cal.baseline.params)[1]
         names = cal.problem.coincidence.names
         return {
-            "tool_point_xyz_m": [float(v) for v in tool],
+            "tool_point_xyz_m": point_json(tool),
             # the nominal kinematics' own tool point: what `relcal verify` checks its baseline by
-            "baseline_tool_point_xyz_m": [float(v) for v in base_tool],
+            "baseline_tool_point_xyz_m": point_json(base_tool),
             "tool_point_in_model": True,  # model.yaml's and the URDF's tool end at tool_point
-            "group_points_xyz_m": {
-                n: [float(v) for v in p] for n, p in zip(names, points, strict=True)
-            },
+            "group_points_xyz_m": {n: point_json(p) for n, p in zip(names, points, strict=True)},
         }
     if cal.problem.formulation != "tracker":
         return {}
-    instrument, marker = tracker_frames(cal.problem, cal.result.params)
-    xyz, rpy = to_xyz_rpy(instrument)
-    return {
-        "instrument": {
-            "xyz_m": [float(v) for v in xyz],
-            "rpy_deg": [float(np.degrees(v)) for v in rpy],
-        },
-        "marker_xyz_m": [float(v) for v in marker],
-    }
+    instrument, marker = tracker_frames(cal.problem, cal.exported_fit.params)
+    return {"instrument": transform_json(instrument), "marker_xyz_m": point_json(marker)}
 
 
 def results_document(cal: Calibration) -> dict:
     """Everything a calibration found, JSON-ready."""
     r = cal.result
-    handeye = cal.handeye
-    xyz, rpy = to_xyz_rpy(handeye)
     m = cal.measurements
+    labels = parameter_labels(cal)  # every sentence names parameters as the tables do
     return {
         "robot": cal.dataset.model.name,
         "dataset": str(cal.dataset.root),
@@ -416,32 +404,51 @@ def results_document(cal: Calibration) -> dict:
             ),
             "seconds": r.seconds,
             "singular_values": [float(s) for s in r.identifiability.singular_values],
-            "unidentifiable": r.unidentifiable,
+            "unidentifiable": [relabel(t, labels) for t in r.unidentifiable],
             # issue 18: held by priors or at nominal, and candidates the data do not determine
-            "weak_directions": [w["text"] for w in cal.settings.get("weak_directions", [])],
+            "weak_directions": [
+                relabel(w["text"], labels) for w in cal.settings.get("weak_directions", [])
+            ],
             "dropped_candidates": [d["reason"] for d in cal.settings.get("dropped_candidates", [])],
-            "plausibility_warnings": list(getattr(cal, "warnings", ())),
+            "plausibility_warnings": [relabel(t, labels) for t in getattr(cal, "warnings", ())],
         },
         "parameters": parameter_rows(cal),
-        "identifiable_combinations": combination_rows(cal),
+        "identifiable_combinations": [
+            {**c, "text": relabel(c["text"], labels)} for c in combination_rows(cal)
+        ],
         "model_selection": selection_document(cal),
         "noise_model": noise_document(cal),
         "exported": cal.exported,
         "handeye": None
         if cal.problem.formulation in POINT_FORMULATIONS
-        else {
-            "xyz_m": [float(v) for v in xyz],
-            "rpy_deg": [float(np.degrees(v)) for v in rpy],
-        },
+        else transform_json(cal.handeye),
         **_nuisance_frames(cal),
+        # what the held-out numbers measure (the verdict's words): never pooled with another kind
+        "held_out_metric": (
+            held_out_what(cal.validation, cal.problem.formulation) if cal.validation else None
+        ),
         "validation": (
             validation_document(cal.validation, cal.dataset.ids) if cal.validation else None
         ),
-        "verdict": verdict_document(verdict(cal.validation, cal.exported, cal.problem.formulation)),
+        "verdict": verdict_document(cal.verdict()),
         "artifacts": artifacts_document(cal),
-        "parameter_labels": parameter_labels(cal),
+        "parameter_labels": labels,
         "calibrated_model": model_to_dict(cal.model),
         "joint_ranges": JointRanges.of(cal.dataset.model, cal.dataset.q[cal.train]).to_dict(),
+        "training": training_document(cal),
+    }
+
+
+def training_document(cal: Calibration) -> dict:
+    """The training samples as ``relcal verify`` recognises them: their joint values
+    (``configurations``, rad and m) and a digest of each sample (joints and measurement,
+    :func:`relcal.data.order.sample_digests`): a session that repeats them is not new."""
+    ds, train = cal.dataset, cal.train
+    groups = None if ds.groups is None else [ds.groups[k] for k in train]
+    poses = None if ds.measured == "coincidence" else cal.measurements.poses[train]
+    return {
+        "configurations": ds.q[train].tolist(),
+        "digests": sample_digests(ds.q[train], poses, groups),
     }
 
 
@@ -454,7 +461,10 @@ def verdict_document(v: Verdict) -> dict:
         "text": v.text,
         "factor": v.factor,
         "interval": None if v.interval is None else list(v.interval),
+        "held_out_interval": None if v.held_out_interval is None else list(v.held_out_interval),
         "n_held_out": v.n_held_out,
+        "n_configurations": v.n_configurations,
+        "not_validated": list(v.limits),
         "warnings": list(v.warnings),
     }
 
@@ -472,7 +482,7 @@ def artifact_document(cal: Calibration, a: Artifact) -> dict:
         "written": a.written,
         "refused": a.refused,
         "sha256": hashlib.sha256(a.content).hexdigest(),
-        "frames": artifact_frames(cal, a.fit),
+        "frames": frames_json(artifact_frames(cal, a.fit, a.name)),
     }
     if val is None:
         doc["held_out"] = None
@@ -488,7 +498,7 @@ def artifact_document(cal: Calibration, a: Artifact) -> dict:
             "n_samples": len(np.unique(val.pairs)),
             "n_pairs": len(val.pairs),
             "calibrated": stats(val.calibrated),
-            "ratio_to_baseline": ratio_interval(val.pairs, val.before, val.calibrated),
+            "ratio_to_baseline": val.interval(val.before, val.calibrated),
         }
     doc["held_out"]["position_rms_mm"] = val.rms("calibrated")
     return doc
@@ -499,7 +509,7 @@ def artifacts_document(cal: Calibration) -> dict:
     whether the geometry-only files hold the validated model (``geometry_is_validated_model``:
     no non-geometric term chosen, nothing refitted)."""
     return {
-        "geometry_is_validated_model": cal.geometry is None,
+        "geometry_is_validated_model": not any(a.refit for a in cal.artifacts),
         "measured_on": "each file as written, read back (model.yaml by relcal's model loader, "
         "URDF by relcal's URDF loader, vendor files written into the nominal URDF's joint "
         "origins), on the held-out samples of the validation",
@@ -546,6 +556,7 @@ def observability_document(rep: Report) -> dict:
         "subset_singular_values": [float(s) for s in rep.subset_singular_values],
         "indices": indices_document(rep.indices),
         "identifiable_subset": [rep.names[k] for k in ident.subset],
+        "parameter_labels": rep.labels,  # the names the parameters are shown by
         "not_estimated": rep.not_estimated,
         "unidentifiable": [
             {
@@ -823,7 +834,7 @@ def verification_document(
             "folds": ver.n_folds,
             "seed": ver.seed,
             "fitted_to_all_samples": {
-                name: {"values": n.values, "converged": n.converged}
+                name: {"values": frames_json(n.frames), "converged": n.converged}
                 for name, n in ver.nuisance.items()
             },
         },

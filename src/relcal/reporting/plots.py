@@ -244,7 +244,7 @@ def histogram_figure(before: np.ndarray, after: np.ndarray, where: str) -> Figur
     fig = Figure(figsize=(FIG_WIDTH, 3.4), dpi=DPI, layout="constrained")
     axes = fig.subplots(1, len(b), squeeze=False)[0]
     after_label, before_label = _series(where)
-    absolute = where.startswith(("held-out points", "measured poses"))  # not relative poses
+    absolute = where.startswith(("held-out points", "held-out poses", "measured poses"))
     for ax, key in zip(axes, b, strict=True):
         label, unit, _ = QUANTITIES[key]
         label = label.replace("relative ", "") if absolute else label
@@ -254,7 +254,7 @@ def histogram_figure(before: np.ndarray, after: np.ndarray, where: str) -> Figur
         ax.hist(a[key], bins=bins, histtype="stepfilled", color=AFTER, alpha=0.7, zorder=3)
         ax.hist(a[key], bins=bins, histtype="step", color=AFTER, lw=1.2, zorder=3)
         ax.set(xscale="log", xlim=(bins[0], bins[-1]), xlabel=f"{label} ({unit})")
-        ax.set_ylabel("points" if absolute else "pairs")
+        ax.set_ylabel(("poses" if "poses" in where else "points") if absolute else "pairs")
         ax.yaxis.set_major_locator(MaxNLocator(integer=True, steps=[1, 2, 2.5, 5, 10]))
         ax.set_title(f"{label.capitalize()}, {where}")
         finish(ax)
@@ -272,11 +272,11 @@ def per_pair_figure(before: np.ndarray, after: np.ndarray, where: str) -> Figure
     fig = Figure(figsize=(FIG_WIDTH, 2.5 + 2.1 * len(b)), dpi=DPI, layout="constrained")
     axes = fig.subplots(len(b), 1, squeeze=False, sharex=True)[:, 0]
     after_label, before_label = _series(where)
-    item = "point" if where.startswith("held-out points") else "pair"
+    item = {"held-out points": "point", "held-out poses": "pose"}.get(where.split(" (")[0], "pair")
     x = np.arange(1, len(before) + 1)
     for ax, key in zip(axes, b, strict=True):
         label, unit, _ = QUANTITIES[key]
-        label = label.replace("relative ", "") if item == "point" else label
+        label = label.replace("relative ", "") if item != "pair" else label
         low, high = np.fmin(a[key], b[key]), np.fmax(a[key], b[key])
         ax.vlines(x, low, high, color="#d5dae0", lw=1, zorder=1)
         ax.plot(x, b[key], "o", ms=3.5, color="#7d8793", zorder=2, label=before_label)

@@ -14,8 +14,8 @@ from relcal.design.criteria import Quality
 from relcal.design.observability import Report
 from relcal.design.plan import PlanResult
 from relcal.geometry import DEG, MM
-from relcal.reporting.documents import accuracy_document, relabel
-from relcal.robot.kinematics import DISPLAY_UNITS, Layout
+from relcal.reporting.documents import accuracy_document
+from relcal.robot.kinematics import DISPLAY_UNITS, Layout, parameter_labels, relabel
 from relcal.sim.simulate import Simulation
 from relcal.sim.study import StudyResult, worst
 
@@ -160,19 +160,26 @@ def _unit(is_angle: bool, unit: str | None = None) -> tuple[float, str]:
 
 
 def format_uncertainty(
-    unc: Uncertainty, accuracy: Accuracy | None = None, correlations: int = 8
+    unc: Uncertainty,
+    accuracy: Accuracy | None = None,
+    correlations: int = 8,
+    labels: dict[str, str] | None = None,
 ) -> str:
     """Standard deviation of every estimated parameter (mm, deg) for the noise-weighted estimator
     (the Cramer-Rao bound) and for least squares, the strongest correlations (of the chosen
-    estimator) and the predicted accuracy."""
+    estimator) and the predicted accuracy; parameters shown by their ``labels``
+    (:func:`relcal.robot.kinematics.parameter_labels`) where given."""
+    labels = labels or {}
     crb, ls = unc.crb_std, unc.least_squares_std
-    lines = [f"{'parameter':<14s} {'unit':>4s} {'std CRB':>10s} {'std LS':>10s} {'LS/CRB':>6s}"]
-    for p, name in enumerate(unc.names):
+    shown = [labels.get(n, n) for n in unc.names]
+    w = max([14, *(len(n) for n in shown)])
+    lines = [f"{'parameter':<{w}s} {'unit':>4s} {'std CRB':>10s} {'std LS':>10s} {'LS/CRB':>6s}"]
+    for p, name in enumerate(shown):
         scale, unit = _unit(bool(unc.is_angle[p]), unc.units[p] if unc.units else None)
         if np.isnan(crb[p]):
-            lines.append(f"{name:<14s} {unit:>4s} {'not estimated':>21s}")
+            lines.append(f"{name:<{w}s} {unit:>4s} {'not estimated':>21s}")
             continue
-        row = f"{name:<14s} {unit:>4s} {crb[p] * scale:>10.4g} {ls[p] * scale:>10.4g}"
+        row = f"{name:<{w}s} {unit:>4s} {crb[p] * scale:>10.4g} {ls[p] * scale:>10.4g}"
         row += f" {ls[p] / crb[p]:>6.2f}"
         if not unc.identifiable[p]:
             row += "  (absorbs an unidentifiable combination)"
@@ -181,7 +188,8 @@ def format_uncertainty(
     if strongest:
         which = "CRB" if unc.estimator == "weighted" else "least squares"
         lines += ["", f"strongest correlations ({which}):"]
-        lines += [f"  {a:<14s} {b:<14s} {rho:+.3f}" for a, b, rho in strongest]
+        pairs = [(labels.get(a, a), labels.get(b, b), rho) for a, b, rho in strongest]
+        lines += [f"  {a:<{w}s} {b:<{w}s} {rho:+.3f}" for a, b, rho in pairs]
     if accuracy is not None:
         s = accuracy_document(accuracy)
         lines += [
@@ -259,13 +267,13 @@ def format_observability(rep: Report) -> str:
         "",
         f"identifiable subset (QR with column pivoting), {len(ident.subset)} parameters:",
     ]
-    lines += _wrap([rep.names[k] for k in ident.subset])
+    lines += _wrap([rep.label(rep.names[k]) for k in ident.subset])
     if rep.not_estimated:
         lines.append("not estimated (held at nominal; each is part of a combination below):")
-        lines += _wrap(rep.not_estimated)
+        lines += _wrap([rep.label(n) for n in rep.not_estimated])
     if ident.combinations:
         lines += ["", "unidentifiable combinations, with the reason:"]
-        lines += [f"  - {c.describe()}" for c in ident.combinations]
+        lines += [f"  - {relabel(c.describe(), rep.labels)}" for c in ident.combinations]
     else:
         lines += ["", "every parameter is identifiable"]
     for p in rep.parallel:
@@ -295,7 +303,7 @@ def format_observability(rep: Report) -> str:
             f"uncertainty with noise {n.position * 1e3:g} mm, {n.orientation / DEG:g} deg per "
             f"pose, {np.max(n.joints) / DEG:g} deg per joint reading "
             f"({rep.uncertainty.estimator.replace('_', ' ')} estimator):",
-            format_uncertainty(rep.uncertainty, rep.accuracy),
+            format_uncertainty(rep.uncertainty, rep.accuracy, labels=rep.labels),
         ]
     return "\n".join(lines)
 
@@ -303,8 +311,9 @@ def format_observability(rep: Report) -> str:
 # --- pose plan ------------------------------------------------------------------------------------
 
 
-def _quality_row(label: str, q: Quality) -> str:
+def _quality_row(label: str, q: Quality, labels: dict[str, str] | None = None) -> str:
     name, eq = q.worst
+    name = (labels or {}).get(name, name)
     ln, lv = q.worst_length
     an, av = q.worst_angle
     acc = ""
@@ -334,8 +343,12 @@ def format_travel(res: PlanResult, model=None) -> str:
 
 
 def format_plan(res: PlanResult, length_scale: float, model=None) -> str:
-    """The plan against random sets: predicted standard deviations and accuracy."""
+    """The plan against random sets: predicted standard deviations and accuracy (parameters
+    named as ``model`` names them, :func:`relcal.robot.kinematics.parameter_labels`)."""
     k = len(res.q)
+    labels = {}
+    if model is not None:
+        labels = parameter_labels(model, res.plan.uncertainty.names)
     lines = [
         f"{k} poses selected from {res.n_candidates} feasible candidates by {res.algorithm} "
         f"({res.swaps} exchanges) maximising {res.criterion}, {res.seconds:.1f} s",
@@ -347,15 +360,15 @@ def format_plan(res: PlanResult, length_scale: float, model=None) -> str:
         f"{'worst deg':>9s} {'O1':>7s} {'acc mean':>8s} {'acc p95':>8s} {'acc deg':>9s}",
         f"{'':<22s} {'mm':>8s} {'':<13s} {'mm':>8s} {'length':>8s} {'angle':>9s} {'':>7s} "
         f"{'mm':>8s} {'mm':>8s} {'mean':>9s}",
-        _quality_row("plan", res.plan),
+        _quality_row("plan", res.plan, labels),
     ]
     if res.random:
         worst = np.array([r.worst[1] for r in res.random])
         median_set = res.random[int(np.argsort(worst)[len(worst) // 2])]
         best_set = res.random[int(np.argmin(worst))]
         lines += [
-            _quality_row(f"random (median of {len(res.random)})", median_set),
-            _quality_row("random (best)", best_set),
+            _quality_row(f"random (median of {len(res.random)})", median_set, labels),
+            _quality_row("random (best)", best_set, labels),
             "",
             f"worst-parameter std: plan {res.plan.worst[1] * 1e3:.4f} mm, random sets median "
             f"{res.random_median_worst * 1e3:.4f} mm: {res.improvement:.2f}x lower",
@@ -367,22 +380,27 @@ def format_plan(res: PlanResult, length_scale: float, model=None) -> str:
     if res.route is not None and len(res.q) > 1:
         lines.append(format_travel(res, model))
     if res.random:
-        lines += ["", *_parameter_table(res.plan, median_set, len(res.random))]
+        lines += ["", *_parameter_table(res.plan, median_set, len(res.random), labels)]
     return "\n".join(lines)
 
 
-def _parameter_table(plan_q: Quality, random_q: Quality, n_sets: int) -> list[str]:
-    """Per estimated parameter: predicted std for the plan and the median random set."""
+def _parameter_table(
+    plan_q: Quality, random_q: Quality, n_sets: int, labels: dict[str, str] | None = None
+) -> list[str]:
+    """Per estimated parameter (shown by its label): predicted std for the plan and the median
+    random set."""
     a, b = plan_q.uncertainty, random_q.uncertainty
+    shown = [(labels or {}).get(n, n) for n in a.names]
+    w = max([14, *(len(shown[p]) for p in a.subset)])
     lines = [
-        f"{'parameter':<14s} {'unit':>4s} {'plan':>10s} {'random':>10s} {'ratio':>6s}"
+        f"{'parameter':<{w}s} {'unit':>4s} {'plan':>10s} {'random':>10s} {'ratio':>6s}"
         f"   (predicted std; random = the median of {n_sets} sets)"
     ]
     for p in a.subset:
         scale, unit = _unit(bool(a.is_angle[p]), a.units[p] if a.units else None)
         sa, sb = a.crb_std[p], b.crb_std[p]
         lines.append(
-            f"{a.names[p]:<14s} {unit:>4s} {sa * scale:>10.4g} {sb * scale:>10.4g} {sb / sa:>6.2f}"
+            f"{shown[p]:<{w}s} {unit:>4s} {sa * scale:>10.4g} {sb * scale:>10.4g} {sb / sa:>6.2f}"
         )
     return lines
 
@@ -477,6 +495,7 @@ def calibration_summary(doc: dict) -> str:
         f"{doc['robot']}: {doc['n_used']} of {doc['n_samples']} samples used, "
         f"{len(doc['held_out_ids'])} held out",
     ]
+    lines += coverage_lines(doc["settings"].get("coverage"))
     formulation = doc["settings"].get("formulation")
     points = formulation in ("tracker", "coincidence")
     frames = {
@@ -501,9 +520,9 @@ def calibration_summary(doc: dict) -> str:
             )
         lines.append(f"  chosen: {sel['chosen']} ({sel['weighting']}): {sel['reason']}")
         if sel["exported"] == "baseline":
+            reason = sel.get("export_reason") or "the data support no kinematic correction"
             lines.append(
-                "  the data support no kinematic correction: the exported model is the nominal "
-                f"kinematics with {frames} fitted"
+                f"  {reason}: the exported model is the nominal kinematics with {frames} fitted"
             )
     lines.append(identification_line(ident))
     val = doc["validation"]
@@ -518,6 +537,12 @@ def calibration_summary(doc: dict) -> str:
             if points:
                 what = f"absolute {key.split('_')[0]} error over {val['n_samples']} points"
                 guesses, fitted = "instrument and marker guesses", "instrument and marker fitted"
+            elif val.get("held_out") == "poses":
+                what = (
+                    f"{key.split('_')[0]} error of the poses in the world frame over "
+                    f"{configurations(val)}"
+                )
+                guesses, fitted = "frame guesses", "hand-eye and world fitted"
             else:
                 what = (
                     f"relative {key.split('_')[0]} error over {val['n_pairs']} pairs of "
@@ -576,9 +601,11 @@ def calibration_summary(doc: dict) -> str:
         pooled = cv["pooled"]
         base = "baseline" if "baseline" in pooled else "baseline_handeye_guess"
         b, a = pooled[base]["position_mm"], pooled["calibrated"]["position_mm"]
+        held = pooled.get("held_out", "points" if points else "pairs of poses")
+        count = pooled["n_samples"] if held in ("points", "poses") else pooled["n_pairs"]
         lines.append(
-            f"{cv['k']}-fold cross-validation over {pooled['n_pairs']} held-out "
-            f"{'points' if points else 'pairs'}: position "
+            f"{cv['k']}-fold cross-validation over {count} held-out "
+            f"{'pairs' if held == 'pairs of poses' else held}: position "
             f"RMS baseline {b['rms']:.3f} -> calibrated {a['rms']:.3f} mm "
             f"({_ratio_text(pooled['ratio_to_baseline']['position_mm'])}); chosen per fold: "
             + ", ".join(cv["chosen"])
@@ -599,6 +626,41 @@ def calibration_summary(doc: dict) -> str:
     lines += artifact_lines(doc.get("artifacts"))
     lines += verdict_lines(doc.get("verdict"))
     return "\n".join(lines)
+
+
+def configurations(val: dict) -> str:
+    """``12 held-out samples`` or ``30 held-out samples in 10 distinct configurations``."""
+    n, k = val["n_samples"], val.get("n_configurations", val["n_samples"])
+    text = f"{n} held-out sample{'s' if n != 1 else ''}"
+    if k != n:
+        text += f" in {k} distinct configuration{'s' if k != 1 else ''}"
+    return text
+
+
+def coverage_lines(cov: dict | None) -> list[str]:
+    """What the samples cover (:func:`relcal.calibration.coverage.describe`): repeated
+    configurations, joints that never moved, singular samples."""
+    if not cov:
+        return []
+    lines = []
+    if cov["repeated_samples"]:
+        lines.append(
+            f"  {cov['configurations']} distinct configurations ({cov['repeated_samples']} "
+            "samples repeat one: held out together with it)"
+        )
+    for j in cov["still_joints"]:
+        lines.append(
+            f"  joint {j['joint']} ({j['name']}) never moved: at {j['value']:.1f} {j['unit']} in "
+            "every sample"
+        )
+    singular = cov["singular_samples"]
+    if singular:
+        shown = ", ".join(singular[:5]) + (", ..." if len(singular) > 5 else "")
+        lines.append(
+            f"  {len(singular)} sample(s) at a singular configuration (the flange Jacobian loses "
+            f"rank): {shown}"
+        )
+    return lines
 
 
 def identification_line(ident: dict) -> str:

@@ -25,6 +25,8 @@ from __future__ import annotations
 import copy
 import functools
 import importlib.util
+import re
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any, Literal
 
@@ -223,6 +225,70 @@ def make_layout(model: RobotModel, base: bool = False, tool: bool = False) -> La
     )
     prismatic = tuple(int(i) for i in np.flatnonzero(model.prismatic))
     return Layout(names, tuple(k for k, _ in entries), tuple(i for _, i in entries), prismatic)
+
+
+_PER_JOINT = re.compile(r"\b([a-z_]+)\[(\d+)\]")
+
+
+def parameter_label(name: str, joint_names: Sequence[str] | None = None) -> str:
+    """The name a parameter is shown by, in every command, file and report.
+
+    A per-joint parameter ``kind[i]`` (1-based joint ``i``) of a robot loaded from a URDF is
+    named after its joint, as a person reads the URDF (``theta_off[3]`` ->
+    ``theta_off[arm_right_2_joint]``); every other name is shown as it is (the numbered joints
+    of relcal's own robot files, frames such as ``handeye.tx``, URDF origins such as
+    ``joint2.origin.x``, which already name their joint).
+
+    Parameters
+    ----------
+    name : str
+        The parameter's key, :attr:`Layout.names` (what files such as ``--errors``, the priors
+        and the registry use).
+    joint_names : sequence of str, optional
+        The chain's joint names, first joint first, for a robot loaded from a URDF
+        (:func:`label_joints`); None: the joints are numbered.
+
+    Returns
+    -------
+    str
+        The label.
+
+    Examples
+    --------
+    >>> parameter_label("theta_off[2]", ["shoulder", "elbow"])
+    'theta_off[elbow]'
+    >>> parameter_label("theta_off[2]"), parameter_label("handeye.tx", ["shoulder"])
+    ('theta_off[2]', 'handeye.tx')
+    """
+    match = _PER_JOINT.fullmatch(name)
+    if match is None or not joint_names:
+        return name
+    index = int(match.group(2)) - 1
+    if not 0 <= index < len(joint_names):
+        return name
+    return f"{match.group(1)}[{joint_names[index]}]"
+
+
+def label_joints(model: RobotModel) -> tuple[str, ...] | None:
+    """The joint names that :func:`parameter_label` names parameters by: the chain's, for a
+    robot loaded from a URDF; None for relcal's own robot files (their joints are numbered)."""
+    return None if model.urdf is None else tuple(model.joint_names)
+
+
+def parameter_labels(model: RobotModel, names: Sequence[str]) -> dict[str, str]:
+    """``{name: label}`` (:func:`parameter_label`) of the ``names`` whose label differs from
+    the name, for ``model``'s robot: empty unless it was loaded from a URDF."""
+    joints = label_joints(model)
+    labels = {n: parameter_label(n, joints) for n in names}
+    return {n: label for n, label in labels.items() if label != n}
+
+
+def relabel(text: str, labels: dict[str, str]) -> str:
+    """``text`` with every per-joint parameter name of ``labels`` (``kind[i]``) replaced by its
+    label (:func:`parameter_labels`); labels already in ``text`` are left as they are."""
+    if not labels:
+        return text
+    return _PER_JOINT.sub(lambda m: labels.get(m.group(0), m.group(0)), text)
 
 
 ORIGIN_COMPONENTS = ("x", "y", "z", "rx", "ry", "rz")

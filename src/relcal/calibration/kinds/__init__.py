@@ -31,15 +31,17 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from functools import cached_property
 from typing import ClassVar
 
 import numpy as np
 
+from relcal.calibration.coverage import Coverage
 from relcal.calibration.identifiability import Identifiability
 from relcal.calibration.identify import Result
 from relcal.calibration.measurement import PairStrategy, Problem
 from relcal.calibration.noise import PoseNoise
-from relcal.calibration.validate import folds, split
+from relcal.calibration.validate import split_units, unit_folds
 from relcal.data.dataset import Dataset
 from relcal.data.imaging import Measurements
 from relcal.errors import RelcalError
@@ -105,36 +107,63 @@ class MeasurementKind:
         """Indices of the usable samples (measured, not rejected)."""
         return np.flatnonzero(self.measurements.ok)
 
+    @cached_property
+    def coverage(self) -> Coverage:
+        """What the usable samples cover (:class:`~relcal.calibration.coverage.Coverage`): their
+        distinct configurations (in the order of :meth:`usable`), the joints that never moved,
+        the samples at singular configurations (indices into :meth:`usable`)."""
+        return Coverage.of(self.dataset.model, self.dataset.q[self.usable()])
+
+    def configurations(self) -> np.ndarray:
+        """Each sample's configuration ``(N,)`` (:attr:`coverage`'s clusters), -1 for samples
+        that are not usable: samples of one configuration are held out together."""
+        out = np.full(len(self.dataset.ids), -1)
+        out[self.usable()] = self.coverage.clusters
+        return out
+
     def split(
         self, holdout: float, seed: int, holdout_ids: Sequence[str] | None
     ) -> tuple[np.ndarray, np.ndarray]:
-        """Training and held-out sample indices among the usable samples: the samples named by
-        ``holdout_ids``, or a random share ``holdout`` of them (seeded)."""
+        """Training and held-out sample indices among the usable samples: whole configurations
+        (:attr:`coverage`), a random share ``holdout`` of them (seeded), or those of the samples
+        named by ``holdout_ids`` (with every repeat of their configurations: a copy of a
+        held-out configuration is never trained on)."""
         usable = self.usable()
         if len(usable) < 4:
             raise RelcalError(
                 f"{self.dataset.spec_path}: only {len(usable)} usable samples; at least 4 are "
                 "needed (and many more for a useful calibration)"
             )
+        labels = self.coverage.clusters
         if holdout_ids is not None:
-            test = self.sample_indices(holdout_ids)
-            return np.setdiff1d(usable, test), np.intersect1d(usable, test)
+            test = np.intersect1d(usable, self.sample_indices(holdout_ids))
+            held = np.isin(labels, labels[np.searchsorted(usable, test)])
+            return usable[~held], usable[held]
         if holdout > 0:
-            train_idx, test_idx = split(len(usable), holdout, seed)
+            train_idx, test_idx = split_units(labels, holdout, seed)
             return usable[train_idx], usable[test_idx]
         return usable, np.zeros(0, dtype=int)
 
     def folds(self, k: int, seed: int) -> list[list[str]]:
-        """The held-out ids (:meth:`split`'s ``holdout_ids``) of each of ``k`` folds; each fold
-        holds out at least 2 usable samples (a pair), so ``k`` is 2 to half of them."""
+        """The held-out ids (:meth:`split`'s ``holdout_ids``) of each of ``k`` folds of whole
+        configurations; each fold holds out at least 2 usable samples, so ``k`` is 2 to half of
+        them (and at most the number of distinct configurations)."""
         usable = self.usable()
-        if not 2 <= k <= len(usable) // 2:
-            raise RelcalError(
-                f"--kfold {k}: {self.dataset.spec_path.parent if self.dataset.spec_path else ''} "
-                f"has {len(usable)} usable samples; each fold needs at least 2 held-out samples, "
-                f"so K is 2 to {len(usable) // 2}"
+        n_conf = self.coverage.n_configurations
+        most = min(len(usable) // 2, n_conf)
+        if not 2 <= k <= most:
+            where = self.dataset.spec_path.parent if self.dataset.spec_path else ""
+            repeats = (
+                f" in {n_conf} distinct configurations (repeats are held out together)"
+                if n_conf < len(usable)
+                else ""
             )
-        return [[self.dataset.ids[i] for i in usable[f]] for f in folds(len(usable), k, seed)]
+            raise RelcalError(
+                f"--kfold {k}: {where} has {len(usable)} usable samples{repeats}; each fold "
+                f"needs at least 2 held-out samples, so K is 2 to {most}"
+            )
+        labels = self.coverage.clusters
+        return [[self.dataset.ids[i] for i in usable[f]] for f in unit_folds(labels, k, seed)]
 
     def sample_indices(self, ids: Sequence[str]) -> np.ndarray:
         """Sorted indices of the samples named ``ids``."""

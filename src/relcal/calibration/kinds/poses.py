@@ -1,21 +1,21 @@
-"""Relative poses (a camera looking at a board, a motion-capture rigid body): the frame-invariant
-formulation ``M_ij = C_i^-1 C_j`` against ``X^-1 F_i^-1 F_j X``, with the hand-eye transform ``X``
-estimated with the geometry; or, for large sets (pairing ``board``, which ``auto`` picks above
-:data:`~relcal.calibration.measurement.AUTO_ALL_PAIRS` usable samples), each camera pose against
-``W F(q_k) X`` with the board transform ``W`` estimated too: one residual block per sample, the
-same information as all pairs, in time and memory linear in the samples.
+"""Poses (a camera looking at a board, a motion-capture rigid body, a tracker's 6-D probe): by
+default (pairing ``board``, what ``auto`` stands for) each measured pose against ``W F(q_k) X``,
+with the hand-eye transform ``X`` and the world (board, instrument) transform ``W`` estimated with
+the geometry: one residual block per sample, the maximum-likelihood form of independent pose
+noise, in time and memory linear in the samples; or the frame-invariant relative form (pairings
+``all``, ``consecutive``, ``star``) ``M_ij = C_i^-1 C_j`` against ``X^-1 F_i^-1 F_j X``, in which
+``W`` cancels.
 
 What the kind supplies to the skeleton: the hand-eye guess (``handeye:`` in dataset.yaml, else
 :func:`~relcal.calibration.handeye.solve_handeye` on the training samples, kept once outliers are
 left out), the plausibility checks of relative rotations and translation scale before fitting
-(:func:`~relcal.calibration.plausibility.check_dataset`), outliers found from each sample's pair
-errors in units of their robust noise, a 6x6 pose noise learned from the pair residuals
+(:func:`~relcal.calibration.plausibility.check_dataset`), outliers found from each sample's
+errors in units of their robust noise, a 6x6 pose noise learned from the residuals
 (:func:`~relcal.calibration.noise.estimate_pose_noise`) with two row weightings (``plain``:
-translation in m, rotation x 0.1 m/rad; ``noise model``: each pair whitened by its learned
-covariance), one linearisation at the geometric fit shared by every candidate of model
-selection, and validation on the pairs among held-out samples (at most
-:data:`~relcal.calibration.measurement.VALIDATION_PAIRS` of them, drawn at random, when the
-board formulation is used).
+translation in m, rotation times a lever arm; ``noise model``: each measurement whitened by its
+learned covariance), one linearisation at the geometric fit shared by every candidate of model
+selection, and validation of each held-out pose predicted in the world frame: ``W F(q) X`` with
+``W`` taken from the training fit (:func:`held_out_poses`), whatever the pairing of the fit.
 """
 
 from __future__ import annotations
@@ -30,7 +30,6 @@ from relcal.calibration.identifiability import check_pose_set
 from relcal.calibration.identify import Result
 from relcal.calibration.kinds import MeasurementKind, NoiseModel, Training
 from relcal.calibration.measurement import (
-    VALIDATION_PAIRS,
     Problem,
     board_guess,
     board_lever,
@@ -38,6 +37,7 @@ from relcal.calibration.measurement import (
     pair_errors,
     residuals,
     resolve_pairing,
+    world_of,
 )
 from relcal.calibration.noise import (
     estimate_pose_noise,
@@ -149,43 +149,77 @@ class PoseKind(MeasurementKind):
         test: np.ndarray,
         screen: bool = False,
     ):
-        """Relative pose errors of the pairs among the held-out samples (at least two); with the
-        board formulation, of at most
-        :data:`~relcal.calibration.measurement.VALIDATION_PAIRS` of those pairs, and of the
-        relative poses only (the board estimate of the training samples is not used)."""
-        if len(test) < 2:
+        """Each held-out pose predicted in the world frame, ``W F(q) X`` with ``W`` from the
+        training fit, against the measured one (:func:`held_out_poses`), for the nominal model
+        with the frame guesses, the baseline and the calibrated model."""
+        if len(test) < 1:
             return None
-        ds = self.dataset
-        everything = Problem(
-            ds.model,
-            make_layout(ds.model),
-            ds.q,
+        return held_out_poses(
+            training,
+            self.dataset.q,
             self.measurements.poses,
-            "invariant",
-            "pose",
-            None,
-            training.problem.handeye,
-        )
-        train = training.samples if screen else None
-        if self.strategy != "board":
-            return held_out(everything, result, test, baseline=baseline, train=train)
-        size = everything.full_layout.size  # the geometry and the hand-eye, not the board
-
-        def relative(fit: Result) -> Result:
-            return replace(fit, params=fit.params[:size])
-
-        return held_out(
-            everything,
-            relative(result),
+            result,
+            baseline,
             test,
-            baseline=relative(baseline),
-            train=train,
-            max_pairs=VALIDATION_PAIRS,
+            screen=screen,
+            units=self.configurations(),
         )
 
     def settings(self, training: Training) -> dict:
         """The pairing used (``auto`` resolved)."""
         return {"pairing": self.strategy}
+
+
+def world_params(training: Training, params: np.ndarray) -> np.ndarray:
+    """The fit ``params`` of ``training.problem`` as parameters of the board formulation with the
+    identity as board guess: ``(geometry, hand-eye 6-vector, W as a 6-vector)``, ``W`` the fit's
+    world transform (:func:`~relcal.calibration.measurement.world_of`)."""
+    problem = training.problem
+    n_frames = problem.layout.size + 6
+    return np.r_[params[:n_frames], tf.to_vector(world_of(problem, params))]
+
+
+def held_out_poses(
+    training: Training,
+    q: np.ndarray,
+    poses: np.ndarray,
+    result: Result,
+    baseline: Result,
+    test: np.ndarray,
+    screen: bool = False,
+    units: np.ndarray | None = None,
+):
+    """The held-out poses ``test`` (dataset indices into joints ``q`` and ``poses``) predicted
+    in the world frame by the nominal model with the frame guesses, the ``baseline`` and
+    ``result``, each with its world transform from the training fit (:func:`world_params`);
+    with ``screen``, held-out samples that fit badly under both models left out
+    (:func:`validate.held_out_outliers`)."""
+    problem = training.problem
+    everything = Problem(
+        problem.model,
+        problem.layout,
+        q,
+        poses,
+        "board",
+        "pose",
+        None,
+        problem.handeye,
+        board=np.eye(4),
+    )
+
+    def as_board(fit: Result) -> Result:
+        return replace(fit, params=world_params(training, fit.params))
+
+    guess = world_params(training, np.zeros(problem.full_layout.size))
+    return held_out(
+        everything,
+        as_board(result),
+        test,
+        baseline=as_board(baseline),
+        train=training.samples if screen else None,
+        guess=guess,
+        units=units,
+    )
 
 
 def weighted_problem(

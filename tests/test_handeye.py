@@ -1,0 +1,353 @@
+"""Hand-eye calibration: closed forms, the refined estimate, its held-out proof, planted truth."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from helpers_handeye import (
+    NOISE,
+    W_TRUE,
+    X_TRUE,
+    camera_poses,
+    flange_poses,
+    render_dataset,
+    write_flange_dataset,
+)
+
+import relcal
+from relcal import geometry as tf
+from relcal.calibration.handeye_closed import (
+    METHODS,
+    _checked,
+    closed_forms,
+    informative_samples,
+)
+from relcal.calibration.handeye_fit import fit_poses
+from relcal.calibration.handeye_job import handeye
+from relcal.data.flange import flange_chain
+from relcal.errors import RelcalError
+
+
+def _frame_error(estimate: np.ndarray, truth: np.ndarray) -> np.ndarray:
+    """The 6-vector of ``truth^-1 estimate`` (m, rad): the perturbation of the fit's covariance."""
+    return tf.to_vector(tf.invert(truth) @ estimate)
+
+
+@pytest.mark.parametrize("mode", ["camera on the flange", "marker on the flange"])
+def test_every_closed_form_recovers_exact_frames(mode):
+    flange = flange_poses(12, seed=1)
+    x = X_TRUE if mode == "camera on the flange" else tf.invert(X_TRUE)
+    poses = camera_poses(flange, x, W_TRUE, cov=None)
+    answers, selection = closed_forms(flange, poses)
+    assert len(selection.used) == 12 and not selection.left_out
+    assert [a.method for a in answers] == list(METHODS)
+    for a in answers:
+        assert a.ok, a.failure
+        assert np.abs(a.handeye - x).max() < 1e-8, a.method
+        assert np.abs(a.world - W_TRUE).max() < 1e-8, a.method
+
+
+def test_closed_form_failures_are_named_never_used():
+    rot = np.eye(3)
+    assert _checked("andreff", np.full((3, 3), np.nan), np.zeros(3))[1].endswith(
+        "returned NaN (a known failure of the method on such data)"
+    )
+    flip = np.diag([1.0, 1.0, -1.0])
+    x, why = _checked("horaud", flip, np.zeros(3))
+    assert x is None and "not a rotation" in why
+    assert _checked("tsai", rot, np.zeros(3))[1] is None
+    answers, _ = closed_forms(flange_poses(2, 0), camera_poses(flange_poses(2, 0), cov=None))
+    assert all(not a.ok and "the closed forms need 3" in a.failure for a in answers)
+
+
+def test_informative_samples_leave_out_tiny_and_half_turn_pairs_whatever_the_order():
+    flange = flange_poses(10, seed=2)
+    twin = flange[3] @ tf.from_vector([0.001, 0, 0, 0, 0, np.radians(0.5)])  # 0.5 deg, 1 mm
+    slide = flange[4] @ tf.from_vector([0.05, 0, 0, 0, 0, 0])  # a pure translation: kept
+    flip = flange[5] @ tf.from_vector([0, 0, 0, np.radians(178.0), 0, 0])  # 178 deg from 5
+    all_f = np.concatenate([flange, twin[None], flip[None], slide[None]])
+    poses = camera_poses(all_f, cov=None)
+    sel = informative_samples(all_f, poses)
+    assert len(sel.used) == 11 and len(sel.left_out) == 2
+    assert any("moves less than 2 mm" in why for why in sel.left_out.values())
+    assert any("near 180 deg" in why for why in sel.left_out.values())
+    perm = np.random.default_rng(0).permutation(len(all_f))
+    sel2 = informative_samples(all_f[perm], poses[perm])
+    assert sorted(perm[sel2.used].tolist()) == sorted(sel.used.tolist())
+
+
+def test_refined_estimate_within_its_std_and_at_least_as_good_as_the_closed_forms():
+    flange = flange_poses(30, seed=3)
+    poses = camera_poses(flange, seed=4)
+    poses[7] = poses[7] @ tf.from_vector([0.02, 0.0, 0.0, 0.0, 0.05, 0.0])  # a bad frame
+    model, q = flange_chain(flange)
+    result = handeye(relcal.Dataset.from_arrays(model, q, poses), folds=5)
+    fit = result.fit
+    assert result.outliers and list(result.outliers) == ["7"]
+    err = _frame_error(result.handeye, X_TRUE)
+    std = np.sqrt(np.diag(fit.covariance))[:6]
+    assert np.all(np.abs(err) < 3 * std), (err, std)
+    assert fit.converged
+    # on the same data, the closed forms' own error in the frame is not smaller
+    mine = np.linalg.norm(err[:3])
+    best = min(np.linalg.norm(_frame_error(a.handeye, X_TRUE)[:3]) for a in result.closed if a.ok)
+    assert mine <= best
+    # and on the same held-out samples
+    val = result.validation
+    assert val.rms("refined") <= min(val.rms(m) for m in METHODS)
+    assert result.verdict.code == "deploy"
+    assert result.exported == "refined"
+
+
+def test_refined_spread_over_200_seeds_is_the_cramer_rao_bound():
+    """200 data sets of 80 noisy camera poses (correlated noise in the camera frame): the spread of
+    the refined frames matches the Cramer-Rao bound of the true noise within 10 %."""
+    n = 80
+    flange = flange_poses(n, seed=5)
+    model, q = flange_chain(flange)
+    truth = W_TRUE @ flange @ X_TRUE
+
+    def residual(p):
+        x, w = X_TRUE @ tf.from_vector(p[:6]), W_TRUE @ tf.from_vector(p[6:])
+        return tf.to_vector(tf.invert(w @ flange @ x) @ truth).ravel()
+
+    jac = np.empty((6 * n, 12))
+    for i in range(12):  # finite differences of the residual, independent of the fit's own
+        d = np.zeros(12)
+        d[i] = 1e-6
+        jac[:, i] = (residual(d) - residual(-d)) / 2e-6
+    info = jac.T @ np.kron(np.eye(n), np.linalg.inv(NOISE)) @ jac
+    crb = np.linalg.inv(info)
+    start = closed_forms(flange[:10], truth[:10], ("park",))[0][0]
+    est = []
+    for seed in range(200):
+        poses = camera_poses(flange, seed=100 + seed)
+        fit = fit_poses(model, q, poses, start.handeye, start.world, reject=False)
+        est.append(np.r_[_frame_error(fit.handeye, X_TRUE), _frame_error(fit.world, W_TRUE)])
+    est = np.array(est)
+    # the spread in units of the bound: 1 for an efficient estimator (sampling error ~3 %)
+    spread = np.mean(np.einsum("ni,ij,nj->n", est, info, est)) / 12
+    assert abs(spread - 1.0) < 0.10, spread
+    spread_x = (
+        np.mean(np.einsum("ni,ij,nj->n", est[:, :6], np.linalg.inv(crb[:6, :6]), est[:, :6])) / 6
+    )
+    assert abs(spread_x - 1.0) < 0.10, spread_x
+    # and the fit's own covariance predicts it
+    assert np.allclose(np.sqrt(np.diag(fit.covariance)), np.sqrt(np.diag(crb)), rtol=0.15)
+
+
+@pytest.mark.parametrize("mode", ["eye_in_hand", "eye_to_hand"])
+def test_rendered_images_planted_truth(tmp_path, mode):
+    folder, x, w = render_dataset(tmp_path / mode, mode)
+    dataset = relcal.load_dataset(folder)
+    assert dataset.flange is not None  # flange poses, no robot model
+    result = handeye(dataset, folds=5)
+    assert result.validation.criterion == "px"
+    err = _frame_error(result.handeye, x)
+    std = np.sqrt(np.diag(result.fit.covariance))[:6]
+    assert np.all(np.abs(err) < 3 * std), err / std
+    best = min(np.linalg.norm(_frame_error(a.handeye, x)[:3]) for a in result.closed if a.ok)
+    assert np.linalg.norm(err[:3]) <= best
+    val = result.validation
+    assert val.rms("refined") <= min(val.rms(m) for m in METHODS)
+    delivered = result.transform("handeye")
+    truth = x if mode == "eye_in_hand" else tf.invert(w)  # the fixed camera in the base frame
+    assert np.abs(delivered[:3, 3] - truth[:3, 3]).max() < 1e-3
+
+
+def test_numbers_do_not_change_when_rows_are_reordered(tmp_path):
+    flange = flange_poses(16, seed=6)
+    poses = camera_poses(flange, seed=7)
+    a = handeye(relcal.load_dataset(write_flange_dataset(tmp_path / "a", flange, poses)))
+    perm = np.random.default_rng(1).permutation(16)
+    b = handeye(
+        relcal.load_dataset(write_flange_dataset(tmp_path / "b", flange[perm], poses[perm]))
+    )
+    assert np.allclose(a.handeye, b.handeye, atol=1e-12)
+    for m in ("refined", *METHODS):
+        sa, sb = a.validation.summary(m), b.validation.summary(m)
+        assert sa["position_mm"]["rms"] == pytest.approx(sb["position_mm"]["rms"], rel=1e-9)
+        assert sa["position_mm"]["ci95"] == pytest.approx(sb["position_mm"]["ci95"], rel=1e-9)
+    assert a.verdict.text == b.verdict.text
+
+
+def test_flange_columns_must_be_complete(tmp_path):
+    flange = flange_poses(6, seed=8)
+    folder = write_flange_dataset(tmp_path / "d", flange, camera_poses(flange, cov=None))
+    text = (folder / "samples.csv").read_text().replace(",fqw,", ",fqw_,", 1)
+    (folder / "samples.csv").write_text(text)
+    with pytest.raises(RelcalError, match="fqw"):
+        relcal.load_dataset(folder)
+
+
+# --- degenerate motions: named, never a confident number -----------------------------------------
+
+
+def test_rotations_about_one_axis_are_named_and_refused_without_a_guess(tmp_path):
+    """Every motion turns about the flange's z axis: X's translation along it trades with W's,
+    so it is named and the transform is refused (no value printed, no file to load)."""
+    flange = flange_poses(20, seed=9, spread=0.6, axis=np.array([0.0, 0.0, 1.0]))
+    poses = camera_poses(flange, seed=10)
+    result = handeye(relcal.load_dataset(write_flange_dataset(tmp_path / "d", flange, poses)))
+    assert any("rotations about parallel axes" in f for f in result.findings)
+    assert any("(+0.00, +0.00, +1.00)" in f for f in result.findings)
+    he = result.delivered[0]
+    assert he.undetermined and "translation" in he.undetermined[0]
+    assert result.exported is None and result.verdict.code == "do not deploy"
+    from relcal.reporting.handeye_report import handeye_document, handeye_files, handeye_text
+
+    doc = handeye_document(result)
+    assert doc["handeye"]["xyz_m"] is None  # never printed as a number
+    assert set(handeye_files(result, doc)) == {"results.json"}
+    assert "not determined" in handeye_text(doc)
+
+
+def test_rotations_about_one_axis_are_held_at_the_guess(tmp_path):
+    flange = flange_poses(20, seed=9, spread=0.6, axis=np.array([0.0, 0.0, 1.0]))
+    poses = camera_poses(flange, seed=10)
+    xyz, rpy = tf.to_xyz_rpy(X_TRUE)
+    guess = (
+        f"handeye: {{xyz: [{xyz[0]:.4f}, {xyz[1]:.4f}, {xyz[2] + 0.004:.4f}], "
+        f"rpy: [{np.degrees(rpy[0]):.3f}, {np.degrees(rpy[1]):.3f}, {np.degrees(rpy[2]):.3f}]}}\n"
+    )
+    folder = write_flange_dataset(tmp_path / "d", flange, poses, extra=guess)
+    result = handeye(relcal.load_dataset(folder))
+    he = result.delivered[0]
+    assert not he.undetermined and he.held
+    assert result.exported == "refined"
+    # the free direction sits at the guess (4 mm off the truth), with the guess's std
+    assert result.handeye[2, 3] == pytest.approx(X_TRUE[2, 3] + 0.004, abs=5e-4)
+    assert he.xyz_std[2] == pytest.approx(0.010, rel=0.2)
+    assert result.verdict.code == "collect more samples"
+
+
+def test_tiny_rotations_are_named_and_never_a_confident_number(tmp_path):
+    flange = flange_poses(20, seed=11, spread=np.radians(0.15))  # a few tenths of a degree
+    poses = camera_poses(flange, seed=12)
+    result = handeye(relcal.load_dataset(write_flange_dataset(tmp_path / "d", flange, poses)))
+    assert any("rotations too small" in f for f in result.findings)
+    he = result.delivered[0]
+    assert he.undetermined
+    assert result.exported is None and result.verdict.code == "do not deploy"
+
+
+# --- exports that load ---------------------------------------------------------------------------
+
+
+def _launch_transforms(text: str) -> dict[tuple[str, str], np.ndarray]:
+    """The transforms a launch file's static_transform_publisher nodes publish (parsed, not
+    run: ROS is not installed in the tests)."""
+    import ast
+
+    from scipy.spatial.transform import Rotation
+
+    out = {}
+    for node in ast.walk(ast.parse(text)):
+        if isinstance(node, ast.Call) and getattr(node.func, "id", None) == "Node":
+            kw = {k.arg: ast.literal_eval(k.value) for k in node.keywords}
+            assert kw["package"] == "tf2_ros"
+            assert kw["executable"] == "static_transform_publisher"
+            args = kw["arguments"]
+            value = dict(zip(args[::2], args[1::2], strict=True))
+            t = np.eye(4)
+            t[:3, 3] = [float(value[f"--{c}"]) for c in "xyz"]
+            q = [float(value[f"--q{c}"]) for c in "xyzw"]
+            t[:3, :3] = Rotation.from_quat(q).as_matrix()
+            out[(value["--frame-id"], value["--child-frame-id"])] = t
+    return out
+
+
+def _urdf_transforms(text: str) -> dict[tuple[str, str], np.ndarray]:
+    import xml.etree.ElementTree as ET
+
+    out = {}
+    for joint in ET.fromstring(text).iter("joint"):
+        origin = joint.find("origin")
+        xyz = np.array([float(v) for v in origin.get("xyz").split()])
+        rpy = np.array([float(v) for v in origin.get("rpy").split()])
+        key = (joint.find("parent").get("link"), joint.find("child").get("link"))
+        out[key] = tf.from_xyz_rpy(xyz, rpy)
+    return out
+
+
+@pytest.mark.parametrize("mode", ["eye_in_hand", "eye_to_hand", "robot_world"])
+def test_exports_load_back_to_the_same_transforms(tmp_path, mode):
+    import yaml
+    from yourdfpy import URDF
+
+    from relcal.cli import main
+
+    flange = flange_poses(12, seed=13)
+    folder = write_flange_dataset(tmp_path / "d", flange, camera_poses(flange, seed=14), mode=mode)
+    out = tmp_path / "out"
+    assert main(["handeye", str(folder), "--out", str(out), "--quiet", "--folds", "3"]) == 0
+    result = handeye(relcal.load_dataset(folder), folds=3)
+    want = {(d.parent, d.child): d.transform for d in result.delivered}
+    assert len(want) == (2 if mode == "robot_world" else 1)
+    launch = _launch_transforms((out / "handeye.launch.py").read_text())
+    urdf = _urdf_transforms((out / "handeye.urdf").read_text())
+    loaded = URDF.load(str(out / "handeye.urdf"))
+    data = yaml.safe_load((out / "handeye.yaml").read_text())
+    from scipy.spatial.transform import Rotation
+
+    for (parent, child), t in want.items():
+        assert np.abs(launch[(parent, child)] - t).max() < 1e-12
+        assert np.abs(urdf[(parent, child)] - t).max() < 1e-12
+        assert np.abs(loaded.get_transform(child, parent) - t).max() < 1e-12
+        entry = next(v for v in data.values() if isinstance(v, dict) and v.get("child") == child)
+        assert entry["parent"] == parent
+        rot = Rotation.from_quat(entry["quaternion"]).as_matrix()
+        assert np.abs(rot - t[:3, :3]).max() < 1e-12
+        assert (
+            np.abs(tf.from_xyz_rpy(np.array(entry["xyz"]), np.array(entry["rpy"])) - t).max()
+            < 1e-12
+        )
+    calib = yaml.safe_load((out / "handeye.calib").read_text())
+    first = result.delivered[0].transform
+    tr, rq = calib["transform"]["translation"], calib["transform"]["rotation"]
+    assert np.allclose([tr["x"], tr["y"], tr["z"]], first[:3, 3], atol=1e-12)
+    assert np.allclose(Rotation.from_quat([rq["x"], rq["y"], rq["z"], rq["w"]]).as_matrix(),
+                       first[:3, :3], atol=1e-12)  # fmt: skip
+    expected = "eye_on_base" if mode == "eye_to_hand" else "eye_in_hand"
+    assert calib["parameters"]["calibration_type"] == expected
+    doc = yaml.safe_load((out / "results.json").read_text())
+    assert doc["handeye"]["xyz_m"] == pytest.approx(list(tf.to_xyz_rpy(first)[0]), abs=1e-12)
+    assert ("world" in doc) and ((doc["world"] is not None) == (mode == "robot_world"))
+
+
+def test_command_refuses_bad_input_with_exit_2(tmp_path, capsys):
+    from relcal.cli import main
+
+    flange = flange_poses(8, seed=15)
+    folder = write_flange_dataset(tmp_path / "d", flange, camera_poses(flange, cov=None))
+    text = (folder / "samples.csv").read_text().splitlines()
+    cells = text[3].split(",")
+    cells[4] = "2.0"  # fqx: not a unit quaternion any more
+    text[3] = ",".join(cells)
+    (folder / "samples.csv").write_text("\n".join(text) + "\n")
+    assert main(["handeye", str(folder), "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert "line 4: fqx, fqy, fqz, fqw: expected a unit quaternion" in err
+    assert not (folder / "handeye").exists()
+
+
+# --- real data -----------------------------------------------------------------------------------
+
+
+def test_real_robot_world_laser_tracker_set():
+    """The IPA UR10's 25 flange poses and tracker poses (read as exported): the refined estimate
+    is not worse than the best closed form beyond doubt, and the probe sits about 93 mm along
+    the flange's z axis (the data set's description)."""
+    import pathlib
+
+    folder = pathlib.Path(__file__).parent.parent / "examples" / "ipa-ur10-handeye"
+    result = handeye(relcal.load_dataset(folder))
+    assert result.mode == "robot_world" and len(result.delivered) == 2
+    x = result.transform("handeye")
+    # along the x axis of the flange frame (ROS-Industrial's flange frame points x out of the
+    # flange, where tool0 points z)
+    assert x[:3, 3] == pytest.approx([0.093, 0.0, 0.0], abs=0.002)
+    val = result.validation
+    best = min((m for m in METHODS if np.isfinite(val.rms(m))), key=val.rms)
+    ratio = val.ratio(best)["position_mm"]
+    assert ratio["ci95"][0] <= 1.0
