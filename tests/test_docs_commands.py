@@ -3,13 +3,15 @@
 The blocks are extracted by tests/helpers_docs.py (docs/contributing.md describes the
 convention): ``sh`` blocks run with bash, ``python`` blocks are executed, ``norun`` blocks (a
 robot, a cluster, an install) are checked for existing commands and options. Everything runs in
-one scratch checkout (a copy of ``examples/`` beside a ``shared`` link to the real data), page
-after page; a command printed on several pages runs once.
+one scratch checkout (a copy of ``examples/`` beside a ``shared`` link to the real data), shared
+by the test processes, page after page; a command printed on several pages runs once in the run.
 """
 
 from __future__ import annotations
 
 import contextlib
+import fcntl
+import hashlib
 import io
 import json
 import os
@@ -43,27 +45,62 @@ PROGRESS = re.compile(r"\d+%\|.*\|\s*\d+/\d+ \[|\r")  # a tqdm progress bar's li
 LABELS = {b.label: b for page in PAGES for b in blocks(page) if b.label}
 
 
+@contextlib.contextmanager
+def _locked(path: Path):
+    """An exclusive lock on ``path`` (a file), across processes: the test workers."""
+    with open(path, "a") as handle:
+        fcntl.flock(handle, fcntl.LOCK_EX)
+        try:
+            yield
+        finally:
+            fcntl.flock(handle, fcntl.LOCK_UN)
+
+
 class Checkout:
-    """The scratch checkout the commands run in, what already ran there and what it printed."""
+    """The scratch checkout the commands run in, what already ran there and what it printed.
+
+    One checkout for the whole run, shared by the test processes (pytest-xdist's workers): each
+    command runs once, under a lock of its own, and its output is kept in ``outputs/`` for the
+    others (a page quoting another page's run, a command printed on several pages)."""
 
     def __init__(self, base: Path) -> None:
-        (base / "shared").symlink_to(DATA.parent.resolve(), target_is_directory=True)
         self.root = base / "relcal"
-        self.root.mkdir()
-        shutil.copytree(ROOT / "examples", self.root / "examples")
+        self.outputs = base / "outputs"  # each command's record: output, status, times
+        with _locked(base / "setup.lock"):
+            if not self.root.exists():
+                (base / "shared").symlink_to(DATA.parent.resolve(), target_is_directory=True)
+                staging = base / "relcal.staging"
+                shutil.copytree(ROOT / "examples", staging / "examples")
+                staging.rename(self.root)
+                self.outputs.mkdir()
         self.env = dict(os.environ, OPENBLAS_NUM_THREADS="1", MPLBACKEND="Agg")
         self.env["PATH"] = f"{Path(sys.executable).parent}{os.pathsep}{self.env['PATH']}"
-        self.done: dict[str, float] = {}  # command -> seconds it took
+        self.done: dict[str, float] = {}  # command -> seconds it took (run by this process)
         self.cpu: dict[str, float] = {}  # command -> CPU seconds of its processes
         self.printed: dict[str, str] = {}  # command -> its output (stdout and stderr, in order)
-        self.outputs = base / "outputs"  # each command's output, to read after a run
-        self.outputs.mkdir()
+        self.status: dict[str, tuple[int, str]] = {}  # command -> exit status, whole output
 
     def run(self, command: str, where: str) -> str:
-        """Run ``command`` once (a command printed on several pages runs once) and return what
-        it printed."""
-        if command in self.done:
-            return self.printed[command]
+        """Run ``command`` once in the whole test run (a command printed on several pages runs
+        once) and return what it printed."""
+        if command not in self.printed:
+            key = hashlib.sha1(command.encode()).hexdigest()[:16]
+            record = self.outputs / f"{key}.json"
+            with _locked(self.outputs / f"{key}.lock"):
+                if not record.exists():
+                    staged = record.with_suffix(".staging")
+                    staged.write_text(json.dumps(self._execute(command)))
+                    staged.rename(record)
+            done = json.loads(record.read_text())
+            # What stays on a terminal: progress bars (tqdm, on standard error) left out.
+            lines = [x for x in done["output"].splitlines() if not PROGRESS.search(x)]
+            self.printed[command] = "\n".join(lines) + "\n" if lines else ""
+            self.status[command] = (done["returncode"], done["output"])
+        code, output = self.status[command]
+        assert code == 0, f"{where}: `{command}` exited {code}\n{output[-6000:]}"
+        return self.printed[command]
+
+    def _execute(self, command: str) -> dict:
         start, before = time.perf_counter(), resource.getrusage(resource.RUSAGE_CHILDREN)
         done = subprocess.run(
             ["bash", "-c", command],
@@ -77,15 +114,13 @@ class Checkout:
         self.done[command] = time.perf_counter() - start
         after = resource.getrusage(resource.RUSAGE_CHILDREN)
         self.cpu[command] = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
-        # What stays on a terminal: progress bars (tqdm, on standard error) left out.
-        printed = [line for line in done.stdout.splitlines() if not PROGRESS.search(line)]
-        self.printed[command] = "\n".join(printed) + "\n" if printed else ""
-        n = len(self.done)
-        (self.outputs / f"{n:03d}.txt").write_text(f"$ {command}\n{done.stdout}")
-        assert done.returncode == 0, (
-            f"{where}: `{command}` exited {done.returncode}\n{done.stdout[-6000:]}"
-        )
-        return self.printed[command]
+        return {
+            "command": command,
+            "returncode": done.returncode,
+            "output": done.stdout,
+            "seconds": self.done[command],
+            "cpu_seconds": self.cpu[command],
+        }
 
     def run_block(self, block) -> str:
         """Run a runnable `sh` block; its commands' outputs, in order."""
@@ -104,10 +139,12 @@ class Checkout:
 
 @pytest.fixture(scope="session")
 def checkout(tmp_path_factory):
-    box = Checkout(tmp_path_factory.mktemp("docs-commands"))
+    # The workers of one run share the parent of their own temporary folders.
+    base = tmp_path_factory.getbasetemp()
+    base = (base.parent if os.environ.get("PYTEST_XDIST_WORKER") else base) / "docs-commands"
+    base.mkdir(exist_ok=True)
+    box = Checkout(base)
     yield box
-    timings = {c: [box.done[c], box.cpu[c]] for c in box.done}
-    (box.outputs / "timings.json").write_text(json.dumps(timings, indent=1))
     total, cpu = sum(box.done.values()), sum(box.cpu.values())
     slowest = sorted(box.done, key=lambda c: -box.cpu[c])[:8]
     print(f"\ndocs commands: {len(box.done)} run in {total:.1f} s ({cpu:.1f} s CPU); slowest:")
@@ -125,37 +162,7 @@ def _source(figure, page_blocks):
     return earlier[-1]
 
 
-def _groups(pages: list[Path]) -> dict[Path, str]:
-    """Pages that share a command, or quote another page's run (label=), in one group: with
-    ``--dist loadgroup`` (pyproject's addopts) a group runs in one worker, so that each command
-    runs once in the whole test run, and a page finds the outputs it quotes."""
-    parent = {p: p for p in pages}
-
-    def root(p: Path) -> Path:
-        while parent[p] != p:
-            p = parent[p]
-        return p
-
-    owner: dict[str, Path] = {}
-    for page in pages:
-        for block in blocks(page):
-            if block.language == "sh" and block.runs:
-                for command in block.commands():
-                    parent[root(page)] = root(owner.setdefault(command, page))
-        for figure in quoted_figures(page):
-            if figure.label in LABELS:
-                parent[root(page)] = root(LABELS[figure.label].page)
-    return {p: str(root(p).relative_to(ROOT)) for p in pages}
-
-
-GROUPS = _groups(PAGES)
-
-
-@pytest.mark.parametrize(
-    "page",
-    [pytest.param(p, marks=pytest.mark.xdist_group(f"docs:{GROUPS[p]}")) for p in PAGES],
-    ids=[str(p.relative_to(ROOT)) for p in PAGES],
-)
+@pytest.mark.parametrize("page", PAGES, ids=[str(p.relative_to(ROOT)) for p in PAGES])
 def test_page_commands_run_as_printed(page, checkout, monkeypatch, request):
     """Every command runs as printed, and every figure the page quotes (``text output``
     blocks, ``<!--out ...-->`` figures in prose) is what the commands print, to the digits
