@@ -49,7 +49,18 @@ def main() -> None:
         report = Path(tmp) / "fleet.html"
         sample_fleet(Path(tmp) / "plant")
         with contextlib.redirect_stdout(io.StringIO()):
-            relcal(["fleet", "calibrate", f"{tmp}/plant", "--quiet", "--report", str(report)])
+            relcal(
+                [
+                    "fleet",
+                    "calibrate",
+                    f"{tmp}/plant",
+                    "--out",
+                    f"{tmp}/cal",
+                    "--quiet",
+                    "--report",
+                    str(report),
+                ]
+            )
         html = report.read_text().replace(tmp + "/", "")
     print(save_page_png(html, args.out, args.html, SCALE))
 

@@ -64,13 +64,18 @@ def files_carry_the_validated_number(cal):
     assert want < val.rms("before")  # a real correction: the test could fail by doubling it
 
 
-def relative_rms(cal, loaded, handeye) -> float:
+def relative_rms(cal, loaded, handeye, world=None) -> float:
     """Position RMS (mm) of ``model^-1 measured`` over the validation's pairs, recomputed from
-    the file's forward kinematics and the hand-eye that accompanies it."""
+    the file's forward kinematics and the hand-eye that accompanies it; for a validation of
+    single poses (pairs ``(k, k)``), each pose predicted in the world frame, ``W F X`` with the
+    world transform ``world`` (4, 4) that accompanies the file."""
     val = cal.validation
     poses = cal.measurements.poses
     tool = fk(loaded, cal.dataset.q) @ handeye
     i, j = val.pairs.T
+    if np.array_equal(i, j):
+        error = world @ tool[i]
+        return float(np.sqrt(np.mean(np.sum((error - poses[i])[:, :3, 3] ** 2, axis=1)))) * 1e3
     model = np.linalg.inv(tool[i]) @ tool[j]
     measured = np.linalg.inv(poses[i]) @ poses[j]
     error = np.linalg.inv(model) @ measured

@@ -406,7 +406,7 @@ def test_no_option_takes_an_unchecked_number():
 BASE = {
     ("calibrate",): ["calibrate", "{ds}"],
     ("measure",): ["measure", "{ds}"],
-    ("fleet", "calibrate"): ["fleet", "calibrate", "{tmp}"],
+    ("fleet", "calibrate"): ["fleet", "calibrate", "{tmp}", "--out", "{tmp}-fleet-out"],
     ("history",): ["history", "arm1"],
     ("compare",): ["compare", "1", "2"],
     ("import",): ["import", "rct-positioner", "{tmp}/none.yaml", "--out", "{tmp}/new"],

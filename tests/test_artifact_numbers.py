@@ -18,6 +18,7 @@ from helpers_artifacts import files_carry_the_validated_number, model_file, rela
 from helpers_dataset import synthetic_dataset
 
 from relcal.calibration.artifacts import HOLD_THE_TOOL, read_back
+from relcal.calibration.measurement import world_of
 from relcal.calibration.pipeline import calibrate
 from relcal.data.dataset import load_dataset
 from relcal.data.imaging import measure
@@ -40,11 +41,11 @@ def _calibrate(root, **options):
 def test_pose_files_carry_the_validated_number(tmp_path):
     syn = synthetic_dataset(tmp_path / "poses", n=40, noise=(5e-5, 1e-4), seed=3)
     cal = _calibrate(syn.root, nongeometric="none")
-    assert cal.problem.formulation == "invariant" and cal.geometry is None
+    assert cal.problem.formulation == "board" and cal.geometry is None
     files_carry_the_validated_number(cal)
     model = model_file(cal)
     loaded = read_back("model.yaml", model.content, cal.dataset.model, tmp_path)
-    rms = relative_rms(cal, loaded, cal.handeye)
+    rms = relative_rms(cal, loaded, cal.handeye, world_of(cal.problem, cal.result.params))
     assert rms == pytest.approx(model.rms(), rel=1e-9)
 
 

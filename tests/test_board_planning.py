@@ -95,10 +95,13 @@ def test_auto_and_board_are_checked_against_the_formulation(a465):
     q = random_q(a465, 12, np.random.default_rng(0))
     handeye = Cell().handeye
     assert camera_problem(a465, q, handeye, "invariant", "pose", "board").formulation == "board"
-    auto = camera_problem(a465, q, handeye, "invariant", "pose", "auto")
-    assert auto.formulation == "invariant" and len(auto.pairs) == 12 * 11 // 2  # all pairs
-    big = np.repeat(q, 26, axis=0)  # 312 poses: auto is the board formulation above 300
+    # auto: the board formulation for camera poses (as calibrate fits them), whatever the size
+    assert camera_problem(a465, q, handeye, "invariant", "pose", "auto").formulation == "board"
+    big = np.repeat(q, 26, axis=0)  # 312 poses
     assert camera_problem(a465, big, handeye, "invariant", "pose", "auto").formulation == "board"
+    # the published formulation cannot take a board: all pairs up to 300 poses
+    published = camera_problem(a465, q, handeye, "published", "pose", "auto")
+    assert published.formulation == "published" and len(published.pairs) == 12 * 11 // 2
     for pairing in ("board", "auto"):
         poses = big if pairing == "auto" else q
         with pytest.raises(ArgumentError, match="formulation 'invariant'.*not 'published'"):
@@ -283,7 +286,7 @@ def test_observability_command_with_the_board_and_auto(tmp_path, capsys):
     auto = tmp_path / "auto.json"
     assert main([*common, "--pairing", "auto", "--json", str(auto)]) == 0
     doc = json.loads(auto.read_text())
-    assert doc["pairing"] == "all" and doc["formulation"] == "invariant" and doc["rank"] == 23
+    assert doc["pairing"] == "board" and doc["formulation"] == "board" and doc["rank"] == 29
     assert main([*common, "--pairing", "board", "--handeye", "known"]) == 2
     assert "the board formulation estimates the hand-eye" in capsys.readouterr().err
     assert main([*common, "--pairing", "board", "--formulation", "published"]) == 2
@@ -291,9 +294,10 @@ def test_observability_command_with_the_board_and_auto(tmp_path, capsys):
 
 
 def test_planning_commands_pair_the_poses_as_calibrate_does(tmp_path, capsys):
-    """Without --pairing, observability, study and simulate compare the poses as ``relcal
-    calibrate`` compares the same samples (its default, auto: all pairs of these 16), so the
-    identifiability and precision they print are those of the calibration to come."""
+    """Without --pairing, observability, study and simulate (of the frame-invariant data)
+    compare the poses as ``relcal calibrate`` compares the same samples (its default, auto:
+    each pose against the board), so the identifiability and precision they print are those of
+    the calibration to come."""
     from helpers_dataset import synthetic_dataset
 
     from relcal.cli import build_parser
@@ -305,7 +309,7 @@ def test_planning_commands_pair_the_poses_as_calibrate_does(tmp_path, capsys):
     calibrate = ["calibrate", str(root), "--out", str(tmp_path / "cal"), "--quiet"]
     assert main([*calibrate, "--json", str(results)]) == 0
     used = json.loads(results.read_text())["settings"]["pairing"]
-    assert used == "all"
+    assert used == "board"
     samples = str(root / "samples.csv")
     common = ["observability", "--robot", "a465", "--hayati", "auto", "--poses", samples]
     common += ["--validation", "5"]
@@ -313,9 +317,9 @@ def test_planning_commands_pair_the_poses_as_calibrate_does(tmp_path, capsys):
     assert main([*common, "--json", str(default)]) == 0
     assert main([*common, "--pairing", used, "--json", str(explicit)]) == 0
     printed = capsys.readouterr().out
-    assert printed.count("invariant formulation, all pairs") == 2
+    assert printed.count("board formulation (each pose against the fitted board frame)") == 2
     doc = json.loads(default.read_text())
-    assert doc["pairing"] == used and doc["n_measurements"] == 16 * 15 // 2
+    assert doc["pairing"] == used and doc["n_measurements"] == 16
     assert doc == json.loads(explicit.read_text())  # rank, indices, both standard deviations
     study_doc = tmp_path / "study.json"
     study_argv = ["study", "--robot", "a465", "--hayati", "auto", "--poses", samples]
@@ -323,6 +327,7 @@ def test_planning_commands_pair_the_poses_as_calibrate_does(tmp_path, capsys):
     assert json.loads(study_doc.read_text())["pairing"] == used
     sim = tmp_path / "sim.json"
     simulate_argv = ["simulate", "--measure", "pose", "--n-poses", "16", "--quiet"]
+    simulate_argv += ["--formulation", "invariant"]
     assert main([*simulate_argv, "--json", str(sim)]) == 0
     assert json.loads(sim.read_text())["pairing"] == used
 

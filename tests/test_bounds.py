@@ -198,7 +198,8 @@ def test_a_fleet_session_naming_a_secret_file_leaks_it_nowhere(secret, tmp_path,
         root = synthetic_dataset(plant / f"bad{k}", n=8).root
         (root / "dataset.yaml").write_text(f"robot: {entry.format(s=secret)}\n")
     report, doc = tmp_path / "fleet.html", tmp_path / "fleet.json"
-    argv = ["fleet", "calibrate", str(plant), "--workers", "1", "--report", str(report)]
+    argv = ["fleet", "calibrate", str(plant), "--out", str(tmp_path / "cal"), "--workers", "1"]
+    argv += ["--report", str(report)]
     assert main([*argv, "--json", str(doc)]) == 1
     out = capsys.readouterr()
     shown = out.out + out.err + report.read_text() + doc.read_text()

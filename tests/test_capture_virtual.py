@@ -40,11 +40,15 @@ def truth_of(robot: str, seed: int):
 
 
 def noise_floor(truth, dataset, measured, pairs) -> np.ndarray:
-    """Held-out pair errors ``(P, 6)`` of the true model and hand-eye on the measured poses:
-    what the image and joint noise alone leave."""
-    camera = fk(truth.true_model, dataset.q) @ truth.handeye
+    """Held-out errors ``(P, 6)`` of the true model, hand-eye and board placement on the
+    measured poses (each pose in the board frame for pairs ``(k, k)``; relative poses for
+    others): what the image and joint noise alone leave."""
+    camera = tf.invert(truth.board_pose) @ fk(truth.true_model, dataset.q) @ truth.handeye
     out = []
     for i, j in pairs:
+        if i == j:
+            out.append(tf.to_vector(tf.invert(camera[i]) @ measured.poses[i]))
+            continue
         model = tf.invert(camera[i]) @ camera[j]
         meas = tf.invert(measured.poses[i]) @ measured.poses[j]
         out.append(tf.to_vector(tf.invert(model) @ meas))
@@ -286,3 +290,31 @@ def test_the_virtual_camera_follows_another_robot_driver():
         camera.close()
     with pytest.raises(RelcalError, match="needs a robot driver to follow"):
         devices.open_camera("sim", {}, model=model)
+
+
+def test_plan_capture_calibrate_take_the_robot_from_the_plan(tmp_path, capsys):
+    """The user's loop as the README prints it: ``relcal plan --robot ur5e --n-poses 30``, then
+    ``relcal capture PLAN`` with no --robot (the plan's header names it), then ``relcal
+    calibrate``: every joint moves at most 120 deg between consecutive poses, and the held-out
+    error is below 0.3x the baseline's. A --robot that contradicts the plan is refused."""
+    plan, ds, cal = tmp_path / "plan.csv", tmp_path / "ds", tmp_path / "cal"
+    relcal("plan", "--robot", "ur5e", "--n-poses", 30, "--candidates", 400, "--random-sets", 0,
+           "--out", plan, "--json", tmp_path / "plan.json", "--quiet")  # fmt: skip
+    assert plan.read_text().splitlines()[1] == "# relcal robot: ur5e"
+    q = read_plan(plan, get_robot("ur5e")).q
+    assert len(q) >= 30 and np.degrees(np.abs(np.diff(q, axis=0))).max() <= 120.0 + 1e-9
+    travel = json.loads((tmp_path / "plan.json").read_text())["travel"]
+    assert travel["moves_beyond_max_move"] == [] and travel["max_move"] == pytest.approx(
+        np.radians(120)
+    )
+    assert main(["capture", str(plan), "--robot", "a465", "--robot-driver", "sim", "--camera",
+                 "sim", "--out", str(tmp_path / "other")]) == 2  # fmt: skip
+    err = capsys.readouterr().err
+    assert "was made for 'Universal Robots UR5e'" in err and "leave --robot out" in err
+    assert not (tmp_path / "other").exists()
+    relcal("capture", plan, "--robot-driver", "sim", "--camera", "sim", "--out", ds, "--quiet")
+    assert "robot: ur5e" in (ds / "dataset.yaml").read_text()
+    relcal("calibrate", ds, "--out", cal, "--quiet")
+    val = json.loads((cal / "results.json").read_text())["validation"]
+    after, before = val["calibrated"]["position_mm"]["rms"], val["baseline"]["position_mm"]["rms"]
+    assert after < 0.3 * before, (after, before)

@@ -81,7 +81,7 @@ def test_compensate_json_matches_the_csv(a465, rng, models, tmp_path):
     header, csv_rows = lines[0].split(","), [line.split(",") for line in lines[1:]]
     assert [t["id"] for t in doc["targets"]] == [r[0] for r in csv_rows] == ["t0", "t1", "t2", "t3"]
     assert doc["joint_units"] == ["deg"] * 6
-    assert doc["summary"] == {"n_targets": 4, "n_not_converged": 0}
+    assert doc["summary"] == {"n_targets": 4, "n_not_converged": 0, "n_refused": 0}
     for target, row in zip(doc["targets"], csv_rows, strict=True):
         cell = dict(zip(header, row, strict=True))
         np.testing.assert_allclose(
@@ -110,7 +110,7 @@ def test_compensate_json_counts_unreached_targets_and_quiet_says_nothing(models,
     captured = capsys.readouterr()
     assert captured.err == "" and captured.out.startswith("id,q1,")  # the CSV is still the output
     doc = json.loads(doc_path.read_text())
-    assert doc["summary"] == {"n_targets": 2, "n_not_converged": 1}
+    assert doc["summary"] == {"n_targets": 2, "n_not_converged": 1, "n_refused": 0}
     assert [(t["id"], t["converged"]) for t in doc["targets"]] == [("near", True), ("far", False)]
     assert doc["joint_units"] == ["rad"] * 6 and "dq" not in doc["targets"][0]
     assert main([*argv, "--joint-unit", "rad"]) == 1

@@ -5,6 +5,7 @@ import json
 from dataclasses import replace
 
 import numpy as np
+import pytest
 from conftest import random_q
 from helpers_dataset import synthetic_dataset
 from helpers_sim import HANDEYE, make_problem
@@ -137,3 +138,38 @@ def test_compensate_warns_outside_the_joint_ranges_the_calibration_covered(tmp_p
     err = capsys.readouterr().err
     assert "target far:" in err and "outside the joint ranges the calibration covered" in err
     assert "target in:" not in err
+
+
+def test_the_gate_is_what_the_calibration_produces(a465, rng):
+    """A calibration that changed only the waist's zero offset by 0.3 deg: every correction is
+    exactly -0.3 deg on the waist and nothing elsewhere (independent truth), so the gate allows
+    twice that plus the floor on the waist and the floor alone on the others; the predicted miss
+    is what 0.3 deg turns into at the arm's reach. A correction of the same size on another
+    joint, or a branch flip, is implausible."""
+    from relcal.calibration.compensate import (
+        GATE_FLOOR_RAD,
+        GATE_MARGIN,
+        GATE_SINGULAR,
+        _inverse_condition,
+        correction_gate,
+        implausible,
+    )
+
+    offset = np.radians(0.3)
+    cal = a465.with_values(theta_off=a465.theta_off + np.r_[offset, 0, 0, 0, 0, 0])
+    gate = correction_gate(cal, a465)
+    np.testing.assert_allclose(gate.joint[0], GATE_MARGIN * offset + GATE_FLOOR_RAD, rtol=1e-6)
+    np.testing.assert_allclose(gate.joint[1:], GATE_FLOOR_RAD, atol=1e-9)
+    reach = np.linalg.norm(fk(a465, random_q(a465, 500, rng))[:, :2, 3], axis=1).max()
+    assert gate.position_mm < GATE_MARGIN * offset * reach * 1e3 + 0.5 + 1e-6
+    assert gate.rotation_deg == pytest.approx(GATE_MARGIN * 0.3 + 0.05, rel=1e-6)
+
+    q_nom = random_q(a465, 20, rng, scale=0.5)
+    comp = compensate(cal, fk(a465, q_nom), q_nominal=q_nom)
+    np.testing.assert_allclose(comp.q - q_nom, np.tile([-offset, 0, 0, 0, 0, 0], (20, 1)),
+                               atol=1e-8)  # fmt: skip
+    assert not implausible(comp, gate, cal).any()
+    flipped = replace(comp, q=comp.q + np.r_[0, 0, 0, np.radians(2), 0, 0])
+    cond = np.minimum(_inverse_condition(cal, flipped.q), _inverse_condition(cal, q_nom))
+    regular = cond >= GATE_SINGULAR  # near a singularity joint corrections are warned, not gated
+    assert regular.sum() >= 10 and implausible(flipped, gate, cal)[regular].all()

@@ -48,7 +48,8 @@ def fleet_run(fleet, tmp_path_factory):
     JSON and the report; its printed text."""
     tmp = tmp_path_factory.mktemp("fleet-run")
     db, out, report = tmp / "history.sqlite", tmp / "fleet.json", tmp / "fleet.html"
-    argv = ["fleet", "calibrate", str(fleet), "--workers", "2", "--registry", str(db)]
+    argv = ["fleet", "calibrate", str(fleet), "--out", str(tmp / "cal"), "--workers", "2"]
+    argv += ["--registry", str(db)]
     with contextlib.redirect_stdout(io.StringIO()) as text:
         assert main([*argv, "--json", str(out), "--report", str(report)]) == 1
     return json.loads(out.read_text()), text.getvalue(), db, report
@@ -58,6 +59,7 @@ def test_fleet_command_calibrates_every_session_and_flags_the_changed_robot(
     fleet, fleet_run, capsys
 ):
     doc, text, db, _ = fleet_run
+    cal = db.parent / "cal"
     entries = {e["session"]: e for e in doc["sessions"]}
     assert doc["n_sessions"] == 20 and doc["n_ok"] == 19 and doc["workers"] == 2
     # the corrupt dataset fails alone, with its reason (file, line, field)
@@ -71,8 +73,9 @@ def test_fleet_command_calibrates_every_session_and_flags_the_changed_robot(
             continue
         assert e["robot_id"] == name.split("/")[0]
         for file in ("model.yaml", "robot.urdf", "parameters.csv", "results.json"):
-            assert (fleet / name / "calibration" / file).is_file(), (name, file)
-        assert e["outputs"] == str(fleet / name / "calibration")
+            assert (cal / name / file).is_file(), (name, file)
+        assert e["outputs"] == str((cal / name).resolve())
+        assert not (fleet / name / "calibration").exists()  # nothing into the input tree
         assert e["calibrated_position_rms_mm"] < 0.1 * e["baseline_position_rms_mm"]
         assert isinstance(e["run_id"], int)
     # drift: the planted change is flagged on its link, the unchanged robots agree
@@ -211,16 +214,17 @@ def test_fleet_report_renders_in_chromium(fleet_run, tmp_path):
     for e in doc["sessions"]:
         k = cells.index(e["session"])
         assert cells[k + 1] == e["robot_id"] and cells[k + 3] == e["status"]
+        assert cells[k + 4] == (e.get("held_out_metric") or "–")  # what the numbers measure
         if e["status"] == "ok":
-            assert float(cells[k + 4]) == pytest.approx(e["baseline_position_rms_mm"], abs=1e-3)
-            assert float(cells[k + 5]) == pytest.approx(e["calibrated_position_rms_mm"], abs=1e-3)
+            assert float(cells[k + 5]) == pytest.approx(e["baseline_position_rms_mm"], abs=1e-3)
+            assert float(cells[k + 6]) == pytest.approx(e["calibrated_position_rms_mm"], abs=1e-3)
         drift = e["drift"]
         if drift is None:
-            assert cells[k + 8] == "–"
+            assert cells[k + 9] == "–"
         elif drift["verdict"] == "drift":
-            assert cells[k + 8].startswith("drift: a[2]")
+            assert cells[k + 9].startswith("drift: a[2]")
         else:
-            assert cells[k + 8].startswith("agree")
+            assert cells[k + 9].startswith("agree")
     failed = next(e for e in doc["sessions"] if e["status"] == "failed")
     assert failed["reason"] in cells
     found, shot = check_rendering(report, tmp_path, plots)
@@ -400,7 +404,7 @@ def test_fleet_command_passes_kfold_and_weighting_to_every_session(tmp_path, mon
         return []
 
     monkeypatch.setattr(runner, "run_fleet", fake_run_fleet)
-    argv = ["fleet", "calibrate", str(root), "--quiet"]
+    argv = ["fleet", "calibrate", str(root), "--out", str(tmp_path / "cal"), "--quiet"]
     assert main([*argv, "--kfold", "3", "--weighting", "both", "--priors", "none"]) == 0
     assert main(argv) == 0
     assert seen[0]["kfold"] == 3 and seen[0]["weightings"] == ("plain", "noise model")
@@ -408,3 +412,16 @@ def test_fleet_command_passes_kfold_and_weighting_to_every_session(tmp_path, mon
     assert seen[0]["priors"] == "none" and seen[1]["priors"] == "model"
     assert main([*argv, "--kfold", "1"]) == 2 and main([*argv, "--weighting", "robust"]) == 2
     assert main([*argv, "--priors", "flat"]) == 2
+
+
+def test_fleet_outputs_go_under_out_never_into_the_input_tree(tmp_path, capsys):
+    """Without --out, or with --out inside the input folder, the fleet is refused before any
+    work, and nothing appears anywhere."""
+    root = tmp_path / "plant"
+    write_session(root / "arm1" / "s1", make_robot("a465", "arm1", 41), 7, n=10)
+    before = sorted(tmp_path.rglob("*"))
+    assert main(["fleet", "calibrate", str(root), "--quiet"]) == 2
+    assert "--out OUT is required" in capsys.readouterr().err
+    assert main(["fleet", "calibrate", str(root), "--out", str(root / "cal"), "--quiet"]) == 2
+    assert "inside the fleet's input folder" in capsys.readouterr().err
+    assert sorted(tmp_path.rglob("*")) == before

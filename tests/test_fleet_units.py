@@ -165,6 +165,11 @@ def _unit(folder: Path, urdf: Path, errors: np.ndarray, seed: int) -> None:
         (folder / name).write_text(text)
 
 
+def outputs(root):
+    """Where ``fleet calibrate --out`` puts the sessions' calibrations: beside the fleet."""
+    return root.with_name(root.name + "-cal")
+
+
 @pytest.fixture(scope="module")
 def simulated_fleet(tmp_path_factory):
     """Three Panda units of the same geometry but one planted off in one joint, three iiwa units
@@ -181,8 +186,9 @@ def simulated_fleet(tmp_path_factory):
             _unit(root / f"{names}_{k}" / "s1", urdf, errors, seed=10 * seed + k)
     out = root / "fleet.json"
     started = time.perf_counter()
-    code = main(["fleet", "calibrate", str(root), "--workers", "2", "--quiet", "--json",
-                 str(out), "--report", str(root / "fleet.html"), *SAME_MODEL])  # fmt: skip
+    code = main(["fleet", "calibrate", str(root), "--out", str(outputs(root)), "--workers", "2",
+                 "--quiet", "--json", str(out), "--report", str(root / "fleet.html"),
+                 *SAME_MODEL])  # fmt: skip
     seconds = time.perf_counter() - started
     return code, json.loads(out.read_text()), root, seconds
 
@@ -219,7 +225,7 @@ def test_the_comparison_shows_each_units_own_calibration(simulated_fleet):
     _, doc, root, _ = simulated_fleet
     panda = next(m for m in doc["units"] if m["model"].startswith("panda"))
     for unit in panda["robots"]:
-        own = json.loads((root / unit / "s1" / "calibration" / "results.json").read_text())
+        own = json.loads((outputs(root) / unit / "s1" / "results.json").read_text())
         shown = {p["name"]: p for p in own["parameters"] if p["status"] == "estimated"}
         for row in panda["parameters"]:
             if unit in row["units"]:
@@ -237,8 +243,8 @@ def real_units(tmp_path_factory):
         import_mukca(MUKCA / "data" / unit, root / unit / "session", PANDA, distance=0.05)
     out = root / "fleet.json"
     started = time.perf_counter()
-    code = main(["fleet", "calibrate", str(root), "--workers", "2", "--quiet", "--json",
-                 str(out), *SAME_MODEL])  # fmt: skip
+    code = main(["fleet", "calibrate", str(root), "--out", str(outputs(root)), "--workers", "2",
+                 "--quiet", "--json", str(out), *SAME_MODEL])  # fmt: skip
     return code, json.loads(out.read_text()), root, time.perf_counter() - started
 
 
@@ -249,7 +255,7 @@ def test_real_panda_units_are_compared_as_their_own_calibrations_say(real_units)
     assert m["robots"] == ["panda_1", "panda_2"]
     own = {}
     for unit in m["robots"]:
-        res = json.loads((root / unit / "session" / "calibration" / "results.json").read_text())
+        res = json.loads((outputs(root) / unit / "session" / "results.json").read_text())
         # placements are clusters: the std carry the placements' design effect (> 1 here)
         assert res["settings"]["covariance"]["method"] == "placement design effect"
         assert res["settings"]["covariance"]["inflation"] > 1.0
@@ -308,6 +314,7 @@ def test_exported_model_and_urdf_put_the_ball_where_the_calibration_does(panda_2
     out = panda_2_halves / "exports"
     out.mkdir()
     for name, content in files.items():
+        (out / name).parent.mkdir(parents=True, exist_ok=True)
         (out / name).write_bytes(content if isinstance(content, bytes) else content.encode())
     q = load_dataset(panda_2_halves / "b").q  # another session's joints
     truth = tool_points(model, q, tool)  # the calibration's own prediction

@@ -102,10 +102,12 @@ def test_image_files_carry_the_validated_number(calibration, tmp_path):
     from helpers_artifacts import files_carry_the_validated_number, model_file, relative_rms
 
     from relcal.calibration.artifacts import read_back
+    from relcal.calibration.measurement import world_of
 
     _, _, cal = calibration
     assert cal.dataset.images is not None
     files_carry_the_validated_number(cal)
     model = model_file(cal)
     loaded = read_back("model.yaml", model.content, cal.dataset.model, tmp_path)
-    assert relative_rms(cal, loaded, cal.handeye) == pytest.approx(model.rms(), rel=1e-9)
+    world = world_of(cal.problem, cal.result.params)
+    assert relative_rms(cal, loaded, cal.handeye, world) == pytest.approx(model.rms(), rel=1e-9)

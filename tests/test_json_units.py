@@ -110,7 +110,7 @@ def test_parameters_and_errors_carry_one_unit_in_every_document(documents):
     assert run["errors"]["calibrated_position_rms_mm"] == pytest.approx(
         results["validation"]["calibrated"]["position_mm"]["rms"], rel=1e-12
     )
-    assert run["held_out_metric"] == results["held_out_metric"] == "pairs of poses"
+    assert run["held_out_metric"] == results["held_out_metric"] == "poses"
     verify = docs["v.json"]
     assert set(verify["calibrated"]) == {"position_mm", "orientation_deg"}
     assert verify["calibrated"]["position_mm"]["rms"] < 1.0  # mm: sub-millimetre

@@ -99,8 +99,10 @@ def test_plan_k_is_n_poses():
 
 
 @needs_data
-def test_calibrate_reject_outliers_is_keep_outliers_reversed():
-    dataset = relcal.load_dataset(POSES)
+def test_calibrate_reject_outliers_is_keep_outliers_reversed(tmp_path):
+    from helpers_dataset import synthetic_dataset
+
+    dataset = relcal.load_dataset(synthetic_dataset(tmp_path / "d", n=40, outliers=2).root)
     m = relcal.measure(dataset, progress=False)
     options = {"nongeometric": "none", "selection": "all"}
     with warnings.catch_warnings(record=True) as caught:
@@ -110,7 +112,7 @@ def test_calibrate_reject_outliers_is_keep_outliers_reversed():
     assert not [w for w in caught if issubclass(w.category, DeprecationWarning)]
     with pytest.warns(DeprecationWarning, match=r"reject_outliers=.*use keep_outliers=True"):
         old = relcal.calibrate(dataset, m, reject_outliers=False, **options)
-    assert default.outliers  # the set has one: keeping it changes the fit
+    assert default.outliers  # the set has two: keeping them changes the fit
     assert not np.allclose(kept.result.params, default.result.params)
     np.testing.assert_array_equal(old.result.params, kept.result.params)
     # results.json keeps its key (registries and pinned results read it)

@@ -30,7 +30,7 @@ def test_interrupted_calibration_leaves_earlier_outputs_intact(tmp_path, monkeyp
     syn = synthetic_dataset(tmp_path / "d", n=20)
     out = tmp_path / "out"
     assert main(["calibrate", str(syn.root), "--out", str(out), "--quiet"]) == 0
-    before = {p.name: p.read_bytes() for p in out.iterdir()}
+    before = {p.relative_to(out): p.read_bytes() for p in out.rglob("*") if p.is_file()}
 
     def interrupted(*args, **kwargs):
         raise KeyboardInterrupt
@@ -38,7 +38,7 @@ def test_interrupted_calibration_leaves_earlier_outputs_intact(tmp_path, monkeyp
     monkeypatch.setattr(poses, "held_out", interrupted)
     assert main(["calibrate", str(syn.root), "--out", str(out), "--quiet", "--seed", "3"]) == 130
     assert "interrupted" in capsys.readouterr().err
-    assert {p.name: p.read_bytes() for p in out.iterdir()} == before
+    assert {p.relative_to(out): p.read_bytes() for p in out.rglob("*") if p.is_file()} == before
 
 
 def _without_timing(doc):

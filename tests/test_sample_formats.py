@@ -244,9 +244,9 @@ def test_points_in_millimetres_are_not_a_calibration(tmp_path, rng):
         calibrate(ds, measure(ds, progress=False))
 
 
-def test_mocap_poses_calibrate_with_the_invariant_formulation(tmp_path, rng):
-    """Full mocap poses (roll-pitch-yaw, named joints): the mocap-to-base transform cancels and
-    the marker mounting is the hand-eye X; planted errors are recovered without noise."""
+def test_mocap_poses_calibrate_with_the_board_formulation(tmp_path, rng):
+    """Full mocap poses (roll-pitch-yaw, named joints): the mocap-to-base transform is the world
+    W and the marker mounting the hand-eye X; planted errors are recovered without noise."""
     model = auto_hayati(get_robot("franka_fr3"))
     layout = make_layout(model)
     truth = true_errors(layout, rng)
@@ -258,7 +258,7 @@ def test_mocap_poses_calibrate_with_the_invariant_formulation(tmp_path, rng):
     root = _write(tmp_path / "d", "robot: franka_fr3\njoint_unit: rad\n", header, rows)
     ds = load_dataset(root)
     cal = calibrate(ds, measure(ds, progress=False), holdout=0.25, nongeometric="none")
-    assert cal.problem.formulation == "invariant"
+    assert cal.problem.formulation == "board"
     after = validation_document(cal.validation)["calibrated"]
     assert after["position_mm"]["max"] < 1e-6 and after["orientation_deg"]["max"] < 1e-7
     n_geo = cal.problem.layout.size

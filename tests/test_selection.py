@@ -15,8 +15,13 @@ import relcal
 from relcal import geometry as tf
 from relcal.calibration.identifiability import analyse_problem
 from relcal.calibration.identify import identify_lm
-from relcal.calibration.kinds.poses import pair_left_maps
-from relcal.calibration.measurement import Problem, make_pairs, pair_errors
+from relcal.calibration.kinds.poses import pair_left_maps, plain_rows
+from relcal.calibration.measurement import (
+    make_pairs,
+    pair_errors,
+    split_params,
+    world_errors,
+)
 from relcal.calibration.noise import (
     _moment_design,
     estimate_pose_noise,
@@ -25,7 +30,7 @@ from relcal.calibration.noise import (
 )
 from relcal.calibration.pipeline import cross_validate
 from relcal.calibration.selection import plain_whiteners, whitened
-from relcal.calibration.validate import held_out, pooled, stats
+from relcal.calibration.validate import pooled, stats
 from relcal.cli import main
 from relcal.data.dataset import load_dataset
 from relcal.data.importers import import_rct_positioner
@@ -102,27 +107,20 @@ def test_positioner_k_fold_no_worse_than_the_baseline_or_a_plain_fit(positioner)
     dataset, measured = positioner
     folds = cross_validate(dataset, measured, k=5, seed=0)
     for fold in folds:
-        plain = replace(fold.problem, weights=np.r_[np.ones(3), np.full(3, 0.1)], pair_weights=None)
+        # relcal's formulation (each pose against W F X) with its plain row weights
+        plain = replace(fold.problem, pair_weights=None, weights=plain_rows(fold.problem))
         ident = analyse_problem(plain)
         kinds = plain.full_layout.kinds
-        geometric = np.array(
-            [c for c in ident.subset if kinds[c] in ("theta_off", "a", "d", "alpha", "handeye")]
-        )
-        everything = Problem(
-            fold.problem.model,
-            fold.problem.layout,
-            dataset.q,
-            measured.poses,
-            "invariant",
-            "pose",
-            None,
-            fold.problem.handeye,
-        )
+        frames = ("theta_off", "a", "d", "alpha", "handeye", "board")
+        geometric = np.array([c for c in ident.subset if kinds[c] in frames])
+        test = np.setdiff1d(fold.test, fold.validation.outliers)
+        q, poses = fold.dataset.q[test], fold.measurements.poses[test]
 
         plain_rms = []
         for subset in (geometric, ident.subset):
             fit = identify_lm(plain, 200, replace(ident, subset=subset))
-            errors = held_out(everything, fit, fold.test).calibrated
+            model, _ = split_params(plain, fit.params)
+            errors = world_errors(plain, fit.params, model, q, poses)
             plain_rms.append(stats(errors)["position_mm"]["rms"])
         ours = stats(fold.validation.calibrated)["position_mm"]["rms"]
         assert ours <= plain_rms[0] * 1.001 and ours <= plain_rms[1] * 1.01, (ours, plain_rms)
@@ -197,7 +195,9 @@ def test_a_model_worse_than_the_baseline_is_not_exported(tmp_path, capsys):
     (it read "collect more samples: 0.95x better" and wrote the worse model)."""
     syn = synthetic_dataset(tmp_path / "d", n=20, noise=(3e-4, 5e-4), seed=7, errors=0)
     out, doc_path = tmp_path / "out", tmp_path / "r.json"
-    argv = ["calibrate", str(syn.root), "--out", str(out), "--selection", "all", "--seed", "0"]
+    # (seed 3: a held-out draw where it is worse within the interval; seed 0's is worse beyond
+    # doubt, which writes nothing: the test above)
+    argv = ["calibrate", str(syn.root), "--out", str(out), "--selection", "all", "--seed", "3"]
     assert main([*argv, "--json", str(doc_path)]) == 0
     captured = capsys.readouterr().out
     doc = json.loads(doc_path.read_text())

@@ -30,7 +30,7 @@ import numpy as np
 
 from relcal import geometry as tf
 from relcal.calibration.identify import Result, calibrated_handeye
-from relcal.calibration.measurement import Problem, tracker_frames
+from relcal.calibration.measurement import Problem, tracker_frames, world_of
 from relcal.calibration.validate import PlacementValidation, Validation
 from relcal.errors import RelcalError
 from relcal.io import load_yaml
@@ -38,6 +38,8 @@ from relcal.robot.export import UR_SEGMENTS, _replace_origins, robot_files
 from relcal.robot.kinematics import make_layout
 from relcal.robot.model import RobotModel, dump_model, load_model
 from relcal.robot.urdf import load_urdf
+
+RUN_ID_PREFIX = "# relcal run "  # first line of model.yaml: the run that wrote it
 
 if TYPE_CHECKING:
     from relcal.data.dataset import Dataset
@@ -173,7 +175,8 @@ def accompanying(cal: Calibration, params: np.ndarray, name: str = "model.yaml")
 
 def frames(cal: Calibration, fit: Result, name: str = "model.yaml") -> dict[str, np.ndarray]:
     """The measurement frames that accompany file ``name``'s kinematics in its validation (SI):
-    ``handeye`` ``(4, 4)`` (relative poses), ``instrument`` ``(4, 4)`` and ``marker`` ``(3,)``
+    ``handeye`` and ``world`` ``(4, 4)`` (poses: ``W F(q) X``), ``instrument`` ``(4, 4)`` and
+    ``marker`` ``(3,)``
     (points), ``tool_point`` ``(3,)`` (coincidences: zero for a file that holds it,
     :func:`accompanying`)."""
     problem = cal.problem
@@ -185,8 +188,8 @@ def frames(cal: Calibration, fit: Result, name: str = "model.yaml") -> dict[str,
 
         _, tool, _ = split_params(problem, accompanying(cal, fit.params, name))
         return {"tool_point": np.asarray(tool, dtype=float)}
-    if problem.formulation in ("invariant", "board"):
-        return {"handeye": calibrated_handeye(problem, fit)}
+    if problem.formulation in ("invariant", "board"):  # each held-out pose at W F(q) X
+        return {"handeye": calibrated_handeye(problem, fit), "world": world_of(problem, fit.params)}
     return {}
 
 

@@ -46,9 +46,10 @@ SINGULAR_RATIO = 1e-2
 
 
 def _scaled(model: RobotModel, q: np.ndarray) -> np.ndarray:
-    """Joint values in units of their tolerance :data:`SAME_RAD` / :data:`SAME_M`."""
+    """Joint values in units of their tolerance :data:`SAME_RAD` / :data:`SAME_M` (absurd
+    readings, which the plausibility checks refuse later, clipped to stay finite)."""
     scale = np.where(model.prismatic, SAME_M, SAME_RAD)
-    return np.asarray(q, dtype=float) / scale
+    return np.clip(np.nan_to_num(np.asarray(q, dtype=float) / scale), -1e12, 1e12)
 
 
 def configuration_clusters(model: RobotModel, q: np.ndarray) -> np.ndarray:
@@ -136,8 +137,8 @@ def singular_samples(model: RobotModel, q: np.ndarray) -> Singular:
     flange Jacobian's translation rows in units of the arm's reach (the largest flange distance
     from the base over the samples, 0.1 m at least)."""
     q = np.asarray(q, dtype=float)
-    if len(q) == 0:
-        return Singular(np.zeros(0, dtype=int), np.zeros(0), ())
+    if len(q) == 0 or not np.isfinite(q).all():
+        return Singular(np.zeros(0, dtype=int), np.zeros(len(q)), ())
     jac = joint_jacobians(model, q)
     reach = max(float(np.linalg.norm(fk(model, q)[:, :3, 3], axis=1).max()), 0.1)
     jac[:, :3] /= reach

@@ -442,7 +442,7 @@ def camera_pairing(formulation: Formulation, pairing: PairStrategy, n_poses: int
         frame-invariant data have a board frame to fit.
     """
     check_choice(pairing, "pairing", PAIRINGS)
-    used = resolve_pairing(pairing, n_poses)
+    used = resolve_pairing(pairing, n_poses, formulation)
     if used == "board" and formulation != "invariant":
         asked = "'board'" if pairing == "board" else f"'auto' ({n_poses} poses: board)"
         raise ArgumentError(
@@ -515,14 +515,18 @@ def board_frame(problem: Problem, params: np.ndarray) -> np.ndarray:
 
 def board_guess(tip: np.ndarray, poses: np.ndarray, handeye: np.ndarray) -> np.ndarray:
     """A guess of the board-from-base ``W`` ``(4, 4)`` from flange poses ``F_k`` and camera
-    poses ``C_k`` ``(N, 4, 4)`` and the hand-eye ``X``: the mean of ``C_k (F_k X)^-1`` (translations
-    averaged, the rotations' mean projected on SO(3)); a start the solver refines."""
+    poses ``C_k`` ``(N, 4, 4)`` and the hand-eye ``X``: the median of ``C_k (F_k X)^-1``
+    (translations and rotation matrices element by element, the rotation projected on SO(3)),
+    so that a few wrong samples (an inverted pose, a bad detection) do not move the start the
+    solver refines."""
     each = poses @ tf.invert(tip @ handeye)
-    rotation = each[:, :3, :3].mean(axis=0)
+    finite = np.isfinite(each).all(axis=(1, 2))
+    each = each[finite] if finite.any() else each
+    rotation = np.median(each[:, :3, :3], axis=0)
     u, _, vt = np.linalg.svd(rotation)
     out = np.eye(4)
     out[:3, :3] = u @ np.diag([1.0, 1.0, np.linalg.det(u @ vt)]) @ vt
-    out[:3, 3] = each[:, :3, 3].mean(axis=0)
+    out[:3, 3] = np.median(each[:, :3, 3], axis=0)
     return out
 
 

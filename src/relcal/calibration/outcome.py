@@ -157,9 +157,17 @@ class Calibration:
         return chosen is not None and chosen.name in BASELINE_CANDIDATES
 
     def verdict(self):
-        """The :class:`~relcal.calibration.verdict.Verdict` on the exported model: its held-out
-        evidence, and what the samples cannot show (``settings["coverage"]["limits"]``: a joint
-        that never moved, every sample singular)."""
+        """The verdict on the exported model: its held-out evidence, and what the samples
+        cannot show (``settings["coverage"]["limits"]``: a joint that never moved, every sample
+        singular).
+
+        Returns
+        -------
+        Verdict
+            :class:`relcal.calibration.verdict.Verdict`: ``code`` (deploy, collect more
+            samples, do not deploy, not validated), the line a person reads, the factor with
+            its interval for a new session and the held-out samples' own.
+        """
         from relcal.calibration.verdict import verdict
 
         limits = tuple(self.settings.get("coverage", {}).get("limits", ()))

@@ -14,7 +14,7 @@ linearisation for model selection, validation and plausibility checks) is suppli
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -44,7 +44,7 @@ from relcal.calibration.selection import (
 )
 from relcal.data.dataset import Dataset
 from relcal.data.imaging import Measurements, measure
-from relcal.data.order import in_canonical_order
+from relcal.data.order import in_canonical_order, natural
 from relcal.errors import RelcalError
 from relcal.robot.model import NONGEOMETRIC
 from relcal.robot.priors import Priors
@@ -198,149 +198,39 @@ def calibrate(
         dataset, measurements, holdout, seed, pairing, method, loss, holdout_ids, select_folds,
         selection, nongeometric, weightings, keep_outliers, priors,
     )  # fmt: skip
+    options = _Options(
+        holdout, seed, pairing, method, loss, reject_outliers, holdout_ids, select_folds,
+        selection, nongeometric, tuple(weightings), priors,
+    )  # fmt: skip
     # The samples in their content's order: what follows depends on the data alone.
     dataset, measurements = in_canonical_order(dataset, measurements)
     if measurements is None:
         measurements = measure(dataset)
-    kind = kind_of(dataset, measurements, pairing)
-    train, test = kind.split(holdout, seed, holdout_ids)
-    coverage = _coverage(kind, test, holdout_ids)
-    dataset = replace(dataset, model=candidate_model(dataset.model, nongeometric))
-    if priors == "none":
-        dataset = replace(dataset, model=replace(dataset.model, priors=Priors(enabled=False)))
-    kind = replace(kind, dataset=dataset)
-
+    kind, train, test, coverage = _split(dataset, measurements, options)
     # Plausibility of the inputs (a wrong unit, joint order, board size, robot): before fitting.
     plausibility = kind.check_inputs(train)
-
     # Candidate families the samples do not determine are dropped (degrade, do not refuse).
-    training = kind.training(train)
-    kind, training, dropped = _drop_undetermined(kind, training, train)
-    dataset = kind.dataset
-    std = layout_prior_std(training.problem)
-    with_priors = bool(np.isfinite(std).any())
-
-    # Outliers: samples whose measurements fit badly at a fit of the geometry.
-    detection = _fit(kind, training, training.geometric, "plain", method, kind.detection_loss)
-    prior = None
-    if with_priors:  # the noise level of the rows from the plain fit, then the MAP fit
-        prior = _plain_prior(kind, training, method, detection, std)
-        detection = _fit(
-            kind, training, training.geometric, "plain", method, kind.detection_loss, prior=prior
-        )
-    outliers, without = _outliers(kind, training, detection, method, prior)
-    outlier_ids = tuple(dataset.ids[train[i]] for i in outliers)
-    removed = bool(reject_outliers and outliers.size)
-    if removed:
-        train = np.delete(train, outliers)
-        training = kind.training(train, previous=training)
-        detection = without
-    full = detection  # the geometry fitted with ``loss`` on the final training samples
-    if with_priors and removed:  # the rows' noise level without the outliers
-        prior = _plain_prior(kind, training, method, detection, std)
-    if removed or loss != kind.detection_loss:
-        start = None if kind.refit_from_nominal else detection.params
-        full = _fit(
-            kind, training, training.geometric, "plain", method, loss, initial=start, prior=prior
-        )
-
-    # Noise, candidates and their cross-validated scores.
-    lin = linearise(training.problem, full.params) if kind.shared_linearisation else None
-    noise = kind.learn_noise(training, full, lin)
-    cands = candidates(training.problem, training.ident.subset, kind.weightings(weightings))
-    folds_k = max(2, min(select_folds, len(train) // 2))
-    fits = None
-    priors_of = {"plain": prior}  # the prior rows of each weighting's nonlinear fits
-    if with_priors:
-        for w in {c.weighting for c in cands} - {"plain"}:
-            priors_of[w] = _prior(kind, training, w, noise.whiteners, full.params, std)
-    lin_priors = None
-    if kind.shared_linearisation:
-        if with_priors:
-            used = {c.weighting for c in cands}  # (the kind may learn more weightings)
-            lin_priors = {
-                w: lin_prior(lin, whiten, full.params, std)
-                for w, whiten in noise.whiteners.items()
-                if w in used
-            }
-        scores = score_candidates(lin, noise.whiteners, cands, folds_k, seed, lin_priors)
-    else:  # every candidate fitted, and linearised at its own fit
-        fits = [
-            _fit(
-                kind,
-                training,
-                c.columns,
-                c.weighting,
-                _method(c, method),
-                loss,
-                full.params,
-                prior=priors_of.get(c.weighting),
-            )  # fmt: skip
-            for c in cands
-        ]
-        scores = score_each(
-            training.problem, fits, cands, folds_k, seed, std if with_priors else None
-        )
-
-    # The chosen model and the baseline (the best-scoring candidate of the frames alone).
-    chosen, reason = choose_all(scores) if selection == "all" else choose(scores)
-    pick = scores[chosen].candidate
-    at_baseline = [k for k, s in enumerate(scores) if s.candidate.name in BASELINE_CANDIDATES]
-    base = min(at_baseline, key=lambda k: np.mean(scores[k].per_sample))
-    he = scores[base].candidate
-    pick_prior = priors_of.get(pick.weighting)
-    if fits is None:
-        baseline = _fit(
-            kind, training, he.columns, he.weighting, "lm", loss, full.params, noise,
-            priors_of.get(he.weighting),
-        )  # fmt: skip
-    else:
-        baseline = fits[base]
-    columns = pick.columns
-    if pick.name in BASELINE_CANDIDATES:
-        result = baseline
-    elif fits is None:
-        if selection == "conservative":
-            weighted = kind.weighted(training, pick.weighting, noise.whiteners)
-            columns = significant_columns(
-                weighted, training.ident, columns, noise.noise.noise, full.params
-            )
-        args = (pick.weighting, method, loss, full.params, noise, pick_prior)
-        result = _fit(kind, training, columns, *args)
-    else:
-        result = fits[chosen]
-        if selection == "conservative":
-            initial = result.params
-
-            def refit(cols: np.ndarray) -> Result:
-                return _fit(kind, training, cols, "plain", method, loss, initial, prior=prior)
-
-            result = significant_fit(training.problem, result, columns, refit)
-    if selection == "conservative" and pick.name not in BASELINE_CANDIDATES:
-        reason += "; parameters below 3 standard deviations dropped (--selection conservative)"
+    kind, training, dropped = _drop_undetermined(kind, kind.training(train), train)
+    cleaned = _without_outliers(kind, training, options)
+    selected = _selection(kind, cleaned, options)
+    chosen = _chosen(kind, cleaned, selected, options)
+    training, result = cleaned.training, chosen.result
+    weighting = chosen.pick.weighting
+    # What a geometry-only file (URDF, vendor files) can hold: validated on its own at export.
+    geometry = _geometry_only(
+        kind, training, result, weighting, loss, selected.noise if selected.fits is None else None,
+        selected.priors_of.get(weighting),
+    )  # fmt: skip
+    boot = _bootstrap(kind, selected, chosen, seed)
+    # The plausibility gate (a wrong input absorbed by the model, terms beyond their bounds,
+    # intervals the bootstrap contradicts): before anything is written.
+    warnings = kind.check_model(training, result, chosen.baseline, boot)
+    reason = chosen.reason
     if dropped:
         reason += "; dropped (not determined by these samples): " + "; ".join(
             f"candidates with {d['family']} terms" for d in dropped
         )
-    weak = _weak(training, result, std if with_priors else None, dataset.q[train])
-    # What a geometry-only file (URDF, vendor files) can hold: validated on its own at export.
-    geometry = _geometry_only(
-        kind, training, result, pick.weighting, loss, noise if fits is None else None, pick_prior
-    )
-
-    boot = None
-    if kind.shared_linearisation:
-        boot = bootstrap_std(
-            lin,
-            noise.whiteners[pick.weighting],
-            columns,
-            seed=seed,
-            prior=None if lin_priors is None else lin_priors.get(pick.weighting),
-        )
-
-    # The plausibility gate (a wrong input absorbed by the model, terms beyond their bounds,
-    # intervals the bootstrap contradicts): before anything is written.
-    warnings = kind.check_model(training, result, baseline, boot)
+    dataset = kind.dataset
     settings = {
         "holdout_fraction": holdout,
         "seed": seed,
@@ -352,38 +242,295 @@ def calibrate(
         "mode": dataset.mode,
         "hayati_joints": [int(i) + 1 for i in np.flatnonzero(dataset.model.hayati)],
         "selection": selection,
-        "selection_folds": folds_k,
-        "weighting": pick.weighting,
+        "selection_folds": selected.folds,
+        "weighting": weighting,
         "reject_outliers": reject_outliers,
-        **({"priors": dataset.model.priors.to_dict()} if with_priors else {}),
-        **({"weak_directions": weak} if weak else {}),
+        **({"priors": dataset.model.priors.to_dict()} if cleaned.with_priors else {}),
+        **_weak_setting(training, result, cleaned, dataset.q[cleaned.train]),
         **({"dropped_candidates": dropped} if dropped else {}),
         **({} if plausibility is None else {"plausibility": plausibility}),
         "coverage": coverage,
-        **noise.settings,
+        **selected.noise.settings,
         **kind.settings(training),
         **kind.result_settings(training, result),
     }
     return Calibration(
         dataset=dataset,
         measurements=measurements,
-        problem=kind.weighted(training, pick.weighting, noise.whiteners),
+        problem=kind.weighted(training, weighting, selected.noise.whiteners),
         result=result,
-        baseline=baseline,
-        validation=kind.validate(training, result, baseline, test, screen=reject_outliers),
-        train=train,
+        baseline=chosen.baseline,
+        validation=kind.validate(training, result, chosen.baseline, test, screen=reject_outliers),
+        train=cleaned.train,
         test=test,
         settings=settings,
-        outliers=outlier_ids,
-        noise=noise.noise,
-        selection=tuple(scores),
-        chosen=chosen,
+        outliers=cleaned.outlier_ids,
+        noise=selected.noise.noise,
+        selection=tuple(selected.scores),
+        chosen=chosen.index,
         reason=reason,
         bootstrap_std=boot,
         warnings=tuple(warnings),
         geometry=geometry,
         kind=kind,  # its validate measures each exported file (calibration.artifacts)
     )
+
+
+# --- the stages of calibrate ---------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class _Options:
+    """The choices of one :func:`calibrate` run, as given (checked)."""
+
+    holdout: float
+    seed: int
+    pairing: PairStrategy
+    method: str
+    loss: str
+    reject_outliers: bool
+    holdout_ids: Sequence[str] | None
+    select_folds: int
+    selection: str
+    nongeometric: str | Sequence[str]
+    weightings: tuple[str, ...]
+    priors: str
+
+
+def _split(
+    dataset: Dataset, measurements: Measurements, options: _Options
+) -> tuple[MeasurementKind, np.ndarray, np.ndarray, dict]:
+    """The measurement kind of the data (its model with the candidate non-geometric families,
+    and without priors for ``priors="none"``), the training and held-out samples (whole
+    configurations), and what the samples cover (:func:`_coverage`)."""
+    kind = kind_of(dataset, measurements, options.pairing)
+    train, test = kind.split(options.holdout, options.seed, options.holdout_ids)
+    coverage = _coverage(kind, test, options.holdout_ids)
+    model = candidate_model(dataset.model, options.nongeometric)
+    if options.priors == "none":
+        model = replace(model, priors=Priors(enabled=False))
+    return replace(kind, dataset=replace(dataset, model=model)), train, test, coverage
+
+
+@dataclass(frozen=True)
+class _Cleaned:
+    """The training samples the calibration fits (``train``; outliers left out unless kept) and
+    their ``training`` problem; ``full``: the geometry fitted there with the run's loss;
+    ``outlier_ids``: the training samples that fit badly; ``std``: the priors' standard
+    deviations (``with_priors`` when any is finite) and ``prior``: the plain weighting's prior
+    rows (None without priors)."""
+
+    training: Training
+    train: np.ndarray
+    full: Result
+    outlier_ids: tuple[str, ...]
+    std: np.ndarray
+    with_priors: bool
+    prior: np.ndarray | None
+
+
+def _without_outliers(kind: MeasurementKind, training: Training, options: _Options) -> _Cleaned:
+    """Outliers: samples whose measurements fit badly at a fit of the geometry
+    (:func:`_outliers`), left out unless kept; then the geometry fitted with the run's loss on
+    the samples that remain."""
+    method, train = options.method, training.samples
+    std = layout_prior_std(training.problem)
+    with_priors = bool(np.isfinite(std).any())
+    detection = _fit(kind, training, training.geometric, "plain", method, kind.detection_loss)
+    prior = None
+    if with_priors:  # the noise level of the rows from the plain fit, then the MAP fit
+        prior = _plain_prior(kind, training, method, detection, std)
+        detection = _fit(
+            kind, training, training.geometric, "plain", method, kind.detection_loss, prior=prior
+        )
+    outliers, without = _outliers(kind, training, detection, method, prior)
+    outlier_ids = tuple(natural(kind.dataset.ids[train[i]] for i in outliers))
+    removed = bool(options.reject_outliers and outliers.size)
+    if removed:
+        train = np.delete(train, outliers)
+        training = kind.training(train, previous=training)
+        detection = without
+    full = detection  # the geometry fitted with ``loss`` on the final training samples
+    if with_priors and removed:  # the rows' noise level without the outliers
+        prior = _plain_prior(kind, training, method, detection, std)
+    if removed or options.loss != kind.detection_loss:
+        start = None if kind.refit_from_nominal else detection.params
+        full = _fit(
+            kind, training, training.geometric, "plain", method, options.loss, initial=start,
+            prior=prior,
+        )  # fmt: skip
+    if with_priors and removed:
+        full, prior = _settled_prior(kind, training, options, full, prior, std)
+    return _Cleaned(training, train, full, outlier_ids, std, with_priors, prior)
+
+
+def _settled_prior(
+    kind: MeasurementKind,
+    training: Training,
+    options: _Options,
+    full: Result,
+    prior: np.ndarray | None,
+    std: np.ndarray,
+    rounds: int = 3,
+) -> tuple[Result, np.ndarray | None]:
+    """The fit and its prior rows once the rows' noise level is measured at the fit itself:
+    the level of the first fit without the outliers was measured where the search for them left
+    the estimate (a start bent by the outliers, on its way), and a level measured too high holds
+    the directions the priors hold too firmly (an estimate 10x off the truth's held-out error
+    was seen). Refitted while the level falls by more than a tenth."""
+    for _ in range(rounds):
+        if prior is None:
+            break
+        again = _plain_prior(kind, training, options.method, full, std)
+        if again is None or np.max(again) > 0.9 * np.max(prior):
+            break
+        prior = again
+        full = _fit(
+            kind, training, training.geometric, "plain", options.method, options.loss,
+            initial=full.params, prior=prior,
+        )  # fmt: skip
+    return full, prior
+
+
+@dataclass(frozen=True)
+class _Selected:
+    """Model selection: the learned ``noise``, each candidate's cross-validated ``scores`` over
+    ``folds`` folds, the shared linearisation ``lin`` (None when each candidate was fitted:
+    ``fits``), and the prior rows of each weighting's nonlinear fits (``priors_of``) and of the
+    linearised ones (``lin_priors``; None without priors)."""
+
+    noise: NoiseModel
+    scores: list
+    folds: int
+    lin: object | None
+    fits: list[Result] | None
+    priors_of: dict
+    lin_priors: dict | None
+
+
+def _selection(kind: MeasurementKind, cleaned: _Cleaned, options: _Options) -> _Selected:
+    """Noise, candidate models and their cross-validated scores on the training samples."""
+    training, full, std = cleaned.training, cleaned.full, cleaned.std
+    lin = linearise(training.problem, full.params) if kind.shared_linearisation else None
+    noise = kind.learn_noise(training, full, lin)
+    cands = candidates(training.problem, training.ident.subset, kind.weightings(options.weightings))
+    folds_k = max(2, min(options.select_folds, len(cleaned.train) // 2))
+    priors_of = {"plain": cleaned.prior}  # the prior rows of each weighting's nonlinear fits
+    if cleaned.with_priors:
+        for w in {c.weighting for c in cands} - {"plain"}:
+            priors_of[w] = _prior(kind, training, w, noise.whiteners, full.params, std)
+    if not kind.shared_linearisation:  # every candidate fitted, and linearised at its own fit
+        fits = [
+            _fit(
+                kind,
+                training,
+                c.columns,
+                c.weighting,
+                _method(c, options.method),
+                options.loss,
+                full.params,
+                prior=priors_of.get(c.weighting),
+            )  # fmt: skip
+            for c in cands
+        ]
+        scores = score_each(
+            training.problem, fits, cands, folds_k, options.seed,
+            std if cleaned.with_priors else None,
+        )  # fmt: skip
+        return _Selected(noise, scores, folds_k, None, fits, priors_of, None)
+    lin_priors = None
+    if cleaned.with_priors:
+        used = {c.weighting for c in cands}  # (the kind may learn more weightings)
+        lin_priors = {
+            w: lin_prior(lin, whiten, full.params, std)
+            for w, whiten in noise.whiteners.items()
+            if w in used
+        }
+    scores = score_candidates(lin, noise.whiteners, cands, folds_k, options.seed, lin_priors)
+    return _Selected(noise, scores, folds_k, lin, None, priors_of, lin_priors)
+
+
+@dataclass(frozen=True)
+class _Chosen:
+    """The chosen candidate (``index`` into the scores, ``pick``, why: ``reason``), its fit
+    ``result`` on ``columns``, and the ``baseline`` (the best-scoring candidate of the measurement
+    frames alone)."""
+
+    index: int
+    pick: object
+    reason: str
+    columns: np.ndarray
+    result: Result
+    baseline: Result
+
+
+def _chosen(
+    kind: MeasurementKind, cleaned: _Cleaned, selected: _Selected, options: _Options
+) -> _Chosen:
+    """The chosen model's fit and the baseline's (``selection="conservative"``: then only the
+    parameters above 3 standard deviations)."""
+    training, full, scores, fits = cleaned.training, cleaned.full, selected.scores, selected.fits
+    method, loss, noise = options.method, options.loss, selected.noise
+    conservative = options.selection == "conservative"
+    chosen, reason = choose_all(scores) if options.selection == "all" else choose(scores)
+    pick = scores[chosen].candidate
+    at_baseline = [k for k, s in enumerate(scores) if s.candidate.name in BASELINE_CANDIDATES]
+    base = min(at_baseline, key=lambda k: np.mean(scores[k].per_sample))
+    he = scores[base].candidate
+    pick_prior = selected.priors_of.get(pick.weighting)
+    if fits is None:
+        baseline = _fit(
+            kind, training, he.columns, he.weighting, "lm", loss, full.params, noise,
+            selected.priors_of.get(he.weighting),
+        )  # fmt: skip
+    else:
+        baseline = fits[base]
+    columns = pick.columns
+    if pick.name in BASELINE_CANDIDATES:
+        return _Chosen(chosen, pick, reason, columns, baseline, baseline)
+    if fits is None:
+        if conservative:
+            weighted = kind.weighted(training, pick.weighting, noise.whiteners)
+            columns = significant_columns(
+                weighted, training.ident, columns, noise.noise.noise, full.params
+            )
+        result = _fit(
+            kind, training, columns, pick.weighting, method, loss, full.params, noise, pick_prior
+        )
+    else:
+        result = fits[chosen]
+        if conservative:
+            initial = result.params
+
+            def refit(cols: np.ndarray) -> Result:
+                return _fit(
+                    kind, training, cols, "plain", method, loss, initial, prior=cleaned.prior
+                )
+
+            result = significant_fit(training.problem, result, columns, refit)
+    if conservative:
+        reason += "; parameters below 3 standard deviations dropped (--selection conservative)"
+    return _Chosen(chosen, pick, reason, columns, result, baseline)
+
+
+def _bootstrap(
+    kind: MeasurementKind, selected: _Selected, chosen: _Chosen, seed: int
+) -> np.ndarray | None:
+    """Bootstrap standard deviations of the chosen columns over training samples, where model
+    selection shares one linearisation (None otherwise)."""
+    if not kind.shared_linearisation:
+        return None
+    weighting = chosen.pick.weighting
+    prior = None if selected.lin_priors is None else selected.lin_priors.get(weighting)
+    return bootstrap_std(
+        selected.lin, selected.noise.whiteners[weighting], chosen.columns, seed=seed, prior=prior
+    )
+
+
+def _weak_setting(training: Training, result: Result, cleaned: _Cleaned, q: np.ndarray) -> dict:
+    """``{"weak_directions": [...]}`` of :func:`_weak`, or nothing when there are none."""
+    weak = _weak(training, result, cleaned.std if cleaned.with_priors else None, q)
+    return {"weak_directions": weak} if weak else {}
 
 
 def _coverage(kind: MeasurementKind, test: np.ndarray, holdout_ids) -> dict:

@@ -237,7 +237,7 @@ class Validation:
     # of the pairs above
     outliers: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=int))
     units: np.ndarray | None = None
-    what: str = "pairs of poses"
+    what: str | None = None  # None: named by the formulation (verdict.held_out_what)
 
     @property
     def samples(self) -> np.ndarray:

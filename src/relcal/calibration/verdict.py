@@ -70,10 +70,14 @@ def times(factor: float) -> str:
 def held_out_what(validation: Validation | PlacementValidation, formulation: str = "") -> str:
     """How the held-out evidence is named: ``poses`` (each predicted in the world frame),
     ``points`` (one point per sample), ``pairs of poses`` (relative poses) or ``placements``
-    (coincidences). ``formulation``: unused, kept for callers."""
+    (coincidences): what the validation says, or for one that does not say, what its
+    ``formulation`` compares."""
     if isinstance(validation, PlacementValidation):
         return "placements"
-    return validation.what
+    if validation.what is not None:
+        return validation.what
+    named = {"tracker": "points", "absolute": "points", "board": "poses"}
+    return named.get(formulation, "pairs of poses")
 
 
 def n_held_out(validation: Validation | PlacementValidation) -> int:
@@ -99,8 +103,8 @@ def verdict(
     """The verdict on the exported model from its ``validation`` (see the module docstring);
     ``exported``: ``calibrated`` or ``baseline`` (the data supported no correction, or the
     calibrated model was worse than the baseline on ``validation``, which then names how much);
-    ``formulation``: unused (the validation names its evidence); ``limits``: what the held-out
-    samples cannot show, in words (a joint that never moved, ...)."""
+    ``formulation``: names the evidence of a validation that does not name it; ``limits``:
+    what the held-out samples cannot show, in words (a joint that never moved, ...)."""
     if validation is None:
         return Verdict(
             "not validated",
@@ -120,7 +124,7 @@ def verdict(
             f"the validation rests on {n} held-out samples (fewer than {MIN_HELD_OUT}): its "
             "interval is rough; hold out more (--holdout) or cross-validate (--kfold)",
         )
-    what = held_out_what(validation)
+    what = held_out_what(validation, formulation)
     ratio = validation.ratio()
     r, (lo, hi) = ratio["after_over_before"], ratio["ci95"]
     factor = 1.0 / max(r, 1e-300)
@@ -129,6 +133,7 @@ def verdict(
     if n_conf < n and not placements:
         evidence += f" in {n_conf} distinct configuration" + ("s" if n_conf != 1 else "")
     span = f"95% interval {times(held[0])}..{times(held[1])}, {evidence}"
+    worse_span = f"95% interval {times(lo)}..{times(hi)}, {evidence}"  # of after over before
     limits = tuple(limits)
     if exported == "baseline":
         exported_text = (
@@ -139,7 +144,7 @@ def verdict(
         if validation.rms("calibrated") > validation.rms("before"):  # not the selection's
             why = (
                 f"the calibrated model is {times(r)} worse than the baseline on held-out "
-                f"{what} ({span})"
+                f"{what} ({worse_span})"
             )
         return Verdict(
             "do not deploy",
@@ -170,7 +175,9 @@ def verdict(
         )
     elif lo > 1.0:
         code = "do not deploy"
-        text = f"do not deploy: {times(r)} worse than the baseline on held-out {what} ({span})"
+        text = (
+            f"do not deploy: {times(r)} worse than the baseline on held-out {what} ({worse_span})"
+        )
     else:
         code = "collect more samples"
         text = (

@@ -56,22 +56,17 @@ def _settings(args: argparse.Namespace):
 
 
 def run(args: argparse.Namespace) -> int:
-    import sys
-
     import numpy as np
 
     from relcal import geometry as tf
-    from relcal.capture import devices
-    from relcal.capture.interfaces import RealClock
-    from relcal.capture.loop import capture
-    from relcal.capture.record import DatasetWriter, check_destination
+    from relcal.capture.record import check_destination, claim
     from relcal.cli.plan import parse_board
     from relcal.design.planfile import read_plan
     from relcal.errors import RelcalError
-    from relcal.io import File, json_text, note_input, write_set
+    from relcal.io import File, note_input
     from relcal.outputset import check
-    from relcal.reporting.capture_text import format_capture
 
+    plan_robot(args)
     model = load_robot(args)
     limits = None
     if args.limits:  # the cell's limits, as relcal plan takes them; kept in dataset.yaml
@@ -103,6 +98,21 @@ def run(args: argparse.Namespace) -> int:
         check([File(args.json, b"", "--json")])
     check_destination(args.out, args.resume)  # before any device is touched
     check_ids(args.plan, plan.ids)
+    with claim(args.out, args.resume):  # this run's alone (another one writing it: refused)
+        return _capture(args, model, plan, board, settings, intrinsics, handeye, limits)
+
+
+def _capture(args, model, plan, board, settings, intrinsics, handeye, limits) -> int:
+    import sys
+
+    from relcal.capture import devices
+    from relcal.capture.interfaces import RealClock
+    from relcal.capture.loop import capture
+    from relcal.capture.record import DatasetWriter
+    from relcal.errors import RelcalError
+    from relcal.io import File, json_text, write_set
+    from relcal.reporting.capture_text import format_capture
+
     clock = RealClock()
     robot = devices.open_robot(
         args.robot_driver,
@@ -114,7 +124,7 @@ def run(args: argparse.Namespace) -> int:
         plan_ids=plan.ids,
         plan_targets=plan.q,
     )
-    camera = None
+    camera = writer = None
     try:
         if tuple(robot.joint_names) != tuple(model.joint_names):
             raise RelcalError(
@@ -184,19 +194,55 @@ def run(args: argparse.Namespace) -> int:
                 writer.finish(summary.document())
                 print(format_capture(summary, args.out), file=sys.stderr)
             raise
+        doc = summary.document()
+        writer.finish(doc)
+        if args.json:
+            write_set(File(args.json, json_text({"dataset": str(args.out), **doc}), "--json"))
     finally:
         try:
+            if writer is not None:
+                writer.close()  # the dataset's lock: released, its file removed
             if camera is not None:
                 camera.close()
         finally:
             robot.close()
-    doc = summary.document()
-    writer.finish(doc)
-    if args.json:
-        write_set(File(args.json, json_text({"dataset": str(args.out), **doc}), "--json"))
     if not args.quiet:
         print(format_capture(summary, args.out, str(args.plan)))
     return 0 if doc["recorded"] + doc["recorded_before"] > 0 else 1
+
+
+def plan_robot(args: argparse.Namespace) -> None:
+    """The robot of ``args.plan``'s header into ``args.robot`` (``--root``, ``--tip``) when
+    ``--robot`` is not given; a built-in robot named only by its full name (older plans) is
+    found by that name. A ``--robot`` that names another robot than the plan is refused."""
+    from relcal.design.planfile import plan_header
+    from relcal.errors import RelcalError
+    from relcal.robot.loading import library_by_title
+
+    name, _, source = plan_header(args.plan)
+    if args.robot is not None:
+        if name is not None:
+            given = load_robot(args)
+            if given.name != name:
+                raise RelcalError(
+                    f"--robot {args.robot} is '{given.name}', the plan {args.plan} was made for "
+                    f"'{name}': leave --robot out to capture with the plan's robot, or plan "
+                    "again for this one"
+                )
+        return
+    if source is not None:
+        args.robot = source.robot
+        if args.root is None and args.tip is None:
+            args.root, args.tip = source.root, source.tip
+        return
+    builtin = library_by_title(name) if name is not None else None
+    if builtin is None:
+        raise RelcalError(
+            f"{args.plan}: the plan does not say how to load its robot"
+            + (f" ('{name}')" if name else "")
+            + ": give --robot (a built-in name, a model YAML or a URDF file)"
+        )
+    args.robot = builtin
 
 
 def context_options(pairs: list[str] | None) -> list[str]:
@@ -238,7 +284,12 @@ def register(sub: argparse._SubParsersAction) -> None:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument("plan", metavar="PLAN", help="the plan CSV (relcal plan --out)")
-    robot_args(p)
+    robot_args(
+        p,
+        default=None,
+        help="the robot, only to override the plan's (its header names the robot it was made "
+        "for; refused when it contradicts the plan): built-in name, model YAML or URDF file",
+    )
     p.add_argument(
         "--robot-driver", required=True, metavar="NAME", help="robot driver (listed below)"
     )

@@ -23,9 +23,9 @@ from relcal.fleet import ALPHA as DRIFT_ALPHA
 
 EPILOG = """\
 examples:
-  relcal fleet calibrate plant/ --workers 2 --registry history.sqlite --json fleet.json
-  relcal fleet calibrate plant/ --scheduler tcp://10.0.0.5:8786 --report fleet.html
-  relcal fleet calibrate units/ --nongeometric none --report units.html   # units of one model
+  relcal fleet calibrate plant/ --out cal/ --workers 2 --registry history.sqlite --json fleet.json
+  relcal fleet calibrate plant/ --out cal/ --scheduler tcp://10.0.0.5:8786 --report fleet.html
+  relcal fleet calibrate units/ --out units-cal/ --nongeometric none --report units.html
   (a remote cluster: `dask scheduler` on one machine, `dask worker tcp://HOST:8786 --nthreads 1`
   on each worker machine, with relcal installed and the dataset folders at the same path; set
   DASK_DISTRIBUTED__WORKER__PROFILE__ENABLED=False for the workers: their profiler slows
@@ -36,10 +36,17 @@ exit status: 0 every session calibrated, 1 some session failed or did not conver
 
 
 def run_fleet_calibrate(args: argparse.Namespace) -> int:
+    from relcal.errors import RelcalError
     from relcal.fleet.registry import open_for_writing
-    from relcal.fleet.runner import discover, outputs_folder
+    from relcal.fleet.runner import check_out_root, discover, outputs_folder
     from relcal.outputset import File, Folder, check
 
+    if args.out is None:
+        raise RelcalError(
+            "relcal fleet calibrate: --out OUT is required: each session's calibration goes to "
+            "OUT/<session> (earlier versions wrote SESSION/calibration into the input tree)"
+        )
+    check_out_root(args.root, args.out)
     sessions = discover(args.root)
     reports = [
         File(path, b"", what)
@@ -198,7 +205,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     cp.add_argument(
         "--out",
         type=output_folder,
-        help="outputs under OUT/<session> (default SESSION/calibration)",
+        help="required: the calibrations go under OUT/<session> (outside ROOT: nothing is "
+        "written into the input tree)",
     )
     cp.add_argument(
         "--workers", type=positive_int, default=2, help="local worker processes (default 2)"

@@ -21,9 +21,11 @@ examples:
       --distance 0.050 --out panda_1/               # ball-in-socket joints, 50 mm sockets
 
 rct-images: a robot_cal_tools image set (cal_data.yaml, target.yaml, camera_intr*.yaml); the
-images stay where they are; the recorded tool poses become the joints of a pose chain.
+images are copied into the dataset; the recorded tool poses become the joints of a pose chain.
 mukca: a robot's folder of PLACEMENT/hole_*.csv joint files (MUKCa layout): a coincidence
-dataset, one group per socket file, the URDF referenced where it is.
+dataset, one group per socket file, the URDF copied in as robot.urdf.
+Every dataset written holds no path outside its folder (robot files and images are copied): it
+still calibrates when moved.
 """
 
 
@@ -191,7 +193,9 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="... for at least this long (s; default 0.5)",
     )
     mukca = p.add_argument_group("mukca")
-    mukca.add_argument("--urdf", metavar="FILE", help="the robot's URDF (referenced, not copied)")
+    mukca.add_argument(
+        "--urdf", metavar="FILE", help="the robot's URDF (copied into the dataset as robot.urdf)"
+    )
     mukca.add_argument(
         "--tip",
         metavar="LINK",

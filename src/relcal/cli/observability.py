@@ -84,7 +84,7 @@ def run(args: argparse.Namespace) -> int:
         q_validation=q_val,
         estimator=args.estimator,
     )
-    pairing = resolve_pairing(args.pairs, len(q))
+    pairing = resolve_pairing(args.pairs, len(q), problem.formulation)
     if not args.quiet:
         print(f"{source}, {comparison_text(problem.formulation, pairing)}")
         print(format_observability(rep))

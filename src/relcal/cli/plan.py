@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 from dataclasses import replace
+from pathlib import Path
 from typing import TYPE_CHECKING
 
 from relcal.cli.common import (
@@ -40,16 +41,19 @@ examples:
   relcal plan --robot ur5e --limits elbow=-160:160,wrist3=-180:180 --out plan.csv
   relcal plan --robot ur5e --obstacle 0.2,-0.6,0,0.6,-0.3,0.5 --link-radius 0.05 --out plan.csv
 
-output: a CSV, first line  # relcal plan: robot NAME, joint unit UNIT, then  id,<joint names>
-(angles in --joint-unit, prismatic joints in m), in a travel order that keeps joint moves short
-(nearest neighbour + 2-opt on the largest joint move, each angle the equivalent within the limits
-nearest the previous pose); the longest single move is printed. Run it with `relcal capture`, or
-on the robot by other means. Checked for every pose: joint limits (the robot's own, narrowed by
---limits), the board in view with --margin, distance, viewing angle, singularity, clearance above
-the board plane, self-collision and collision with --obstacle boxes (a URDF's <collision>
-geometry with python-fcl where it has some, else capsules of --link-radius about the kinematic
-skeleton; a sphere of --camera-radius about the camera). With --workers or --scheduler the plan
-is the same as in one process (each batch of candidates has its own random stream from --seed).
+output: a CSV, first line  # relcal plan: robot NAME, joint unit UNIT, second  # relcal robot:
+SPEC (how relcal capture loads the robot), then  id,<joint names>  (angles in --joint-unit,
+prismatic joints in m), in a travel order that keeps joint moves short (nearest neighbour + 2-opt
+on the largest joint move, each angle the equivalent within the limits nearest the previous pose)
+and every revolute joint's move within --max-move (a pose of a longer move is exchanged for the
+best candidate within it); the longest single move and the total travel are printed. Run it with
+`relcal capture PLAN` (the robot comes from the plan), or on the robot by other means. Checked for
+every pose: joint limits (the robot's own, narrowed by --limits), the board in view with --margin,
+distance, viewing angle, singularity, clearance above the board plane, self-collision and
+collision with --obstacle boxes (a URDF's <collision> geometry with python-fcl where it has some,
+else capsules of --link-radius about the kinematic skeleton; a sphere of --camera-radius about the
+camera). With --workers or --scheduler the plan is the same as in one process (each batch of
+candidates has its own random stream from --seed).
 """
 
 
@@ -59,13 +63,14 @@ def parse_board(text: str) -> Board:
     import re
 
     from relcal.errors import RelcalError
+    from relcal.numbers import parse_number
     from relcal.vision.boards import Board
 
     match = re.fullmatch(r"\s*(\d+)\s*[xX]\s*(\d+)\s*@\s*([0-9.eE+-]+)\s*(mm|m)?\s*", text)
     if match:
         rows, cols, size, unit = match.groups()
         try:
-            spacing = float(size) * (1e-3 if unit == "mm" else 1.0)
+            spacing = parse_number(size) * (1e-3 if unit == "mm" else 1.0)
             return Board(type="chessboard", rows=int(rows), columns=int(cols), spacing=spacing)
         except ValueError as exc:
             raise RelcalError(f"--board '{text}': {exc}") from None
@@ -84,12 +89,13 @@ def parse_board(text: str) -> Board:
 def parse_camera(text: str) -> Camera:
     """A camera from ``FX,FY,CX,CY,WIDTH,HEIGHT`` (px) or a camera YAML file."""
     from relcal.errors import RelcalError
+    from relcal.numbers import parse_number
     from relcal.vision.camera import Camera
 
     parts = text.split(",")
     if len(parts) == 6:
         try:
-            fx, fy, cx, cy = (float(v) for v in parts[:4])
+            fx, fy, cx, cy = (parse_number(v) for v in parts[:4])
             return Camera(fx=fx, fy=fy, cx=cx, cy=cy, width=int(parts[4]), height=int(parts[5]))
         except ValueError as exc:
             raise RelcalError(f"--camera '{text}': {exc}") from None
@@ -105,9 +111,10 @@ def _floats(text: str, count: tuple[int, ...], what: str) -> list[float]:
     import numpy as np
 
     from relcal.errors import RelcalError
+    from relcal.numbers import parse_number
 
     try:
-        values = [float(v) for v in text.split(",")]
+        values = [parse_number(v) for v in text.split(",")]
     except ValueError:
         values = []
     if len(values) not in count or not all(np.isfinite(values)):
@@ -123,6 +130,7 @@ def parse_limits(text: str, model, unit: str) -> dict[str, tuple[float, float]]:
 
     from relcal.data.dataset import limits_from_unit
     from relcal.errors import RelcalError
+    from relcal.numbers import parse_number
 
     if Path(text).suffix in (".yaml", ".yml") or Path(text).is_file():
         from relcal.io import load_yaml
@@ -145,7 +153,7 @@ def parse_limits(text: str, model, unit: str) -> dict[str, tuple[float, float]]:
         try:
             if not (sep and sep2):
                 raise ValueError
-            limits[name.strip()] = (float(lo), float(hi))
+            limits[name.strip()] = (parse_number(lo), parse_number(hi))
         except ValueError:
             raise RelcalError(
                 f"--limits '{part}': expected NAME=LOWER:UPPER (e.g. elbow=-160:160, in "
@@ -173,11 +181,13 @@ def build_cell(args: argparse.Namespace):
 
 
 def run(args: argparse.Namespace) -> int:
+    import numpy as np
+
     from relcal.calibration.noise import Noise
     from relcal.design.plan import Constraints, plan
-    from relcal.design.planfile import plan_text
+    from relcal.design.planfile import plan_robot, plan_text
     from relcal.io import File, json_text, write_set
-    from relcal.outputset import check
+    from relcal.outputset import check, is_stream
     from relcal.reporting.documents import plan_document
     from relcal.reporting.text import format_plan
 
@@ -231,6 +241,7 @@ def run(args: argparse.Namespace) -> int:
             random_sets=args.random_sets,
             seed=args.seed,
             client=client,
+            max_move=np.radians(args.max_move),
         )
     finally:
         if client is not None:
@@ -238,14 +249,18 @@ def run(args: argparse.Namespace) -> int:
         if cluster is not None:
             cluster.close()
 
-    def joints_table(q: np.ndarray) -> str:
-        return plan_text(model, q, unit=args.joint_unit)
+    def joints_table(q: np.ndarray, out: str | None) -> str:
+        where = None if out is None or is_stream(out) else Path(out).parent
+        source = plan_robot(model, args.robot, where)
+        return plan_text(model, q, unit=args.joint_unit, source=source)
 
     items = []
     if args.out:
-        items.append(File(args.out, joints_table(res.q), "--out"))
+        items.append(File(args.out, joints_table(res.q, args.out), "--out"))
     if args.random_out and res.random_q is not None:
-        items.append(File(args.random_out, joints_table(res.random_q), "--random-out"))
+        items.append(
+            File(args.random_out, joints_table(res.random_q, args.random_out), "--random-out")
+        )
     if args.json:
         items.append(File(args.json, json_text(plan_document(res, model)), "--json"))
     write_set(*items)
@@ -405,6 +420,15 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--random-out", type=output_file, help="write the median random set to this CSV")
     p.add_argument("--joint-unit", choices=("deg", "rad"), default="deg")
+    p.add_argument(
+        "--max-move",
+        type=positive_float,
+        metavar="DEG",
+        default=120.0,
+        help="largest travel of any revolute joint between consecutive poses, deg (default 120): "
+        "the order keeps within it, and a pose of a longer move is exchanged for the best "
+        "candidate within it (or, failing that, one is added between)",
+    )
     json_arg(p, "the plan and the comparison")
     p.add_argument("--quiet", action="store_true", help="print nothing but errors")
     p.set_defaults(func=run)

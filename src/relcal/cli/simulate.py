@@ -73,9 +73,10 @@ def run(args: argparse.Namespace) -> int:
     measures = [args.measure] if args.measure else ["position", "pose"]
     from relcal.limits import resolve_pairing
 
-    # the board formulation (asked for, or auto's above 300 poses) compares camera poses in the
-    # board frame: the frame-invariant data
-    board = resolve_pairing(args.pairs, args.poses) == "board"
+    # the board formulation (asked for, or auto's for the frame-invariant data, or above 300
+    # poses) compares camera poses in the board frame; the default is the paper's simulation
+    formulation = args.formulation or "published"
+    board = resolve_pairing(args.pairs, args.poses, formulation) == "board"
     formulation = args.formulation or ("invariant" if board else "published")
     runs = []
     for measure in measures:

@@ -63,7 +63,9 @@ matched by name in any order), then what was measured, one of:
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+import difflib
+import re
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal
@@ -73,10 +75,19 @@ import pydantic
 from scipy.spatial.transform import Rotation
 
 from relcal import geometry as tf
-from relcal.checks import check_instance, describe
+from relcal.checks import (
+    check_choice,
+    check_instance,
+    check_number,
+    check_path,
+    describe,
+    real_array,
+)
 from relcal.errors import ArgumentError, RelcalError, excerpt, printable
 from relcal.io import load_yaml, note_input, read_table, table_delimiter, validate
 from relcal.limits import check_input_size
+from relcal.numbers import NUMBER, NotANumber
+from relcal.numbers import parse_number as _parse_number
 from relcal.robot.loading import get_robot
 from relcal.robot.model import (
     RobotModel,
@@ -395,7 +406,9 @@ class Dataset:
 def _array(name: str, value, what: str) -> np.ndarray:
     """``value`` as a float array, or a RelcalError naming the argument."""
     try:
-        out = np.asarray(value, dtype=float)
+        out = real_array(value, name)
+    except ArgumentError:
+        raise
     except (TypeError, ValueError) as exc:
         raise ArgumentError(
             f"{name}: expected {what}, got {type(value).__name__} ({exc})"
@@ -428,17 +441,27 @@ def _from_arrays(
 ) -> Dataset:  # fmt: skip
     """:meth:`Dataset.from_arrays`, with the checks at the boundary."""
     if isinstance(model, str | Path):
-        model = get_robot(model)
+        model = get_robot(check_path(model, "model", "a RobotModel or a robot name/file"))
     if not isinstance(model, RobotModel):
         raise ArgumentError(f"model: expected a RobotModel or a robot name/file, got {model!r}")
-    if hayati not in ("auto", "off"):
-        raise ArgumentError(f"hayati: {hayati!r}; use 'auto' or 'off'")
+    check_choice(hayati, "hayati", ("auto", "off"))
+    check_choice(mode, "mode", MODES)
+    check_choice(joint_unit, "joint_unit", ("rad", "deg"))
+    root = check_path(root, "root", "the folder the dataset stands for (relative paths)")
+    if robot_id is not None and (not isinstance(robot_id, str) or not robot_id.strip()):
+        raise ArgumentError(f"robot_id: expected a robot's name (a str), got {describe(robot_id)}")
+    tolerances = _check_tolerances(tolerances)
+    if ids is not None and (
+        isinstance(ids, str | bytes)
+        or not isinstance(ids, Sequence | np.ndarray)
+        or not all(isinstance(i, str | int | np.integer) and not isinstance(i, bool) for i in ids)
+    ):
+        raise ArgumentError(
+            f"ids: expected one id per sample (a list of str), got {describe(ids)}"
+            + ("; a single id is ['s1'], not 's1'" if isinstance(ids, str) else "")
+        )
     if hayati == "auto":
         model = auto_hayati(model)
-    if mode not in MODES:
-        raise ArgumentError(f"mode: {mode!r}; use 'eye_in_hand', 'eye_to_hand' or 'robot_world'")
-    if joint_unit not in ("rad", "deg"):
-        raise ArgumentError(f"joint_unit: {joint_unit!r}; use 'rad' or 'deg'")
     n = model.n_joints
     q = _array("q", q, f"joint values of shape (N, {n})")
     if q.ndim != 2 or q.shape[1] != n:
@@ -513,7 +536,7 @@ def _from_arrays(
     if len(ids) != len(q) or len(set(ids)) != len(ids):
         raise ArgumentError(f"ids: {len(ids)} ids for {len(q)} samples; each sample one unique id")
     return cls(
-        Path(root),
+        root,
         model,
         mode,
         handeye,
@@ -524,10 +547,33 @@ def _from_arrays(
         board,
         camera,
         None,
-        dict(tolerances) if tolerances else None,
+        tolerances,
         measured,
         robot_id=robot_id,
     )
+
+
+def _check_tolerances(tolerances: Any) -> dict[str, float] | None:
+    """``tolerances`` as ``tolerances:`` of dataset.yaml takes them (names in mm, deg and
+    percent, each above 0): an unknown name or a value that is not a positive number is
+    refused here, naming it, not blamed on the data later."""
+    if tolerances is None:
+        return None
+    known = ", ".join(_Tolerances.model_fields)
+    if not isinstance(tolerances, Mapping):
+        raise ArgumentError(
+            f"tolerances: expected a mapping of thresholds ({known}), got {describe(tolerances)}"
+        )
+    for key, value in tolerances.items():
+        if key not in _Tolerances.model_fields:
+            hint = difflib.get_close_matches(str(key), list(_Tolerances.model_fields), n=1)
+            raise ArgumentError(
+                f"tolerances: unknown {describe(key)}"
+                + (f" (did you mean {hint[0]!r}?)" if hint else "")
+                + f"; expected one of {known}"
+            )
+        check_number(value, f"tolerances[{key!r}]", 0, low_open=True)
+    return {str(k): float(v) for k, v in tolerances.items()} or None
 
 
 def _resolve(root: Path, value: str | dict | None, loader, what: str, spec: Path):
@@ -567,8 +613,7 @@ def load_dataset(folder: str | Path) -> Dataset:
     >>> dataset.robot_id, dataset.measured, dataset.q.shape
     ('tiago-pro-right-arm', 'pose', (48, 8))
     """
-    check_instance(folder, str | Path, "folder", "a dataset folder path (str or Path)")
-    root = Path(folder)
+    root = check_path(folder, "folder", "a dataset folder path")
     spec_path = root / "dataset.yaml"
     if not root.is_dir():
         raise RelcalError(f"{root}: not a dataset folder (expected a folder with dataset.yaml)")
@@ -606,7 +651,7 @@ def load_dataset(folder: str | Path) -> Dataset:
         decimal=spec.decimal,
     )
     ids, q, images, poses = table.ids, table.q, table.images, table.poses
-    groups, distances = _coincidence_spec(spec, spec_path, table)
+    groups, distances = _coincidence_spec(spec, spec_path, table, model)
     board = camera = None
     if images is not None:
         from relcal.vision.boards import load_board
@@ -716,7 +761,7 @@ def _flange_dataset(root: Path, spec: _DatasetSpec, spec_path: Path) -> Dataset:
     )
 
 
-def _coincidence_spec(spec: _DatasetSpec, spec_path: Path, table: SampleTable):
+def _coincidence_spec(spec: _DatasetSpec, spec_path: Path, table: SampleTable, model):
     """The groups of coincidence samples and the known distances, checked against each other."""
     if table.measured != "coincidence":
         if spec.measurement == "coincidence":
@@ -754,7 +799,63 @@ def _coincidence_spec(spec: _DatasetSpec, spec_path: Path, table: SampleTable):
                 "are in metres (0.05 for 50 mm)"
             )
         distances.append((d.groups[0], d.groups[1], float(d.distance), float(d.std)))
+    _check_single_samples(spec, spec_path, table, distances)
+    _check_size(spec, spec_path, table, distances, model)
     return table.groups, tuple(distances)
+
+
+def _check_size(spec, spec_path: Path, table: SampleTable, distances: list, model) -> None:
+    """Refuse coincidence data too large to calibrate within the memory and time limits
+    (:func:`relcal.limits.check_coincidence_size`), before anything is computed: the robot's
+    largest candidate model counted (its geometry, a joint scale and a harmonic per joint)."""
+    from relcal.limits import check_coincidence_size
+    from relcal.robot.kinematics import make_layout
+
+    n_params = make_layout(model).size + 3 * model.n_joints
+    check_coincidence_size(
+        len(table.ids),
+        len(set(table.groups)),
+        len(distances),
+        n_params,
+        str(spec_path.parent / spec.samples),
+    )
+
+
+def _check_single_samples(spec, spec_path: Path, table: SampleTable, distances: list) -> None:
+    """Refuse a group with a single sample: its point is unknown, so the one sample is fitted
+    to it exactly and tells nothing about the kinematics but, through a distance, one number
+    (often a misspelt group name, or a socket visited once; with every group single, a group
+    column that holds sample ids). Named, with the closest other group and what to do."""
+    import difflib
+    from collections import Counter
+
+    counts = Counter(table.groups)
+    in_distance = {name for a, b, _, _ in distances for name in (a, b)}
+    single = [g for g, n in counts.items() if n == 1]
+    if not single:
+        return
+    group = single[0]
+    sid = table.ids[table.groups.index(group)]
+    others = [g for g in counts if g != group and counts[g] > 1]
+    names = {g.rpartition("/")[2] for g in others}
+    plausible = "/" in group and group.rpartition("/")[2] in names  # hole_1 of another placement
+    hint = [] if plausible else difflib.get_close_matches(group, others, n=1, cutoff=0.6)
+    more = f" ({len(single)} groups have a single sample: {', '.join(single[:5])}" + (
+        " ...)" if len(single) > 5 else ")"
+    )
+    raise RelcalError(
+        f"{spec_path.parent / spec.samples}: group '{printable(group, 60)}' has a single sample "
+        f"(id {printable(sid, 40)}){more if len(single) > 1 else ''}: its point is unknown, "
+        "so one sample is fitted to it exactly and tells nothing about the kinematics"
+        + (
+            " (its distance to another group, one number, hardly more)"
+            if group in in_distance
+            else ""
+        )
+        + (f"; a misspelt '{printable(hint[0], 60)}'?" if hint else "")
+        + "; record two or more samples in that group, or remove the row"
+        + (" and the distances: entries that name the group" if group in in_distance else "")
+    )
 
 
 def _robot(root: Path, value: str | dict, spec_path: Path, node) -> RobotModel:
@@ -784,6 +885,42 @@ def _robot(root: Path, value: str | dict, spec_path: Path, node) -> RobotModel:
         f"({', '.join(library_names())}) nor a model file (.yaml, .yml or .urdf, relative to "
         "the dataset folder); relcal reads no other file as a robot"
     )
+
+
+def robot_from_file(
+    path: str | Path, root: str | None = None, tip: str | None = None
+) -> RobotModel:
+    """A robot from a file as a user names it: a model YAML, a URDF (``root``, ``tip``), a
+    URDF chain mapping (``urdf: FILE``, ``root:``, ``tip:``, the file relative to the YAML), or
+    a ``dataset.yaml`` (its ``robot:`` entry). ``root``/``tip`` fill in what a mapping leaves
+    out; a mapping that names other links is refused."""
+    path = Path(path)
+    if path.suffix.lower() not in (".yaml", ".yml"):
+        return get_robot(path, root, tip)
+    data, node = load_yaml(path)
+    if isinstance(data, dict) and "robot" in data and "joints" not in data:
+        data = data["robot"]
+        if not isinstance(data, dict):
+            if root is not None or tip is not None:
+                raise RelcalError(
+                    f"{path}: robot: {excerpt(str(data), 60)} is not a URDF chain: --root and "
+                    "--tip apply to URDF robots only"
+                )
+            return _robot(path.parent, data, path, None)
+    if isinstance(data, dict) and "urdf" in data:
+        data = dict(data)
+        for key, value in (("root", root), ("tip", tip)):
+            if value is None:
+                continue
+            if data.get(key) not in (None, value):
+                raise RelcalError(
+                    f"{path}: {key}: {data[key]}, but --{key} {value} was given: which chain?"
+                )
+            data[key] = value
+        return _robot(path.parent, data, path, None)
+    if root is not None or tip is not None:
+        raise RelcalError(f"{path}: a robot model file: --root and --tip apply to URDF robots only")
+    return get_robot(path)
 
 
 def _board(root: Path, value, spec_path: Path, load_board):
@@ -1131,8 +1268,9 @@ def _no_repeated_samples(path: Path, ids, lines, q, measured) -> None:
 
 
 def parse_number(path: Path, line_no: int, column: str, text: str, decimal: str = ".") -> float:
-    """A finite float from a CSV cell, with ``decimal`` its decimal mark (``"."`` or ``","``);
-    errors name the file, the line and the column."""
+    """A finite float from a CSV cell, with ``decimal`` its decimal mark (``"."`` or ``","``),
+    read strictly (:mod:`relcal.numbers`: ``4_1.67`` is no number); errors name the file, the
+    line, the column and the likely cause."""
     cell = text.strip()
     if decimal == "," and "." in cell:
         raise RelcalError(
@@ -1142,20 +1280,15 @@ def parse_number(path: Path, line_no: int, column: str, text: str, decimal: str 
             "decimal: '.' if the whole table uses points)"
         )
     try:
-        value = float(cell.replace(",", ".") if decimal == "," else cell)
-    except ValueError:
-        hint = (
-            " (a decimal comma? declare decimal: ',' in dataset.yaml, with semicolons between "
-            "the columns)"
-            if "," in cell and decimal == "."
-            else ""
-        )
-        raise RelcalError(
-            f"{path} line {line_no}: {column}: expected a number, got {excerpt(cell)}{hint}"
-        ) from None
-    if not np.isfinite(value):
-        raise RelcalError(f"{path} line {line_no}: {column}: expected a finite number, got {text}")
-    return value
+        return _parse_number(cell.replace(",", ".") if decimal == "," else cell)
+    except NotANumber as exc:
+        if decimal == "." and "," in cell and NUMBER.fullmatch(cell.replace(",", ".", 1)):
+            raise RelcalError(
+                f"{path} line {line_no}: {column}: expected a number, got {excerpt(cell)} (a "
+                "decimal comma? declare decimal: ',' in dataset.yaml, with semicolons between "
+                "the columns)"
+            ) from None
+        raise RelcalError(f"{path} line {line_no}: {column}: {printable(exc)}") from None
 
 
 def _joint_values(path: Path, q: np.ndarray, model: RobotModel, unit: str) -> np.ndarray:
@@ -1201,26 +1334,165 @@ def read_joints(path: str | Path, model: RobotModel, joint_unit: str = "deg") ->
     return joints_from_unit(model, _read_columns(path, header, data, joints), joint_unit)
 
 
+PLAN_COMMENT = re.compile(
+    r"#\s*relcal plan:\s*robot\s+(?P<robot>.*?),\s*joint unit\s+(?P<unit>\w+)\s*$"
+)  # the first line of relcal's plan files (relcal.design.planfile)
+ROTATIONS = {
+    "quaternion": ("qx", "qy", "qz", "qw"),
+    "rpy": ("roll", "pitch", "yaw"),
+    "rotation vector": ("rx", "ry", "rz"),
+}
+
+
+@dataclass(frozen=True)
+class Targets:
+    """What a target file holds: ``ids`` and ``lines`` (its line numbers), and either tool
+    ``poses`` ``(N, 4, 4)`` in the base frame (m) or joint values ``q`` ``(N, n)`` (rad, m); a
+    relcal plan file's ``plan_robot`` and ``unit`` when its first line states them."""
+
+    ids: list[str]
+    lines: list[int]
+    poses: np.ndarray | None
+    q: np.ndarray | None
+    plan_robot: str | None = None
+    unit: str | None = None
+
+
+def _plan_comment(path: Path) -> tuple[str | None, str | None]:
+    """``(robot, unit)`` of a relcal plan's comment line, or ``(None, None)``."""
+    try:
+        with open(path, encoding="utf-8-sig") as handle:
+            for raw in handle:
+                if not raw.strip():
+                    continue
+                if not raw.lstrip().startswith("#"):
+                    break
+                found = PLAN_COMMENT.match(raw.strip())
+                if found:
+                    return found["robot"], found["unit"]
+    except (OSError, UnicodeDecodeError):
+        pass  # read_table names what is wrong with the file
+    return None, None
+
+
+def read_target_file(
+    path: str | Path,
+    model: RobotModel,
+    joint_unit: str | None = None,
+    pose_angle_unit: str = "deg",
+    robot_name: str | None = None,
+) -> Targets:
+    """Targets from a CSV: ``id`` and either tool poses or joint values, nothing else.
+
+    Poses: ``x, y, z`` (m, base frame) and one rotation: ``qx, qy, qz, qw`` (unit quaternion),
+    ``roll, pitch, yaw`` (``R = Rz(yaw) Ry(pitch) Rx(roll)``, in ``pose_angle_unit``) or ``rx,
+    ry, rz`` (rotation vector, rad, as a UR controller writes poses). Joints: one column per
+    joint of ``model``, named as the model names them or ``q1 .. qn`` (angles in ``joint_unit``,
+    prismatic joints in m); relcal's plan file (``# relcal plan: robot NAME, joint unit UNIT``)
+    is read in its unit, and refused when it names another robot than ``robot_name`` (default
+    the model's). A file whose columns do not fit the robot (another number of joints, unknown
+    names, extra columns) is refused, never truncated; errors name the file, line and column.
+    """
+    path = Path(path)
+    plan_robot, plan_unit = _plan_comment(path)
+    if plan_unit is not None and plan_unit not in ("deg", "rad"):
+        raise RelcalError(f"{path} line 1: joint unit '{plan_unit}': expected deg or rad")
+    if plan_unit is not None and joint_unit is not None and joint_unit != plan_unit:
+        raise RelcalError(
+            f"{path} line 1: the plan states joint unit {plan_unit}, but --joint-unit "
+            f"{joint_unit} was given; leave --joint-unit out (the file says its unit)"
+        )
+    expected_robot = robot_name or model.name
+    if plan_robot is not None and plan_robot != expected_robot:
+        raise RelcalError(
+            f"{path} line 1: the plan is for robot '{plan_robot}', the calibration is of "
+            f"'{expected_robot}': targets of another robot"
+        )
+    header, data = read_table(path, "target")
+    if "id" not in header:
+        raise RelcalError(f"{path} line {data[0].line - 1 if data else 1}: header: no id column")
+    fields = [h for h in header if h != "id"]
+    lines = [row.line for row in data]
+    named, numbered = list(model.joint_names), [f"q{i + 1}" for i in range(model.n_joints)]
+    unit = plan_unit or joint_unit or "deg"
+    header_line = (data[0].line - 1) if data else 1
+    if set(POSITION_COLUMNS) <= set(fields):
+        rotation = [k for k, cols in ROTATIONS.items() if set(cols) <= set(fields)]
+        if len(rotation) != 1:
+            raise RelcalError(
+                f"{path} line {header_line}: header: x, y, z and "
+                + (
+                    f"two rotations ({' and '.join(rotation)}): keep one"
+                    if rotation
+                    else "no rotation: expected qx, qy, qz, qw or roll, pitch, yaw or rx, ry, rz"
+                )
+            )
+        columns = [*POSITION_COLUMNS, *ROTATIONS[rotation[0]]]
+        extra = [h for h in fields if h not in columns]
+        if extra:
+            raise RelcalError(
+                f"{path} line {header_line}: header: unexpected column(s) {', '.join(extra)}; "
+                f"a pose target is id, {', '.join(columns)}"
+            )
+        values = _read_columns(path, header, data, columns)
+        ids = [row[header.index("id")].strip() for row in data]
+        if rotation[0] == "quaternion":
+            poses = _poses(path, values, lines)
+        elif rotation[0] == "rpy":
+            rpy = values[:, 3:]
+            if pose_angle_unit == "rad" and np.abs(rpy).max() > 2 * np.pi + 0.1:
+                raise RelcalError(
+                    f"{path}: roll, pitch, yaw reach {np.abs(rpy).max():.1f}, which looks like "
+                    "degrees, but --pose-angle-unit is rad"
+                )
+            if pose_angle_unit == "deg":
+                rpy = np.radians(rpy)
+            poses = tf.homogeneous(Rotation.from_euler("xyz", rpy).as_matrix(), values[:, :3])
+        else:
+            poses = tf.homogeneous(Rotation.from_rotvec(values[:, 3:]).as_matrix(), values[:, :3])
+        _check_reach(path, values[:, :3], lines)
+        return Targets(ids, lines, poses, None, plan_robot, plan_unit)
+    columns = named if set(named) <= set(fields) else numbered
+    if sorted(fields) != sorted(columns):
+        joints_like = [h for h in fields if h in named or re.fullmatch(r"q\d+", h)]
+        if len(joints_like) == len(fields) and len(fields) != model.n_joints:
+            why = (
+                f"{len(fields)} joint columns ({', '.join(fields)}), but '{expected_robot}' has "
+                f"{model.n_joints} joints ({', '.join(named)}): targets of another robot?"
+            )
+        else:
+            unknown = [h for h in fields if h not in columns]
+            missing = [c for c in columns if c not in fields]
+            why = (
+                f"expected id and either x, y, z with a rotation (qx, qy, qz, qw; roll, pitch, "
+                f"yaw; rx, ry, rz) or the joints of '{expected_robot}' ({', '.join(named)}, or "
+                f"{numbered[0]}..{numbered[-1]})"
+                + (f"; unknown column(s) {', '.join(unknown)}" if unknown else "")
+                + (f"; missing {', '.join(missing)}" if missing and not unknown else "")
+            )
+        raise RelcalError(f"{path} line {header_line}: header: {why}")
+    values = _read_columns(path, header, data, columns)
+    ids = [row[header.index("id")].strip() for row in data]
+    q = joints_from_unit(model, values, unit)  # (the caller checks the joint limits)
+    return Targets(ids, lines, None, q, plan_robot, plan_unit)
+
+
+def _check_reach(path: Path, xyz: np.ndarray, lines: list[int]) -> None:
+    """Positions beyond any arm's reach look like millimetres."""
+    far = np.flatnonzero(np.linalg.norm(xyz, axis=1) > 20.0)
+    if far.size:
+        raise RelcalError(
+            f"{path} line {lines[far[0]]}: x, y, z is {np.linalg.norm(xyz[far[0]]):.4g} m from "
+            "the base: positions are in metres (millimetres given?)"
+        )
+
+
 def read_targets(
     path: str | Path, model: RobotModel, joint_unit: str = "deg"
 ) -> tuple[list[str], np.ndarray | None, np.ndarray | None]:
-    """``(ids, poses (N, 4, 4) or None, q (N, n) or None)`` from a CSV of targets: ``id`` and
-    either tool poses ``x..qw`` in the base frame (m, unit quaternion) or joints ``q1..qn`` (a
-    joint program; angles in ``joint_unit``, prismatic joints in m)."""
-    path = Path(path)
-    header, data = read_table(path, "target")
-    joints = [f"q{i + 1}" for i in range(model.n_joints)]
-    columns = list(POSE_COLUMNS) if set(POSE_COLUMNS) <= set(header) else joints
-    if not set(columns) <= set(header) or "id" not in header:
-        raise RelcalError(
-            f"{path} line 1: header: expected id and either {', '.join(POSE_COLUMNS)} or "
-            f"{', '.join(joints)}"
-        )
-    values = _read_columns(path, header, data, columns)
-    ids = [row[header.index("id")].strip() for row in data]
-    if columns == joints:
-        return ids, None, joints_from_unit(model, values, joint_unit)
-    return ids, _poses(path, values, [row.line for row in data]), None
+    """``(ids, poses (N, 4, 4) or None, q (N, n) or None)`` of :func:`read_target_file`."""
+    found = read_target_file(path, model, joint_unit)
+    return found.ids, found.poses, found.q
 
 
 def _read_columns(path: Path, header: list[str], data: list, columns) -> np.ndarray:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -11,6 +12,7 @@ import pydantic
 from relcal.data.dataset import POSE_COLUMNS
 from relcal.errors import RelcalError, excerpt
 from relcal.io import Folder, load_validated, write_set, yaml_text
+from relcal.numbers import NotANumber, parse_number
 
 POSITIONER_MODEL = """\
 name: ROS-Industrial rct 2-axis positioner
@@ -54,6 +56,37 @@ class _Observation(pydantic.BaseModel):
 
 class _RctMeasurements(pydantic.RootModel[dict[str, _Observation]]):
     pass
+
+
+def embedded_robot(
+    robot: str | Path, root: str | None = None, tip: str | None = None
+) -> tuple[str | dict, dict[str, bytes]]:
+    """How a written dataset names its robot, and the files to copy into it: a built-in name as
+    is; a model file copied as ``robot.yaml``, a URDF as ``robot.urdf`` (with its chain's
+    ``root`` and ``tip``), so that the dataset folder holds no path outside itself and still
+    loads when moved."""
+    from relcal.io import note_input
+    from relcal.robot.model import library_names
+
+    name = str(robot)
+    if name.lower() in library_names() and not Path(name).exists():
+        return name.lower(), {}
+    path = Path(name)
+    if not path.is_file():
+        raise RelcalError(
+            f"robot {excerpt(name, 80)}: neither a built-in robot ({', '.join(library_names())}) "
+            "nor a model file"
+        )
+    note_input(path)
+    data = path.read_bytes()
+    if path.suffix.lower() in (".urdf", ".xml", ".xacro"):
+        entry: dict = {"urdf": "robot.urdf"}
+        if root:
+            entry["root"] = root
+        if tip:
+            entry["tip"] = tip
+        return entry, {"robot.urdf": data}
+    return "robot.yaml", {"robot.yaml": data}
 
 
 @dataclass(frozen=True)
@@ -168,7 +201,8 @@ def import_rct_images(
     """Write a dataset folder from a robot_cal_tools image set (``cal_data.yaml`` listing image
     and pose files, ``target.yaml``, ``camera_intr[_calibrated].yaml``).
 
-    The images are referenced where they are (absolute paths), not copied. The recorded tool
+    The images are copied into the folder's ``images/`` (the dataset holds no path outside
+    itself, and still loads when moved). The recorded tool
     poses become the joint values of a pose chain (:data:`POSE_CHAIN`), so that ``relcal
     measure`` and ``relcal calibrate`` (hand-eye, board poses, and a correction of the recorded
     poses) run on it. ``mode``: ``eye_in_hand`` or ``eye_to_hand`` (default: from the folder
@@ -234,7 +268,9 @@ def import_rct_images(
         camera_entry = "camera.yaml"
     lines = ["id,q1,q2,q3,q4,q5,q6,image"]
     for k, image in enumerate(images):
-        lines.append(",".join([f"{k:03d}", *(f"{v:.17g}" for v in q[k]), str(image)]))
+        copied = f"images/{k:03d}_{image.name}"
+        contents[copied] = image.read_bytes()
+        lines.append(",".join([f"{k:03d}", *(f"{v:.17g}" for v in q[k]), copied]))
     contents["samples.csv"] = "\n".join(lines) + "\n"
     dataset = {
         "robot": "robot.yaml",
@@ -264,23 +300,31 @@ def _mukca_joints(path: Path, n_joints: int):
 
     note_input(path)
     rows = []
-    for line_no, line in enumerate(path.read_text(encoding="utf-8").splitlines(), start=1):
+    from relcal.limits import read_input
+
+    try:
+        text = read_input(path, "csv").decode("utf-8")
+    except UnicodeDecodeError:
+        raise RelcalError(f"{path}: not a text file (not UTF-8); expected joint values") from None
+    except OSError as exc:
+        raise RelcalError(f"{path}: cannot read: {exc.strerror or exc}") from None
+    for line_no, line in enumerate(text.splitlines(), start=1):
         if not line.strip():
             continue
-        cells = [c for c in line.replace(";", ",").split(",") if c.strip()]
+        cells = [c for c in re.split(r"[,;\t]", line) if c.strip()]
         if len(cells) != n_joints:
             raise RelcalError(
                 f"{path} line {line_no}: {len(cells)} values, expected {n_joints} joint angles "
                 "(rad) for the robot of --urdf"
             )
-        try:
-            values = [float(c) for c in cells]
-        except ValueError:
-            raise RelcalError(
-                f"{path} line {line_no}: expected numbers (joint angles in rad, no header)"
-            ) from None
-        if not all(np.isfinite(values)):
-            raise RelcalError(f"{path} line {line_no}: a joint angle is not finite")
+        values = []
+        for k, cell in enumerate(cells):
+            try:
+                values.append(parse_number(cell))
+            except NotANumber as exc:
+                raise RelcalError(
+                    f"{path} line {line_no}: joint {k + 1}: {exc} (joint angles in rad, no header)"
+                ) from None
         rows.append(values)
     if not rows:
         raise RelcalError(f"{path}: no joint configurations")
@@ -307,12 +351,13 @@ def import_mukca(
 
     Each placement folder is a placement, each ``hole_*.csv`` a group (``PLACEMENT/hole_0``);
     ``hole_*_pose.csv`` (the controller's own FK of another frame) are not read: they may hold
-    more rows than the joint files, and nothing here pairs rows across files. The URDF is
-    referenced by its absolute path (chain ``root`` .. ``tip``, whose origin is the ball centre
-    guess); ``distance`` (m) between the two sockets of every placement, with ``distance_std``,
-    goes into ``distances:``. ``placements``: the placement folders to import (default all),
-    e.g. some to calibrate with and the others, as a later session, to verify on. The folder
-    ``out`` must be new or empty.
+    more rows than the joint files, and nothing here pairs rows across files. The robot is the
+    URDF's chain ``root`` .. ``tip``, whose origin is the ball centre guess; the URDF is copied
+    into the folder as ``robot.urdf`` (the dataset holds no path outside itself, and still loads
+    when moved). ``distance`` (m) between the two sockets of every placement, with
+    ``distance_std``, goes into ``distances:``. ``placements``: the placement folders to import
+    (default all), e.g. some to calibrate with and the others, as a later session, to verify on.
+    The folder ``out`` must be new or empty.
     """
     from relcal.errors import RelcalError
     from relcal.robot.urdf import load_urdf
@@ -366,9 +411,7 @@ def import_mukca(
 
     from relcal.data.dataset import write_coincidence_samples
 
-    robot: dict = {"urdf": str(urdf.resolve()), "tip": tip}
-    if root:
-        robot["root"] = root
+    robot, robot_files = embedded_robot(urdf, root, tip)
     spec: dict = {
         "robot": robot,
         "measurement": "coincidence",
@@ -380,6 +423,7 @@ def import_mukca(
     if distances:
         spec["distances"] = distances
     contents = {
+        **robot_files,
         "samples.csv": write_coincidence_samples(ids, groups, np.concatenate(blocks)),
         "dataset.yaml": yaml_text(spec),
     }

@@ -130,3 +130,16 @@ def sample_digests(q: np.ndarray, poses: np.ndarray | None = None, groups=None) 
             digest.update(str(groups[k]).encode())
         out.append(digest.hexdigest())
     return out
+
+
+def _natural_key(sid: str) -> tuple:
+    """``s10`` after ``s9``: digits compared as numbers, the rest as text."""
+    import re
+
+    return tuple((0, int(p), "") if p.isdigit() else (1, 0, p) for p in re.split(r"(\d+)", sid))
+
+
+def natural(ids) -> list[str]:
+    """Sample ids sorted as a person lists them (``2`` before ``10``): how outputs list samples,
+    whatever the order the calibration kept them in."""
+    return sorted(ids, key=_natural_key)

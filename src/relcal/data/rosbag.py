@@ -19,7 +19,7 @@ import numpy as np
 
 from relcal.checks import check_instance, check_path
 from relcal.data.dataset import POSE_COLUMNS
-from relcal.data.importers import Imported
+from relcal.data.importers import Imported, embedded_robot
 from relcal.errors import RelcalError
 from relcal.io import Folder, write_set, yaml_text
 
@@ -272,7 +272,9 @@ def import_rosbag(
     camera_info : str, optional
         The ``CameraInfo`` topic of the intrinsics (default: found beside the image topic).
     robot : str, optional
-        Written into ``dataset.yaml`` as ``robot:`` (a built-in name or a path).
+        The robot, written into ``dataset.yaml`` as ``robot:``: a built-in name as is, a model
+        file or a URDF copied into the folder (``robot.yaml``, ``robot.urdf``), so the dataset
+        holds no path outside itself.
     options : StopOptions
         How stops are found: joint speed below ``velocity`` (rad/s, m/s) for at least
         ``settle`` s.
@@ -303,6 +305,8 @@ def import_rosbag(
     check_instance(options, StopOptions, "options", "StopOptions(velocity=, settle=)")
     if (image is None) == (pose is None):
         raise RelcalError("relcal import rosbag: give exactly one of --image TOPIC or --pose TOPIC")
+    if robot:
+        embedded_robot(robot)  # a robot that cannot be copied in is refused before the work
     with _open(bag) as reader:
         track = read_joint_track(reader, bag, joints)
         stops = find_stops(track, options)
@@ -376,7 +380,11 @@ def _write(out, images, lines, camera, robot, has_images, stops, skipped, track,
         if not ok:
             raise RelcalError(f"{out / name}: cannot encode the PNG image")
         contents[name] = png.tobytes()
-    spec: dict = {"robot": robot or "REPLACE_ME (a built-in name or a model file)"}
+    entry: str | dict = "REPLACE_ME (a built-in name or a model file)"
+    if robot:
+        entry, robot_files = embedded_robot(robot)
+        contents.update(robot_files)
+    spec: dict = {"robot": entry}
     spec.update(hayati="auto", mode="eye_in_hand", joint_unit="rad")
     if has_images:
         spec["board"] = "board.yaml"

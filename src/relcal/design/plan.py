@@ -25,7 +25,7 @@ import numpy as np
 from relcal._renamed import UNSET
 from relcal.calibration.measurement import Formulation, Measure
 from relcal.calibration.noise import Noise
-from relcal.checks import check_choice, check_instance, check_number
+from relcal.checks import check_choice, check_instance, check_number, check_seed
 from relcal.design.cell import Cell
 from relcal.design.criteria import (
     CRITERIA,
@@ -41,8 +41,8 @@ from relcal.design.criteria import (
 )
 from relcal.design.feasibility import Constraints, candidates, check, feasible, inverse_condition
 from relcal.design.scoring import Scorer
-from relcal.design.search import exchange, greedy
-from relcal.design.travel import Route, travel_order
+from relcal.design.search import bounded_moves, exchange, greedy
+from relcal.design.travel import MAX_MOVE, Route, travel_order
 from relcal.errors import RelcalError
 from relcal.robot.model import RobotModel, check_model
 
@@ -111,7 +111,7 @@ def check_plan(
     check_number(n_candidates, "n_candidates", 1, integer=True)
     check_number(random_sets, "random_sets", 0, integer=True)
     check_number(n_validation, "n_validation", 0, integer=True)
-    check_number(seed, "seed", 0, integer=True)
+    check_seed(seed)
 
 
 @dataclass(frozen=True)
@@ -130,6 +130,8 @@ class PlanResult:
     names: tuple[str, ...] = field(default=())
     random_q: np.ndarray | None = None  # (K, n) the random set with the median worst std
     route: Route | None = None  # the plan's travel order and moves
+    move_exchanges: int = 0  # poses exchanged to keep every move within the route's bound
+    requested: int = 0  # poses asked for (``q`` has more when poses were added between moves)
 
     @property
     def random_median_worst(self) -> float:
@@ -157,6 +159,7 @@ def plan(
     seed: int = 0,
     client=None,
     *,
+    max_move: float | None = MAX_MOVE,
     k: int = UNSET,
 ) -> PlanResult:
     """Plan ``n_poses`` poses: candidates, selection, and the comparison with random sets.
@@ -200,6 +203,11 @@ def plan(
         Seed of the candidates and the random sets.
     client : distributed.Client, optional
         A Dask client to run the candidate batches and the scoring on.
+    max_move : float or None
+        Largest travel of any revolute joint between consecutive poses (rad; default 120 deg,
+        None: no bound): the route keeps within it, and where no order can, a pose of a longer
+        move is exchanged for the best candidate within the bound of its neighbours
+        (:func:`relcal.design.search.bounded_moves`).
     k : int
         Deprecated name of ``n_poses`` (a DeprecationWarning; removed in relcal 0.2).
 
@@ -257,15 +265,16 @@ def plan(
         swaps = 0
         if algorithm == "exchange":
             chosen, swaps = exchange(info, chosen, criterion, scorer=scorer)
-    route = travel_order(model, pool[chosen])
-    chosen = chosen[route.order]
+        chosen, route, bridged = bounded_moves(
+            model, pool, info, chosen, criterion, max_move, scorer=scorer
+        )
     plan_quality = quality(info, chosen, problem, q_val)
-    sets = [rng.choice(len(pool), k, replace=False) for _ in range(random_sets)]
+    sets = [rng.choice(len(pool), len(chosen), replace=False) for _ in range(random_sets)]
     randoms = tuple(quality(info, idx, problem, q_val) for idx in sets)
     random_q = None
     if sets:
         middle = sets[int(np.argsort([r.worst[1] for r in randoms])[len(sets) // 2])]
-        random_q = travel_order(model, pool[middle]).q
+        random_q = travel_order(model, pool[middle], max_move).q
     return PlanResult(
         q=route.q,
         criterion=criterion,
@@ -279,4 +288,6 @@ def plan(
         names=problem.full_layout.names,
         random_q=random_q,
         route=route,
+        move_exchanges=bridged,
+        requested=k,
     )

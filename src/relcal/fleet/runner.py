@@ -65,10 +65,26 @@ def discover(root: str | Path) -> list[Session]:
 
 
 def outputs_folder(session: Session, out_root: str | Path | None) -> Path:
-    """Where a session's outputs go: ``SESSION/calibration``, or ``OUT/<session name>``."""
+    """Where a session's outputs go: ``OUT/<session name>`` (never into the input tree)."""
     if out_root is None:
-        return session.path / "calibration"
+        from relcal.errors import ArgumentError
+
+        raise ArgumentError(
+            "out_root: the folder the sessions' calibrations go under (OUT/<session>); a fleet "
+            "writes nothing into its input folders"
+        )
     return Path(out_root) / session.name
+
+
+def check_out_root(root: str | Path, out_root: str | Path) -> None:
+    """``out_root`` must not lie inside the fleet's input folder ``root`` (its outputs would
+    land in the input tree)."""
+    inside = Path(out_root).resolve().is_relative_to(Path(root).resolve())
+    if inside:
+        raise RelcalError(
+            f"--out {out_root}: inside the fleet's input folder {root}: the outputs would land "
+            "in the input tree; give a folder outside it"
+        )
 
 
 def calibrate_session(

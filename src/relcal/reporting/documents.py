@@ -30,7 +30,7 @@ from relcal.calibration.verify import FROZEN, Assessment, JointRanges, Verificat
 from relcal.data.dataset import Dataset
 from relcal.data.imaging import Measurements
 from relcal.data.importers import Imported
-from relcal.data.order import sample_digests
+from relcal.data.order import natural, sample_digests
 from relcal.design.criteria import Quality
 from relcal.design.observability import Report
 from relcal.design.plan import PlanResult
@@ -263,7 +263,7 @@ def validation_document(
     if isinstance(val, PlacementValidation):
         return placement_document(val, ids)
     doc: dict = {
-        "held_out": val.what,
+        "held_out": held_out_what(val),
         "n_pairs": len(val.pairs),
         "n_samples": len(np.unique(val.pairs)),
         "n_configurations": val.n_configurations,
@@ -291,10 +291,12 @@ def validation_document(
     for name, errors in models.items():
         columns[f"{name}_mm"] = norms(errors, slice(0, 3), 1e3)
         columns[f"{name}_deg"] = norms(errors, slice(3, 6), np.degrees(1.0))
-    doc["pairs"] = [
+    rows = [
         {"ids": [ids[i], ids[j]], **{key: col[k] for key, col in columns.items()}}
         for k, (i, j) in enumerate(val.pairs)
     ]
+    key = dict(zip(natural(ids), range(len(ids)), strict=True))  # ids as a person lists them
+    doc["pairs"] = sorted(rows, key=lambda r: (key[r["ids"][0]], key[r["ids"][1]]))
     return doc
 
 
@@ -377,11 +379,11 @@ def results_document(cal: Calibration) -> dict:
         "settings": cal.settings,
         "n_samples": len(cal.dataset.ids),
         "n_used": int(m.ok.sum()),
-        "train_ids": [cal.dataset.ids[i] for i in cal.train],
-        "held_out_ids": [cal.dataset.ids[i] for i in cal.test],
-        "outliers": list(cal.outliers),
+        "train_ids": natural(cal.dataset.ids[i] for i in cal.train),
+        "held_out_ids": natural(cal.dataset.ids[i] for i in cal.test),
+        "outliers": natural(cal.outliers),
         "held_out_outliers": (
-            [cal.dataset.ids[i] for i in cal.validation.outliers] if cal.validation else []
+            natural(cal.dataset.ids[i] for i in cal.validation.outliers) if cal.validation else []
         ),
         "rejected": [
             {"id": cal.dataset.ids[i], "reason": m.reasons[i]} for i in np.flatnonzero(~m.ok)
@@ -434,6 +436,7 @@ def results_document(cal: Calibration) -> dict:
         "artifacts": artifacts_document(cal),
         "parameter_labels": labels,
         "calibrated_model": model_to_dict(cal.model),
+        "nominal_robot": nominal_robot_document(cal.dataset.model),
         "joint_ranges": JointRanges.of(cal.dataset.model, cal.dataset.q[cal.train]).to_dict(),
         "training": training_document(cal),
     }
@@ -449,6 +452,31 @@ def training_document(cal: Calibration) -> dict:
     return {
         "configurations": ds.q[train].tolist(),
         "digests": sample_digests(ds.q[train], poses, groups),
+    }
+
+
+def nominal_robot_document(model: RobotModel) -> dict:
+    """The robot a calibration started from, as ``relcal compensate`` needs it to apply the
+    calibration without being told again: its ``name``, ``joint_names`` and joint ``types``, the
+    URDF ``chain`` (file as given, its SHA-256, ``root`` and ``tip`` links; None for a robot not
+    loaded from a URDF) and the nominal ``model`` itself (the model file's form, degrees)."""
+    chain = None
+    if model.urdf is not None:
+        u = model.urdf
+        chain = {
+            "urdf": str(u.path),
+            "urdf_sha256": hashlib.sha256(u.data).hexdigest(),
+            "robot_name": u.robot_name,
+            "root": u.root,
+            "tip": u.tip,
+            "parametrisation": u.parametrisation,
+        }
+    return {
+        "name": model.name,
+        "joint_names": list(model.joint_names),
+        "types": ["prismatic" if p else "revolute" for p in model.prismatic],
+        "chain": chain,
+        "model": model_to_dict(model),
     }
 
 
@@ -634,8 +662,9 @@ def plan_document(res: PlanResult, model: RobotModel) -> dict:
         "travel": travel_document(res, model),
         "plan": one(res.plan),
         "random": [one(r) for r in res.random],
-        "random_median_worst_m": res.random_median_worst,
-        "improvement": res.improvement,
+        # no random sets (random_sets=0): nothing to compare with, null rather than NaN
+        "random_median_worst_m": res.random_median_worst if res.random else None,
+        "improvement": res.improvement if res.random else None,
     }
 
 
@@ -652,6 +681,18 @@ def travel_document(res: PlanResult, model: RobotModel) -> dict | None:
             "value": value,
         },
         "total_of_largest_joint_moves": res.route.total,
+        "max_move": res.route.max_move,
+        "moves_beyond_max_move": [
+            {
+                "joint": model.joint_names[j],
+                "from_pose": int(m) + 1,
+                "to_pose": int(m) + 2,
+                "value": float(res.route.moves[m, j]),
+            }
+            for m, j in res.route.over
+        ],
+        "exchanged_for_max_move": res.move_exchanges,
+        "added_for_max_move": max(0, len(res.q) - res.requested) if res.requested else 0,
     }
 
 
@@ -746,9 +787,10 @@ def compensation_document(
     comp: Compensation,
     dq: np.ndarray | None,
     units: list[str],
+    status: list[str] | None = None,
 ) -> dict:
     """The ``--json`` document: the CSV's content per target (joints in ``units``, one per
-    joint), and a summary. Non-finite numbers become null."""
+    joint; ``status`` why a target has none), and a summary. Non-finite numbers become null."""
 
     def number(v: float) -> float | None:
         return float(v) if np.isfinite(v) else None
@@ -760,15 +802,13 @@ def compensation_document(
             row["dq"] = [number(v) for v in dq[k]]
             row["predicted_position_mm"] = number(comp.predicted_position_mm[k])
             row["predicted_rotation_deg"] = number(comp.predicted_rotation_deg[k])
+        if status is not None:
+            row["status"] = status[k]
         targets.append(row)
-    return {
-        "joint_units": units,
-        "targets": targets,
-        "summary": {
-            "n_targets": len(ids),
-            "n_not_converged": int((~comp.converged).sum()),
-        },
-    }
+    summary = {"n_targets": len(ids), "n_not_converged": int((~comp.converged).sum())}
+    if status is not None:
+        summary["n_refused"] = sum(s.startswith("refused") for s in status)
+    return {"joint_units": units, "targets": targets, "summary": summary}
 
 
 def board_document(board: Board, path: Path, dpi: float) -> dict:

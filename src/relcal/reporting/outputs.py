@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from relcal.calibration.artifacts import RUN_ID_PREFIX  # first line of model.yaml
 from relcal.calibration.outcome import Calibration
 from relcal.checks import check_instance, check_path
 from relcal.data.dataset import Dataset, joints_in_unit, write_samples
@@ -16,15 +17,15 @@ from relcal.data.imaging import Measurements
 from relcal.io import json_text, yaml_text
 from relcal.outputset import File, Folder, Journal, new_run_id, write_set
 from relcal.reporting.documents import measurements_document, results_document
+from relcal.reporting.ros2 import LAUNCH_FILE
 from relcal.robot.export import parameter_csv
-
-RUN_ID_PREFIX = "# relcal run "  # first line of model.yaml: the run that wrote it
 
 
 def calibration_files(cal: Calibration, doc: dict, run_id: str) -> dict[str, str | bytes]:
     """The content of every file of a calibration set: ``model.yaml`` (first line names the
     run), the robot's files (``robot.urdf``; for URDF robots also the origin corrections and the
-    UR or Franka files, :func:`relcal.robot.export.robot_files`), ``parameters.csv``,
+    UR or Franka files, :func:`relcal.robot.export.robot_files`), beside ``robot.urdf`` the
+    ROS 2 overlay ``ros2/calibrated.launch.py`` (:mod:`relcal.reporting.ros2`), ``parameters.csv``,
     ``results.json`` (with ``run_id``) and, when the intrinsics were calibrated from the images,
     ``camera.yaml`` (usable as a dataset's camera).
 
@@ -42,6 +43,8 @@ def calibration_files(cal: Calibration, doc: dict, run_id: str) -> dict[str, str
             )
         else:
             files[artifact.name] = artifact.content
+    if "robot.urdf" in files:
+        files[LAUNCH_FILE] = ros2_overlay(cal, doc, files["robot.urdf"], run_id)
     files.update(
         {
             "parameters.csv": parameter_csv(doc["parameters"]),
@@ -52,6 +55,30 @@ def calibration_files(cal: Calibration, doc: dict, run_id: str) -> dict[str, str
     if cal.dataset.camera == "calibrate" and camera is not None:
         files["camera.yaml"] = yaml_text(camera.to_dict())
     return files
+
+
+def ros2_overlay(cal: Calibration, doc: dict, urdf: str | bytes, run_id: str) -> str:
+    """The ROS 2 launch file beside ``robot.urdf`` (:mod:`relcal.reporting.ros2`): the URDF's
+    chain, its SHA-256 and held-out error, and the calibration's hand-eye transform when it
+    estimated one."""
+    import numpy as np
+
+    from relcal.geometry import from_xyz_rpy
+    from relcal.reporting.ros2 import launch_file
+
+    data = urdf.encode() if isinstance(urdf, str) else urdf
+    chain = cal.dataset.model.urdf
+    root, tip = (chain.root, chain.tip) if chain is not None else ("base_link", "tool0")
+    found = doc.get("handeye")
+    handeye = None
+    if found:
+        handeye = from_xyz_rpy(np.array(found["xyz_m"]), np.radians(found["rpy_deg"]))
+    files = {f["file"]: f for f in (doc.get("artifacts") or {}).get("files", [])}
+    held = (files.get("robot.urdf") or {}).get("held_out") or {}
+    mode = (doc.get("settings") or {}).get("mode", "eye_in_hand")
+    images = cal.dataset.measured == "image"
+    held_mm = held.get("position_rms_mm")
+    return launch_file(data, root, tip, handeye, mode, run_id, held_mm, images)
 
 
 def calibration_outputs(
@@ -135,7 +162,7 @@ def write_calibration(
     >>> cal = relcal.calibrate(relcal.load_dataset("examples/tiago-pro-poses"), nongeometric="none")
     >>> files = relcal.write_calibration(cal, tempfile.mkdtemp() + "/cal")
     >>> sorted(path.name for path in files)[:3]
-    ['model.yaml', 'origin_corrections.yaml', 'parameters.csv']
+    ['calibrated.launch.py', 'model.yaml', 'origin_corrections.yaml']
     """
     check_instance(cal, Calibration, "cal", "a Calibration (what relcal.calibrate returned)")
     check_path(out_dir, "out_dir", "the output folder")

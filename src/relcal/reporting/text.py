@@ -332,14 +332,39 @@ def _quality_row(label: str, q: Quality, labels: dict[str, str] | None = None) -
 def format_travel(res: PlanResult, model=None) -> str:
     """One line: the route's longest single joint move and the sum of the largest joint moves
     (``model`` names the joints and tells prismatic ones)."""
-    move, joint, value = res.route.longest
+    route = res.route
+    move, joint, value = route.longest
     prismatic = model is not None and bool(model.prismatic[joint])
     unit, f = ("m", 1.0) if prismatic else ("deg", np.degrees(1.0))
     name = model.joint_names[joint] if model is not None else f"q{joint + 1}"
-    return (
+    line = (
         f"travel order: longest single move {value * f:.1f} {unit} ({name}, pose {move + 1} to "
-        f"{move + 2}); largest joint moves add up to {res.route.total * np.degrees(1.0):.0f} deg"
+        f"{move + 2}); largest joint moves add up to {route.total * np.degrees(1.0):.0f} deg"
     )
+    if route.max_move is None:
+        return line
+    bound = f"{np.degrees(route.max_move):.0f} deg"
+    over = route.over
+    if len(over):
+        names = model.joint_names if model is not None else [f"q{j + 1}" for j in range(99)]
+        shown = ", ".join(
+            f"{names[j]} {np.degrees(route.moves[m, j]):.1f} deg (pose {m + 1} to {m + 2})"
+            for m, j in over[:3]
+        )
+        line += (
+            f"\nwarning: {len(over)} joint move(s) beyond the bound of {bound}: {shown}; more "
+            "candidates (--n-candidates) or a larger --max-move"
+        )
+    else:
+        line += f"; every joint move within {bound}"
+    notes = []
+    if res.move_exchanges:
+        notes.append(f"{res.move_exchanges} pose(s) exchanged")
+    if res.requested and len(res.q) > res.requested:
+        notes.append(f"{len(res.q) - res.requested} pose(s) added between poses")
+    if notes:
+        line += f" ({' and '.join(notes)} to keep the moves within {bound})"
+    return line
 
 
 def format_plan(res: PlanResult, length_scale: float, model=None) -> str:
@@ -724,23 +749,36 @@ def verdict_lines(v: dict | None) -> list[str]:
 
 
 def compensation_csv(
-    ids: list[str], q: np.ndarray, comp: Compensation, dq: np.ndarray | None
+    ids: list[str],
+    q: np.ndarray,
+    comp: Compensation,
+    dq: np.ndarray | None,
+    status: list[str] | None = None,
 ) -> str:
-    """The output CSV: corrected joints ``q`` and corrections ``dq`` (display units) per id."""
+    """The output CSV: corrected joints ``q`` and corrections ``dq`` (display units) per id, and
+    with ``status`` a last column saying why a target has none (empty cells: not written)."""
+
+    def cell(v: float, digits: str) -> str:
+        return f"{v:{digits}}" if np.isfinite(v) else ""
+
     n = q.shape[1]
     header = ["id", *[f"q{i + 1}" for i in range(n)], "converged"]
     if dq is not None:
         header += [f"dq{i + 1}" for i in range(n)]
         header += ["predicted_position_mm", "predicted_rotation_deg"]
+    if status is not None:
+        header.append("status")
     lines = [",".join(header)]
     for k, sid in enumerate(ids):
-        cells = [sid, *[f"{v:.10g}" for v in q[k]], str(bool(comp.converged[k]))]
+        cells = [sid, *[cell(v, ".10g") for v in q[k]], str(bool(comp.converged[k]))]
         if dq is not None:
-            cells += [f"{v:.6g}" for v in dq[k]]
+            cells += [cell(v, ".6g") for v in dq[k]]
             cells += [
                 f"{comp.predicted_position_mm[k]:.6g}",
                 f"{comp.predicted_rotation_deg[k]:.6g}",
             ]
+        if status is not None:
+            cells.append(status[k])
         lines.append(",".join(cells))
     return "\n".join(lines) + "\n"
 

@@ -94,13 +94,22 @@ class PoseKind(MeasurementKind):
         n_params = make_layout(ds.model).size + 6
         # all pairs are quadratic: refused before they are formed
         check_calibration_memory(len(ds.ids), self.strategy, n_params, str(ds.root), len(train))
-        return check_dataset(ds, self.measurements)  # a wrong unit, order or board
+        return self.check_data()
+
+    def check_data(self) -> dict:
+        """Joint limits, magnitudes, relative rotations and translations against the commanded
+        ones, a wrong unit, order or board named
+        (:func:`~relcal.calibration.plausibility.check_dataset`)."""
+        return check_dataset(self.dataset, self.measurements)
 
     def training(self, train: np.ndarray, previous: Training | None = None) -> Training:
-        if previous is not None:  # the frame guesses and the analysis of the first training set
-            problem = self.problem_on(train, previous.problem.handeye, previous.problem.board)
-            return replace(previous, samples=train, problem=problem)
         ds = self.dataset
+        if previous is not None:  # the frame guesses of the first training set (the fits'
+            # frame parameters are moves from them), the analysis of these samples (a wrong
+            # sample, an inverted pose, bends the Jacobian at nominal through its residual)
+            problem = self.problem_on(train, previous.problem.handeye, previous.problem.board)
+            ident = check_pose_set(problem, str(ds.spec_path), refuse=False)
+            return Training(train, problem, ident, geometric_columns(problem, ident.subset))
         handeye = ds.handeye
         if handeye is None:
             handeye = solve_handeye(fk(ds.model, ds.q[train]), self.measurements.poses[train])

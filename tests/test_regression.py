@@ -1,18 +1,21 @@
-"""The calibration skeleton gives the numbers the two copies it replaced gave.
+"""A refactor keeps every number: the calibration skeleton on every real set and on synthetic sets.
 
-``regression_665f6d6.json`` holds what ``relcal.calibration.pipeline.calibrate`` returned at commit
-665f6d6 (before the pose pipeline and the point pipeline of ``calibration/tracker.py`` became one
-skeleton with the measurement kind as a strategy): on every real set of ``../shared/data``
-(positioner, ChArUco and circle-grid images, TIAGo Pro poses and positions) and on synthetic pose
-and point sets, under the options that exercise each branch (outliers, losses, weightings, model
-selection rules, the published solver, k-fold cross-validation). Per run: the chosen candidate and
-why, outliers, held-out errors of the baseline and of the calibrated model, every candidate's
-cross-validated score, the parameters with their standard deviations, the baseline's parameters,
-the learned noise and the settings; a refused run records its message.
+``regression.json`` holds what :func:`relcal.calibrate` returned when it was recorded: on every
+real set of ``../shared/data`` (positioner, ChArUco and circle-grid images, TIAGo Pro poses and
+positions) and on synthetic pose and point sets, under the options that exercise each branch
+(outliers, losses, weightings, model selection rules, the published solver, k-fold
+cross-validation). Per run: the chosen candidate and why, outliers, held-out errors of the
+baseline and of the calibrated model, every candidate's cross-validated score, the parameters
+with their standard deviations, the baseline's parameters, the learned noise and the settings;
+a refused run records its message. A run of the published solver is, besides, the
+Levenberg-Marquardt run of the same options (:func:`same_as_lm`).
 
-Recorded with ``python tests/test_regression_665f6d6.py`` (run at that commit); the test asserts
-the same numbers to 1e-6 relative (1e-4 for the image sets), except where the skeleton fixed a
-number (:data:`FIXED`).
+Recorded with ``python tests/test_regression.py`` after issue 28 changed the numbers on purpose
+(the samples in their content's order, pairing ``auto`` the board formulation, each held-out
+pose in the world frame, repeated configurations held out whole, the priors' noise level
+measured at the fit itself); the first recording (commit 665f6d6) guarded the skeleton that
+replaced the two pipelines. The test asserts the same numbers to 1e-6 relative (1e-4 for the
+image sets). A change that moves them on purpose records again and says why in its commit.
 """
 
 from __future__ import annotations
@@ -28,7 +31,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from conftest import DATA  # noqa: E402
 
-RECORD = Path(__file__).resolve().parent / "regression_665f6d6.json"
+RECORD = Path(__file__).resolve().parent / "regression.json"
 # Relative tolerance: far below any digit shown, above the round-off that differs between CPUs
 # (OpenBLAS picks its kernels by instruction set): iterative fits and the bootstrap carry such
 # differences up to about 1e-7 (seen: bootstrap std 6.5e-8 apart on another machine).
@@ -249,78 +252,28 @@ def _json(value):
     return json.loads(json.dumps(value))
 
 
-# Runs whose numbers a fix changed (the skeleton; the published solver on the identifiable
-# subset): the keys that changed, and why. Everything else of them is asserted as recorded, and
-# :func:`check_fixed` asserts the fix.
-PUBLISHED_FIX = (
-    "--method published estimated every column: the truncated SVD's minimum-norm step split "
-    "what the data give to one member of an unidentifiable combination among all of them (a "
-    "hand-eye rotation into the last joint's offset; on the positioner, the hand-eye into "
-    "joint 2's parameters), and fitted every candidate on all columns, not its own. It "
-    "estimates the identifiable subset of each candidate now, the rest at nominal, as "
-    "Levenberg-Marquardt does, and reaches the same estimate: the run equals the lm run of the "
-    "same options (check_fixed)."
-)
-FIXED = {
-    "synthetic points published": (
-        {"baseline_params", "baseline_residual_norm", "scores", "validation", "ratio", "params",
-         "std"},
-        "the point pipeline fitted every candidate with --method published, which estimates every "
-        "column: its 'baseline' (instrument and marker only) was the full geometric model, so "
-        "the held-out baseline equalled the calibrated model (ratio 1.0). The skeleton fits the "
-        "baseline by Levenberg-Marquardt on its own columns, as the pose path always did. "
-        + PUBLISHED_FIX,
-    ),
-    # recorded as refused: theta_off[6] corrected by +5.266 deg, the hand-eye guess's 11.5 deg
-    # about the flange's axis split between the hand-eye and the last joint's offset
-    "synthetic poses published": (None, PUBLISHED_FIX),
-    "positioner published": ({"params", "std", "bootstrap_std"}, PUBLISHED_FIX),
-    "large errors poses published": (
-        {"params", "std", "baseline_params", "bootstrap_std", "noise_covariance", "validation",
-         "ratio"},
-        PUBLISHED_FIX + " The baseline (Levenberg-Marquardt) starts from the geometry's fit, "
-        "so its numbers moved within that solver's tolerance.",
-    ),
-}  # fmt: skip
-
-
-# Deliberate changes since the recording, applied to the recorded values before they are compared
-# (issue 20, hardening): a samples table without an id column numbers its samples 1..N by row
-# (the recording used file line numbers, the first data row being 2: the TIAGo Pro files have no
-# id column); the plausibility check's translation scale is a trimmed fit that leaves out samples
-# whose pairs misfit far more than the rest (one wrong row no longer passes for a wrong unit), a
-# diagnostic of the inputs that no calibration number depends on.
-ROW_NUMBERED = ("tiago poses", "tiago positions")
-# (issue 28): a chosen model whose held-out position RMS is worse than the baseline's is not
-# exported; the baseline is (the positioner with every outlier kept: 0.9484 against 0.9467 mm).
-
-
-def deliberate(name: str, want: dict) -> dict:
-    """The recorded ``want`` of run ``name`` with the deliberate changes applied."""
-    want = json.loads(json.dumps(want))
-    if name.startswith(ROW_NUMBERED) and "outliers" in want:
-        want["outliers"] = [str(int(sid) - 1) for sid in want["outliers"]]
-    val = want.get("validation") or {}
-    if "baseline" in val and want.get("exported") == "calibrated":
-        rms = {k: val[k]["position_mm"]["rms"] for k in ("baseline", "calibrated")}
-        if rms["calibrated"] > rms["baseline"]:
-            want["exported"] = "baseline"
-    return want
-
-
 def without_scale(doc: dict) -> dict:
     """``doc`` (a run, or a cross-validation of runs) without what the plausibility check
     derives from its translation scale: the scale, its standard deviation and the board spacing
-    the data imply (see :func:`deliberate`)."""
+    the data imply, nor what the checks measure (:data:`MEASURED_BY_THE_CHECKS`): diagnostics of
+    the inputs that no calibration number depends on)."""
     if "folds" in doc:
         return {**doc, "folds": [without_scale(f) for f in doc["folds"]]}
     doc = dict(doc)
     if isinstance(doc.get("plausibility"), dict):
-        derived = ("translation_scale", "board_spacing_from_data_m")
+        derived = ("translation_scale", "board_spacing_from_data_m", *MEASURED_BY_THE_CHECKS)
         doc["plausibility"] = {
             k: v for k, v in doc["plausibility"].items() if not k.startswith(derived)
-        }
+        } or None
     return doc
+
+
+# What the input checks measure (issue 28, checks that understand structured recordings; issue
+# 29, one gate for every kind): the rotation misfit is the median over the pairs that turn
+# enough to show one (not over every pair), and points report their misfit at the nominal model
+# (the recording had no check of points): diagnostics of the inputs, no calibration number
+# depends on them.
+MEASURED_BY_THE_CHECKS = ("rotation_misfit_deg", "point_misfit_mm")
 
 
 def same_as_lm(name: str, got: dict, lm: dict) -> None:
@@ -350,29 +303,6 @@ def same_as_lm(name: str, got: dict, lm: dict) -> None:
                 np.testing.assert_allclose(got_value, value, err_msg=f"{name} {which}", **close)
 
 
-def check_fixed(name: str, got: dict, want: dict, lm: dict) -> None:
-    """Everything of a :data:`FIXED` run but the keys it names as recorded, and the fix; ``lm``:
-    the same run by Levenberg-Marquardt."""
-    changed, _ = FIXED[name]
-    if changed is not None:  # None: recorded as refused, every key changed
-        compare(
-            {k: v for k, v in got.items() if k not in changed},
-            {k: v for k, v in want.items() if k not in changed},
-            name,
-        )
-    same_as_lm(name, got, lm)
-    if name != "synthetic points published":
-        return
-    # the baseline: nominal geometry, only the instrument transform and the marker fitted
-    frames = [k for k, n in enumerate(got["names"]) if n.split(".")[0] in ("instrument", "marker")]
-    assert not np.any(np.delete(got["baseline_params"], frames))
-    val = got["validation"]
-    assert val["baseline"]["position_mm"]["rms"] > 10 * val["calibrated"]["position_mm"]["rms"]
-    assert got["ratio"]["position_mm"]["ci95"][1] < 0.1
-    # the chosen model's scores are those recorded
-    compare(got["scores"][1], want["scores"][1], f"{name}.scores[1]")
-
-
 REAL = {"positioner", "tiago poses", "tiago positions", "charuco", "circle grid"}
 
 
@@ -387,22 +317,19 @@ def datasets():
 
 
 @pytest.mark.parametrize(("name", "key", "options"), RUNS + CROSS, ids=[r[0] for r in RUNS + CROSS])
-def test_same_numbers_as_665f6d6(name, key, options, recorded, datasets, tmp_path_factory):
+def test_same_numbers_as_recorded(name, key, options, recorded, datasets, tmp_path_factory):
     if key in REAL and not DATA.is_dir():
         pytest.skip("real data not available")
     root = tmp_path_factory.getbasetemp() / "regression"
     root.mkdir(exist_ok=True)
     got = without_scale(_json(run(name, key, options, datasets, root)))
-    want = without_scale(deliberate(name, recorded[name]))
-    if name in FIXED:
+    compare(got, without_scale(recorded[name]), name)
+    if options.get("method") == "published" and "refused" not in got:
         lm_options = {k: v for k, v in options.items() if k != "method"}
-        lm = without_scale(_json(run(name, key, lm_options, datasets, root)))
-        check_fixed(name, got, want, lm)
-    else:
-        compare(got, want, name)
+        same_as_lm(name, got, without_scale(_json(run(name, key, lm_options, datasets, root))))
 
 
-if __name__ == "__main__":  # record (at commit 665f6d6)
+if __name__ == "__main__":  # record
     import tempfile
 
     out, cache = {}, {}
