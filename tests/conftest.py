@@ -10,6 +10,16 @@ from relcal.robot.loading import get_robot
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 
 
+def pytest_addoption(parser):
+    parser.addoption(
+        "--update-docs",
+        action="store_true",
+        help="tests/test_docs_commands.py rewrites the figures the pages quote (text output "
+        "blocks, <!--out ...--> figures) from what the commands print, instead of failing; "
+        "review the diff (docs/contributing.md)",
+    )
+
+
 @pytest.fixture
 def rng() -> np.random.Generator:
     return np.random.default_rng(1234)

@@ -121,8 +121,9 @@ class Identifiability:
         The relative rank tolerance used.
     identifiable : (P,) ndarray of bool
         Parameters the data determine individually.
-    subset : (rank,) ndarray of int
-        Parameter indices chosen by QR with column pivoting: an identifiable subset.
+    subset : (rank + len(determined),) ndarray of int
+        Parameter indices chosen by QR with column pivoting: an identifiable subset (and the
+        parameters :attr:`determined` at the estimate).
     null_space : (P, P - rank) ndarray of float
         Unidentifiable directions in the parameters' SI units (m, rad), unit-norm columns.
     combinations : tuple of Combination
@@ -130,6 +131,11 @@ class Identifiability:
     weak : tuple of Combination
         Of ``combinations``, those that varied poses would determine: weak data (a joint that
         barely moves), not a structural symmetry of the measurement.
+    determined : tuple of str
+        Parameters that the analysis at the nominal model held (their direction is a symmetry
+        of the nominal model only) and that the data determine at the estimate
+        (:func:`determined_at`): estimated too, in ``subset`` beside the ``rank`` chosen at the
+        nominal model.
     """
 
     singular_values: np.ndarray  # (P,), descending, of the unit-column Jacobian
@@ -137,7 +143,7 @@ class Identifiability:
     rank: int
     rcond: float
     identifiable: np.ndarray  # (P,) bool: determined individually by the data
-    subset: np.ndarray  # (rank,) parameter indices chosen by QR with column pivoting
+    subset: np.ndarray  # (rank,) parameter indices chosen by QR with column pivoting (+ determined)
     # (P, P - rank) in original parameter units, columns unit-norm; both it and the combinations
     # may be given as functions of no arguments, computed on first read (a fit needs neither).
     null_space: np.ndarray = Deferred()
@@ -145,6 +151,9 @@ class Identifiability:
     # Of ``combinations``, those that generic (varied) poses would determine: weak data, not a
     # structural symmetry (:func:`check_pose_set`).
     weak: tuple[Combination, ...] = ()
+    # Held at the nominal model, determined by the data at the estimate (:func:`determined_at`):
+    # in ``subset`` beside the ``rank`` parameters chosen at the nominal model.
+    determined: tuple[str, ...] = ()
 
     __getstate__ = resolved_state
 
@@ -531,6 +540,137 @@ def identifiable_at(
     if jac is None:
         _, jac = residuals(problem, params)
     return ident.identifiable & identifiable_mask(jac, ident.rcond)
+
+
+DETERMINED_SHARE = 0.1  # a held direction the data fix to this share of its tolerance is estimated
+# ... if its column, less what the estimated ones explain, is above this share of the largest
+# singular value: round-off, not noise (the noise is the standard deviation's business; this is
+# the published solver's pseudo-inverse threshold, the smallest direction it resolves).
+DETERMINED_RCOND = 1e-8
+
+
+def determined_at(
+    problem: Problem,
+    params: np.ndarray,
+    ident: Identifiability,
+    tolerance: np.ndarray,
+    share: float = DETERMINED_SHARE,
+    fitted: tuple[np.ndarray, np.ndarray] | None = None,
+    rcond: float = DETERMINED_RCOND,
+) -> Identifiability:
+    """``ident`` with the parameters it holds at nominal that the data determine at the
+    estimate ``params`` estimated too.
+
+    The rank decision at the nominal model holds every direction of its null space. Some are
+    symmetries of the nominal model only: consecutive parallel axes make ``d[i] - d[i+1]`` one,
+    but planted (or real) twists tilt the axes apart, and at the estimate the data see it. Exact
+    symmetries (a rigid motion of the base, what the hand-eye transform absorbs) stay exact
+    there, so the test runs on the Jacobian at the estimate: a held parameter is estimated when
+    its column, less what the estimated columns explain, is above round-off (``rcond`` of the
+    largest singular value) *and* the data determine it to ``share`` of its ``tolerance``
+    (manufacturing tolerance, a prior's standard deviation). The noise, not a fixed relative
+    tolerance, decides: a twist of 0.07 deg between parallel axes leaves position data a
+    singular value of 5e-7 of the largest, below the nominal analysis's tolerance, which
+    noise-free data still resolve. The noise level of that standard deviation is the
+    residual's, less what freeing the held parameters would remove (to first order): the misfit
+    of holding them is not noise. Noise-free data then determine them to round-off; with real
+    noise a nearly parallel pair stays held (its standard deviation grows as one over the
+    misalignment), as the nominal analysis says.
+
+    Parameters
+    ----------
+    problem : Problem
+        The identification problem (unweighted rows).
+    params : (P,) ndarray of float
+        The estimate (m, rad) of ``ident.subset``, the others where they are held.
+    ident : Identifiability
+        The analysis at the nominal model whose ``subset`` gave ``params``.
+    tolerance : (P,) ndarray of float
+        How far each parameter plausibly is from nominal (SI units; inf: no bound, 1 mm or
+        1 deg is used).
+    share : float
+        A held parameter whose standard deviation is below this share of its tolerance is
+        estimated.
+    fitted : ((R,), (R, P)) tuple of ndarray, optional
+        The residual and Jacobian at ``params``, if the caller has them.
+    rcond : float
+        Round-off level of a held column (less what the estimated ones explain), relative to
+        the largest singular value of the scaled Jacobian at the estimate.
+
+    Returns
+    -------
+    Identifiability
+        ``ident`` itself when nothing more is determined; otherwise a copy whose ``subset``,
+        ``identifiable``, null space and combinations count the parameters named in
+        ``determined`` (``rank`` and the singular values stay those of the nominal model).
+    """
+    size = len(ident.column_norms)
+    held = np.setdiff1d(np.arange(size), ident.subset)
+    candidates = held[~ident.identifiable[held]]  # held for the nominal null space, not by choice
+    if not len(candidates):
+        return ident
+    r, jac = fitted if fitted is not None else residuals(problem, params)
+    if jac.shape[1] != size:  # an analysis of fewer columns (a hand-eye taken as known)
+        return ident
+    unit, norms = scaled(jac)
+    largest = float(_singular(unit)[0][0])
+    basis = np.linalg.qr(unit[:, ident.subset])[0]
+    free = unit[:, candidates] - basis @ (basis.T @ unit[:, candidates])
+    rest = r - basis @ (basis.T @ r)
+    order = _pivot_order(free)
+    diagonal = np.abs(np.diag(np.linalg.qr(free[:, order], mode="r")))
+    ranked = order[: int(np.argmin(np.r_[diagonal > rcond * largest, False]))]
+    if not len(ranked):
+        return ident
+    # The noise level with the ranked parameters freed: what they explain is not noise.
+    span = np.linalg.qr(free[:, ranked])[0]
+    rows = np.abs(rest - span @ (span.T @ rest))
+    rows = rows[rows > 0]
+    level = 1.4826 * float(np.median(rows)) if len(rows) else 0.0
+    pairs = problem.formulation in ("published", "invariant")
+    count = max(1.0, n_measurements(problem) / max(len(problem.q) - 1, 1)) if pairs else 1.0
+    angle = problem.full_layout.is_angle()[:size]
+    bound = np.where(np.isfinite(tolerance[:size]), tolerance[:size], 0.0)
+    bound = np.where(bound > 0, bound, np.where(angle, np.radians(1.0), 1e-3))
+    while len(ranked):
+        gram = free[:, ranked].T @ free[:, ranked]
+        std = level * np.sqrt(count * np.diag(np.linalg.inv(gram))) / norms[candidates[ranked]]
+        fixed = std < share * bound[candidates[ranked]]
+        if fixed.all():
+            break
+        ranked = ranked[fixed]
+    if not len(ranked):
+        return ident
+    return _with_estimated(problem, ident, np.sort(candidates[ranked]))
+
+
+def _with_estimated(problem: Problem, ident: Identifiability, more: np.ndarray) -> Identifiability:
+    """``ident`` with the held parameters ``more`` estimated: the nominal null space less the
+    directions they fix (those with no share on them), its combinations named again."""
+    null = ident.null_space  # (P, k), parameter units
+    _, s, vt = np.linalg.svd(null[more], full_matrices=True)
+    kept = vt[int(np.sum(s > 1e-9 * max(s[0], 1e-300))) :].T if len(s) else np.eye(null.shape[1])
+    norms = ident.column_norms
+    remaining = null @ kept * norms[:, None]  # scaled coordinates
+    orthonormal = np.linalg.qr(remaining)[0] if remaining.shape[1] else remaining
+    involved = np.linalg.norm(orthonormal, axis=1) > _INVOLVED
+    layout = problem.full_layout
+    if len(norms) != layout.size:
+        layout = problem.layout
+    named = functools.cache(
+        lambda: _named_null_space(orthonormal, norms, layout, explainer(problem))
+    )
+    subset = np.union1d(ident.subset, more)
+    names = tuple(layout.names[i] for i in more)
+    return replace(
+        ident,
+        identifiable=~involved,
+        subset=subset,
+        null_space=lambda: named()[0],
+        combinations=lambda: named()[1],
+        weak=tuple(c for c in ident.weak if not set(c.names) & set(names)),
+        determined=ident.determined + names,
+    )
 
 
 def n_measurements(problem: Problem) -> int:

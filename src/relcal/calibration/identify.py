@@ -1106,7 +1106,10 @@ def identify(
     -------
     Result
         The estimate ``(P,)`` (m, rad) over ``problem.full_layout``, its covariance, costs and
-        whether it converged.
+        whether it converged. Parameters that the analysis at the nominal model holds but the
+        data determine at the estimate (a symmetry of the nominal model only, such as the
+        ``d`` of parallel axes that the real twists tilt apart) are estimated too
+        (:func:`estimate_determined`).
 
     Raises
     ------
@@ -1119,8 +1122,10 @@ def identify(
     >>> import numpy as np, relcal
     >>> sim = relcal.simulate(relcal.get_robot("a465"), n_poses=20, seed=0)  # no noise
     >>> result = relcal.identify(sim.problem)
-    >>> result.converged, result.rank
-    (True, 22)
+    >>> result.converged, result.rank  # 22 chosen at the nominal model, and d[3]:
+    (True, 23)
+    >>> result.identifiability.determined  # held there, determined at the estimate
+    ('d[3]',)
     >>> bool(result.final_cost_per_observation < 1e-12)
     True
     """
@@ -1138,17 +1143,65 @@ def identify(
             "an Identifiability (relcal.analyse_problem(problem)) or None",
         )
     o = options or SolverOptions()
-    if o.method == "published":
-        return identify_published(
-            problem,
-            o.rcond,
-            o.tol,
-            o.max_iterations,
-            identifiability,
-            loss=o.loss,
-            f_scale=o.f_scale,
+
+    def solve(ident: Identifiability | None, initial: np.ndarray | None = None) -> Result:
+        if o.method == "published":
+            return identify_published(
+                problem,
+                o.rcond,
+                o.tol,
+                o.max_iterations,
+                ident,
+                initial,
+                loss=o.loss,
+                f_scale=o.f_scale,
+            )
+        return identify_lm(problem, o.max_iterations, ident, o.loss, o.f_scale, initial=initial)
+
+    return estimate_determined(problem, solve(identifiability), solve)
+
+
+def estimate_determined(problem: Problem, result: Result, solve) -> Result:
+    """``result`` refitted with what the data determine at its estimate estimated too
+    (:func:`relcal.calibration.identifiability.determined_at`), until nothing more is.
+
+    The analysis at the nominal model holds every direction of the nominal model's null space;
+    a direction that is a symmetry of the nominal model only (the ``d`` of two parallel axes
+    that the true twists tilt apart) is determined by noise-free data, and holding it would
+    leave a misfit and errors of micrometres in everything it couples to.
+
+    Parameters
+    ----------
+    problem : Problem
+        The problem ``result`` solved (unweighted rows).
+    result : Result
+        A fit of ``result.identifiability.subset``.
+    solve : callable
+        ``solve(identifiability, initial) -> Result``: the same solver on another subset, from
+        ``initial`` ``(P,)``.
+
+    Returns
+    -------
+    Result
+        ``result`` when the data determine nothing it holds; otherwise the refit, whose
+        ``identifiability.determined`` names what was added (iterations and time summed, costs
+        counted from nominal).
+    """
+    from relcal.calibration.identifiability import determined_at
+    from relcal.calibration.priors import layout_prior_std
+
+    tolerance = layout_prior_std(problem)
+    for _ in range(3):  # one round is the rule; a second finds what the first refit reveals
+        wider = determined_at(problem, result.params, result.identifiability, tolerance)
+        if wider is result.identifiability:
+            break
+        again = solve(wider, result.params)
+        result = replace(
+            again,
+            iterations=result.iterations + again.iterations,
+            seconds=result.seconds + again.seconds,
         )
-    return identify_lm(problem, o.max_iterations, identifiability, o.loss, o.f_scale)
+    return result
 
 
 def identify_weighted(

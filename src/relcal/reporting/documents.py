@@ -715,6 +715,7 @@ def simulation_document(sim: Simulation) -> dict:
         "rank": r.identifiability.rank,
         "solver_rank": r.rank,
         "n_params": len(r.params),
+        "determined_at_estimate": list(r.identifiability.determined),
         "unidentifiable": r.unidentifiable,
         "iterations": r.iterations,
         "converged": r.converged,

@@ -86,6 +86,13 @@ def format_simulation(sim: Simulation) -> str:
         f"rank {r.identifiability.rank} of {len(r.params)} parameters (scaled Jacobian at the "
         f"nominal model, tolerance {r.identifiability.rcond:g} x the largest singular value); "
         f"the solver's last step kept {r.rank}",
+    ]
+    if r.identifiability.determined:
+        lines.append(
+            f"{', '.join(r.identifiability.determined)}: a symmetry of the nominal model only, "
+            "determined by the data at the estimate, so estimated too"
+        )
+    lines += [
         f"{r.n_residuals} measurement rows; "
         f"{'converged' if r.converged else 'NOT converged'} in {r.iterations} iterations, "
         f"{r.seconds * 1e3:.1f} ms",
