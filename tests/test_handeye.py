@@ -396,3 +396,51 @@ def test_image_fit_covariance_counts_each_images_pose_error():
     assert 0.7 < spread < 1.35, spread
     assert fit.pixel_sigma == pytest.approx(0.05, rel=0.1)
     assert np.median(pose_std) > np.radians(0.01)  # the pose noise is found
+
+
+def test_logged_flange_poses_are_used_beside_a_robot_model():
+    """Joints with a robot model and the controller's flange poses (its calibrated kinematics:
+    the nominal model with planted errors), as ``relcal capture`` records them: the hand-eye uses
+    the logged poses and recovers X from noise-free data exactly, where the nominal model's
+    forward kinematics would not; the same with no model at all (``Dataset.from_arrays(None,
+    None, poses, flange=...)``)."""
+    from relcal.robot.kinematics import apply_errors, fk, make_layout
+    from relcal.sim.scenario import random_errors
+
+    model = relcal.get_robot("ur5e")
+    rng = np.random.default_rng(5)
+    q = np.radians([0, -90, 90, -90, -90, 0]) + rng.normal(0, 0.5, (16, 6))
+    layout = make_layout(model)
+    controller = apply_errors(model, layout, random_errors(layout, rng))
+    flange = fk(controller, q)
+    poses = W_TRUE @ flange @ X_TRUE
+    logged = handeye(relcal.Dataset.from_arrays(model, q, poses, flange=flange), folds=3)
+    assert logged.source == "the logged flange poses"
+    assert np.abs(logged.handeye - X_TRUE).max() < 1e-8
+    nominal = handeye(relcal.Dataset.from_arrays(model, q, poses), folds=3)
+    assert np.abs(nominal.handeye[:3, 3] - X_TRUE[:3, 3]).max() > 1e-4
+    alone = handeye(relcal.Dataset.from_arrays(None, None, poses, flange=flange), folds=3)
+    assert np.abs(alone.handeye - logged.handeye).max() < 1e-9
+
+
+@pytest.mark.parametrize(
+    "args, match",
+    [
+        ((None, None), "give both"),
+        (("ur5e", None), "give both"),
+    ],
+)
+def test_from_arrays_flange_is_checked(args, match):
+    from relcal.errors import ArgumentError
+
+    flange = flange_poses(6, seed=1)
+    poses = camera_poses(flange, cov=None)
+    with pytest.raises(ArgumentError, match=match):
+        relcal.Dataset.from_arrays(*args, poses)
+    mm = flange.copy()
+    mm[:, :3, 3] *= 1000.0
+    with pytest.raises(ArgumentError, match="millimetres given"):
+        relcal.Dataset.from_arrays(None, None, poses, flange=mm)
+    with pytest.raises(ArgumentError, match=r"flange: shape \(5, 4, 4\), expected \(6, 4, 4\)"):
+        q = np.zeros((6, 6)) + np.arange(6)[:, None] * 0.1
+        relcal.Dataset.from_arrays("ur5e", q, poses, flange=flange[:5])

@@ -113,3 +113,39 @@ def test_handeye_plan_refuses_other_formulations():
     with pytest.raises(ArgumentError, match="purpose 'handeye'"):
         plan(relcal.get_robot("ur5e"), Cell(), n_poses=5, formulation="published",
              purpose="handeye")  # fmt: skip
+
+
+def test_plan_capture_handeye_in_the_virtual_cell(tmp_path):
+    """``relcal plan --for handeye``, ``relcal capture`` in the virtual cell (the sim controller
+    reports its flange poses: columns fx .. fqw), then ``relcal handeye`` of the dataset: the
+    logged flange poses are used, and the planted hand-eye is recovered within 3 predicted
+    standard deviations."""
+    import importlib.util
+
+    if importlib.util.find_spec("mujoco") is None:  # not imported here: MUJOCO_GL is set first
+        pytest.skip("the virtual cell needs MuJoCo (the virtual extra)")
+    from relcal.capture.virtual import make_cell
+    from relcal.cli import main
+
+    plan_file, out, he = tmp_path / "plan.csv", tmp_path / "ds", tmp_path / "he"
+    assert main(["plan", "--robot", "ur5e", "--for", "handeye", "--poses", "12",
+                 "--candidates", "300", "--random-sets", "0", "--out", str(plan_file),
+                 "--quiet"]) == 0  # fmt: skip
+    assert main(["capture", str(plan_file), "--robot-driver", "sim", "--camera", "sim",
+                 "--out", str(out), "--robot-option", "seed=7", "--quiet"]) == 0  # fmt: skip
+    header = (out / "samples.csv").read_text().splitlines()[0].split(",")
+    assert header[-8:] == ["fx", "fy", "fz", "fqx", "fqy", "fqz", "fqw", "image"]
+    dataset = relcal.load_dataset(out)
+    truth = make_cell(relcal.get_robot("ur5e"), seed=7).truth
+    # the logged flange poses are the controller's (the arm's true kinematics) at the joints
+    # recorded: the mean over the still window of each, so equal to the joints' to round-off
+    # of the noise's second order
+    expected = fk(truth.true_model, dataset.q)
+    assert np.abs(dataset.flange - expected).max() < 1e-6
+    assert main(["handeye", str(out), "--out", str(he), "--quiet"]) in (0, 1)
+    result = relcal.handeye(dataset)
+    assert result.source == "the logged flange poses"
+    err = tf.to_vector(tf.invert(truth.handeye) @ result.handeye)
+    std = np.sqrt(np.diag(result.fit.covariance))[:6]
+    assert np.all(np.abs(err) < 3 * std), err / std
+    assert (he / "handeye.yaml").is_file()

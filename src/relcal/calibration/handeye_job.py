@@ -744,7 +744,12 @@ def handeye(
             f"{dataset.spec_path or 'dataset'}: {len(usable)} usable samples: a hand-eye needs at "
             f"least {MIN_SAMPLES} (many more to validate it)"
         )
-    flange_all = dataset.flange if dataset.flange is not None else fk(dataset.model, dataset.q)
+    model, q = dataset.model, dataset.q
+    if dataset.flange is not None:  # the logged poses, also beside joints and a robot model
+        from relcal.data.flange import flange_chain
+
+        model, q = flange_chain(dataset.flange)
+    flange_all = fk(model, q) if dataset.flange is None else dataset.flange
     order = usable[canonical_order(flange_all[usable], m.poses[usable])]
     images = dataset.measured == "image"
     refine = bool(dataset.camera == "calibrate") if refine_intrinsics is None else refine_intrinsics
@@ -752,8 +757,8 @@ def handeye(
         order=order,
         flange=flange_all[order],
         measured=m.poses[order],
-        model=dataset.model,
-        q=dataset.q[order],
+        model=model,
+        q=q[order],
         corners=_corners(dataset, m, order) if images else None,
         camera=m.camera,
     )
