@@ -444,3 +444,32 @@ def test_from_arrays_flange_is_checked(args, match):
     with pytest.raises(ArgumentError, match=r"flange: shape \(5, 4, 4\), expected \(6, 4, 4\)"):
         q = np.zeros((6, 6)) + np.arange(6)[:, None] * 0.1
         relcal.Dataset.from_arrays("ur5e", q, poses, flange=flange[:5])
+
+
+def test_images_about_one_axis_are_held_at_the_guess(tmp_path):
+    """Rendered images turning only about the camera's optical axis leave X's translation along
+    it free: refused without a guess, held at the ``handeye:`` guess of dataset.yaml (5 mm off
+    the truth along that axis) with the guess's standard deviation when one is given, as for
+    poses."""
+    folder, x, _ = render_dataset(tmp_path / "free", "eye_in_hand", spread=(0.0, 0.0, 0.6))
+    free = handeye(relcal.load_dataset(folder), folds=3)
+    assert free.exported is None and free.delivered[0].undetermined
+    axis = x[:3, 2]  # the optical axis in the flange frame
+    xyz, rpy = tf.to_xyz_rpy(x)
+    off = xyz + 0.005 * axis
+    guess = (
+        f"handeye: {{xyz: [{off[0]:.6f}, {off[1]:.6f}, {off[2]:.6f}], "
+        f"rpy: [{np.degrees(rpy[0]):.4f}, {np.degrees(rpy[1]):.4f}, {np.degrees(rpy[2]):.4f}]}}\n"
+    )
+    folder, x, _ = render_dataset(tmp_path / "held", "eye_in_hand", spread=(0.0, 0.0, 0.6),
+                                  extra=guess)  # fmt: skip
+    held = handeye(relcal.load_dataset(folder), folds=3)
+    he = held.delivered[0]
+    assert not he.undetermined and he.held and held.exported == "refined"
+    along = (held.handeye[:3, 3] - x[:3, 3]) @ axis
+    assert along == pytest.approx(0.005, abs=5e-4)  # the free direction sits at the guess
+    across = held.handeye[:3, 3] - x[:3, 3] - along * axis
+    assert np.linalg.norm(across) < 1e-3  # the determined ones stay the images'
+    std_along = np.sqrt(axis @ np.diag(he.xyz_std**2) @ axis)
+    assert std_along == pytest.approx(0.010, rel=0.3)
+    assert held.verdict.code == "collect more samples"

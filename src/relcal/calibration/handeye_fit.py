@@ -320,8 +320,10 @@ def fit_images(
     refine_intrinsics: bool = False,
     reject: bool = True,
     progress: bool = False,
+    prior: tuple[np.ndarray, np.ndarray, float] | None = None,
 ) -> FrameFit:
-    """The maximum-likelihood ``X`` and ``W`` (and intrinsics) of board images.
+    """The maximum-likelihood ``X`` and ``W`` (and intrinsics) of board images (maximum a
+    posteriori with ``prior``).
 
     Parameters
     ----------
@@ -342,6 +344,11 @@ def fit_images(
         reprojection RMS is beyond 3 times the median and 1 px.
     progress : bool
         A progress bar over the solver's evaluations.
+    prior : (guess, std, pixel_sigma), optional
+        ``X`` held near ``guess`` ``(4, 4)`` with standard deviations ``std`` ``(6,)`` (m, rad,
+        of ``guess^-1 X`` as a 6-vector): six residual rows ``pixel_sigma`` (px) times the
+        deviation over ``std``, weighed against the pixels as their noise is. What the images
+        determine stays theirs; what they leave free takes the guess.
 
     Returns
     -------
@@ -366,9 +373,16 @@ def fit_images(
         intr = intr0 + p[12:] if n_intr else None
         return _camera_from_board(flange[keep], x, w, mode), intr
 
-    def fun(p: np.ndarray, keep: np.ndarray) -> np.ndarray:
+    def pixels(p: np.ndarray, keep: np.ndarray) -> np.ndarray:
         t, intr = unpack(p, keep)
         return _project(camera, t, [c for c, k in zip(corners, keep, strict=True) if k], intr)
+
+    def fun(p: np.ndarray, keep: np.ndarray) -> np.ndarray:
+        if prior is None:
+            return pixels(p, keep)
+        guess, std, scale = prior
+        held = tf.to_vector(tf.invert(guess) @ handeye @ tf.from_vector(p[:6]))
+        return np.r_[pixels(p, keep), held / np.asarray(std, float) * scale]
 
     keep = np.ones(n, dtype=bool)
     p = np.zeros(12 + n_intr)
@@ -386,7 +400,7 @@ def fit_images(
                 max_nfev=200,
             )
             p = sol.x
-            rms = _per_image_rms(fun(p, keep), corners)
+            rms = _per_image_rms(pixels(p, keep), corners)
             limit = max(3.0 * float(np.median(rms)), 1.0)
             bad = rms > limit
             if 0 < bad.sum() <= MAX_OUTLIER_SHARE * n:
@@ -419,8 +433,9 @@ def fit_images(
     w = world @ tf.from_vector(p[6:12])
     kept = [c for c, k in zip(corners, keep, strict=True) if k]
     intr = intr0 + p[12:] if n_intr else None
+    n_pixels = sum(2 * len(c.image_points) for c in kept)
     noise = image_pose_noise(
-        _camera_from_board(flange[keep], x, w, mode), kept, camera, intr, r, mode
+        _camera_from_board(flange[keep], x, w, mode), kept, camera, intr, r[:n_pixels], mode
     )
     cov_all = _sandwich(jac, noise, kept)
     move = _reparametrise(handeye, world, x, w, p[:12])
@@ -526,7 +541,7 @@ def _sandwich(jac: np.ndarray, noise: ImageNoise, corners: list[Corners]) -> np.
     """The covariance of the least-squares estimate when each image's pixel errors have the
     covariance ``sigma^2 I + P_k S P_k^T`` (:class:`ImageNoise`): ``A^+ B A^+`` with ``A = J^T J``
     and ``B = sum_k J_k^T V_k J_k``."""
-    info = jac.T @ jac
+    info = jac.T @ jac  # pixel rows, then prior rows (of the pixels' noise by construction)
     a_inv = np.linalg.pinv(info, rcond=1e-12)
     b = noise.pixel_sigma**2 * info
     start = 0

@@ -771,8 +771,11 @@ def handeye(
     frames = {**_frames_default(mode), **(getattr(dataset, "frames", None) or {})}
     delivered = deliver(mode, fit, frames)
     held = False
-    if any(d.undetermined for d in delivered) and guess is not None and not images:
-        fit = _hold_at_guess(data, rows, fit, guess)
+    if any(d.undetermined for d in delivered) and guess is not None:
+        if images:
+            fit = _hold_images_at_guess(data, rows, mode, fit, guess, refine and images)
+        else:
+            fit = _hold_at_guess(data, rows, fit, guess)
         delivered = deliver(mode, fit, frames, held_by_guess=True)
         held = True
     validation = None
@@ -898,6 +901,36 @@ def _hold_at_guess(data: _Data, rows: np.ndarray, fit: FrameFit, guess: np.ndarr
         covariance=cov,
         stopped=result.stopped,
         result=result,
+        held=("handeye.* (prior: the guess of dataset.yaml)",),
+    )
+
+
+def _hold_images_at_guess(
+    data: _Data, rows: np.ndarray, mode: str, fit: FrameFit, guess: np.ndarray, refine: bool
+) -> FrameFit:
+    """The image fit again on the images it kept, with ``X`` held near the guess of
+    dataset.yaml by a prior of :data:`GUESS_MM` and :data:`GUESS_DEG` (maximum a posteriori,
+    weighed against the pixels by the first fit's pixel noise)."""
+    from dataclasses import replace
+
+    keep = np.flatnonzero(fit.used)
+    sub = rows[keep]
+    std = np.r_[np.full(3, GUESS_MM * 1e-3), np.full(3, np.radians(GUESS_DEG))]
+    held = fit_images(
+        data.flange[sub],
+        [data.corners[i] for i in sub],
+        fit.camera or data.camera,
+        fit.handeye,
+        fit.world,
+        mode,
+        refine,
+        reject=False,
+        prior=(guess, std, max(fit.pixel_sigma or 0.0, 1e-3)),
+    )
+    return replace(
+        held,
+        used=fit.used,
+        outliers=fit.outliers,
         held=("handeye.* (prior: the guess of dataset.yaml)",),
     )
 
