@@ -473,3 +473,21 @@ def test_images_about_one_axis_are_held_at_the_guess(tmp_path):
     std_along = np.sqrt(axis @ np.diag(he.xyz_std**2) @ axis)
     assert std_along == pytest.approx(0.010, rel=0.3)
     assert held.verdict.code == "collect more samples"
+
+
+def test_one_static_transform_writer_for_both_launch_files():
+    """relcal handeye's launch file and relcal calibrate's overlay write their static transform
+    with the same function, whose node gives back the transform to round-off."""
+    import inspect
+
+    from relcal.reporting import handeye_report, ros2
+    from relcal.reporting.ros2 import static_transform_node
+
+    t = tf.from_xyz_rpy(np.array([0.012, -0.34, 0.5]), np.radians([-170.0, 89.9, 33.0]))
+    text = static_transform_node(t, '"tool0"', '"camera"', "relcal_test", indent=4)
+    found = _launch_transforms(text.strip())
+    assert np.abs(found[("tool0", "camera")] - t).max() < 1e-15
+    for module in (handeye_report, ros2):  # neither spells the node out itself
+        source = inspect.getsource(module).replace(inspect.getsource(static_transform_node), "")
+        assert "static_transform_node(" in source
+        assert 'executable="static_transform_publisher"' not in source

@@ -304,34 +304,25 @@ def handeye_yaml(he: HandEye, doc: dict) -> str:
 
 def launch_file(he: HandEye) -> str:
     """A ROS 2 launch file (Python) publishing each delivered transform with tf2's
-    ``static_transform_publisher`` (``--x .. --qw --frame-id --child-frame-id``)."""
-    nodes = []
-    for d in he.delivered:
-        q = Rotation.from_matrix(d.transform[:3, :3]).as_quat()
-        t = d.transform[:3, 3]
-        args = []
-        for flag, value in zip(("--x", "--y", "--z", "--qx", "--qy", "--qz", "--qw"),
-                               (*t, *q), strict=True):  # fmt: skip
-            args += [flag, repr(float(value))]
-        args += ["--frame-id", d.parent, "--child-frame-id", d.child]
-        arg_text = ", ".join(f'"{a}"' for a in args)
-        nodes.append(
-            "        Node(\n"
-            '            package="tf2_ros",\n'
-            '            executable="static_transform_publisher",\n'
-            f'            name="relcal_{d.key}",\n'
-            f"            arguments=[{arg_text}],\n"
-            "        ),\n"
+    ``static_transform_publisher`` (:func:`relcal.reporting.ros2.static_transform_node`)."""
+    import json
+
+    from relcal.reporting.ros2 import static_transform_node
+
+    nodes = [
+        static_transform_node(
+            d.transform, json.dumps(d.parent), json.dumps(d.child), f"relcal_{d.key}", 12
         )
+        for d in he.delivered
+    ]
     return (
         '"""Publishes the hand-eye calibration of relcal handeye as static transforms (tf2)."""\n\n'
         "from launch import LaunchDescription\n"
         "from launch_ros.actions import Node\n\n\n"
         "def generate_launch_description():\n"
         "    return LaunchDescription(\n"
-        "        [\n" + "".join("    " + n.replace("\n", "\n    ").rstrip(" ") for n in nodes)
-        + "        ]\n    )\n"
-    )  # fmt: skip
+        "        [\n" + "".join(node + ",\n" for node in nodes) + "        ]\n    )\n"
+    )
 
 
 def urdf_snippet(he: HandEye) -> str:
