@@ -25,6 +25,7 @@ from relcal.calibration.handeye_closed import (
 )
 from relcal.calibration.handeye_fit import fit_poses
 from relcal.calibration.handeye_job import handeye
+from relcal.reporting.handeye_report import title
 from relcal.data.flange import flange_chain
 from relcal.errors import RelcalError
 
@@ -491,3 +492,77 @@ def test_one_static_transform_writer_for_both_launch_files():
         source = inspect.getsource(module).replace(inspect.getsource(static_transform_node), "")
         assert "static_transform_node(" in source
         assert 'executable="static_transform_publisher"' not in source
+
+
+class _Tables:
+    """The tables of an HTML page, by the id of the section they are in: lists of rows of cell
+    texts (header row first)."""
+
+    def __init__(self, text: str) -> None:
+        from html.parser import HTMLParser
+
+        self.by_section: dict[str, list[list[list[str]]]] = {}
+        self.text = []
+        tables = self.by_section
+        owner = self
+
+        class Parser(HTMLParser):
+            section, row, cell = None, None, None
+
+            def handle_starttag(self, tag, attrs):
+                if tag == "section":
+                    self.section = dict(attrs).get("id")
+                elif tag == "table":
+                    tables.setdefault(self.section, []).append([])
+                elif tag == "tr":
+                    self.row = []
+                    tables[self.section][-1].append(self.row)
+                elif tag in ("td", "th"):
+                    self.cell = ""
+
+            def handle_endtag(self, tag):
+                if tag in ("td", "th"):
+                    self.row.append(self.cell.strip())
+                    self.cell = None
+
+            def handle_data(self, data):
+                owner.text.append(data)
+                if self.cell is not None:
+                    self.cell += data
+
+        Parser().feed(text)
+        self.text = " ".join(self.text)
+
+
+def test_report_shows_the_verdict_and_every_methods_held_out_errors(tmp_path):
+    import json
+
+    from relcal.cli import main
+
+    flange = flange_poses(14, seed=16)
+    folder = write_flange_dataset(tmp_path / "d", flange, camera_poses(flange, seed=17))
+    report, doc_path = tmp_path / "he.html", tmp_path / "he.json"
+    assert main(["handeye", str(folder), "--out", str(tmp_path / "out"), "--quiet",
+                 "--report", str(report), "--json", str(doc_path)]) in (0, 1)  # fmt: skip
+    doc = json.loads(doc_path.read_text())
+    page = _Tables(report.read_text())
+    assert doc["verdict"]["text"] in page.text
+    methods = page.by_section["held-out"][0]
+    assert methods[0][:3] == ["method", "position mm", "orientation deg"]
+    rows = {r[0].replace(" (favoured)", ""): r for r in methods[1:]}
+    val = doc["validation"]
+    assert len(rows) == len(val["methods"]) == 1 + len(METHODS)
+    for m in val["methods"]:
+        row = rows[m["title"]]
+        rms, (lo, hi) = m["position_mm"]["rms"], m["position_mm"]["ci95"]
+        assert row[1] == f"{rms:.3f} [{lo:.3f}, {hi:.3f}]"
+        if m["method"] != "refined":
+            ratio = m["refined_over_it"]["position_mm"]["after_over_before"]
+            assert row[3].startswith(f"{ratio:.3f} [")
+    favoured = next(r for r in methods[1:] if r[0].endswith("(favoured)"))
+    assert favoured[0].startswith(title(val["favoured"]))
+    samples = page.by_section["samples"][0]
+    assert len(samples) - 1 == val["n_samples"] == 14
+    assert {r[0] for r in samples[1:]} == {s["id"] for s in val["samples"]}
+    closed = page.by_section["closed-forms"][0]
+    assert len(closed) - 1 == len(METHODS)

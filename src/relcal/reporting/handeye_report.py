@@ -397,18 +397,42 @@ def handeye_files(he: HandEye, doc: dict) -> dict[str, str]:
 
 
 def handeye_html(doc: dict) -> str:
-    """A self-contained HTML report of the document."""
-    from relcal.reporting.htmlkit import bullet_list, page, paragraph, section, table
+    """A self-contained HTML report of the document: the verdict, the delivered transform(s) with
+    what the motions leave weak, every method's held-out errors side by side (RMS with 95 %
+    intervals, the refined estimate over each, the method the data favour), each held-out
+    sample, every closed form's answer or why it failed, and the samples left out."""
+    from relcal.reporting.htmlkit import bullet_list, cards, page, paragraph, section
 
+    verdict = doc["verdict"]
+    val = doc["validation"]
+    px = val is not None and val["criterion"] == "px"
+    exported = title(doc["exported"]) if doc["exported"] else "nothing"
+    summary = [("verdict", verdict["code"], ""), ("exported", exported, "")]
+    if val:
+        summary.append(("the data favour", title(val["favoured"]), f"{val['n_folds']} folds"))
     sections = [
         section(
             "verdict",
             "Verdict",
-            paragraph(doc["verdict"]["text"]),
-            bullet_list(doc["verdict"]["warnings"], "no warnings"),
-        ),  # fmt: skip
+            cards(summary),
+            paragraph(verdict["text"]),
+            bullet_list(verdict["warnings"], "no warnings"),
+        ),
+        section("transform", "Transform", *_transform_parts(doc)),
     ]
-    rows = []
+    if val:
+        sections.append(section("held-out", "Held-out errors by method", *_method_parts(val, px)))
+        sections.append(section("samples", "Held-out samples", *_sample_parts(val, px)))
+    sections.append(section("closed-forms", "Closed forms", *_closed_parts(doc)))
+    meta = [("mode", doc["mode"]), ("dataset", str(doc["dataset"]))]
+    meta.append(("samples", str(doc["n_used"])))
+    return page("relcal hand-eye calibration", meta, sections)
+
+
+def _transform_parts(doc: dict) -> list:
+    from relcal.reporting.htmlkit import bullet_list, paragraph, table
+
+    rows, notes = [], []
     for key in ("handeye", "world"):
         d = doc.get(key)
         if not d:
@@ -423,37 +447,94 @@ def handeye_html(doc: dict) -> str:
                 " ".join(_fmt(v, ".4f") for v in d["std"]["rotation_deg"]),
             ]
         )
-    sections.append(
-        section(
-            "transform",
-            "Transform",
-            table(["frames", "xyz mm", "rpy deg", "std mm", "rotation std deg"], rows),
-            bullet_list(doc["findings"], "the motions determine every direction"),
+        notes += [f"not determined: {u}" for u in d["undetermined"]]
+        notes += [f"held at the guess of dataset.yaml: {u}" for u in d["held_at_guess"]]
+    head = ["frames", "xyz mm", "rpy deg", "std mm", "rotation std deg (about x y z)"]
+    return [
+        paragraph(f"Flange poses from {doc['flange_poses_from']}."),
+        table(head, rows),
+        bullet_list(
+            notes + [f"motions: {f}" for f in doc["findings"]],
+            "the motions determine every direction",
+        ),  # fmt: skip
+    ]
+
+
+def _method_parts(val: dict, px: bool) -> list:
+    from relcal.reporting.htmlkit import paragraph, table
+
+    key = "px" if px else "position_mm"
+    head = ["method", "position mm", "orientation deg", *(["reprojection px"] if px else [])]
+    head += [f"refined / it ({'px' if px else 'position'})", "samples", "failed folds"]
+    body = []
+    for m in val["methods"]:
+        cells = [m["title"] + (" (favoured)" if m["method"] == val["favoured"] else "")]
+        for k in ("position_mm", "orientation_deg", *(("px",) if px else ())):
+            s = m.get(k)
+            cells.append((_fmt(s["rms"]) + _interval(s.get("ci95"))) if s else "-")
+        r = (m.get("refined_over_it") or {}).get(key)
+        cells.append(f"{r['after_over_before']:.3f}{_interval(r['ci95'])}" if r else "-")
+        cells += [m["n_samples"], len(m["failures"])]
+        body.append(cells)
+    failures = [f"{m['title']}: {f}" for m in val["methods"] for f in m["failures"]]
+    parts = [
+        paragraph(val["what"] + "; RMS with 95 % bootstrap intervals, ranked by "
+                  + ("the reprojection error" if px else "the position error") + "."),
+        table(head, body, "num"),
+        paragraph(f"The data favour: {title(val['favoured'])}."),
+    ]  # fmt: skip
+    if failures:
+        from relcal.reporting.htmlkit import bullet_list
+
+        parts.append(bullet_list(failures, ""))
+    return parts
+
+
+def _sample_parts(val: dict, px: bool) -> list:
+    from relcal.reporting.htmlkit import paragraph, table
+
+    methods = [m["method"] for m in val["methods"]]
+    head = ["sample", "fold"] + [title(m) for m in methods]
+    unit = "px" if px else "position mm / orientation deg"
+    body = []
+    for s in val["samples"]:
+        row = [s["id"], s["fold"]]
+        for m in methods:
+            c = s[m]
+            if px:
+                row.append(_fmt(c.get("px")))
+            else:
+                row.append(f"{_fmt(c['position_mm'])} / {_fmt(c['orientation_deg'])}")
+        body.append(row)
+    return [paragraph(f"Each held-out sample's error ({unit}) under each method."),
+            table(head, body, "num")]  # fmt: skip
+
+
+def _closed_parts(doc: dict) -> list:
+    from relcal.reporting.htmlkit import bullet_list, paragraph, table
+
+    body = []
+    for c in doc["closed_forms"]:
+        x = c["handeye_X"]
+        body.append(
+            [
+                c["title"],
+                " ".join(f"{v * 1e3:.3f}" for v in x["xyz_m"]) if x else "-",
+                " ".join(f"{v:.4f}" for v in x["rpy_deg"]) if x else "-",
+                "ok" if c["ok"] else f"failed: {c['failure']}",
+            ]
         )
-    )
-    val = doc["validation"]
-    if val:
-        px = val["criterion"] == "px"
-        head = ["method", "position mm", "orientation deg"] + (["px"] if px else []) + ["n"]
-        body = []
-        for m in val["methods"]:
-            cells = [m["title"]]
-            for key in ("position_mm", "orientation_deg", *(("px",) if px else ())):
-                s = m.get(key)
-                cells.append((_fmt(s["rms"]) + _interval(s.get("ci95"))) if s else "-")
-            cells.append(m["n_samples"])
-            body.append(cells)
-        sections.append(
-            section(
-                "held-out",
-                "Held-out errors",
-                paragraph(val["what"]),
-                table(head, body, "num"),
-                paragraph(f"The data favour: {title(val['favoured'])}."),
-            )
-        )
-    return page(
-        "relcal hand-eye calibration",
-        [("mode", doc["mode"]), ("dataset", str(doc["dataset"])), ("samples", str(doc["n_used"]))],
-        sections,
-    )
+    left = doc["closed_form_samples"]["left_out"]
+    return [
+        paragraph(
+            f"OpenCV's closed forms on {doc['closed_form_samples']['used']} samples, all of "
+            "them (X: flange to camera or marker, xyz mm, rpy deg)."
+        ),
+        table(["method", "X xyz mm", "X rpy deg", "status"], body),
+        bullet_list([f"{x['id']}: {x['reason']}" for x in left], "no sample left out"),
+        bullet_list(
+            [f"bad frame {o['id']}: {o['reason']}" for o in doc["outliers"]]
+            + [f"not posed {o['id']}: {o['reason']}" for o in doc["rejected"]],
+            "no bad frame",
+        ),
+    ]
