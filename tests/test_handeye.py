@@ -25,9 +25,9 @@ from relcal.calibration.handeye_closed import (
 )
 from relcal.calibration.handeye_fit import fit_poses
 from relcal.calibration.handeye_job import handeye
-from relcal.reporting.handeye_report import title
 from relcal.data.flange import flange_chain
 from relcal.errors import RelcalError
+from relcal.reporting.handeye_report import title
 
 
 def _frame_error(estimate: np.ndarray, truth: np.ndarray) -> np.ndarray:
