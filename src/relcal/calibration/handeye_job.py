@@ -229,6 +229,10 @@ class HandEye:
         defaults, overridden by ``frames:`` of dataset.yaml).
     camera : Camera or None
         With images, the intrinsics used (refined ones when refined).
+    marker : Delivered or None
+        Eye-to-hand: ``X``, the board on the flange (parent the flange, child the board), a
+        by-product written to ``handeye.yaml`` (the guess ``relcal calibrate --handeye`` starts
+        from); None in the other modes (``X`` is the delivered transform).
     """
 
     mode: str
@@ -250,6 +254,7 @@ class HandEye:
     settings: dict = field(default_factory=dict)
     frames: dict = field(default_factory=dict)
     camera: Any = None
+    marker: Delivered | None = None
 
     def __repr__(self) -> str:
         from relcal._repr import short
@@ -356,6 +361,19 @@ def _direction(v: np.ndarray) -> str:
 # --- delivered transforms ------------------------------------------------------------------------
 
 
+def frame_names(dataset, mode: str | None = None) -> dict[str, str]:
+    """The frame names of the exports for ``dataset`` in ``mode`` (default its own): ``base``,
+    ``flange``, ``camera``, ``world``, ``marker``: relcal's defaults (a robot from a URDF: its
+    chain's root and tip links for the base and the flange), overridden by ``frames:`` of
+    dataset.yaml."""
+    mode = mode or dataset.mode
+    out = _frames_default(mode)
+    chain = getattr(getattr(dataset, "model", None), "urdf", None)
+    if chain is not None and getattr(dataset, "flange", None) is None:
+        out.update(base=chain.root, flange=chain.tip)
+    return {**out, **(getattr(dataset, "frames", None) or {})}
+
+
 def _frames_default(mode: str) -> dict[str, str]:
     return {
         "base": "base_link",
@@ -368,8 +386,13 @@ def _frames_default(mode: str) -> dict[str, str]:
     }
 
 
-def _deliverables(mode: str, frames: dict[str, str]) -> list[tuple[str, str, str, Any]]:
-    """``(key, parent, child, function of (X, W) giving the transform)`` per delivered one."""
+def _deliverables(
+    mode: str, frames: dict[str, str], by_product: bool = False
+) -> list[tuple[str, str, str, Any]]:
+    """``(key, parent, child, function of (X, W) giving the transform)`` per delivered one (with
+    ``by_product``, eye-to-hand: ``X``, the board on the flange)."""
+    if by_product:
+        return [("marker", frames["flange"], frames["marker"], lambda x, w: x)]
     if mode == "eye_to_hand":
         return [("handeye", frames["base"], frames["camera"], lambda x, w: tf.invert(w))]
     out = [("handeye", frames["flange"], frames["camera"], lambda x, w: x)]
@@ -419,10 +442,12 @@ def deliver(
     fit: FrameFit,
     frames: dict[str, str],
     held_by_guess: bool = False,
+    by_product: bool = False,
 ) -> tuple[Delivered, ...]:
-    """The transforms of ``mode`` with their standard deviations and undetermined directions."""
+    """The transforms of ``mode`` with their standard deviations and undetermined directions
+    (``by_product``: eye-to-hand's ``X``, the board on the flange)."""
     out = []
-    for key, parent, child, fn in _deliverables(mode, frames):
+    for key, parent, child, fn in _deliverables(mode, frames, by_product):
         t = fn(fit.handeye, fit.world)
         _, j_par = _jacobians(fn, fit.handeye, fit.world)
         par = _propagate(j_par, fit.covariance)
@@ -768,7 +793,7 @@ def handeye(
         data, rows, mode, methods, refine and images, reject, guess, progress
     )
     findings, _axis = motion_findings(data.flange)
-    frames = {**_frames_default(mode), **(getattr(dataset, "frames", None) or {})}
+    frames = frame_names(dataset, mode)
     delivered = deliver(mode, fit, frames)
     held = False
     if any(d.undetermined for d in delivered) and guess is not None:
@@ -804,6 +829,10 @@ def handeye(
             fit.camera,
         )
         delivered = deliver(mode, replaced, frames)
+    marker = None
+    if mode == "eye_to_hand":
+        chosen_fit = fit if exported in (None, REFINED) else replaced
+        marker = deliver(mode, chosen_fit, frames, held, by_product=True)[0]
     ids = dataset.ids
     verdict = handeye_verdict(validation, fit, exported, undetermined, held, guess is not None)
     return HandEye(
@@ -840,6 +869,7 @@ def handeye(
         },
         frames=frames,
         camera=fit.camera or m.camera,
+        marker=marker,
     )
 
 

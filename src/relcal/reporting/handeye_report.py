@@ -279,7 +279,7 @@ def handeye_yaml(he: HandEye, doc: dict) -> str:
     ``quaternion`` (x, y, z, w) and ``rpy`` (rad, URDF's fixed-axis roll, pitch, yaw), its
     standard deviations, and the held-out error of the exported estimate."""
     data: dict = {"mode": he.mode, "estimate": title(he.exported or REFINED)}
-    for d in he.delivered:
+    for d in (*he.delivered, *((he.marker,) if he.marker is not None else ())):
         xyz, rpy = tf.to_xyz_rpy(d.transform)
         data[d.key] = {
             "parent": d.parent,
@@ -299,6 +299,11 @@ def handeye_yaml(he: HandEye, doc: dict) -> str:
         "# relcal handeye: the transform(s) below, child frame in parent frame; xyz in m,\n"
         "# quaternion x, y, z, w; rpy in rad (URDF: R = Rz(yaw) Ry(pitch) Rx(roll)).\n"
     )
+    if he.marker is not None:
+        head += (
+            "# marker: the board on the flange, a by-product of the eye-to-hand fit (the guess\n"
+            "# relcal calibrate --handeye starts from).\n"
+        )
     return head + yaml_text(data)
 
 
