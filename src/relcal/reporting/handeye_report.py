@@ -129,7 +129,10 @@ def handeye_document(he: HandEye, dataset=None) -> dict:
         else {
             "std_position_mm": [float(v) for v in np.sqrt(np.diag(fit.noise))[:3] * 1e3],
             "std_orientation_deg": [float(v) for v in np.degrees(np.sqrt(np.diag(fit.noise))[3:])],
-            "frame": "the camera's (or marker's) own",
+            "frame": "the board's" if he.mode == "eye_to_hand" else "the camera's (or marker's)",
+            "what": "each image's pose error beyond its pixels (flange poses, repeatability)"
+            if fit.pixel_sigma is not None
+            else "each measured pose's error",
         },
         "pixel_sigma": fit.pixel_sigma,
         "held": list(fit.held),
