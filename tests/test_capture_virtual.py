@@ -40,11 +40,15 @@ def truth_of(robot: str, seed: int):
 
 
 def noise_floor(truth, dataset, measured, pairs) -> np.ndarray:
-    """Held-out pair errors ``(P, 6)`` of the true model and hand-eye on the measured poses:
-    what the image and joint noise alone leave."""
-    camera = fk(truth.true_model, dataset.q) @ truth.handeye
+    """Held-out errors ``(P, 6)`` of the true model, hand-eye and board placement on the
+    measured poses (each pose in the board frame for pairs ``(k, k)``; relative poses for
+    others): what the image and joint noise alone leave."""
+    camera = tf.invert(truth.board_pose) @ fk(truth.true_model, dataset.q) @ truth.handeye
     out = []
     for i, j in pairs:
+        if i == j:
+            out.append(tf.to_vector(tf.invert(camera[i]) @ measured.poses[i]))
+            continue
         model = tf.invert(camera[i]) @ camera[j]
         meas = tf.invert(measured.poses[i]) @ measured.poses[j]
         out.append(tf.to_vector(tf.invert(model) @ meas))

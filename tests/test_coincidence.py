@@ -252,11 +252,29 @@ Q = "0.1,-0.5,0.2,-2.0,0.1,1.6,0.3"
 
 
 def test_a_placement_column_prefixes_the_group(tmp_path):
-    rows = "\n".join(f"{k},{p},{g},{Q}" for k, (p, g) in enumerate([("a", "h0"), ("b", "h0")]))
+    pairs = [("a", "h0"), ("a", "h0"), ("b", "h0"), ("b", "h0")]  # two samples per group
+    rows = "\n".join(f"{k},{p},{g},{Q}" for k, (p, g) in enumerate(pairs))
     folder = write_dataset(
         tmp_path / "d", f"id,placement,group,{','.join(f'q{i}' for i in range(1, 8))}\n{rows}\n"
     )
-    assert load_dataset(folder).groups == ("a/h0", "b/h0")
+    assert load_dataset(folder).groups == ("a/h0", "a/h0", "b/h0", "b/h0")
+
+
+def test_a_group_with_a_single_sample_is_named_and_removing_it_works(tmp_path):
+    """One sample in a group whose point is unknown tells nothing (a misspelt group name, or
+    a socket visited once): refused naming the group, the sample and the likely misspelling;
+    doing what the message says (remove the row) loads."""
+    groups = ["a/h0", "a/h0", "a/h1", "a/h1", "a/h_1"]
+    rows = [f"{k},{g},{Q}" for k, g in enumerate(groups)]
+    header = f"id,group,{','.join(f'q{i}' for i in range(1, 8))}"
+    folder = write_dataset(tmp_path / "d", header + "\n" + "\n".join(rows) + "\n")
+    with pytest.raises(RelcalError) as info:
+        load_dataset(folder)
+    message = str(info.value)
+    assert "group 'a/h_1' has a single sample (id 4)" in message, message
+    assert "a misspelt 'a/h1'?" in message and "remove the row" in message, message
+    (folder / "samples.csv").write_text(header + "\n" + "\n".join(rows[:-1]) + "\n")
+    assert load_dataset(folder).groups == tuple(groups[:-1])
 
 
 @pytest.mark.parametrize(
@@ -516,8 +534,13 @@ def test_real_parameters_outside_the_combinations_are_shown_identified(mukca_set
 def test_another_robots_joints_or_a_wrong_distance_are_refused(mukca_sets):
     ds = mukca_sets["panda_1"]
     iiwa = load_urdf(URDF["iiwa14"], None, "ball_link")
-    with pytest.raises(RelcalError, match="dataset.yaml: the nominal robot.*mm RMS apart.*joints"):
+    # the Panda's readings beyond the iiwa's joint limits: the gate every kind shares names it
+    with pytest.raises(RelcalError, match="is outside the model's limits.*another robot"):
         calibrate(replace(ds, model=iiwa, tool_point=np.zeros(3)), **PLAIN)
+    # within the limits (the iiwa's ranges widened), the coincidences themselves tell
+    wide = replace(iiwa, lower=np.full(7, -np.pi * 2), upper=np.full(7, np.pi * 2))
+    with pytest.raises(RelcalError, match="dataset.yaml: the nominal robot.*mm RMS apart.*joints"):
+        calibrate(replace(ds, model=wide, tool_point=np.zeros(3)), **PLAIN)
     wrong = tuple((a, b, 0.1, s) for a, b, _, s in ds.distances)  # another plate's spacing
     with pytest.raises(RelcalError, match="100 mm given, 5[0-9].[0-9] mm between the points"):
         calibrate(replace(ds, distances=wrong), **PLAIN)

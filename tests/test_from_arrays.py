@@ -94,7 +94,7 @@ def test_positions_and_quaternion_rows_match_a_dataset_folder(a465, rng, tmp_pat
         ({"poses": 2 * np.tile(np.eye(4), (10, 1, 1))}, ["poses[0]: not a rigid transform"]),
         ({"poses": np.full((10, 3), np.nan)}, ["poses", "not finite"]),
         ({"handeye": np.eye(3)}, ["handeye: shape (3, 3)"]),
-        ({"mode": "eye_on_hand"}, ["mode: 'eye_on_hand'"]),
+        ({"mode": "eye_on_hand"}, ["mode: unknown str 'eye_on_hand'"]),
         ({"ids": ["a"] * 10}, ["ids:", "unique"]),
         ({"poses": None}, ["either poses", "or images"]),
     ],

@@ -99,7 +99,8 @@ def test_every_command_names_the_parameters_by_their_joints(cell, monkeypatch):
     texts["compare"] = _run(["compare", "1", "2", "--registry", str(db), "--json", str(tmp / "c")])
     docs["history"] = json.loads((tmp / "h").read_text())
     docs["compare"] = json.loads((tmp / "c").read_text())
-    argv = ["fleet", "calibrate", str(plant), "--json", str(tmp / "f")]
+    argv = ["fleet", "calibrate", str(plant), "--out", str(tmp / "fleet-out")]
+    argv += ["--json", str(tmp / "f")]
     texts["fleet"] = _run([*argv, "--registry", str(tmp / "fleet.sqlite")])
     docs["fleet"] = json.loads((tmp / "f").read_text())
 

@@ -210,7 +210,8 @@ def test_joint_unit_alternatives_are_named(synthetic):
 def test_readings_skipped_by_their_rotation_angles_surely_misfit():
     """The readings diagnose_readings leaves unevaluated (their rotation angles alone put the
     misfit above the tolerance, whatever R_X) are those whose misfit is above it: the bound is
-    never above the misfit _evaluate finds, wrong samples left out or not."""
+    never above the misfit _evaluate finds over the pairs that turn, wrong samples left out or
+    not."""
     robot = get_robot("a465")
     rng = np.random.default_rng(7)
     q = rng.uniform(-1.5, 1.5, (40, 6))
@@ -219,8 +220,8 @@ def test_readings_skipped_by_their_rotation_angles_surely_misfit():
     poses = fk(robot, q) @ x @ tf.from_vector(noise)
     poses[[3, 17]] = poses[[17, 3]]  # two wrong rows: samples left out of the misfit
     pairs = pl.check_pairs(40)
-    rank = pl._misfit_rank(pairs)
-    assert 1 <= rank <= len(pairs) // 2
+    moving = pl.moving_pairs(q, pairs)
+    assert 1 <= pl._misfit_rank(pairs) <= len(pairs) // 2
     measured = pl._motions(poses, pairs)
     skipped = 0
     for scale in (1.0, 0.5, 0.9, -1.0, 1.3, 3.0):
@@ -228,11 +229,13 @@ def test_readings_skipped_by_their_rotation_angles_surely_misfit():
             read = q.copy()
             read[:, joint] *= scale
             flange = pl._motions(fk(robot, read), pairs)
-            misfit = pl._evaluate("", flange, measured, pairs, np.radians(10)).fit.misfit
-            floor = np.partition(np.abs(flange.angles - measured.angles), rank - 1)[rank - 1]
-            assert floor <= misfit + 1e-12
             for tolerance in np.radians([1.0, 5.0, 10.0, 30.0]):
-                surely = pl._surely_misfit(flange, measured, rank, tolerance)
+                turning = pl.turning_pairs(flange, measured, moving, tolerance)
+                misfit = pl._evaluate("", flange, measured, pairs, tolerance, moving).fit.misfit
+                rank = pl._misfit_rank(pairs[turning])
+                floor = np.abs(flange.angles - measured.angles)[turning]
+                assert np.partition(floor, rank - 1)[rank - 1] <= misfit + 1e-12
+                surely = pl._surely_misfit(flange, measured, pairs, moving, tolerance)
                 assert not surely or misfit > tolerance
                 skipped += surely
     assert skipped > 0  # the bound does skip readings

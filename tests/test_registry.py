@@ -47,6 +47,7 @@ def test_a_record_holds_what_the_calibration_found(calibrated, tmp_path):
     chosen = cal.selection[cal.chosen].candidate
     settings = {**cal.settings, "chosen_model": chosen.name, "joint_ranges": doc["joint_ranges"]}
     settings["verdict"] = doc["verdict"]["code"]
+    settings["held_out_metric"] = doc["held_out_metric"]
     settings["parameter_labels"] = {}  # a YAML robot: its joints are numbered
     settings["artifacts"] = [
         {
@@ -147,6 +148,7 @@ def test_concurrent_writers_lose_nothing(calibrated, tmp_path):
         runs = registry.runs("arm1")
     assert len(runs) == n_proc * count
     assert {r.session for r in runs} == {f"w{w}-{k}" for w in range(n_proc) for k in range(count)}
+    assert not (tmp_path / "shared.sqlite.lock").exists()  # the migration lock: removed
 
 
 def test_opening_waits_for_a_migration_under_way(calibrated, tmp_path):

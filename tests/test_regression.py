@@ -255,16 +255,25 @@ def _json(value):
 def without_scale(doc: dict) -> dict:
     """``doc`` (a run, or a cross-validation of runs) without what the plausibility check
     derives from its translation scale: the scale, its standard deviation and the board spacing
-    the data imply: a diagnostic of the inputs that no calibration number depends on)."""
+    the data imply, nor what the checks measure (:data:`MEASURED_BY_THE_CHECKS`): diagnostics of
+    the inputs that no calibration number depends on)."""
     if "folds" in doc:
         return {**doc, "folds": [without_scale(f) for f in doc["folds"]]}
     doc = dict(doc)
     if isinstance(doc.get("plausibility"), dict):
-        derived = ("translation_scale", "board_spacing_from_data_m")
+        derived = ("translation_scale", "board_spacing_from_data_m", *MEASURED_BY_THE_CHECKS)
         doc["plausibility"] = {
             k: v for k, v in doc["plausibility"].items() if not k.startswith(derived)
-        }
+        } or None
     return doc
+
+
+# What the input checks measure (issue 28, checks that understand structured recordings; issue
+# 29, one gate for every kind): the rotation misfit is the median over the pairs that turn
+# enough to show one (not over every pair), and points report their misfit at the nominal model
+# (the recording had no check of points): diagnostics of the inputs, no calibration number
+# depends on them.
+MEASURED_BY_THE_CHECKS = ("rotation_misfit_deg", "point_misfit_mm")
 
 
 def same_as_lm(name: str, got: dict, lm: dict) -> None:

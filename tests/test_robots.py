@@ -8,7 +8,7 @@ from relcal.robot.kinematics import fk, forward_frames
 from relcal.robot.loading import get_robot
 from relcal.robot.model import library_names
 
-LIBRARY = ["a465", "puma560", "ur5e", "franka_fr3", "irb120"]
+LIBRARY = ["a465", "puma560", "ur5e", "ur10", "franka_fr3", "irb120"]
 DEG = np.pi / 180
 
 
@@ -88,6 +88,25 @@ def test_ur5e_zero_pose():
     pose = fk(get_robot("ur5e"), np.zeros((1, 6)))[0]
     np.testing.assert_allclose(pose[:3, :3], [[1, 0, 0], [0, 0, -1], [0, 1, 0]], atol=1e-12)
     np.testing.assert_allclose(pose[:3, 3], [-0.8172, -0.2329, 0.0628], atol=1e-12)
+
+
+def test_ur10_zero_pose_and_a_bent_elbow():
+    # Classic UR10 (CB3) at zero, as the UR5e: R = Rx(90), x = a2 + a3 = -1.1843,
+    # y = -(d4 + d6) = -0.256141, z = d1 - d5 = 0.0116.
+    model = get_robot("ur10")
+    pose = fk(model, np.zeros((1, 6)))[0]
+    np.testing.assert_allclose(pose[:3, :3], [[1, 0, 0], [0, 0, -1], [0, 1, 0]], atol=1e-12)
+    np.testing.assert_allclose(pose[:3, 3], [-1.1843, -0.256141, 0.0116], atol=1e-12)
+    # Any configuration: the written-out DH product with the table typed in again.
+    q = np.array([0.3, -1.1, 1.57, -0.4, 0.8, 2.0])
+    d = [0.1273, 0, 0, 0.163941, 0.1157, 0.0922]
+    a = [0, -0.612, -0.5723, 0, 0, 0]
+    alpha = np.array([90, 0, 0, 90, -90, 0]) * DEG
+    by_hand = np.eye(4)
+    for i in range(6):
+        by_hand = by_hand @ dh(q[i], d[i], a[i], alpha[i])
+    np.testing.assert_allclose(fk(model, q[None])[0], by_hand, atol=1e-12)
+    assert np.degrees(model.upper[2]) == 180 and np.degrees(model.upper[0]) == 360
 
 
 def test_franka_fr3_zero_pose():

@@ -57,6 +57,12 @@ def renamed(
     ArgumentError
         Both keywords given with values that disagree.
     """
+    if isinstance(new_default, bool):  # a flag: checked before ``convert`` (``not``) sees it
+        from relcal.checks import check_flag
+
+        check_flag(new_value, new)
+        if old_value is not UNSET:
+            check_flag(old_value, old)
     if old_value is UNSET:
         return new_value
     value = convert(old_value)
@@ -66,7 +72,11 @@ def renamed(
         DeprecationWarning,
         stacklevel=3,
     )
-    if new_value is not new_default and new_value != value:
+    try:
+        differ = bool(new_value != value)
+    except (TypeError, ValueError):  # arrays and other values without one truth
+        differ = True
+    if new_value is not new_default and differ:
         raise ArgumentError(
             f"{function}: {old}={old_value!r} and {new}={new_value!r} disagree; give only {new} "
             f"({old} is its deprecated name)"

@@ -8,6 +8,7 @@ Each ``check_*`` returns the value converted (a float or int array of the checke
 
 from __future__ import annotations
 
+import os
 from collections.abc import Iterable, Sequence
 from os import PathLike
 from pathlib import Path
@@ -45,6 +46,27 @@ def _regular(value: Any) -> bool:
     return True
 
 
+def real_array(value: Any, name: str, dtype: type = float) -> np.ndarray:
+    """``value`` as an array of ``dtype``; complex numbers are refused naming ``name`` unless
+    every imaginary part is zero (NumPy would drop them with a warning only: a joint value
+    ``0.3+0.1j`` is not a reading). Other conversions fail as NumPy's do (TypeError,
+    ValueError), for the caller's message."""
+    arr = np.asarray(value)
+    if np.iscomplexobj(arr):
+        imag = np.abs(arr.imag)
+        if np.any(imag != 0):
+            k = np.unravel_index(int(np.argmax(imag != 0)), arr.shape) if arr.ndim else ()
+            at = f"{name}[{', '.join(str(int(i)) for i in k)}]" if k else name
+            raise ArgumentError(
+                f"{at} = {arr[k] if k else arr}: complex, expected real numbers "
+                f"({int(np.count_nonzero(imag))} of {arr.size} with an imaginary part); a "
+                "computation upstream produced complex values (a square root or logarithm of a "
+                "negative number?): take the real values only where that is meant"
+            )
+        arr = arr.real
+    return np.asarray(arr, dtype=dtype)
+
+
 def check_instance(value: Any, cls: type | tuple[type, ...], name: str, expected: str) -> Any:
     """``value`` must be an instance of ``cls``; ``expected`` says what, with how to get one."""
     if not isinstance(value, cls):
@@ -56,9 +78,9 @@ def check_path(value: Any, name: str, expected: str) -> Path:
     """``value`` as a :class:`~pathlib.Path`: a ``str`` or an ``os.PathLike``; ``expected``
     says which file or folder (``"a dataset folder"``)."""
     if isinstance(value, str | PathLike) and not isinstance(value, bytes):
-        path = Path(value)
-        if str(path).strip():
-            return path
+        text = os.fspath(value)
+        if isinstance(text, str) and text.strip():  # (Path("") is ".": the working folder)
+            return Path(text)
     raise ArgumentError(f"{name}: expected {expected} (a str or Path), got {describe(value)}")
 
 
@@ -121,10 +143,16 @@ def check_number(
     kind = "a whole number" if integer else "a number"
     if isinstance(value, bool) or not isinstance(value, int | float | np.integer | np.floating):
         raise ArgumentError(f"{name}: expected {kind}, got {describe(value)}")
+    if isinstance(value, int | np.integer):  # a Python int may exceed every float and int64
+        if not -(2**63) <= value < 2**63:
+            raise ArgumentError(
+                f"{name}: {value!r} is out of range for a whole number here (at most 2**63 - 1 "
+                "in size)"
+            )
+    elif not np.isfinite(value):
+        raise ArgumentError(f"{name}: expected a finite number, got {value!r}")
     if integer and not float(value).is_integer():
         raise ArgumentError(f"{name}: expected {kind}, got {value!r}")
-    if not np.isfinite(value):
-        raise ArgumentError(f"{name}: expected a finite number, got {value!r}")
     below = low is not None and (value <= low if low_open else value < low)
     above = high is not None and (value >= high if high_open else value > high)
     if below or above:
@@ -133,6 +161,17 @@ def check_number(
         span = f"in {lo or '(-inf'}, {hi or 'inf)'}"
         raise ArgumentError(f"{name}: expected {kind} {span}, got {value!r}")
     return int(value) if integer else float(value)
+
+
+SEED_MAX = 2**63 - 1  # seeds fit a signed 64-bit integer (NumPy takes any size; files do not)
+
+
+def check_seed(value: Any, name: str = "seed") -> int:
+    """A random seed: a whole number from 0 to :data:`SEED_MAX` (NumPy refuses negative seeds
+    deep inside, with a message that does not name the argument)."""
+    if isinstance(value, int | np.integer) and not isinstance(value, bool) and value > SEED_MAX:
+        raise ArgumentError(f"{name}: expected a seed from 0 to 2**63 - 1, got {value!r}")
+    return int(check_number(value, name, 0, integer=True))
 
 
 def check_array(
@@ -153,7 +192,9 @@ def check_array(
         + ")"
     )
     try:
-        arr = np.asarray(value, dtype=dtype)
+        arr = real_array(value, name, dtype)
+    except ArgumentError:
+        raise
     except (TypeError, ValueError):
         raise ArgumentError(
             f"{name}: expected numbers of shape {want}, got {describe(value)}"
@@ -187,7 +228,7 @@ def check_joints(q: Any, n_joints: int, name: str = "q", model: str = "") -> np.
         if np.isfinite(q).all():  # the common case, fast: fk is a hot path
             return q
     try:
-        arr = np.asarray(q, dtype=float)
+        arr = real_array(q, name)
     except (TypeError, ValueError):
         arr = q
     if isinstance(arr, np.ndarray) and arr.ndim == 1:

@@ -21,6 +21,8 @@ import ctypes.util
 import logging
 import os
 import sys
+from collections.abc import Iterator
+from contextlib import contextmanager
 from typing import Any
 
 from relcal.errors import RelcalError
@@ -99,8 +101,56 @@ def connect(scheduler: str | None, workers: int = 2) -> tuple[Any, Any]:
             return Client(scheduler, timeout="20s"), None
         except (OSError, TimeoutError) as exc:
             raise RelcalError(f"--scheduler {scheduler}: cannot connect: {exc}") from None
-    cluster = local_cluster(workers)
-    return Client(cluster), cluster
+    cluster = client = None
+    try:
+        with _interrupts_deferred():  # a cluster half started cannot be closed (see below)
+            cluster = local_cluster(workers)
+            client = Client(cluster)
+    except BaseException:  # an interrupt delivered now, or a failed start: close what started
+        if client is not None:
+            client.close()
+        if cluster is not None:
+            cluster.close()
+        raise
+    return client, cluster
+
+
+@contextmanager
+def _interrupts_deferred() -> Iterator[None]:
+    """SIGINT and SIGTERM noted during the block and delivered once it is done (a second one
+    is delivered at once). A local cluster interrupted while its workers start is unreachable
+    (the constructor never returned it) and its workers are still starting: Dask's own exit
+    handler then fails on them with an AssertionError traceback. Deferred, the interrupt
+    arrives once the cluster is up, and the caller closes it as for any other interrupt.
+    Only the Python handlers are swapped, never the signal mask, which the worker processes
+    would inherit."""
+    import signal
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    sigs = (signal.SIGINT, signal.SIGTERM)
+    caught: list[int] = []
+    old = {s: signal.getsignal(s) for s in sigs}
+
+    def note(signum, frame):
+        if caught:  # asked twice: the user means it
+            handler = old.get(signum)
+            if callable(handler):
+                handler(signum, frame)
+            raise KeyboardInterrupt
+        caught.append(signum)
+
+    for s in sigs:
+        signal.signal(s, note)
+    try:
+        yield
+    finally:
+        for s, handler in old.items():
+            signal.signal(s, signal.SIG_DFL if handler is None else handler)
+        for n in dict.fromkeys(caught):
+            signal.raise_signal(n)
 
 
 def n_workers(client) -> int:

@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import csv
+import io
 import json
 import re
 from pathlib import Path
@@ -13,7 +14,7 @@ import pydantic
 import yaml
 
 from relcal.errors import RelcalError, excerpt, printable
-from relcal.limits import check_input_size, check_yaml_nodes
+from relcal.limits import check_yaml_nodes, read_input
 from relcal.outputset import File, Folder, note_input, write_set
 
 __all__ = ["File", "Folder", "note_input", "write_set"]
@@ -92,11 +93,16 @@ def read_table(path: str | Path, what: str) -> tuple[list[str], list[TableRow]]:
     note_input(path)
     if path.is_dir():
         raise RelcalError(f"{path}: is a directory, expected a CSV file")
-    check_input_size(path, "csv")
     rows: list[TableRow] = []
     line_num = 0
     try:
-        with open(path, newline="", encoding="utf-8-sig") as handle:
+        data = read_input(path, "csv")
+        try:
+            text = data.decode("utf-8-sig")
+        except UnicodeDecodeError as exc:
+            line_num = data[: exc.start].count(b"\n")
+            raise
+        with io.StringIO(text, newline="") as handle:
             first = ""
             for raw in handle:
                 if raw.strip() and not raw.lstrip().startswith("#"):
@@ -116,7 +122,7 @@ def read_table(path: str | Path, what: str) -> tuple[list[str], list[TableRow]]:
         raise RelcalError(f"{path}: file not found") from None
     except UnicodeDecodeError:
         raise RelcalError(
-            f"{path}: not a text file (not UTF-8 near line {line_num + 1}); expected a CSV table"
+            f"{path}: not a text file (not UTF-8 at line {line_num + 1}); expected a CSV table"
         ) from None
     except csv.Error as exc:
         raise RelcalError(f"{path} line {line_num + 1}: cannot read: {exc}") from None
@@ -126,7 +132,26 @@ def read_table(path: str | Path, what: str) -> tuple[list[str], list[TableRow]]:
         raise RelcalError(f"{path}: empty; expected a header line and one line per {what}")
     if len(rows) < 2:
         raise RelcalError(f"{path}: no {what}s after the header line")
+    _check_separators(path, rows, delimiter)
     return [h.strip() for h in rows[0]], rows[1:]
+
+
+def _check_separators(path: Path, rows: list[TableRow], delimiter: str) -> None:
+    """Refuse a data row whose fields are separated by another character than the header's
+    (a tab-separated row under a comma-separated header reads as one field holding them all),
+    naming both separators; any other miscount is left to the reader's own message."""
+    width = len(rows[0])
+    for row in rows[1:]:
+        if len(row) != 1 or width == 1:  # (a row the header's separator splits at all: its own)
+            continue
+        line = delimiter.join(row)
+        for other, name in DELIMITERS.items():
+            if other != delimiter and len(line.split(other)) == width:
+                raise RelcalError(
+                    f"{path} line {row.line}: fields separated by {name}, but the header (line "
+                    f"{rows[0].line}) by {DELIMITERS[delimiter]}; use one separator throughout "
+                    "the file"
+                )
 
 
 class _Loader(getattr(yaml, "CSafeLoader", yaml.SafeLoader)):  # libyaml's parser when built
@@ -157,9 +182,8 @@ def load_yaml(path: str | Path) -> tuple[Any, yaml.Node | None]:
     note_input(path)
     if path.is_dir():
         raise RelcalError(f"{path}: is a folder, expected a YAML file")
-    check_input_size(path, "yaml")
     try:
-        text = path.read_text(encoding="utf-8-sig")
+        text = read_input(path, "yaml").decode("utf-8-sig")
     except FileNotFoundError:
         raise RelcalError(f"{path}: file not found") from None
     except UnicodeDecodeError:

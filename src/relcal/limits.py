@@ -1,10 +1,13 @@
 """Bounds on what relcal reads and allocates, each checked before the work with a message that
 names the input, the size found, the limit, and how to go on.
 
-- **Input files** (:func:`check_input_size`): a file larger than the cap of its kind is refused
-  before a byte is read. The caps are generous (a calibration's CSV of 200 MB holds millions of
+- **Input files** (:func:`check_input_size`, :func:`read_input`): a file larger than the cap of
+  its kind is refused before a byte is read, a device (``/dev/zero``) is refused, and a pipe is
+  read only up to the cap. The caps are generous (a calibration's CSV of 200 MB holds millions of
   samples) and each can be raised with an environment variable, ``RELCAL_MAX_<KIND>_MB``
   (``RELCAL_MAX_CSV_MB=500``).
+- **YAML keys** (:func:`check_yaml_nodes`): a mapping that gives a key twice is refused (YAML
+  forbids it; a parser would silently keep one value).
 - **YAML aliases** (:func:`check_yaml_nodes`): a document whose aliases expand to more than
   ``RELCAL_MAX_YAML_ALIAS_NODES`` nodes beyond its own (a "billion laughs" file: 471 bytes that
   expand to 10^9 values), or that refers to itself, or nests deeper than ``MAX_YAML_DEPTH``, is
@@ -60,12 +63,22 @@ def input_cap(kind: str) -> int:
 
 
 def check_input_size(path: str | Path, kind: str) -> None:
-    """Refuse ``path`` before reading it when it is larger than the cap of its ``kind``
-    (a missing or unreadable file is left to the reader's own message)."""
+    """Refuse ``path`` before reading it when it is larger than the cap of its ``kind``, or a
+    device or socket (``/dev/zero`` never ends, ``/dev/random`` is noise: neither is a file of
+    data); a missing or unreadable file is left to the reader's own message. A pipe has no
+    size: read it with :func:`read_input`, which stops at the cap."""
+    import stat
+
     try:
-        size = os.stat(path).st_size
+        info = os.stat(path)
     except OSError:
         return
+    if stat.S_ISCHR(info.st_mode) or stat.S_ISBLK(info.st_mode) or stat.S_ISSOCK(info.st_mode):
+        raise RelcalError(
+            f"{path}: a device, not a file (not read: it may never end); give the {kind} file "
+            "itself"
+        )
+    size = info.st_size
     cap = input_cap(kind)
     if size > cap:
         raise RelcalError(
@@ -73,6 +86,23 @@ def check_input_size(path: str | Path, kind: str) -> None:
             f"files (not read); a wrong file? If it is right, raise the limit with "
             f"RELCAL_MAX_{kind.upper()}_MB"
         )
+
+
+def read_input(path: str | Path, kind: str) -> bytes:
+    """The bytes of the input file ``path`` of ``kind``: refused as :func:`check_input_size`
+    does, and read at most up to the cap (a pipe or a file that grows while read stops there:
+    refused, not read to the end). ``OSError`` is left to the caller's message."""
+    check_input_size(path, kind)
+    cap = input_cap(kind)
+    with open(path, "rb") as handle:
+        data = handle.read(cap + 1)
+    if len(data) > cap:
+        raise RelcalError(
+            f"{path}: more than the {_megabytes(cap)} limit for {kind} input files (read "
+            f"stopped there); a wrong file? If it is right, raise the limit with "
+            f"RELCAL_MAX_{kind.upper()}_MB"
+        )
+    return data
 
 
 def _megabytes(n: float) -> str:
@@ -120,6 +150,8 @@ def check_yaml_nodes(path: str | Path, root) -> None:
             continue
         if key in size:
             continue
+        if isinstance(node, yaml.MappingNode):
+            _check_unique_keys(path, node)
         on_path.add(key)
         stack.append((node, True))
         for child in children(node):
@@ -130,6 +162,26 @@ def check_yaml_nodes(path: str | Path, root) -> None:
                 )
             if id(child) not in size:
                 stack.append((child, False))
+
+
+def _check_unique_keys(path: str | Path, node) -> None:
+    """Refuse a mapping that gives one key twice (YAML forbids it; PyYAML would keep the last
+    silently, and the first value, the one a reader sees first, would be ignored)."""
+    seen: dict[str, int] = {}
+    for key, _ in node.value:
+        if key.tag == "tag:yaml.org,2002:merge" or not hasattr(key, "value"):
+            continue
+        if not isinstance(key.value, str):
+            continue
+        line = key.start_mark.line + 1
+        if key.value in seen:
+            from relcal.errors import printable
+
+            raise RelcalError(
+                f"{path} line {line}: key '{printable(key.value, 60)}' given twice (first on "
+                f"line {seen[key.value]}); YAML keeps only one of them: delete or merge one"
+            )
+        seen[key.value] = line
 
 
 def memory_limit() -> int:
@@ -163,7 +215,17 @@ def resolve_pairing(pairing: str, n_samples: int, formulation: str = "invariant"
     the order of the samples: docs/explanation/relative-formulation.md); for the base-frame
     formulations of a simulation (``published``, ``absolute``), which cannot take a board, all
     pairs up to :data:`AUTO_ALL_PAIRS` samples (``board`` above, refused by them). Any other
-    pairing is itself."""
+    pairing is itself; anything but one of the pairings' names is refused, naming
+    ``pairing``."""
+    names = ("auto", "all", "consecutive", "star", "board")
+    if not isinstance(pairing, str) or pairing not in names:
+        from relcal.checks import describe  # (NumPy: only on this error path)
+        from relcal.errors import ArgumentError
+
+        raise ArgumentError(
+            f"pairing: unknown {describe(pairing)}; expected one of "
+            + ", ".join(repr(n) for n in names)
+        )
     if pairing != "auto":
         return pairing
     if formulation in ("invariant", "board"):
@@ -246,4 +308,72 @@ def check_calibration_memory(
         need,
         f"{where}: {n_samples:,} samples with --pairing {shown} ({count}, {n_params} parameters)",
         remedy + "; or raise RELCAL_MAX_MEMORY_MB if the machine has the memory",
+    )
+
+
+# Coincidence data estimate a point per group: the identification Jacobian has 3 rows per sample
+# (and one per known distance) and 3 columns per group besides the robot's, and is dense.
+# Measured on simulated UR5e coincidence sets (`relcal simulate --coincidence`, 2 sockets per
+# placement, `relcal calibrate` with its defaults, 2 shared cores): 360 samples in 60 groups
+# 8 s and 179 MB; 720 in 120, 24 s and 240 MB; 1440 in 120, 34 s and 251 MB; 1800 in 6, 4 s
+# and 190 MB. Seconds ~ 5 + 2.9e-8 m n^2 + 1.5e-7 n^3 (the solver's SVDs, m rows, n columns);
+# memory ~ 150 MB + 128 bytes per Jacobian entry (its weighted and scaled copies).
+COINCIDENCE_SECONDS = (5.0, 2.9e-8, 1.5e-7)
+COINCIDENCE_BYTES_PER_ENTRY = 128
+MINUTES = 10.0  # default bound of a computation's estimated time (RELCAL_MAX_MINUTES)
+
+
+def _duration(seconds: float) -> str:
+    if seconds < 120:
+        return f"{seconds:.0f} s"
+    if seconds < 7200:
+        return f"{seconds / 60:,.0f} minutes"
+    return f"{seconds / 3600:,.0f} hours"
+
+
+def time_limit() -> float:
+    """The seconds a computation may plan for: ``RELCAL_MAX_MINUTES`` (default 10) x 60."""
+    return _env_number("RELCAL_MAX_MINUTES", MINUTES) * 60.0
+
+
+def coincidence_cost(
+    n_samples: int, n_groups: int, n_distances: int, n_params: int
+) -> tuple[float, float]:
+    """Estimated ``(bytes, seconds)`` of a calibration of coincidence samples: ``n_params``
+    parameters of the robot (its largest candidate model), the tool point and ``n_groups``
+    group points (see the measurements above)."""
+    rows = 3.0 * n_samples + n_distances
+    cols = float(n_params + 3 + 3 * n_groups)
+    a, b, c = COINCIDENCE_SECONDS
+    return (
+        BASE_BYTES + COINCIDENCE_BYTES_PER_ENTRY * rows * cols,
+        a + b * rows * cols**2 + c * cols**3,
+    )
+
+
+def check_coincidence_size(
+    n_samples: int, n_groups: int, n_distances: int, n_params: int, where: str
+) -> None:
+    """Refuse coincidence data whose calibration would need more memory or time than the
+    limits (``RELCAL_MAX_MEMORY_MB``, ``RELCAL_MAX_MINUTES``), before any work, with the
+    estimate, the cause (the points of many groups are as many unknowns) and the remedies."""
+    need, seconds = coincidence_cost(n_samples, n_groups, n_distances, n_params)
+    limit, allowed = memory_limit(), time_limit()
+    if need <= limit and seconds <= allowed:
+        return
+    what = (
+        f"{where}: {n_samples:,} coincidence samples in {n_groups:,} groups ({3 * n_groups:,} "
+        f"unknown group coordinates besides {n_params + 3} parameters of the robot and tool "
+        "point, all in one dense fit)"
+    )
+    remedy = (
+        "calibrate fewer placements at a time (a placement's groups share nothing with the "
+        "others' but the robot), or fewer samples per group"
+    )
+    if need > limit:
+        check_memory(need, what, remedy + "; or raise RELCAL_MAX_MEMORY_MB if the machine has it")
+    raise RelcalError(
+        f"{what} would take about {_duration(seconds)} (estimated from measured runs), "
+        f"above the limit of {allowed / 60:g} minutes (RELCAL_MAX_MINUTES); {remedy}; or raise "
+        "RELCAL_MAX_MINUTES to wait for it"
     )

@@ -26,8 +26,22 @@ Every file a command writes goes through :func:`write_set`:
   a SIGKILL releases the lock, and the next run writing to the same place removes the
   temporaries nobody holds (and only those). Staging and the renames take a lock on the parent
   folder, so a cleanup never sees a live run between two of its steps.
-- :func:`written` lists what this run has installed, so that a message after an interrupt says
-  truthfully whether the new outputs are in place.
+- :func:`written` lists what this run has installed (sets, files, registry records, the samples
+  of a capture: :func:`note_written`), so that a message after an interrupt says truthfully
+  what is in place.
+- **Never the user's.** A file or folder inside an output folder that the previous set did not
+  list as its own (a ``joints.csv`` a user wrote into ``cal/``) stays where it is: it is moved
+  into the new set (and with the set into ``.prev``), never deleted; a file of the new set with
+  the same name is refused before any work. A folder that is the working folder or holds it
+  (``--out .``, an empty path) is refused: it would be swapped away under the shell. A
+  calibration registry (a SQLite database, :func:`note_registry`) is never written over.
+- **Declared first.** A command declares every destination of its run before any work
+  (:func:`declare`; the command line does it from the options that name outputs), and every
+  write of the run checks all of them against what the run has read so far, so a ``--json``
+  that names an input is refused before ``--out`` is written, not after.
+- **One writer.** :func:`exclusive` serialises or refuses concurrent writers of one place (a
+  capture's dataset folder, a registry's migration) with a lock file that is removed when the
+  run ends.
 """
 
 from __future__ import annotations
@@ -51,7 +65,10 @@ from relcal.errors import RelcalError
 
 MARKER = ".relcal-set.json"  # written into every output folder: run id and file list
 _INPUTS: set[Path] = set()
-_WRITTEN: list[str] = []  # what this run installed, in words (see :func:`written`)
+_REGISTRIES: set[Path] = set()  # SQLite registries this run opened: never an output
+_DECLARED: list[File | Folder] = []  # the destinations of this run (:func:`declare`)
+_WRITTEN: dict[object, str] = {}  # what this run installed, in words (see :func:`written`)
+SQLITE_MAGIC = b"SQLite format 3\x00"
 
 
 def _real(path: str | Path) -> Path:
@@ -68,22 +85,40 @@ def inputs() -> frozenset[Path]:
     return frozenset(_INPUTS)
 
 
+def note_registry(path: str | Path) -> None:
+    """Record that this run uses the SQLite registry ``path``: no output of the run may be
+    written over it or replace a folder that holds it."""
+    _REGISTRIES.add(_real(path))
+
+
 @contextmanager
 def tracking() -> Iterator[None]:
-    """A fresh record of inputs for one run (the command line wraps each command in it)."""
-    saved = set(_INPUTS)
+    """A fresh record of inputs, registries and declared destinations for one run (the command
+    line wraps each command in it)."""
+    saved = set(_INPUTS), set(_REGISTRIES), list(_DECLARED)
     _INPUTS.clear()
+    _REGISTRIES.clear()
+    _DECLARED.clear()
     try:
         yield
     finally:
         _INPUTS.clear()
-        _INPUTS.update(saved)
+        _INPUTS.update(saved[0])
+        _REGISTRIES.clear()
+        _REGISTRIES.update(saved[1])
+        _DECLARED[:] = saved[2]
 
 
 def written() -> list[str]:
     """What this run has installed so far, in words (``--out cal/ (run 3f2a...)``, ``registry
     run 7``): each entry is complete; empty when nothing was written."""
-    return list(_WRITTEN)
+    return list(_WRITTEN.values())
+
+
+def note_written(text: str, key: object = None) -> None:
+    """Add ``text`` to :func:`written` (something this run has made durable, whole); an entry
+    with the same ``key`` is replaced (a capture's growing count of samples)."""
+    _WRITTEN[object() if key is None else key] = text
 
 
 def forget_written() -> None:
@@ -131,10 +166,11 @@ class Folder:
 
 @dataclass
 class File:
-    """A single file written as one unit."""
+    """A single file written as one unit; ``content`` may be a function returning the text or
+    bytes, called once the set's journal is prepared (see :func:`write_set`)."""
 
     path: str | Path
-    content: str | bytes
+    content: str | bytes | Callable[[], str | bytes]
     what: str = "--json"
 
 
@@ -172,14 +208,91 @@ def _is_set(folder: Path) -> bool:
 
 def _is_input_inside(folder: Path) -> Path | None:
     real = _real(folder)
-    for p in sorted(_INPUTS):
-        if p == real or real in p.parents:
-            return p
+    hits = [p for p in _INPUTS if p == real or real in p.parents]
+    return max(hits, key=lambda p: (len(p.parts), str(p))) if hits else None  # the file read
+
+
+def is_registry(path: str | Path) -> bool:
+    """A regular file that starts as a SQLite database does (a calibration registry)."""
+    try:
+        if not os.path.isfile(path):
+            return False
+        with open(path, "rb") as handle:
+            return handle.read(len(SQLITE_MAGIC)) == SQLITE_MAGIC
+    except OSError:
+        return False
+
+
+def _registry_hit(real: Path, folder: bool) -> Path | None:
+    """A registry of this run that ``real`` is (or, for a ``folder``, holds): with SQLite's
+    companions (``-wal``, ``-shm``, ``-journal``)."""
+    for reg in sorted(_REGISTRIES):
+        names = {reg, *(reg.with_name(reg.name + s) for s in ("-wal", "-shm", "-journal"))}
+        if real in names or (folder and real in reg.parents):
+            return reg
     return None
+
+
+def _empty_path(path: str | Path) -> bool:
+    return not str(path).strip()
+
+
+def check_destination(item: Folder | File) -> None:
+    """The checks every destination gets, declared or about to be written: not empty, not an
+    input of the run (nor, for a folder, holding one), not a calibration registry (nor a folder
+    holding the run's), not the working folder (nor a folder holding it)."""
+    folder = isinstance(item, Folder)
+    if _empty_path(item.path):
+        raise RelcalError(
+            f"{item.what}: an empty path; give a {'folder' if folder else 'file'} name "
+            "(the working folder itself is never an output: it would be replaced under you)"
+        )
+    path = Path(item.path)
+    what = f"{item.what} {path}"
+    real = _real(path)
+    if is_stream(path):
+        if path.exists() and real in _INPUTS:
+            raise RelcalError(f"{what}: this run reads it; write the output elsewhere")
+        return
+    reg = _registry_hit(real, folder)
+    if reg is not None:
+        if folder and reg != real:
+            raise RelcalError(
+                f"{what}: the registry {reg} of this run is inside the output folder, which is "
+                "replaced as a whole; put the registry or the outputs elsewhere"
+            )
+        raise RelcalError(
+            f"{what}: also given as the registry of this run ({reg}); relcal never writes over "
+            "a registry: give another path"
+        )
+    if not folder and is_registry(path):
+        raise RelcalError(
+            f"{what}: is a calibration registry (a SQLite database); relcal never writes over "
+            "one: give another file name"
+        )
+    if folder:
+        hit = _is_input_inside(path)
+        if hit is not None:
+            raise RelcalError(
+                f"{what}: would overwrite {hit}, which this run reads; write the outputs elsewhere"
+            )
+        cwd = _real(os.getcwd())
+        if real == cwd or real in cwd.parents:
+            here = "is the working folder" if real == cwd else f"holds the working folder {cwd}"
+            raise RelcalError(
+                f"{what}: {here}; an output folder is replaced as a whole, which would leave "
+                "this process (and your shell) in a deleted folder: give a new folder name, "
+                "e.g. 'results'"
+            )
+    elif real in _INPUTS:
+        raise RelcalError(
+            f"{what}: would overwrite {real}, which this run reads; give another file"
+        )
 
 
 def check_folder(item: Folder) -> None:
     """Refuse a folder destination that is a file, holds an input, or is not relcal's own."""
+    check_destination(item)
     path = Path(item.path)
     what = f"{item.what} {path}"
     if is_stream(path):
@@ -187,11 +300,6 @@ def check_folder(item: Folder) -> None:
     if path.exists() and not path.is_dir():
         raise RelcalError(f"{what}: exists and is a file, not a folder; give a folder path")
     check_parent(path, item.what)
-    hit = _is_input_inside(path)
-    if hit is not None:
-        raise RelcalError(
-            f"{what}: would overwrite {hit}, which this run reads; write the outputs elsewhere"
-        )
     if path.is_dir() and any(path.iterdir()):
         if item.replace == "refuse":
             raise RelcalError(
@@ -209,29 +317,96 @@ def check_folder(item: Folder) -> None:
                 f"{what}: {prev} (where the previous outputs are kept) exists and was not "
                 "written by relcal; move it away"
             )
+        clash = sorted(set(_foreign(path)) & _names_of(item.files))
+        if clash:
+            raise RelcalError(
+                f"{what}: {path / clash[0]} was not written by relcal (not in {MARKER}) and "
+                "this run writes a file of that name; move it out of the folder (files of "
+                "yours in an output folder are kept, never replaced)"
+            )
+        if prev.is_dir() and _is_set(prev):
+            clash = sorted(set(_foreign(prev)) & _staying(path, _foreign(path)))
+            if clash:
+                raise RelcalError(
+                    f"{what}: {prev / clash[0]} was not written by relcal and the outputs "
+                    f"about to be kept in {prev} include a file of that name; move it away"
+                )
 
 
 def check_file(item: File) -> None:
-    """Refuse a file destination that is a folder, an input, or in an unwritable place."""
+    """Refuse a file destination that is a folder, an input, a registry, or in an unwritable
+    place."""
+    check_destination(item)
     path = Path(item.path)
     what = f"{item.what} {path}"
     if is_stream(path):
-        if path.exists() and _real(path) in _INPUTS:
-            raise RelcalError(f"{what}: this run reads it; write the output elsewhere")
         return
     if path.is_dir():
         raise RelcalError(f"{what}: is a folder; give a file name")
     if str(_real(path)).startswith(("/dev/", "/proc/")):
         raise RelcalError(f"{what}: no such device; relcal does not create files there")
     check_parent(path, item.what)
-    if _real(path) in _INPUTS:
+
+
+def _manifest_files(folder: Path) -> set[str]:
+    """The files a set's manifest lists as its own (relative paths)."""
+    try:
+        manifest = json.loads((folder / MARKER).read_text())
+        files = manifest.get("files") if isinstance(manifest, dict) else None
+        if not isinstance(files, list):
+            raise ValueError("no list of files")
+    except (OSError, ValueError) as exc:
         raise RelcalError(
-            f"{what}: would overwrite {_real(path)}, which this run reads; give another file"
-        )
+            f"{folder / MARKER}: unreadable ({exc}); relcal cannot tell its files from yours "
+            "there: move the folder away (or give another --out)"
+        ) from None
+    return {str(f) for f in files}
+
+
+def _foreign(folder: Path) -> list[str]:
+    """The entries of a set ``folder`` that its manifest does not list as its own (relative
+    paths, outermost: a folder holding none of the set's files is one entry)."""
+    own = _manifest_files(folder) | {MARKER}
+    prefixes = {str(Path(f).parent) for f in own}
+    prefixes |= {str(p) for f in own for p in Path(f).parents}
+    out: list[str] = []
+
+    def walk(rel: Path) -> None:
+        try:
+            entries = sorted(os.scandir(folder / rel), key=lambda e: e.name)
+        except OSError:
+            return
+        for e in entries:
+            name = str(rel / e.name) if str(rel) != "." else e.name
+            if e.is_dir(follow_symlinks=False):
+                if name in prefixes:
+                    walk(Path(name))
+                else:
+                    out.append(name)
+            elif name not in own:
+                out.append(name)
+
+    walk(Path("."))
+    return out
+
+
+def _names_of(files: dict) -> set[str]:
+    """The relative names of a set's files and the folders they are in."""
+    names = set()
+    for name in files:
+        p = Path(name)
+        names.add(str(p))
+        names.update(str(q) for q in p.parents if str(q) != ".")
+    return names
 
 
 def check(items: Iterable[Folder | File]) -> None:
-    """Check every destination (and that no two are the same) without writing anything."""
+    """Check every destination (and that no two are the same) without writing anything; the
+    run's declared destinations (:func:`declare`) are checked against its inputs too."""
+    items = list(items)
+    for item in _DECLARED:
+        if not any(item is i or _same(item, i) for i in items):
+            check_destination(item)
     seen: dict[Path, str] = {}
     for item in items:
         (check_folder if isinstance(item, Folder) else check_file)(item)  # type: ignore[arg-type]
@@ -248,6 +423,36 @@ def check(items: Iterable[Folder | File]) -> None:
                     f"{item.what} {item.path}: inside the output folder ({what} {folder}), "
                     "which is replaced as a whole; write it elsewhere"
                 )
+
+
+def _same(a: Folder | File, b: Folder | File) -> bool:
+    return not _empty_path(a.path) and not _empty_path(b.path) and _real(a.path) == _real(b.path)
+
+
+def declare(*items: Folder | File) -> None:
+    """Declare destinations this run will write (before any work): each is checked now
+    (:func:`check_destination`, and no two the same), and again against the run's inputs at
+    every write of the run, so that no write happens while another destination of the run is
+    an input (the command line declares every option that names an output)."""
+    seen: dict[Path, str] = {}
+    for item in items:
+        check_destination(item)
+        real = _real(item.path)
+        if real in seen and not is_stream(item.path):
+            raise RelcalError(f"{item.what} {item.path}: also given as {seen[real]}")
+        seen[real] = f"{item.what} {item.path}"
+    for item in items:
+        for other in _DECLARED:
+            if _same(item, other) and not is_stream(item.path):
+                raise RelcalError(
+                    f"{item.what} {item.path}: also given as {other.what} {other.path}"
+                )
+    _DECLARED.extend(items)
+
+
+def declared() -> list[Folder | File]:
+    """The destinations declared in this run (:func:`declare`)."""
+    return list(_DECLARED)
 
 
 def check_apart(path: str | Path, what: str, items: Iterable[Folder | File]) -> None:
@@ -365,6 +570,80 @@ def _release(fd: int) -> None:
     os.close(fd)
 
 
+def _lock_fd(lock: Path, what: str, wait: bool) -> int | None:
+    """Open ``lock`` (created if missing) and lock it; None where locks are not available or
+    the file cannot be created (a read-only folder: nobody can write there either)."""
+    try:
+        import fcntl
+    except ImportError:  # not POSIX
+        return None
+    while True:
+        try:
+            fd = os.open(lock, os.O_RDWR | os.O_CREAT, 0o666)
+        except OSError:
+            return None
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | (0 if wait else fcntl.LOCK_NB))
+        except OSError:
+            holder = ""
+            try:
+                holder = os.pread(fd, 32, 0).decode(errors="replace").strip()
+            except OSError:
+                pass
+            os.close(fd)
+            raise RelcalError(
+                f"{what}: another relcal run"
+                + (f" (process {holder})" if holder.isdigit() else "")
+                + " is writing it now; wait until it has finished, then run this again"
+            ) from None
+        try:  # the file may have been removed by the run that held it: lock the one in place
+            same = os.path.samestat(os.fstat(fd), os.stat(lock))
+        except OSError:
+            same = False
+        if same:
+            os.ftruncate(fd, 0)
+            os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
+            return fd
+        os.close(fd)
+
+
+_LOCKS: dict[tuple, list] = {}  # lock files held, by (thread, path): [descriptor, depth]
+
+
+@contextmanager
+def exclusive(lock: str | Path, what: str, wait: bool = True) -> Iterator[None]:
+    """Hold the lock file ``lock`` for the block: concurrent relcal runs that take the same lock
+    wait for it (``wait``) or are refused with a message naming ``what`` (``wait=False``). The
+    file holds the holder's process id and is removed when the block ends (a run killed with
+    SIGKILL leaves it, unlocked: the next run takes it and removes it). Re-entrant within the
+    thread: a block that holds the lock already takes it again without waiting (another thread
+    of the process waits for it, as another process does)."""
+    import threading
+
+    lock = Path(os.path.abspath(lock))
+    key = (threading.get_ident(), lock)  # another thread waits, as another process does
+    if key in _LOCKS:  # held by this thread already (re-entrant)
+        _LOCKS[key][1] += 1
+        try:
+            yield
+        finally:
+            _LOCKS[key][1] -= 1
+        return
+    fd = _lock_fd(lock, what, wait)
+    _LOCKS[key] = [fd, 1]
+    try:
+        yield
+    finally:
+        del _LOCKS[key]
+        if fd is not None:
+            try:  # removed while still held: a waiting run then finds it gone and retries
+                if os.path.samestat(os.fstat(fd), os.stat(lock)):
+                    lock.unlink()
+            except OSError:
+                pass
+            os.close(fd)
+
+
 _RANDOM = r"[a-z0-9_]{8}"  # tempfile's random part
 
 
@@ -418,18 +697,17 @@ def remove_stale(*items: Folder | File) -> list[Path]:
 # --------------------------------------------------------------------------------- staging
 
 
-def _stage_folder(item: Folder, holds: list[int]) -> Path:
+def _stage_folder(item: Folder, holds: list[int], made: list[Path]) -> Path:
     path = Path(os.path.abspath(item.path))
-    with _folder_locks([path.parent]):  # created and locked before any cleanup can see it
+    # created and locked before any cleanup can see it, and known to the caller before an
+    # interrupt can land (else a temporary would outlive the run)
+    with _signals_held(), _folder_locks([path.parent]):
         tmp = Path(tempfile.mkdtemp(dir=path.parent, prefix=f".{path.name}.tmp-{os.getpid()}-"))
+        made.append(tmp)
         fd = _hold(tmp)
-    if fd is not None:
-        holds.append(fd)
-    try:
-        _fill_folder(tmp, item)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
+        if fd is not None:
+            holds.append(fd)
+    _fill_folder(tmp, item)  # (removed by the caller if this fails)
     return tmp
 
 
@@ -464,22 +742,24 @@ def _temp_file(path: Path) -> Path:
     return Path(tmp)
 
 
-def _stage_file(item: File, holds: list[int]) -> Path | None:
+def _content(item: File) -> bytes:
+    content = item.content() if callable(item.content) else item.content
+    return content.encode() if isinstance(content, str) else content
+
+
+def _stage_file(item: File, holds: list[int], made: list[Path]) -> Path | None:
     if is_stream(item.path):
         return None  # written at commit time
     path = _real(item.path)  # a symbolic link keeps pointing at the file, which is replaced
     path.parent.mkdir(parents=True, exist_ok=True)
-    with _folder_locks([path.parent]):
+    with _signals_held(), _folder_locks([path.parent]):
         tmp = _temp_file(path)
+        made.append(tmp)
         fd = _hold(tmp)
-    if fd is not None:
-        holds.append(fd)
-    try:
-        _write_bytes(tmp, item.content)
-        os.chmod(tmp, 0o666 & ~_umask())
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
+        if fd is not None:
+            holds.append(fd)
+    _write_bytes(tmp, _content(item))  # (removed by the caller if this fails)
+    os.chmod(tmp, 0o666 & ~_umask())
     return tmp
 
 
@@ -505,24 +785,78 @@ def _exchange(a: Path, b: Path) -> bool:
 Undo = list[Callable[[], object]]
 
 
+def _entries(folder: Path) -> set[str]:
+    """Every file and folder under ``folder`` (relative paths)."""
+    return {str(p.relative_to(folder)) for p in folder.rglob("*")}
+
+
+def _staying(folder: Path, moved: list[str]) -> set[str]:
+    """The entries of ``folder`` that stay in it once ``moved`` (and what they hold) are out."""
+    out = set()
+    for name in _entries(folder):
+        parts = Path(name).parts
+        if not any(parts[: len(Path(m).parts)] == Path(m).parts for m in moved):
+            out.add(name)
+    return out
+
+
+def _carry(src: Path, dst: Path, names: list[str], undo: Undo) -> None:
+    """Move the entries ``names`` (a user's files, not the set's) from the set ``src`` into the
+    set ``dst``, each by one rename; ``undo`` gets what moves them back."""
+    for name in names:
+        a, b = src / name, dst / name
+        missing = []
+        parent = b.parent
+        while not parent.exists() and parent != dst:
+            missing.append(parent)
+            parent = parent.parent
+        for folder in reversed(missing):
+            folder.mkdir()
+            undo.append(folder.rmdir)
+        if os.path.lexists(b):
+            raise OSError(f"{b} exists; cannot keep {a} there")
+        os.rename(a, b)
+        undo.append(lambda a=a, b=b: os.rename(b, a))
+
+
 def _commit_folder(tmp: Path, item: Folder, undo: Undo, trash: list[Path]) -> None:
     """Put the staged set ``tmp`` in place; the current set becomes ``.prev`` and the older
-    ``.prev`` goes to ``trash`` (deleted once the run is complete). ``undo`` gets, step by step,
-    what puts everything back."""
+    ``.prev`` goes to ``trash`` (deleted once the run is complete). Entries the sets do not list
+    as their own (a user's files) move along: those of the current set into the new one, those
+    of the older ``.prev`` into the new ``.prev``, so that nothing of the user's is deleted.
+    ``undo`` gets, step by step, what puts everything back."""
     path = Path(os.path.abspath(item.path))
     prev = _prev(path)
     if path.is_dir() and any(path.iterdir()):
+        mine = _foreign(path)
+        older = _foreign(prev) if prev.is_dir() and _is_set(prev) else []
+        clash = sorted(set(mine) & _entries(tmp))
+        if clash:
+            raise RelcalError(
+                f"{item.what} {item.path}: {path / clash[0]} was not written by relcal and this "
+                "run writes a file of that name; move it out of the folder; nothing written"
+            )
+        clash = sorted(set(older) & _staying(path, mine))
+        if clash:
+            raise RelcalError(
+                f"{item.what} {item.path}: {prev / clash[0]} was not written by relcal and the "
+                f"outputs about to be kept in {prev} include a file of that name; move it away; "
+                "nothing written"
+            )
         if _exchange(tmp, path):  # new set in place; tmp holds the old one
             undo.append(lambda: _exchange(tmp, path))
+            _carry(tmp, path, mine, undo)
             if prev.exists():
                 if not _exchange(tmp, prev):  # the old set is .prev; tmp holds the older one
                     raise OSError(f"cannot exchange {tmp} and {prev}")
                 undo.append(lambda: _exchange(tmp, prev))
+                _carry(tmp, prev, older, undo)
                 trash.append(tmp)
             else:
                 os.rename(tmp, prev)
                 undo.append(lambda: os.rename(prev, tmp))
         else:  # no atomic exchange here: three renames (the folder is missing for a moment)
+            aside = None
             if prev.exists():
                 aside = Path(f"{tmp}-older")
                 os.rename(prev, aside)
@@ -532,6 +866,9 @@ def _commit_folder(tmp: Path, item: Folder, undo: Undo, trash: list[Path]) -> No
             undo.append(lambda: os.rename(prev, path))
             os.rename(tmp, path)
             undo.append(lambda: os.rename(path, tmp))
+            _carry(prev, path, mine, undo)
+            if aside is not None:
+                _carry(aside, prev, older, undo)
     else:
         if path.is_dir():
             path.rmdir()
@@ -542,7 +879,7 @@ def _commit_folder(tmp: Path, item: Folder, undo: Undo, trash: list[Path]) -> No
 
 
 def _write_stream(item: File) -> None:
-    data = item.content.encode() if isinstance(item.content, str) else item.content
+    data = _content(item)
     with open(item.path, "wb") as handle:  # a device or pipe: written into
         handle.write(data)
 
@@ -645,16 +982,33 @@ def write_set(*items: Folder | File, journal: Journal | None = None) -> list[Pat
     locked temporary siblings, streams are written, the journal is prepared, then all renames
     and the journal's commit happen with SIGINT and SIGTERM held back. A failed rename rolls the
     journal back and undoes the renames before it; a failed commit undoes every rename. On any
-    failure the staged files are removed and the disk is as it was.
+    failure the staged files are removed and the disk is as it was. A :class:`File` whose
+    content is a function is staged once the journal is prepared (a document that quotes the
+    id of its record).
     """
     check(items)
     files = [i for i in items if not is_stream(i.path)]
     created = _missing_parents(files)  # removed again if the write fails
     staged: list[tuple[Folder | File, Path | None]] = []
+    made: list[Path] = []  # every temporary this write created, removed unless committed
     holds: list[int] = []
     undo: Undo = []
     trash: list[Path] = []
     prepared = committed = False
+
+    def stage(group: list[Folder | File]) -> None:
+        for item in group:
+            with _naming(item):
+                if isinstance(item, Folder):
+                    staged.append((item, _stage_folder(item, holds, made)))
+                else:
+                    staged.append((item, _stage_file(item, holds, made)))
+        # streams once the rest is staged: a full disk or a closed pipe stops the run before
+        for item in group:  # any rename
+            if isinstance(item, File) and is_stream(item.path):
+                with _naming(item):
+                    _write_stream(item)
+
     try:
         for item in files:
             with _naming(item):
@@ -662,20 +1016,12 @@ def write_set(*items: Folder | File, journal: Journal | None = None) -> list[Pat
         parents = [Path(os.path.abspath(i.path)).parent for i in files]
         with _folder_locks(parents):
             remove_stale(*files)
-        for item in items:
-            with _naming(item):
-                if isinstance(item, Folder):
-                    staged.append((item, _stage_folder(item, holds)))
-                else:
-                    staged.append((item, _stage_file(item, holds)))
-        # streams first: a full disk or a closed pipe stops the run before any rename
-        for item, tmp in staged:
-            if tmp is None:
-                with _naming(item):
-                    _write_stream(item)  # type: ignore[arg-type]
+        late = [i for i in items if isinstance(i, File) and callable(i.content)]
+        stage([i for i in items if not any(i is j for j in late)])
         if journal is not None:
             journal.prepare()
             prepared = True
+        stage(late)
         with _signals_held(), _folder_locks(parents):
             try:
                 for item, tmp in staged:
@@ -703,10 +1049,11 @@ def write_set(*items: Folder | File, journal: Journal | None = None) -> list[Pat
                         f"{failed}); check {', '.join(str(i.path) for i in files)}"
                     ) from None
                 raise
-            _WRITTEN.extend(_describe(i) for i in items)
+            for i in items:
+                note_written(_describe(i))
             if journal is not None:
-                _WRITTEN.append(journal.describe())
-            staged, created = [], []
+                note_written(journal.describe())
+            made, created = [], []
     finally:
         if committed:  # the oldest set and replaced files: no longer needed (even if a held
             for old in trash:  # signal is being delivered)
@@ -719,10 +1066,8 @@ def write_set(*items: Folder | File, journal: Journal | None = None) -> list[Pat
                 journal.rollback()  # type: ignore[union-attr]
             except Exception:  # noqa: BLE001 - the write's own error is the one to report
                 pass
-        for _, tmp in staged:
-            if tmp is None:
-                continue
-            if tmp.is_dir():
+        for tmp in made:
+            if tmp.is_dir() and not tmp.is_symlink():
                 shutil.rmtree(tmp, ignore_errors=True)
             else:
                 tmp.unlink(missing_ok=True)

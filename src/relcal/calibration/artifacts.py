@@ -39,6 +39,8 @@ from relcal.robot.kinematics import make_layout
 from relcal.robot.model import RobotModel, dump_model, load_model
 from relcal.robot.urdf import load_urdf
 
+RUN_ID_PREFIX = "# relcal run "  # first line of model.yaml: the run that wrote it
+
 if TYPE_CHECKING:
     from relcal.data.dataset import Dataset
     from relcal.data.imaging import Measurements

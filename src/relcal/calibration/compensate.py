@@ -175,3 +175,34 @@ def implausible(
     if comp.predicted_rotation_deg is not None:
         bad |= comp.predicted_rotation_deg > gate.rotation_deg
     return bad & comp.converged
+
+
+SAME_ROBOT_MM = 100.0  # flange positions of a robot and its calibration differ by millimetres
+SAME_ROBOT_DEG = 20.0  # and orientations by degrees; another robot by far more
+
+
+def robot_mismatch(nominal: RobotModel, calibrated: RobotModel) -> str | None:
+    """None when ``calibrated`` is a calibration of the robot ``nominal`` describes; else what
+    differs, in words: the number or kinds of joints, or flange poses at the same joints (at
+    zero and at seeded configurations within both models' limits) farther apart than any
+    calibration moves them (:data:`SAME_ROBOT_MM`, :data:`SAME_ROBOT_DEG`)."""
+    if nominal.n_joints != calibrated.n_joints:
+        return f"{nominal.n_joints} joints against {calibrated.n_joints}"
+    if not np.array_equal(nominal.prismatic, calibrated.prismatic):
+        return "other joint kinds (revolute and prismatic joints in other places)"
+    rng = np.random.default_rng(0)
+    lo = np.maximum(nominal.lower, calibrated.lower)
+    hi = np.minimum(nominal.upper, calibrated.upper)
+    lo, hi = np.where(np.isfinite(lo), lo, -np.pi), np.where(np.isfinite(hi), hi, np.pi)
+    hi = np.where(hi > lo, hi, lo)
+    q = np.vstack([np.clip(np.zeros(nominal.n_joints), lo, hi), rng.uniform(lo, hi, (16, len(lo)))])
+    a, b = fk(nominal, q), fk(calibrated, q)
+    position = float(np.linalg.norm(a[:, :3, 3] - b[:, :3, 3], axis=1).max()) * 1e3
+    cos = np.clip((np.einsum("nij,nij->n", a[:, :3, :3], b[:, :3, :3]) - 1) / 2, -1.0, 1.0)
+    rotation = float(np.degrees(np.arccos(cos)).max())
+    if position <= SAME_ROBOT_MM and rotation <= SAME_ROBOT_DEG:
+        return None
+    return (
+        f"at the same joints their flanges are up to {position:.0f} mm and {rotation:.0f} deg "
+        f"apart (a calibration moves them by millimetres, at most {SAME_ROBOT_MM:.0f} mm)"
+    )

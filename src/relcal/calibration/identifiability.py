@@ -467,6 +467,16 @@ def analyse_problem(
         _, jac = residuals(consistent(problem), np.zeros(problem.full_layout.size))
     if jac is None:
         _, jac = residuals(problem, np.zeros(problem.full_layout.size))
+    else:
+        from relcal.checks import check_array
+
+        jac = check_array(
+            jac,
+            "jac",
+            (None, problem.full_layout.size),
+            hint="the identification Jacobian of this problem at zero errors, one column per "
+            "parameter of problem.full_layout (or leave jac out)",
+        )
     layout = problem.full_layout
     if handeye == "known" and problem.formulation == "invariant":
         layout = problem.layout

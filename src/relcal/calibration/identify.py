@@ -92,24 +92,14 @@ class SolverOptions:
     tol: float = 1e-12
 
     def __post_init__(self) -> None:
-        if self.method not in ("published", "lm"):
-            raise ArgumentError(
-                f"SolverOptions: unknown identification method '{self.method}': use published or lm"
-            )
-        if self.loss not in Loss.__args__:
-            raise ArgumentError(
-                f"SolverOptions: unknown loss '{self.loss}': use one of {', '.join(Loss.__args__)}"
-            )
-        ok = all(
-            isinstance(v, int | float) and np.isfinite(v)
-            for v in (self.f_scale, self.max_iterations, self.rcond, self.tol)
-        )
-        if not (ok and self.f_scale > 0 and self.max_iterations > 0 and 0 < self.rcond < 1):
-            raise ArgumentError(
-                "SolverOptions: f_scale, max_iterations and tol must be positive numbers, rcond "
-                f"in (0, 1); got f_scale={self.f_scale!r}, max_iterations="
-                f"{self.max_iterations!r}, rcond={self.rcond!r}, tol={self.tol!r}"
-            )
+        from relcal.checks import check_choice, check_number
+
+        check_choice(self.method, "SolverOptions.method", ("published", "lm"))
+        check_choice(self.loss, "SolverOptions.loss", Loss.__args__)
+        check_number(self.f_scale, "SolverOptions.f_scale", 0, low_open=True)
+        check_number(self.max_iterations, "SolverOptions.max_iterations", 1, integer=True)
+        check_number(self.rcond, "SolverOptions.rcond", 0, 1, low_open=True, high_open=True)
+        check_number(self.tol, "SolverOptions.tol", 0, low_open=True)
 
 
 @dataclass(frozen=True)

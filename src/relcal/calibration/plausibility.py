@@ -29,13 +29,20 @@ calls before identifying and before anything is written.
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy.spatial.transform import Rotation
 
 from relcal import geometry as tf
-from relcal.calibration.handeye import align_rotations, rotation_vectors
+from relcal.calibration.handeye import (
+    LEVER,
+    PURE_TRANSLATION,
+    align_rotations,
+    handeye_rotation,
+    rotation_vectors,
+    solve_handeye,
+)
 from relcal.calibration.noise import robust_scale
 from relcal.errors import RelcalError
 from relcal.geometry import relative
@@ -43,6 +50,12 @@ from relcal.geometry import relative
 MAX_PAIRS = 2000  # pairs used by the checks (all pairs up to 63 samples)
 RATIO = 3.0  # an alternative reading that fits the rotations this much better is named
 SURE_AXIS = np.radians(150)  # relative rotations below this angle have a sure axis
+SAME_CONFIGURATION = np.radians(0.05)  # rad (a prismatic joint: 0.05 mm): joints this close are
+# one configuration recorded again: such a pair is repeatability data, no motion to compare
+MIN_PAIRS = 6  # pairs that carry a motion, fewer: the check cannot tell
+# Measured over modelled translations that a reading may need and still be offered as the fix:
+# the same unit, or millimetres for metres either way (the scale check then names it).
+PLAUSIBLE_SCALES = ((0.5, 2.0), (500.0, 2000.0), (0.0005, 0.002))
 
 
 @dataclass(frozen=True)
@@ -121,6 +134,9 @@ class Scale:
     determined: bool
     handeye_translation: np.ndarray | None = None  # (3,) t_X of the fit, m
     residual: float = float("nan")  # RMS of the fit's translation rows, m
+    translation_known: bool = True  # the pairs turn enough about every axis to fix t_X
+    motion: float = float("nan")  # median length of the commanded relative translations, m
+    rotation_misfit: float = float("nan")  # median over the pairs that turn, rad (check_inputs)
 
 
 def translation_scale(
@@ -166,7 +182,12 @@ def translation_scale(
     s_std = np.sqrt(sigma2 * np.linalg.inv(normal)[3, 3]) / col[3]
     s = float(sol[3])
     rel = float(s_std / abs(s))
-    return Scale(1.0 / s, rel, bool(rel < 0.01 and s > 0), sol[:3], typical)
+    # t_X is fixed only by pairs that turn about every axis: the weakest direction of the
+    # stacked R_A - I turns by at least PURE_TRANSLATION (rms over the pairs kept)
+    weakest = np.linalg.svd(rows[:, :3], compute_uv=False)[-1] / np.sqrt(max(len(rows) // 3, 1))
+    known = bool(weakest > 2 * np.sin(PURE_TRANSLATION / 2))
+    motion = float(np.median(np.linalg.norm(commanded[:, :3, 3], axis=1)))
+    return Scale(1.0 / s, rel, bool(rel < 0.01 and s > 0), sol[:3], typical, known, motion)
 
 
 def reorder_w_first(poses: np.ndarray) -> np.ndarray:
@@ -210,7 +231,7 @@ def joint_problems(
             "a mistyped reading or a wrong row? fix or remove "
             + ("it" if len(bad) == 1 else "them")
             if few
-            else "wrong joint order, unit or model?"
+            else "wrong joint order or unit, or another robot or chain (root and tip links)?"
         )
         out.append(
             f"sample {ids[k]}: q{j + 1} ({names[j]}) = {values[k] * conv:.6g} {unit} is outside "
@@ -459,9 +480,25 @@ def pose_readings(
 @dataclass(frozen=True)
 class _Fit:
     label: str
-    misfit: float  # median relative-rotation misfit, rad
-    translation: float  # median relative-translation misfit after the best hand-eye, m (inf
-    # when the rotations do not fit)
+    misfit: float  # median relative-rotation misfit over the pairs that turn, rad (NaN: too few
+    # pairs turn to tell)
+    translation: float  # median relative-translation misfit after the best hand-eye, m, over
+    # the pairs that move (inf when the rotations do not fit, NaN when R_X is not determined)
+    ratio: float = float("nan")  # measured over modelled translations (NaN: not determined)
+
+    def fits(self, tolerances: Tolerances) -> bool:
+        """Rotations and translations within the tolerances (what cannot be told passes), with
+        a translation scale a reading may need (:data:`PLAUSIBLE_SCALES`): a reading that fits
+        only by shrinking every commanded motion (degrees read as radians on data that barely
+        turn) is not a fit, and following it would not be safe."""
+        ok_scale = not np.isfinite(self.ratio) or any(
+            lo <= self.ratio <= hi for lo, hi in PLAUSIBLE_SCALES
+        )
+        return (
+            not self.misfit > tolerances.rotation
+            and not self.translation > tolerances.translation
+            and ok_scale
+        )
 
 
 def _pair_angles(commanded: np.ndarray, measured: np.ndarray, rx: np.ndarray) -> np.ndarray:
@@ -476,6 +513,8 @@ def _wrong_samples(pairs: np.ndarray, values: np.ndarray, threshold: float = 5.0
     pairs, a robust z-score above ``threshold``), at most a quarter of them."""
     from relcal.calibration.measurement import per_sample_median
 
+    if not len(pairs):
+        return np.zeros(0, dtype=int)
     score = per_sample_median(values, pairs)
     seen = np.isfinite(score)
     centre = np.median(score[seen])
@@ -511,12 +550,60 @@ def _motions(poses: np.ndarray, pairs: np.ndarray) -> _Motions:
     return _Motions(rel, rotvecs, np.linalg.norm(rotvecs, axis=1))
 
 
+def moving_pairs(
+    q: np.ndarray, pairs: np.ndarray, prismatic: np.ndarray | None = None
+) -> np.ndarray:
+    """Which pairs ``(P,)`` join two different configurations: some joint differs by more than
+    :data:`SAME_CONFIGURATION` (rad; a thousandth of it in m for the ``prismatic`` joints). A
+    pair of one configuration recorded twice carries the robot's repeatability and the
+    instrument's noise, no motion: it says nothing of units, conventions or the hand-eye
+    transform."""
+    q = np.asarray(q, dtype=float)
+    slide = np.zeros(q.shape[1], dtype=bool) if prismatic is None else np.asarray(prismatic)
+    same = np.where(slide, SAME_CONFIGURATION * 1e-3, SAME_CONFIGURATION)
+    return np.any(np.abs(q[pairs[:, 0]] - q[pairs[:, 1]]) > same, axis=1)
+
+
+def turning_pairs(
+    flange: _Motions, measured: _Motions, moving: np.ndarray, tolerance
+) -> np.ndarray:
+    """Which pairs can show a rotation misfit above ``tolerance`` (rad): the misfit of a pair is
+    at most the sum of its two rotation angles (the angle between rotations is a metric), so
+    pairs that turn less together tell nothing (a cube of ISO 9283 keeps one orientation)."""
+    return moving & (flange.angles + measured.angles > tolerance)
+
+
+def _rotation(
+    flange: _Motions, measured: _Motions, turning: np.ndarray, moving: np.ndarray
+) -> tuple[np.ndarray, bool]:
+    """:func:`handeye.handeye_rotation` of one reading: the rotation vectors of the pairs that
+    turn, the translations of the pairs that move without turning."""
+    still = moving & (flange.angles < PURE_TRANSLATION) & (measured.angles < PURE_TRANSLATION)
+    rotvecs = (flange.rotvecs, measured.rotvecs)
+    return handeye_rotation(flange.transforms, measured.transforms, turning, still, rotvecs)
+
+
+def _refine_rotation(
+    flange: _Motions, measured: _Motions, turning: np.ndarray, moving: np.ndarray, scale: Scale
+) -> np.ndarray:
+    """``R_X`` refitted with every moving pair's translation, ``t_X`` and ``s`` of ``scale``:
+    ``(R_A - I) t_X + t_A = s R_X t_B``, beside the rotation vectors of the pairs that turn."""
+    a_rel, b_rel = flange.transforms[moving], measured.transforms[moving]
+    lhs = np.einsum("pij,j->pi", a_rel[:, :3, :3] - np.eye(3), scale.handeye_translation)
+    lhs = lhs + a_rel[:, :3, 3]
+    rhs = b_rel[:, :3, 3] / scale.ratio
+    a = np.concatenate([flange.rotvecs[turning] * LEVER, lhs])
+    b = np.concatenate([measured.rotvecs[turning] * LEVER, rhs])
+    return tf.kabsch(a, b)
+
+
 def _misfit_rank(pairs: np.ndarray) -> int:
-    """``k`` (from 1) such that the rotation misfit :func:`_evaluate` finds on ``pairs`` is at
-    least the ``k``-th smallest of any per-pair lower bounds of the pairs' angles: the median
-    over the pairs it keeps, at least ``max(6, P - the pairs of the quarter of the samples with
-    the most pairs)`` of them (the samples left out are at most a quarter of those seen, and
-    only when 10 pairs or more), is at least the ``ceil(kept / 2)``-th smallest bound."""
+    """``k`` (from 1) such that the rotation misfit :func:`_evaluate` finds on ``pairs`` (the
+    pairs that turn) is at least the ``k``-th smallest of any per-pair lower bounds of the
+    pairs' angles: the median over the pairs it keeps, at least ``max(6, P - the pairs of the
+    quarter of the samples with the most pairs)`` of them (the samples left out are at most a
+    quarter of those seen, and only when 10 pairs or more), is at least the ``ceil(kept /
+    2)``-th smallest bound."""
     n_pairs = len(pairs)
     kept = n_pairs
     if n_pairs >= 10:
@@ -529,53 +616,91 @@ def _misfit_rank(pairs: np.ndarray) -> int:
 MISFIT_MARGIN = 1e-6  # rad: round-off of the computed angles, far below any tolerance
 
 
-def _surely_misfit(flange: _Motions, measured: _Motions, rank: int, tolerance: float) -> bool:
+def _surely_misfit(
+    flange: _Motions, measured: _Motions, pairs: np.ndarray, moving: np.ndarray, tolerance: float
+) -> bool:
     """Whether a reading's rotation misfit (:func:`_evaluate`) is surely above ``tolerance``
     without finding ``R_X``: the angle of ``R_A^T R_X R_B R_X^T`` is at least the difference
     of the two motions' rotation angles whatever ``R_X`` (the angle between rotations is a
-    metric, and conjugation keeps an angle), so the misfit is at least the ``rank``-th smallest
-    difference (:func:`_misfit_rank`)."""
-    floor = np.abs(flange.angles - measured.angles)
+    metric, and conjugation keeps an angle), so the misfit over the pairs that turn is at least
+    the ``rank``-th smallest difference among them (:func:`_misfit_rank`)."""
+    turning = turning_pairs(flange, measured, moving, tolerance)
+    if turning.sum() < MIN_PAIRS:
+        return False
+    floor = np.abs(flange.angles - measured.angles)[turning]
+    rank = _misfit_rank(pairs[turning])
     if not 1 <= rank <= len(floor):
         return False
     return bool(np.partition(floor, rank - 1)[rank - 1] > tolerance + MISFIT_MARGIN)
 
 
-def _evaluate(label, flange: _Motions, measured: _Motions, pairs, tolerance) -> _Evaluation:
-    """How well one reading fits: rotations (median over the pairs), then translations after
-    the best hand-eye transform; the samples that misfit far more than the rest (a few wrong
-    rows) are left out and the fit repeated, so that they do not pass for a wrong reading of
-    all samples. ``R_X`` as :func:`handeye.align_rotations` finds it, from the rotation
-    vectors."""
+def _evaluate(
+    label, flange: _Motions, measured: _Motions, pairs, tolerance, moving=None
+) -> _Evaluation:
+    """How well one reading fits: rotations (median over the pairs that turn:
+    :func:`turning_pairs`), then translations after the best hand-eye transform (median over
+    the pairs that move: :func:`moving_pairs`, default all); the samples that misfit far more
+    than the rest (a few wrong rows) are left out and the fit repeated, so that they do not pass
+    for a wrong reading of all samples. ``R_X`` from rotations and translations
+    (:func:`handeye.handeye_rotation`), refined with ``t_X`` and the scale."""
+    moving = np.ones(len(pairs), dtype=bool) if moving is None else moving
+    turning = turning_pairs(flange, measured, moving, tolerance)
+    rx, known = _rotation(flange, measured, turning, moving)
     a, b = flange.transforms, measured.transforms
-    rx = tf.kabsch(flange.rotvecs, measured.rotvecs)
-    angles = _pair_angles(a, b, rx)
-    wrong = _wrong_samples(pairs, angles) if len(pairs) >= 10 else np.zeros(0, dtype=int)
-    if wrong.size:
-        keep = ~np.isin(pairs, wrong).any(axis=1)
-        if keep.sum() >= 6:
-            a, b, pairs = a[keep], b[keep], pairs[keep]
-            rx = tf.kabsch(flange.rotvecs[keep], measured.rotvecs[keep])
-            angles = _pair_angles(a, b, rx)
-        else:
-            wrong = np.zeros(0, dtype=int)
-    misfit = float(np.median(angles))
+    wrong = np.zeros(0, dtype=int)
+    misfit = float("nan")
+    if turning.sum() >= MIN_PAIRS:
+        angles = _pair_angles(a[turning], b[turning], rx)
+        if turning.sum() >= 10:
+            wrong = _wrong_samples(pairs[turning], angles)
+        if wrong.size:
+            kept = turning & ~np.isin(pairs, wrong).any(axis=1)
+            if kept.sum() >= MIN_PAIRS:
+                turning = kept
+                moving = moving & ~np.isin(pairs, wrong).any(axis=1)
+                rx, known = _rotation(flange, measured, turning, moving)
+                angles = _pair_angles(a[turning], b[turning], rx)
+            else:
+                wrong = np.zeros(0, dtype=int)
+        misfit = float(np.median(angles))
     if misfit > tolerance:
         return _Evaluation(_Fit(label, misfit, np.inf), rx, None, wrong)
-    scale = translation_scale(a, b, rx)
-    if len(pairs) >= 10 and scale.handeye_translation is not None and np.isfinite(scale.ratio):
+    if not known or moving.sum() < MIN_PAIRS:
+        return _Evaluation(_Fit(label, misfit, float("nan")), rx, None, wrong)
+    scale = translation_scale(a[moving], b[moving], rx)
+    for _ in range(3):  # R_X with the translations of every moving pair, t_X and s with it
+        if scale.handeye_translation is None or not np.isfinite(scale.ratio) or scale.ratio <= 0:
+            break
+        rx = _refine_rotation(flange, measured, turning, moving, scale)
+        scale = translation_scale(a[moving], b[moving], rx)
+    if turning.sum() >= MIN_PAIRS:
+        misfit = float(np.median(_pair_angles(a[turning], b[turning], rx)))
+    if moving.sum() >= 10 and scale.handeye_translation is not None and np.isfinite(scale.ratio):
         sol = np.concatenate([scale.handeye_translation, [1.0 / scale.ratio]])
+        am, bm = a[moving], b[moving]
         m = np.concatenate(
-            [a[:, :3, :3] - np.eye(3), -np.einsum("ij,pj->pi", rx, b[:, :3, 3])[:, :, None]],
+            [am[:, :3, :3] - np.eye(3), -np.einsum("ij,pj->pi", rx, bm[:, :3, 3])[:, :, None]],
             axis=2,
         )
-        norms = np.linalg.norm(np.einsum("pij,j->pi", m, sol) + a[:, :3, 3], axis=1)
-        more = _wrong_samples(pairs, norms)
-        keep = ~np.isin(pairs, more).any(axis=1)
-        if more.size and keep.sum() >= 6:
+        norms = np.linalg.norm(np.einsum("pij,j->pi", m, sol) + am[:, :3, 3], axis=1)
+        more = _wrong_samples(pairs[moving], norms)
+        keep = moving & ~np.isin(pairs, more).any(axis=1)
+        if more.size and keep.sum() >= MIN_PAIRS:
             scale = translation_scale(a[keep], b[keep], rx)
             wrong = np.union1d(wrong, more)
-    return _Evaluation(_Fit(label, misfit, scale.residual), rx, scale, wrong)
+    ratio = scale.ratio if scale.determined else float("nan")
+    return _Evaluation(_Fit(label, misfit, scale.residual, ratio), rx, scale, wrong)
+
+
+def _deg(angle: float, digits: int = 2) -> str:
+    """A misfit angle (rad) for a message, or what it means when the data cannot tell."""
+    if not np.isfinite(angle):
+        return "(too few pairs turn to compare)"
+    return f"{np.degrees(angle):.{digits}f} deg"
+
+
+def _key(value: float) -> float:
+    return value if np.isfinite(value) else np.inf
 
 
 def diagnose_readings(
@@ -587,32 +712,38 @@ def diagnose_readings(
     tolerances: Tolerances,
     pairs: np.ndarray,
     given_valid: bool = True,
+    moving: np.ndarray | None = None,
 ) -> tuple[str | None, _Evaluation | None]:
     """``None`` and the evaluation of the data as given (``R_X``, the scale found, the samples
     whose pairs misfit far more than the others') when they agree with the model; else a message
     naming the reading that fits (an alternative of the joints, of the poses, or one of each),
     or saying by how much nothing does.
 
-    The rotations decide first (their agreement does not depend on the hand-eye transform); the
-    translations (after the best hand-eye transform and scale, median over the pairs, robust to
-    a few wrong samples) decide between readings the rotations cannot tell apart: two parallel
-    joints swapped turn the flange alike and move it differently. A reading is named only when
-    it fits 3 times better than the data as given; ``given_valid`` False (readings beyond the
-    joint limits) lets any reading that fits be named."""
+    Only motions that carry information count: the rotations over the pairs that turn
+    (:func:`turning_pairs`), the translations over the pairs that move (``moving``, default
+    all: :func:`moving_pairs` leaves out a configuration recorded again). The rotations decide
+    first (their agreement does not depend on the hand-eye transform); the translations (after
+    the best hand-eye transform and scale, median over the pairs, robust to a few wrong samples)
+    decide between readings the rotations cannot tell apart: two parallel joints swapped turn
+    the flange alike and move it differently. A reading is named only when it fits (both within
+    the tolerances, with a plausible scale: :meth:`_Fit.fits`) and 3 times better than the data
+    as given; ``given_valid`` False (readings beyond the joint limits) lets any reading that
+    fits be named. What the data cannot tell (too few pairs turn, ``R_X`` not determined) is
+    never a reason to refuse."""
     tol, tol_t = tolerances.rotation, tolerances.translation
+    moving = np.ones(len(pairs), dtype=bool) if moving is None else np.asarray(moving, bool)
     flange = fk(q) if given_valid else None
     evaluation = None
     given_motions = _motions(poses, pairs)
     if flange is not None:
-        evaluation = _evaluate("", _motions(flange, pairs), given_motions, pairs, tol)
+        evaluation = _evaluate("", _motions(flange, pairs), given_motions, pairs, tol, moving)
         given = evaluation.fit
-        if given.misfit <= tol / 5 and given.translation <= tol_t / 2:
-            return None, evaluation  # the right data: nothing else to try
+        if not given.misfit > tol / 5 and not given.translation > tol_t / 2:
+            return None, evaluation  # the right data (or data that cannot tell): nothing to try
     else:
         given = _Fit("", np.inf, np.inf)
     fits: list[_Fit] = []
     reads: dict = {None: given_motions}  # each reading's motions, computed once
-    rank = _misfit_rank(pairs)
     for jr in [None, *joints]:
         flange_jr = flange if jr is None else fk(jr.joints(q))
         if flange_jr is None:
@@ -627,30 +758,32 @@ def diagnose_readings(
             if pr not in reads:
                 reads[pr] = _motions(pr.poses(poses), pairs)  # type: ignore[union-attr]
             moved = moved or _motions(flange_jr, pairs)
-            if _surely_misfit(moved, reads[pr], rank, tol):
+            if _surely_misfit(moved, reads[pr], pairs, moving, tol):
                 continue  # its rotations do not fit: not a reading that fits, never named
-            fits.append(_evaluate(label, moved, reads[pr], pairs, tol).fit)
-    fitting = [f for f in fits if f.misfit <= tol]
-    best = min(fitting, key=lambda f: (f.translation, f.misfit), default=None)
+            fits.append(_evaluate(label, moved, reads[pr], pairs, tol, moving).fit)
+    fitting = [f for f in fits if f.fits(tolerances)]
+    best = min(fitting, key=lambda f: (_key(f.translation), _key(f.misfit)), default=None)
     if best is not None:
-        if given.misfit > tol:
-            better = best.misfit < given.misfit / RATIO
+        if given.misfit > tol:  # (a reading whose pairs barely turn fits in rotation)
+            better = not best.misfit >= given.misfit / RATIO
         else:  # the rotations agree as given: the translations must be 3x better, or the
             # rotations 3x better with translations as good
             better = best.translation < given.translation / RATIO or (
                 best.misfit < given.misfit / RATIO and best.translation <= given.translation
             )
         if better:
-            alike = [f.label for f in fitting if f.translation <= 1.5 * best.translation + 1e-6]
+            alike = [
+                f.label for f in fitting if _key(f.translation) <= 1.5 * best.translation + 1e-6
+            ] or [best.label]
             alike = sorted(alike, key=lambda label: label.count(" and "))[:3]
             return (
                 f"{' or '.join(alike)}: read that way the relative rotations agree with the "
-                f"commanded ones to {np.degrees(best.misfit):.2f} deg and the relative "
-                f"translations to {best.translation * 1e3:.3g} mm (median); as given "
+                f"commanded ones to {_deg(best.misfit)} and the relative translations to "
+                f"{best.translation * 1e3:.3g} mm (median); as given "
                 + (
                     "some joint readings are beyond their limits"
                     if not given_valid
-                    else f"they disagree by {np.degrees(given.misfit):.1f} deg and "
+                    else f"they disagree by {_deg(given.misfit, 1)} and "
                     + (
                         f"{given.translation * 1e3:.3g} mm"
                         if np.isfinite(given.translation)
@@ -662,14 +795,15 @@ def diagnose_readings(
     if not given_valid:
         return None, None  # the caller names the readings beyond the limits
     if given.misfit > tol:
-        a, b = relative(flange, pairs), relative(poses, pairs)
+        turning = turning_pairs(_motions(flange, pairs), given_motions, moving, tol)
+        a, b = relative(flange, pairs[turning]), relative(poses, pairs[turning])
         return (
             f"measured relative rotations disagree with the commanded ones by a median "
-            f"{np.degrees(given.misfit):.1f} deg (their rotation angles alone by "
-            f"{np.degrees(angle_misfit(a, b)):.1f} deg; expected < {np.degrees(tol):.1f} deg for "
-            "any hand-eye transform), and no other reading of the columns (joint order, signs "
-            "and unit; quaternion order; pose direction) fits. Check the robot model, and "
-            "whether these samples belong to this robot",
+            f"{np.degrees(given.misfit):.1f} deg over the {turning.sum()} pairs that turn (their "
+            f"rotation angles alone by {np.degrees(angle_misfit(a, b)):.1f} deg; expected < "
+            f"{np.degrees(tol):.1f} deg for any hand-eye transform), and no other reading of the "
+            "columns (joint order, signs and unit; quaternion order; pose direction) fits. Check "
+            "the robot model, and whether these samples belong to this robot",
             evaluation,
         )
     if given.translation > tol_t:
@@ -677,7 +811,7 @@ def diagnose_readings(
             f"measured relative translations disagree with the commanded ones by a median "
             f"{given.translation * 1e3:.4g} mm after the best hand-eye transform (expected < "
             f"{tol_t * 1e3:.3g} mm, translation_mm in dataset.yaml tolerances), while the "
-            f"rotations agree to {np.degrees(given.misfit):.2f} deg, and no other reading of "
+            f"rotations agree to {_deg(given.misfit)}, and no other reading of "
             "the columns fits. Check the x, y, z columns (order, signs), the robot model's "
             "link lengths, and whether the poses are of the flange-mounted camera",
             evaluation,
@@ -729,29 +863,245 @@ def check_inputs(
             "flange: looks like millimetres (give metres)"
         )
     pairs = check_pairs(len(q))
+    moving = moving_pairs(q, pairs, model.prismatic)
     joints = joint_readings(model, q, tolerances.joint_limit, joint_unit)
     measured = pose_readings(mode, poses_given, pose_angle_unit)
     few = bool(problems) and all("a mistyped reading" in p for p in problems)
     message, given = diagnose_readings(
-        q, poses, fk, joints, measured, tolerances, pairs, given_valid=not problems or few
+        q, poses, fk, joints, measured, tolerances, pairs, not problems or few, moving
     )
     if message and not (problems and few):
         raise RelcalError(f"{where}: {message}")
     if problems:
         raise RelcalError(f"{where}: " + "\n".join(problems))
     rx, scale = given.rx, given.scale  # type: ignore[union-attr]
+    misfit = given.fit.misfit  # type: ignore[union-attr]
+    x = handeye
+    if x is None:
+        try:
+            x = solve_handeye(fk(q), poses)
+        except RelcalError:
+            x = None  # the motions fix no hand-eye transform: nothing to tell
+    moved = None if x is None else moved_frame(model, q, poses, x, fk)
+    if moved is not None:
+        raise RelcalError(f"{where}: {moved_message(ids, moved[0], moved[1], len(q), mode)}")
     if scale is None or not scale.determined:
-        return scale or Scale(float("nan"), float("inf"), False)
-    if not scale.determined:
-        return scale
-    off = scale.ratio - 1.0
-    if abs(off) > tolerances.scale and abs(off) > 3 * scale.std * scale.ratio:
+        scale = scale or Scale(float("nan"), float("inf"), False)
+        return replace(scale, rotation_misfit=misfit)
+    if scale_problem(scale, tolerances):
         raise RelcalError(f"{where}: {scale_message(scale.ratio, board, poses_given)}")
     if handeye is not None:
-        message = guess_problem(handeye, rx, scale.handeye_translation)
+        tx = scale.handeye_translation if scale.translation_known else None
+        message = guess_problem(handeye, rx, tx)
         if message:
             raise RelcalError(f"{spec}: {message}")
-    return scale
+    return replace(scale, rotation_misfit=misfit)
+
+
+def scale_problem(scale: Scale, tolerances: Tolerances = Tolerances()) -> bool:
+    """Whether a determined translation scale is off: beyond ``tolerances.scale`` and beyond 3
+    times what the data can tell, the larger of its standard deviation and the translations'
+    misfit relative to their length (a robot's geometric errors stretch and turn the relative
+    translations by a few percent over a small region, such as one ISO 9283 cube: that is
+    model error, not a wrong unit or board size)."""
+    if not scale.determined:
+        return False
+    off = abs(scale.ratio - 1.0)
+    relative = scale.residual / scale.motion if scale.motion > 0 else 0.0
+    return bool(off > tolerances.scale and off > 3 * max(scale.std * scale.ratio, relative))
+
+
+MOVED_LENGTH = 0.005  # m: a step of the fixed frame smaller than this is not named
+MOVED_ANGLE = np.radians(0.5)  # rad: likewise for its rotation
+MOVED_FIT = 3.0  # the step stands this many times out of the residuals, and shrinks them so
+
+
+def _frame_deviations(world: np.ndarray, reference: np.ndarray) -> np.ndarray:
+    """``(N, 6)``: each sample's fixed frame against ``reference``, translation (m) then rotation
+    vector times :data:`LEVER` (m)."""
+    vec = tf.to_vector(tf.invert(reference) @ world)
+    vec[:, 3:] *= LEVER
+    return vec
+
+
+def _frame_design(model, q, poses, handeye, fk) -> tuple[np.ndarray, np.ndarray]:
+    """The deviations ``(N * 6,)`` of each sample's fixed frame ``W_k = C_k X^-1 F_k^-1`` from
+    their centre, and their linearised dependence ``(N * 6, G + 12)`` on every geometric
+    parameter (not the non-geometric candidates the model may carry) and on ``X`` (finite
+    differences of the nominal model), with one common frame."""
+    from relcal.robot.kinematics import apply_errors, make_layout
+    from relcal.robot.kinematics import fk as model_fk
+
+    n = len(q)
+    inv_x = tf.invert(handeye)
+    world = poses @ inv_x @ tf.invert(fk(q))
+    reference = tf.homogeneous(
+        Rotation.from_matrix(world[:, :3, :3]).mean().as_matrix(), np.median(world[:, :3, 3], 0)
+    )
+    dev = _frame_deviations(world, reference)
+    layout = make_layout(model)
+    step = 1e-6
+    columns = []
+    for j in np.flatnonzero(layout.is_geometric()):  # non-geometric candidates: not a smooth
+        bump = np.zeros(layout.size)  # effect of the geometry, and the fit would follow a step
+        bump[j] = step
+        w = poses @ inv_x @ tf.invert(model_fk(apply_errors(model, layout, bump), q))
+        columns.append(((_frame_deviations(w, reference) - dev) / step).reshape(-1))
+    for j in range(6):
+        vec = np.zeros(6)
+        vec[j] = step
+        w = poses @ tf.invert(handeye @ tf.from_vector(vec)) @ tf.invert(fk(q))
+        columns.append(((_frame_deviations(w, reference) - dev) / step).reshape(-1))
+    common = np.tile(np.eye(6), (n, 1))
+    return dev.reshape(-1), np.concatenate([np.stack(columns, axis=1), common], axis=1)
+
+
+class _Steps:
+    """Robust fits of the frame deviations with and without a step between two groups."""
+
+    def __init__(self, target: np.ndarray, design: np.ndarray) -> None:
+        self.target, self.design, self.n = target, design, len(target) // 6
+
+    def fit(self, matrix: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """A Huber fit (three reweightings at 1.5 robust standard deviations of the samples'
+        residual norms, so that a few wrong samples do not pass for a step): the solution and
+        the residuals ``(N, 6)``."""
+        norm = np.linalg.norm(matrix, axis=0)
+        norm[norm == 0] = 1.0
+        scaled = matrix / norm
+        weight = np.ones(self.n)
+        for _ in range(3):
+            rows = np.repeat(weight, 6)
+            sol = np.linalg.lstsq(scaled * rows[:, None], self.target * rows, rcond=1e-8)[0]
+            res = (self.target - scaled @ sol).reshape(self.n, 6)
+            size = np.linalg.norm(res, axis=1)
+            scale = 1.5 * max(robust_scale(size), float(np.median(size)), 1e-12)
+            weight = np.sqrt(np.minimum(1.0, scale / np.maximum(size, 1e-300)))
+        return sol / norm, res
+
+    def split(self, group: np.ndarray):
+        """The step between ``group`` and the rest, each sample moved to the side its residual
+        fits, until nothing moves: (group, step (6,), residuals) or None."""
+        n = self.n
+        jump = after = None
+        for _ in range(6):
+            if min(group.sum(), n - group.sum()) < 3:
+                return None
+            indicator = np.zeros((n, 6, 6))
+            indicator[group] = np.eye(6)
+            sol, after = self.fit(np.concatenate([self.design, indicator.reshape(-1, 6)], 1))
+            jump = sol[-6:]
+            as_a = np.linalg.norm(after + np.where(group[:, None], jump, 0.0), axis=1)
+            as_b = np.linalg.norm(after - np.where(group[:, None], 0.0, jump), axis=1)
+            new = as_b < as_a
+            if np.array_equal(new, group):
+                break
+            group = new
+        return group, jump, after
+
+
+def _typical(res: np.ndarray) -> float:
+    return float(np.sqrt(np.median(np.sum(res**2, axis=1))))
+
+
+MOVED_REDUNDANCY = 2.0  # rows beyond the parameters (with a step), per parameter, to tell one
+MOVED_SEARCH = 300  # samples the search for a step uses (chosen by their joints, not order)
+
+
+def moved_frame(
+    model,
+    q: np.ndarray,
+    poses: np.ndarray,
+    handeye: np.ndarray,
+    fk: Callable[[np.ndarray], np.ndarray],
+) -> tuple[np.ndarray, np.ndarray] | None:
+    """Samples that see the fixed frame (the board, an eye-to-hand camera, the instrument)
+    moved: ``(indices of the smaller group, the step (6,): m, rad)``, or None.
+
+    Each sample's fixed frame ``W_k = C_k X^-1 F_k^-1`` (``poses`` ``(N, 4, 4)``, ``handeye``
+    ``X``, ``fk`` the nominal kinematics) scatters with the robot's geometric errors, as a
+    smooth function of the configuration; a moved board adds a step that no geometry explains.
+    So the deviations of the ``W_k`` are fitted by the linearised effect of every geometric
+    parameter and of ``X`` and one common frame (:func:`_frame_design`; robustly: a few wrong
+    samples are down-weighted); then the samples are split in two and a step between the groups
+    fitted too, each sample moved to the side its residual fits until none moves, started from
+    each of the 5 samples that fit worst. The search runs on at most :data:`MOVED_SEARCH`
+    samples (every k-th in the order of their joint values: the same whatever the row order),
+    the split found is then settled on all. A step beyond :data:`MOVED_LENGTH` or
+    :data:`MOVED_ANGLE`, :data:`MOVED_FIT` times the typical residual left, that makes the
+    typical residual of the smaller group as many times smaller, with at least 3 samples on
+    each side, is a moved frame. Fewer samples than :data:`MOVED_REDUNDANCY` rows per parameter
+    beyond the parameters tell nothing (the geometry fits any split of them)."""
+    n = len(q)
+    if n < 8:
+        return None
+    search = np.arange(n)
+    if n > MOVED_SEARCH:
+        order = np.lexsort(np.asarray(q, dtype=float).T[::-1])
+        search = np.sort(order[:: int(np.ceil(n / MOVED_SEARCH))])
+    target, design = _frame_design(model, q[search], poses[search], handeye, fk)
+    norm = np.linalg.norm(design, axis=0)
+    rank = np.linalg.matrix_rank(design / np.where(norm > 0, norm, 1.0), tol=1e-6)
+    if len(target) - rank - 6 < MOVED_REDUNDANCY * (rank + 6):
+        return None  # the geometry would fit any split: too few samples to tell a step
+    steps = _Steps(target, design)
+    _, residual = steps.fit(design)
+    size = np.linalg.norm(residual, axis=1)
+    best = None
+    for seed in np.argsort(-size, kind="stable")[:5]:  # nearer to it than to a perfect fit
+        found = steps.split(np.linalg.norm(residual - residual[seed], axis=1) < size)
+        if found is not None and (best is None or _typical(found[2]) < _typical(best[2])):
+            best = found
+    if best is None or not _stands(best, residual):
+        return None
+    if len(search) < n:  # settled on every sample, from the step found
+        target, design = _frame_design(model, q, poses, handeye, fk)
+        steps = _Steps(target, design)
+        _, residual = steps.fit(design)
+        near = np.linalg.norm(residual - best[1], axis=1) < np.linalg.norm(residual, axis=1)
+        best = steps.split(near)
+        if best is None or not _stands(best, residual):
+            return None
+    group, jump, _ = best
+    smaller = group if group.sum() <= len(group) - group.sum() else ~group
+    jump = jump.copy()
+    jump[3:] /= LEVER
+    return np.flatnonzero(smaller), jump
+
+
+def _stands(found: tuple, residual: np.ndarray) -> bool:
+    """Whether a step (:meth:`_Steps.split`) is a moved frame: beyond :data:`MOVED_LENGTH` or
+    :data:`MOVED_ANGLE`, :data:`MOVED_FIT` times the typical residual left, and making the
+    typical residual of the smaller group as many times smaller."""
+    group, jump, after = found
+    smaller = group if group.sum() <= len(group) - group.sum() else ~group
+    stands = np.linalg.norm(jump) > MOVED_FIT * _typical(after)
+    better = _typical(residual[smaller]) > MOVED_FIT * _typical(after[smaller])
+    big = np.linalg.norm(jump[:3]) > MOVED_LENGTH or np.linalg.norm(jump[3:]) > MOVED_ANGLE * LEVER
+    return bool(big and stands and better)
+
+
+def _natural(name: str) -> tuple:
+    """A sort key that puts ``s2`` before ``s10``."""
+    import re
+
+    return tuple((0, int(p), "") if p.isdigit() else (1, 0, p) for p in re.split(r"(\d+)", name))
+
+
+def moved_message(
+    ids: Sequence[str], moved: np.ndarray, jump: np.ndarray, n: int, mode: str
+) -> str:
+    """The refusal naming the samples that saw the fixed frame moved (:func:`moved_frame`)."""
+    what = "the camera" if mode == "eye_to_hand" else "the board (or the instrument)"
+    names = sorted((str(ids[k]) for k in moved), key=_natural)
+    listed = ", ".join(names[:8]) + (f" and {len(names) - 8} more" if len(names) > 8 else "")
+    return (
+        f"samples {listed} ({len(names)} of {n}) see {what} {np.linalg.norm(jump[:3]) * 1e3:.3g}"
+        f" mm and {np.degrees(np.linalg.norm(jump[3:])):.3g} deg from where the other "
+        f"{n - len(names)} see it, a step no error of the robot's geometry explains: it moved "
+        "during the session. Calibrate each placement as a dataset of its own, or leave one "
+        "group out (fix: remove those samples)"
+    )
 
 
 def guess_problem(
@@ -864,11 +1214,9 @@ def check_dataset(dataset, measurements) -> dict:
 
     usable = np.flatnonzero(measurements.ok)
     if len(usable) < 4:
+        check_joint_dataset(dataset, measurements)
         return {}
-    spec = dataset.spec_path or dataset.root / "dataset.yaml"
-    where = str(spec.parent / "samples.csv") if dataset.poses is not None else str(spec)
-    if dataset.spec_path is None:  # Dataset.from_arrays: no file to name
-        where = "poses (Dataset.from_arrays)" if dataset.poses is not None else "images"
+    where, spec = _where(dataset)
     q, poses = dataset.q[usable], measurements.poses[usable]
     scale = check_inputs(
         dataset.model,
@@ -881,14 +1229,14 @@ def check_dataset(dataset, measurements) -> dict:
         handeye=dataset.handeye,
         board=dataset.board,
         poses_given=dataset.poses is not None,
-        spec=str(spec),
+        spec=spec,
         tolerances=Tolerances.from_display(dataset.tolerances),
         joint_unit=getattr(dataset, "joint_unit", None),
         pose_angle_unit=getattr(dataset, "pose_angle_unit", None),
     )
-    pairs = check_pairs(len(usable))
-    misfit, _ = rotation_misfit(relative(fk(dataset.model, q), pairs), relative(poses, pairs))
-    out: dict = {"rotation_misfit_deg": float(np.degrees(misfit))}
+    out: dict = {}
+    if np.isfinite(scale.rotation_misfit):  # over the pairs that turn
+        out["rotation_misfit_deg"] = float(np.degrees(scale.rotation_misfit))
     if scale.determined:
         out["translation_scale"] = float(scale.ratio)
         out["translation_scale_std"] = float(scale.std * scale.ratio)
@@ -897,21 +1245,155 @@ def check_dataset(dataset, measurements) -> dict:
     return out
 
 
+def _where(dataset) -> tuple[str, str]:
+    """The file named in messages about samples (the samples file, dataset.yaml for images, the
+    arrays of :meth:`Dataset.from_arrays`) and the dataset.yaml."""
+    spec = dataset.spec_path or dataset.root / "dataset.yaml"
+    where = str(spec.parent / "samples.csv") if dataset.poses is not None else str(spec)
+    if dataset.spec_path is None:  # Dataset.from_arrays: no file to name
+        kind = {"position": "points", "coincidence": "joints"}.get(dataset.measured, "poses")
+        where = f"{kind} (Dataset.from_arrays)" if dataset.poses is not None else "images"
+    return where, str(spec)
+
+
+def point_misfit(flange: np.ndarray, points: np.ndarray) -> float:
+    """Median distance (m) of measured points ``(N, 3)`` from the modelled ``T F_k m`` with the
+    instrument transform ``T`` and the marker ``m`` that fit best
+    (:func:`~relcal.calibration.handeye.solve_instrument`); NaN when the points do not span
+    three dimensions (nothing to tell)."""
+    from relcal.calibration.handeye import solve_instrument
+
+    try:
+        instrument, marker = solve_instrument(flange, points)
+    except RelcalError:
+        return float("nan")
+    in_base = flange[:, :3, :3] @ marker + flange[:, :3, 3]
+    modelled = in_base @ instrument[:3, :3].T + instrument[:3, 3]
+    return float(np.median(np.linalg.norm(points - modelled, axis=1)))
+
+
+def check_points(
+    model,
+    q: np.ndarray,
+    points: np.ndarray,
+    ids: Sequence[str],
+    where: str,
+    *,
+    fk: Callable[[np.ndarray], np.ndarray],
+    tolerances: Tolerances = Tolerances(),
+    joint_unit: str | None = None,
+) -> float:
+    """The checks of absolute points (a tracker's reflector, a marker) before anything is fitted,
+    those of poses where they apply: readings beyond the joint limits, points beyond any cell
+    (:func:`position_problems`), and the chain: the points against the commanded flange
+    positions with the best instrument transform and marker (:func:`point_misfit`), within
+    ``tolerances.translation`` (median) when the data are this robot's, in its joint order and
+    unit. When they are not, the joint readings that might have been meant
+    (:func:`joint_readings`) are tried and one that fits (3 times better, and within the
+    tolerance) is named with its fix. Returns the median misfit (m; NaN when the points cannot
+    tell). ``q`` ``(N, n)`` rad, ``points`` ``(N, 3)`` m."""
+    poses = tf.homogeneous(np.broadcast_to(np.eye(3), (len(points), 3, 3)), points)
+    units = position_problems(poses, ids)
+    if units:
+        raise RelcalError(f"{where}: " + "\n".join(units))
+    problems = joint_problems(
+        q, model.lower, model.upper, model.prismatic, model.joint_names, ids, tolerances.joint_limit
+    )
+    few = bool(problems) and all("a mistyped reading" in p for p in problems)
+    tol = tolerances.translation
+    given = point_misfit(fk(q), points) if not problems or few else np.inf
+    if not given > tol / 2 and not problems:
+        return given
+    tried = []
+    for reading in joint_readings(model, q, tolerances.joint_limit, joint_unit):
+        misfit = point_misfit(fk(reading.joints(q)), points)  # type: ignore[misc]
+        if misfit <= tol:
+            tried.append((misfit, reading.label))
+    tried.sort()
+    if tried and not tried[0][0] >= given / RATIO:
+        best = tried[0][0]
+        alike = [label for m, label in tried if m <= 1.5 * best + 1e-6][:3]
+        as_given = (
+            "some joint readings are beyond their limits"
+            if not np.isfinite(given)
+            else f"they disagree by {given * 1e3:.3g} mm"
+        )
+        raise RelcalError(
+            f"{where}: {' or '.join(alike)}: read that way the measured points agree with the "
+            f"commanded flange positions to {best * 1e3:.3g} mm (median, after the best "
+            f"instrument transform and marker); as given {as_given}"
+        )
+    if problems and not few:
+        raise RelcalError(f"{where}: " + "\n".join(problems))
+    if given > tol:
+        raise RelcalError(
+            f"{where}: measured points disagree with the commanded flange positions by a median "
+            f"{given * 1e3:.4g} mm after the best instrument transform and marker (expected < "
+            f"{tol * 1e3:.3g} mm, translation_mm in dataset.yaml tolerances), and no other "
+            "reading of the joint columns (order, signs, unit) fits. Check the robot model (its "
+            "root and tip links: another arm?), and whether these samples belong to this robot"
+        )
+    if problems:
+        raise RelcalError(f"{where}: " + "\n".join(problems))
+    return given
+
+
+def check_point_dataset(dataset, measurements) -> dict:
+    """:func:`check_points` on the usable samples of a loaded dataset of points; returns what
+    the checks measured (the median point misfit at the nominal model, mm)."""
+    from relcal.robot.kinematics import fk
+
+    usable = np.flatnonzero(measurements.ok)
+    where, _ = _where(dataset)
+    misfit = check_points(
+        dataset.model,
+        dataset.q[usable],
+        measurements.poses[usable, :3, 3],
+        [dataset.ids[i] for i in usable],
+        where,
+        fk=lambda v: fk(dataset.model, v),
+        tolerances=Tolerances.from_display(dataset.tolerances),
+        joint_unit=getattr(dataset, "joint_unit", None),
+    )
+    return {"point_misfit_mm": float(misfit * 1e3)} if np.isfinite(misfit) else {}
+
+
+def check_joint_dataset(dataset, measurements) -> None:
+    """The joint readings of a loaded dataset's usable samples against the model's limits
+    (:func:`joint_problems`): the check every kind shares, also where nothing else about the
+    measurements can be checked before a fit (coincidences: their points are unknown)."""
+    usable = np.flatnonzero(measurements.ok)
+    where, _ = _where(dataset)
+    model = dataset.model
+    problems = joint_problems(
+        dataset.q[usable],
+        model.lower,
+        model.upper,
+        model.prismatic,
+        model.joint_names,
+        [dataset.ids[i] for i in usable],
+        Tolerances.from_display(dataset.tolerances).joint_limit,
+    )
+    if problems:
+        raise RelcalError(f"{where}: " + "\n".join(problems))
+
+
 def check_result(dataset, problem, result, what: str | None = None) -> None:
-    """:func:`check_corrections` on an identification result (``problem.full_layout`` order).
-    Hand-eye corrections count only when the start was estimated from the data: a guess given in
-    dataset.yaml may be rough (its plausibility is checked against the data beforehand). The
-    nuisance frames of the other kinds (a tracker's instrument transform and marker, a
-    coincidence's tool point and group points) are free by design and never checked. With
-    ``what`` (how the samples are called, e.g. ``points``), refused corrections below 3 standard
-    deviations are named as not determined by the data."""
+    """:func:`check_corrections` on an identification result (``problem.full_layout`` order):
+    the kinematic corrections. The measurement frames are free: a tracker's instrument transform
+    and marker, a coincidence's tool point and group points, a board transform, and the hand-eye
+    transform, whether its start was given (a guess in dataset.yaml may be rough; its
+    plausibility is checked against the data beforehand, :func:`guess_problem`) or estimated
+    from the data (:func:`~relcal.calibration.handeye.solve_handeye` with the nominal
+    kinematics: what the motions leave undetermined there, such as the translation along the one
+    axis that two tool orientations turn about, the geometry may determine, and the fit then
+    moves it far from the start, rightly). A wrong input shows in the kinematic corrections
+    checked here and in the inputs' checks; the frames' shift from the baseline's is warned of
+    (:func:`frame_shifts`). With ``what`` (how the samples are called, e.g. ``points``), refused
+    corrections below 3 standard deviations are named as not determined by the data."""
     layout = problem.full_layout
-    free = ("board", "instrument", "marker", "tool_point", "point")
-    keep = [
-        k
-        for k, kind in enumerate(layout.kinds)
-        if kind not in free and (kind != "handeye" or dataset.handeye is None)
-    ]
+    free = ("board", "instrument", "marker", "tool_point", "point", "handeye")
+    keep = [k for k, kind in enumerate(layout.kinds) if kind not in free]
     try:
         check_corrections(
             [layout.names[k] for k in keep],
@@ -960,6 +1442,9 @@ STD_REFUSE = 10.0  # ... by more than this for the median parameter: refused
 # distinct ones): compared only from this many training samples, refused only from the next.
 STD_MIN_SAMPLES = 20
 STD_REFUSE_SAMPLES = 40
+# Below STD_MIN_SAMPLES a bootstrap is rough (a factor of a few), never orders of magnitude off:
+# a median predicted std this many times below it is refused whatever the number of samples.
+STD_FEW = 100.0
 
 
 def nongeometric_problems(
@@ -1105,9 +1590,11 @@ def check_calibration(
     grossly inconsistent with the bootstrap's; returns warnings: frames moved from the
     baseline's, zero offsets that put training samples beyond the joint limits, standard
     deviations more than :data:`STD_WARN` apart (from :data:`STD_MIN_SAMPLES` training samples;
-    refused from :data:`STD_REFUSE_SAMPLES`). ``what``: how the samples are called (points,
-    placements) for the messages; ``q``: the training joint values; ``links``: whether the link
-    corrections are checked here (False: the measurement kind checked them, its frames free).
+    refused from :data:`STD_REFUSE_SAMPLES`; with fewer samples refused when :data:`STD_FEW`
+    times apart, orders of magnitude no rough bootstrap explains). ``what``: how the samples are
+    called (points, placements) for the messages; ``q``: the training joint values;
+    ``links``: whether the link corrections are checked here (False: the measurement kind
+    checked them, its frames free).
     """
     if links:
         check_result(dataset, problem, result, what)
@@ -1134,4 +1621,22 @@ def check_calibration(
         if refuse and n >= STD_REFUSE_SAMPLES:
             raise RelcalError(f"{where}: {refuse}")
         warnings += std_warnings
+    elif bootstrap is not None:
+        ratio = median_std_ratio(result.std, bootstrap)
+        if ratio > STD_FEW:
+            raise RelcalError(
+                f"{where}: the predicted standard deviations are {ratio:.3g}x below the "
+                f"bootstrap's for the median parameter: the noise learned from {n} training "
+                "samples is not a noise level (a fit that leaves almost no residual), and every "
+                f"interval would be meaningless; collect more samples ({STD_MIN_SAMPLES} or more) "
+                "and calibrate again"
+            )
     return warnings
+
+
+def median_std_ratio(predicted: np.ndarray, bootstrap: np.ndarray) -> float:
+    """The median over the parameters estimated by both of the bootstrap's standard deviation
+    over the predicted one (NaN when none is)."""
+    predicted, bootstrap = np.asarray(predicted, float), np.asarray(bootstrap, float)
+    both = np.isfinite(predicted) & np.isfinite(bootstrap) & (predicted > 0) & (bootstrap > 0)
+    return float(np.median(bootstrap[both] / predicted[both])) if both.any() else float("nan")

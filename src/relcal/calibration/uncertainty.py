@@ -823,17 +823,33 @@ def design_effect(
     hh = [h_inv @ hc for hc, _ in parts]  # H^-1 H_c
     mean = sum(float(np.trace(x) - np.trace(x @ x)) for x in hh)
     # Var0[Q] = 2 s^4 tr((B Sigma)^2), Sigma_cd = delta_cd H_c - H_c H^-1 H_d, B = diag(H^-1):
-    # (B Sigma)_cd = delta_cd X_c - X_c X_d with X_c = H^-1 H_c.
+    # (B Sigma)_cd = delta_cd X_c - X_c X_d with X_c = H^-1 H_c, so that
+    # tr((B Sigma)^2) = sum_cd tr(T_cd T_dc) = sum_c [tr(X_c^2) - 2 tr(X_c^3)] + tr(S^2) with
+    # S = sum_c X_c^2 (the c != d terms are tr(X_c^2 X_d^2), cyclic): linear in the clusters
+    # (:func:`_square_pairwise` is the double sum itself, for the tests).
+    squares = [x @ x for x in hh]
+    total = sum(squares, np.zeros_like(h_inv))
+    square = sum(
+        float(np.trace(x2) - 2.0 * np.sum(x2 * x.T)) for x, x2 in zip(hh, squares, strict=True)
+    )
+    square += float(np.sum(total * total.T))
+    if mean <= 0 or s2 <= 0:
+        return 1.0, float("inf"), s2
+    dof = mean**2 / square if square > 0 else float("inf")
+    return q / (s2 * mean), dof, s2
+
+
+def _square_pairwise(hh: list[np.ndarray]) -> float:
+    """``sum_cd tr(T_cd T_dc)`` with ``T_cd = delta_cd X_c - X_c X_d`` summed pair by pair
+    (quadratic in the clusters): the reference :func:`design_effect`'s linear form is tested
+    against."""
     square = 0.0
     for c, xc in enumerate(hh):
         for d, xd in enumerate(hh):
             t_cd = (xc if c == d else 0.0) - xc @ xd
             t_dc = (xd if c == d else 0.0) - xd @ xc
             square += float(np.trace(t_cd @ t_dc))
-    if mean <= 0 or s2 <= 0:
-        return 1.0, float("inf"), s2
-    dof = mean**2 / square if square > 0 else float("inf")
-    return q / (s2 * mean), dof, s2
+    return square
 
 
 def least_squares_covariance(jac: np.ndarray, r: np.ndarray, subset: np.ndarray) -> np.ndarray:

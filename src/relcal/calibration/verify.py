@@ -60,8 +60,9 @@ from relcal.calibration.measurement import (
 )
 from relcal.calibration.selection import plain_whiteners
 from relcal.calibration.validate import rms_draws, stats
-from relcal.checks import check_flag, check_number, check_path
+from relcal.checks import check_flag, check_number, check_path, check_seed
 from relcal.errors import RelcalError
+from relcal.limits import read_input
 from relcal.robot.kinematics import Layout, fk
 from relcal.robot.model import RobotModel
 
@@ -767,6 +768,8 @@ class CalibrationFiles:
     folder: Path
     model: RobotModel
     results: dict
+    # why model.yaml is not the file the calibration validated (hand-edited since), else None
+    changed: str | None = None
 
     def covered_ranges(self) -> tuple[JointRanges | None, str]:
         """The joint ranges the calibration covered and where they come from: its results
@@ -796,6 +799,10 @@ class CalibrationFiles:
 
     @property
     def reference(self) -> Reference | None:
+        """The held-out error at calibration; None when model.yaml was changed since (that
+        error is of another file: comparing with it would blame the robot for the edit)."""
+        if self.changed is not None:
+            return None
         return Reference.from_results(self.results)
 
     @property
@@ -832,12 +839,46 @@ def load_calibration(folder: str | Path) -> CalibrationFiles:
     path = folder / "results.json"
     note_input(path)
     try:
-        results = json.loads(path.read_text())
+        results = json.loads(read_input(path, "text"))
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise RelcalError(f"{path}: cannot read: {exc}") from None
     if not isinstance(results, dict):
         raise RelcalError(f"{path}: not a relcal results document")
-    return CalibrationFiles(folder, load_model(folder / "model.yaml"), results)
+    model = load_model(folder / "model.yaml")
+    record = model_file_record(folder / "model.yaml", results)
+    changed = None
+    if record is not None and not record["matches"]:
+        changed = (
+            f"{folder / 'model.yaml'} was changed since the calibration (its SHA-256 is not the "
+            "one results.json records for the file it validated): the numbers here are of the "
+            "edited file, and its held-out error at calibration is unknown, so a difference is "
+            "no sign of a change of the robot; verify the file relcal wrote (or recalibrate)"
+        )
+    return CalibrationFiles(folder, model, results, changed)
+
+
+def model_file_record(model_path: Path, results: dict) -> dict | None:
+    """What ``results`` (a results document of ``relcal calibrate``) records for the model file
+    at ``model_path``: ``{"position_rms_mm", "n_samples", "matches"}``, ``matches`` False when
+    the file's SHA-256 (after the run's comment line) is not the recorded one (the file was
+    changed since); None without such a record (an older or another document)."""
+    import hashlib
+
+    from relcal.calibration.artifacts import RUN_ID_PREFIX
+
+    try:
+        entry = {f["file"]: f for f in results["artifacts"]["files"]}["model.yaml"]
+        data = read_input(model_path, "yaml")
+    except (OSError, KeyError, TypeError):
+        return None
+    if data.startswith(RUN_ID_PREFIX.encode()):
+        data = data.split(b"\n", 1)[1] if b"\n" in data else b""
+    held = entry.get("held_out") or {}
+    return {
+        "position_rms_mm": held.get("position_rms_mm"),
+        "n_samples": held.get("n_samples"),
+        "matches": hashlib.sha256(data).hexdigest() == entry.get("sha256"),
+    }
 
 
 def check_session(
@@ -858,8 +899,20 @@ def check_session(
     if measurements is not None:
         check_measurements(measurements, dataset)
     check_number(folds, "folds", 2, integer=True)
-    check_number(seed, "seed", 0, integer=True)
+    check_seed(seed)
     check_flag(progress, "progress")
+
+
+def check_session_inputs(dataset, measurements) -> None:
+    """The input gate of ``calibrate`` on a session to verify
+    (:meth:`~relcal.calibration.kinds.MeasurementKind.check_data` of its kind): joint readings
+    beyond the limits, absurd magnitudes, measurements that are not this robot's in this joint
+    order and unit (another arm, a wrong unit) and a board moved during the session are refused
+    here as they are before a calibration, naming the likely cause. Every entry point of
+    ``verify`` (the command, :func:`verify_session`) calls it."""
+    from relcal.calibration.kinds.dispatch import kind_of
+
+    kind_of(dataset, measurements).check_data()
 
 
 def verify_session(
@@ -909,9 +962,12 @@ def verify_session(
         (checked before anything is read).
     RelcalError
         Not a calibration folder (no ``model.yaml`` or ``results.json``, or unreadable), a
-        session of a robot with other joints, a session that holds the calibration's own
-        training samples, or too few usable samples (below 4; 3 for coincidence data) to refit
-        the session's nuisance transforms.
+        session of a robot with other joints, session data that the checks before a calibration
+        refuse (joint readings beyond the limits, absurd magnitudes, measurements that are not
+        this robot's in this joint order and unit:
+        :meth:`~relcal.calibration.kinds.MeasurementKind.check_data`), a session that holds the
+        calibration's own training samples, or too few usable samples (below 4; 3 for
+        coincidence data) to refit the session's nuisance transforms.
 
     Examples
     --------
@@ -937,6 +993,7 @@ def verify_session(
     files = files or load_calibration(calibration)
     if measurements is None:
         measurements = measure(dataset, progress=progress)
+    check_session_inputs(dataset, measurements)
     kind = session_kind(dataset.measured)
     usable = np.flatnonzero(measurements.ok)
     repeated = check_new_session(files, dataset, measurements, usable)
@@ -957,6 +1014,8 @@ def verify_session(
     same = FORMULATIONS.get(settings.get("formulation")) == kind
     reference = files.reference if same else None
     assessment = assess(ver, reference, files.covered_ranges()[0], seed=seed)
+    if files.changed is not None:  # said first: the edit, not the robot, is the news
+        assessment = replace(assessment, warnings=(files.changed, *assessment.warnings))
     if repeated:
         assessment = replace(assessment, warnings=(*assessment.warnings, repeated))
     return ver, assessment

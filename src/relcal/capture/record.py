@@ -20,7 +20,11 @@ committed image first, then ``samples.csv`` (the whole table, rewritten), then `
 with SIGINT and SIGTERM held back during the renames: a row never names a missing image, and an
 image without a row (a run stopped between the two) is taken again on resume. Nothing the user
 gave is overwritten: an existing non-empty folder is refused unless ``resume`` is asked, and then
-it must be a capture of the same robot and plan.
+it must be a capture of the same robot and plan. One run writes a dataset at a time: the writer
+holds ``.capture.lock`` in the folder for as long as it lives (removed when it is closed), and a
+second run on the same folder (two ``--resume`` at once) is refused, not merged. What a run has
+stored is listed in :func:`relcal.outputset.written` as it goes, so the message after an
+interrupt names the samples kept.
 """
 
 from __future__ import annotations
@@ -29,7 +33,8 @@ import hashlib
 import json
 import os
 import tempfile
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
@@ -41,7 +46,8 @@ from relcal.capture.loop import Sample
 from relcal.data.dataset import joints_in_unit
 from relcal.errors import RelcalError
 from relcal.io import yaml_text
-from relcal.outputset import _signals_held, check_parent, inputs
+from relcal.limits import read_input
+from relcal.outputset import _signals_held, check_parent, exclusive, inputs, note_written
 from relcal.robot.model import RobotModel, dump_model, library_names
 from relcal.vision.boards import Board, board_to_spec
 from relcal.vision.camera import Camera as Intrinsics
@@ -49,6 +55,7 @@ from relcal.vision.camera import Camera as Intrinsics
 LOG = "capture.json"
 SAMPLES = "samples.csv"
 IMAGES = "images"
+LOCK = ".capture.lock"  # held by the one run writing the folder (removed when it ends)
 
 
 def _fsync_dir(path: Path) -> None:
@@ -128,7 +135,7 @@ def check_destination(root: str | Path, resume: bool) -> None:
     for p in inputs():
         if p == real or real in p.parents:
             raise RelcalError(f"--out {root}: holds {p}, which this run reads; choose another")
-    if root.is_dir() and any(root.iterdir()):
+    if root.is_dir() and any(p.name != LOCK for p in root.iterdir()):
         if not resume:
             raise RelcalError(
                 f"--out {root}: already exists and is not empty; add --resume to continue the "
@@ -150,6 +157,29 @@ def flange_cells(flange: np.ndarray | None, pose_id: str) -> list[str]:
         raise RelcalError(f"pose {pose_id}: no flange pose to record (the driver reported none)")
     quat = Rotation.from_matrix(np.asarray(flange, float)[:3, :3]).as_quat()
     return [f"{v:.12g}" for v in (*flange[:3, 3], *quat)]
+
+
+@contextmanager
+def claim(root: str | Path, resume: bool) -> Iterator[None]:
+    """The dataset folder ``root`` for this run alone, for the block: checked
+    (:func:`check_destination`), created, locked (``.capture.lock``; another run writing it is
+    refused, naming it) and checked again under the lock. Re-entrant: the command line claims
+    the folder before any device is opened, the writer claims it again. A folder this claim
+    created and nothing was written into is removed again at the end."""
+    root = Path(root)
+    check_destination(root, resume)
+    created = not root.exists()
+    root.mkdir(parents=True, exist_ok=True)
+    try:
+        with exclusive(root / LOCK, f"--out {root}", wait=False):
+            check_destination(root, resume)  # again: another run may have started it
+            yield
+    finally:
+        if created:
+            try:
+                root.rmdir()  # only if nothing was written
+            except OSError:
+                pass
 
 
 class DatasetWriter:
@@ -221,12 +251,45 @@ class DatasetWriter:
         )
         self.rows: dict[str, str] = {}
         self.log: dict[str, Any] = {}
+        self.recorded: list[str] = []  # ids this run stored
         check_destination(self.root, resume)
         spec = self._spec(robot, handeye, limits)
-        if resume and (self.root / LOG).is_file():
-            self._resume(spec)
+        self._claim = claim(self.root, resume)
+        self._claim.__enter__()
+        try:
+            if resume and (self.root / LOG).is_file():
+                self._resume(spec)
+            else:
+                self._start(spec, plan_path, devices or {})
+        except BaseException as exc:
+            self._claim.__exit__(type(exc), exc, exc.__traceback__)
+            self._claim = None
+            raise
+
+    def close(self) -> None:
+        """Release the folder (its lock file is removed); the writer takes no more samples."""
+        held, self._claim = self._claim, None
+        if held is not None:
+            held.__exit__(None, None, None)
+
+    def __enter__(self) -> DatasetWriter:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def _note(self) -> None:
+        """What this run has stored, for the message after an interrupt."""
+        ids = self.recorded
+        if ids:
+            shown = ", ".join(ids[:10]) + (f" and {len(ids) - 10} more" if len(ids) > 10 else "")
+            text = (
+                f"--out {self.root}: {len(ids)} sample{'s' if len(ids) != 1 else ''} recorded by "
+                f"this run ({shown}), {len(self.rows)} in the dataset"
+            )
         else:
-            self._start(spec, plan_path, devices or {})
+            text = f"--out {self.root}: the dataset's set-up files, no sample recorded yet"
+        note_written(text, key=("capture", str(self.root)))
 
     # ------------------------------------------------------------------ set-up
 
@@ -293,12 +356,17 @@ class DatasetWriter:
         files.append((self.root / LOG, self._log_bytes()))
         files.append((self.root / "dataset.yaml", yaml_text(spec).encode()))
         (self.root / IMAGES).mkdir(parents=True, exist_ok=True)
-        _commit(files)
+        done: list = []
+        try:
+            _commit(files, done)
+        finally:
+            if done:
+                self._note()
 
     def _resume(self, spec: dict) -> None:
         path = self.root / LOG
         try:
-            self.log = json.loads(path.read_text())
+            self.log = json.loads(read_input(path, "text"))
         except (OSError, ValueError) as exc:
             raise RelcalError(f"{path}: --resume: cannot read the capture log: {exc}") from None
         what = f"--resume {self.root}"
@@ -340,7 +408,10 @@ class DatasetWriter:
             if logged:
                 raise RelcalError(f"{path}: missing, but {LOG} records {len(logged)} samples")
             return
-        lines = path.read_text().splitlines()
+        try:
+            lines = read_input(path, "csv").decode("utf-8").splitlines()
+        except (OSError, UnicodeDecodeError) as exc:
+            raise RelcalError(f"{path}: --resume: cannot read the samples: {exc}") from None
         header = lines[0].split(",") if lines else []
         self.flange = header == self._header(True)  # the table as started decides
         if header != self._header(self.flange):
@@ -412,6 +483,10 @@ class DatasetWriter:
                 self.rows.pop(pid, None)
                 self.log["samples"].pop(pid, None)
             raise
+        finally:
+            if done:
+                self.recorded.append(pid)
+                self._note()
 
     def skip(self, pose_id: str, index: int, reasons: Sequence[str]) -> None:
         """Note a skipped pose and why in the log."""

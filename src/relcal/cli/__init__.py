@@ -200,13 +200,16 @@ def _main_thread() -> bool:
 
 def _run(argv: Sequence[str] | None) -> int:
     try:
-        args = build_parser().parse_args(argv)  # light: see relcal.cli.common
+        parser = build_parser()
+        args = parser.parse_args(argv)  # light: see relcal.cli.common
         func: Callable[[argparse.Namespace], int] = args.func
         import numpy as np
 
+        from relcal.cli.common import declare_run
         from relcal.outputset import tracking
 
         with tracking(), np.errstate(all="ignore"):
+            declare_run(parser, args, list(sys.argv[1:] if argv is None else argv))
             code = func(args)
         _interrupt_noted()  # swallowed by a library: whatever was written is whole, and says so
         return code

@@ -152,7 +152,7 @@ def run_calibrate(args: argparse.Namespace) -> int:
     holdout_ids = _ids(args.holdout_ids) if args.holdout_ids else None
     destinations = _destinations(out, args.json, args.report)
     check(destinations)  # refuse before the work, not after it
-    if dataset.measured == "pose":  # all pairs are quadratic: refused before measuring
+    if dataset.measured in ("pose", "image", "position"):  # sizes: refused before measuring
         from relcal.calibration.selection import candidate_model
         from relcal.limits import check_calibration_memory
         from relcal.robot.kinematics import make_layout
@@ -160,7 +160,9 @@ def run_calibrate(args: argparse.Namespace) -> int:
         n_params = make_layout(candidate_model(dataset.model, args.nongeometric)).size + 6
         n = len(dataset.ids)
         held = len(set(holdout_ids)) if holdout_ids else round(args.holdout * n)
-        check_calibration_memory(n, args.pairs, n_params, str(dataset.root), n - held)
+        # all pairs of poses are quadratic; points are one fit per sample, linear like a board
+        pairing = "board" if dataset.measured == "position" else args.pairs
+        check_calibration_memory(n, pairing, n_params, str(dataset.root), n - held)
     # the registry opened, migrated and checked before any computation (the inputs are known
     # by now: an input is never turned into a database, nor is an output)
     registry = open_for_writing(args.registry, outputs=destinations)
@@ -261,12 +263,11 @@ def _ids(text: str) -> list[str]:
     if text.startswith("@"):
         from relcal.errors import RelcalError
         from relcal.io import note_input
-        from relcal.limits import check_input_size
+        from relcal.limits import read_input
 
         note_input(text[1:])
-        check_input_size(text[1:], "text")
         try:
-            lines = Path(text[1:]).read_text(encoding="utf-8-sig").splitlines()
+            lines = read_input(text[1:], "text").decode("utf-8-sig").splitlines()
         except UnicodeDecodeError:
             raise RelcalError(f"--holdout-ids {text}: not a text file (one id per line)") from None
         except OSError as exc:

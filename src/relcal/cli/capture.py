@@ -59,21 +59,15 @@ def _settings(args: argparse.Namespace):
 
 
 def run(args: argparse.Namespace) -> int:
-    import sys
-
     import numpy as np
 
     from relcal import geometry as tf
-    from relcal.capture import devices
-    from relcal.capture.interfaces import RealClock
-    from relcal.capture.loop import capture
-    from relcal.capture.record import DatasetWriter, check_destination
+    from relcal.capture.record import check_destination, claim
     from relcal.cli.plan import parse_board
     from relcal.design.planfile import read_plan
     from relcal.errors import RelcalError
-    from relcal.io import File, json_text, note_input, write_set
+    from relcal.io import File, note_input
     from relcal.outputset import check
-    from relcal.reporting.capture_text import format_capture
 
     plan_robot(args)
     model = load_robot(args)
@@ -107,6 +101,21 @@ def run(args: argparse.Namespace) -> int:
         check([File(args.json, b"", "--json")])
     check_destination(args.out, args.resume)  # before any device is touched
     check_ids(args.plan, plan.ids)
+    with claim(args.out, args.resume):  # this run's alone (another one writing it: refused)
+        return _capture(args, model, plan, board, settings, intrinsics, handeye, limits)
+
+
+def _capture(args, model, plan, board, settings, intrinsics, handeye, limits) -> int:
+    import sys
+
+    from relcal.capture import devices
+    from relcal.capture.interfaces import RealClock
+    from relcal.capture.loop import capture
+    from relcal.capture.record import DatasetWriter
+    from relcal.errors import RelcalError
+    from relcal.io import File, json_text, write_set
+    from relcal.reporting.capture_text import format_capture
+
     clock = RealClock()
     robot = devices.open_robot(
         args.robot_driver,
@@ -118,7 +127,7 @@ def run(args: argparse.Namespace) -> int:
         plan_ids=plan.ids,
         plan_targets=plan.q,
     )
-    camera = None
+    camera = writer = None
     try:
         if tuple(robot.joint_names) != tuple(model.joint_names):
             raise RelcalError(
@@ -190,16 +199,18 @@ def run(args: argparse.Namespace) -> int:
                 writer.finish(summary.document())
                 print(format_capture(summary, args.out), file=sys.stderr)
             raise
+        doc = summary.document()
+        writer.finish(doc)
+        if args.json:
+            write_set(File(args.json, json_text({"dataset": str(args.out), **doc}), "--json"))
     finally:
         try:
+            if writer is not None:
+                writer.close()  # the dataset's lock: released, its file removed
             if camera is not None:
                 camera.close()
         finally:
             robot.close()
-    doc = summary.document()
-    writer.finish(doc)
-    if args.json:
-        write_set(File(args.json, json_text({"dataset": str(args.out), **doc}), "--json"))
     if not args.quiet:
         print(format_capture(summary, args.out, str(args.plan)))
         if writer.flange:

@@ -101,20 +101,21 @@ def json_arg(parser: argparse.ArgumentParser, what: str) -> None:
 
 
 def _number(text: str) -> float:
+    from relcal.numbers import NotANumber, parse_number
+
     try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"'{text}' is not a number") from None
-    if not math.isfinite(value):
-        raise argparse.ArgumentTypeError(f"'{text}': expected a finite number")
-    return value
+        return parse_number(text)
+    except NotANumber as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
 
 
 def _integer(text: str) -> int:
-    try:
-        return int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"'{text}' is not a whole number") from None
+    import re
+
+    if not re.fullmatch(r"\s*[-+]?\d+\s*", text):
+        hint = " (no underscores: write the digits alone)" if "_" in text else ""
+        raise argparse.ArgumentTypeError(f"'{text}' is not a whole number{hint}")
+    return int(text)
 
 
 def finite_float(text: str) -> float:
@@ -251,9 +252,11 @@ def noise_levels(text: str) -> str:
     """``POS_MM,ORI_DEG[,JOINT_DEG]`` non-negative standard deviations, or ``none``."""
     if text.strip().lower() == "none":
         return "none"
+    from relcal.numbers import parse_number
+
     parts = text.split(",")
     try:
-        values = [float(p) for p in parts]
+        values = [parse_number(p) for p in parts]
     except ValueError:
         values = []
     if not 2 <= len(values) <= 3 or any(not math.isfinite(v) or v < 0 for v in values):
@@ -283,7 +286,7 @@ def output_file(text: str) -> str:
     try:
         check_file(File(text, b"", "file"))
     except RelcalError as exc:
-        raise ArgumentTypeError(str(exc).removeprefix(f"file {text}: ")) from None
+        raise ArgumentTypeError(str(exc).removeprefix("file ")) from None
     return text
 
 
@@ -344,3 +347,87 @@ def pairing_arg(parser: argparse.ArgumentParser, calibration: bool = True) -> No
     parser.add_argument(
         "--pairing", "--pairs", dest="pairs", choices=PAIRINGS, default="auto", help=help_
     )
+
+
+# ------------------------------------------------------------ the run's destinations and inputs
+
+# Options whose values are never paths (link names, topics, ids, drivers' options, URLs).
+_NOT_PATHS = {"robot_id", "run_a", "run_b", "format", "command", "fleet_command"}
+_READ_IN_FOLDERS = ("dataset.yaml", "model.yaml", "results.json")  # a dataset's, a calibration's
+_NOT_PATH_METAVARS = {"LINK", "TOPIC", "ID", "KEY=VALUE", "tcp://HOST:8786", "NAME"}
+
+
+def _chosen_actions(parser: argparse.ArgumentParser, args: argparse.Namespace) -> list:
+    """The argparse actions of the (sub)command ``args`` was parsed for."""
+    actions = []
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            chosen = action.choices.get(getattr(args, action.dest, None) or "")
+            if chosen is not None:
+                actions += _chosen_actions(chosen, args)
+        else:
+            actions.append(action)
+    return actions
+
+
+def _option_name(action: argparse.Action) -> str:
+    return action.option_strings[0] if action.option_strings else action.dest.upper()
+
+
+def declare_run(
+    parser: argparse.ArgumentParser, args: argparse.Namespace, argv: list[str] | None = None
+) -> None:
+    """Before any work: every option that names an output (typed :func:`output_file` or
+    :func:`output_folder`) is declared as a destination of the run
+    (:func:`relcal.outputset.declare`), every other argument that names an existing file or
+    folder is noted as an input, and the registry (``--registry`` or ``$RELCAL_REGISTRY``) is
+    noted as one; a destination that is an input, the registry, an existing registry, the
+    working folder, or given twice is refused now, and every later write of the run checks the
+    destinations again against what it has read (see :mod:`relcal.outputset`)."""
+    from relcal.outputset import File, Folder, declare, note_input, note_registry
+
+    destinations: list = []
+    for action in _chosen_actions(parser, args):
+        value = getattr(args, action.dest, None)
+        if value is None or action.dest in ("help", "version"):
+            continue
+        name = _option_name(action)
+        if action.type is output_file:
+            destinations.append(File(value, b"", name))
+        elif action.type is output_folder:
+            destinations.append(Folder(value, what=name))
+        elif action.dest == "registry" or action.dest in _NOT_PATHS or action.choices:
+            continue
+        elif action.metavar in _NOT_PATH_METAVARS:
+            continue
+        else:
+            for text in value if isinstance(value, list) else [value]:
+                if isinstance(text, str) and text.strip():
+                    path = text[1:] if text.startswith("@") else text
+                    if os.path.lexists(path):
+                        note_input(path)
+                        for name in _READ_IN_FOLDERS:  # named in messages: the file read
+                            if os.path.isdir(path) and os.path.isfile(os.path.join(path, name)):
+                                note_input(os.path.join(path, name))
+    if any(a.dest == "registry" for a in _chosen_actions(parser, args)):
+        where = getattr(args, "registry", None) or os.environ.get("RELCAL_REGISTRY")
+        path = _registry_file(where)
+        if path is not None:
+            note_registry(path)
+    order = list(argv or [])
+
+    def given_at(item) -> int:  # the command line's order: a repeat names the earlier option
+        return order.index(item.what) if item.what in order else len(order)
+
+    declare(*sorted(destinations, key=given_at))
+
+
+def _registry_file(where: str | None) -> str | None:
+    """The SQLite file a ``--registry`` value names (a path or ``sqlite:///PATH``), else None."""
+    if not where or not where.strip():
+        return None
+    if "://" not in where:
+        return os.path.expanduser(where)
+    if where.startswith("sqlite:///") and len(where) > len("sqlite:///"):
+        return where[len("sqlite:///") :].split("?", 1)[0]
+    return None

@@ -333,8 +333,9 @@ def load_nominal(args: argparse.Namespace, chain: dict | None):
 
 
 def check_nominal(nominal, applied: Applied, given: str) -> None:
-    """``--nominal`` must be the calibration's robot: the same joints (names, kinds), and for a
-    URDF the same chain."""
+    """``--nominal`` must be the calibration's robot: the same joints (names, kinds), for a URDF
+    the same chain, and the same geometry within what a calibration changes
+    (:func:`relcal.calibration.compensate.robot_mismatch`)."""
     import numpy as np
 
     from relcal.errors import RelcalError
@@ -357,6 +358,15 @@ def check_nominal(nominal, applied: Applied, given: str) -> None:
                 f"{ours[0]} -> {ours[1]}: the tool poses would be those of another link; give "
                 f"--root {ours[0]} --tip {ours[1]} (or leave them out), or leave --nominal out"
             )
+    from relcal.calibration.compensate import robot_mismatch
+
+    why = robot_mismatch(nominal, cal)  # same joint names, another geometry: another robot
+    if why is not None:
+        raise RelcalError(
+            f"--nominal {given} ({nominal.name}) is not the robot the calibration "
+            f"{applied.label} calibrated ({cal.name}): {why}; leave --nominal out to use the "
+            "calibration's own nominal model (or give that robot's controller model)"
+        )
 
 
 def gate_message(path, ids, comp, gate, bad, joint_unit, model, one: bool = False) -> str:

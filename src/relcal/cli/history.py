@@ -32,6 +32,7 @@ def run_history(args: argparse.Namespace) -> int:
     from relcal.fleet.text import (
         drift_summary,
         history_text,
+        mixed_models,
         run_document,
         verification_run_document,
     )
@@ -50,7 +51,15 @@ def run_history(args: argparse.Namespace) -> int:
     if args.last:
         runs = runs[-args.last :]
         checks = checks[-args.last :]
-    comparisons = consecutive(runs, args.alpha, common=not args.as_recorded)
+    by_model: dict[int, object] = {}  # each robot model's runs compared among themselves only
+    previous: dict[int, str] = {}  # the run each is compared with
+    for model in dict.fromkeys(r.model_name for r in runs):
+        same = [r for r in runs if r.model_name == model]
+        found = consecutive(same, args.alpha, common=not args.as_recorded)
+        by_model.update({r.id: c for r, c in zip(same, found, strict=True)})
+        previous.update({b.id: str(a.id) for a, b in zip(same, same[1:], strict=False)})
+    comparisons = [by_model[r.id] for r in runs]
+    mixed = mixed_models(args.robot_id, runs)
     if args.json:
         write_json(
             args.json,
@@ -60,11 +69,13 @@ def run_history(args: argparse.Namespace) -> int:
                 "runs": [
                     {
                         **run_document(r),
-                        "drift": drift_summary(c, str(runs[k - 1].id) if k else None),
+                        "drift": drift_summary(c, previous.get(r.id)),
                     }
-                    for k, (r, c) in enumerate(zip(runs, comparisons, strict=True))
+                    for r, c in zip(runs, comparisons, strict=True)
                 ],
                 "verifications": [verification_run_document(v) for v in checks],
+                "robot_models": list(dict.fromkeys(r.model_name for r in runs)),
+                "warnings": [mixed] if mixed else [],
             },
         )
     if not args.quiet:

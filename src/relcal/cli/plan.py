@@ -64,13 +64,14 @@ def parse_board(text: str) -> Board:
     import re
 
     from relcal.errors import RelcalError
+    from relcal.numbers import parse_number
     from relcal.vision.boards import Board
 
     match = re.fullmatch(r"\s*(\d+)\s*[xX]\s*(\d+)\s*@\s*([0-9.eE+-]+)\s*(mm|m)?\s*", text)
     if match:
         rows, cols, size, unit = match.groups()
         try:
-            spacing = float(size) * (1e-3 if unit == "mm" else 1.0)
+            spacing = parse_number(size) * (1e-3 if unit == "mm" else 1.0)
             return Board(type="chessboard", rows=int(rows), columns=int(cols), spacing=spacing)
         except ValueError as exc:
             raise RelcalError(f"--board '{text}': {exc}") from None
@@ -89,12 +90,13 @@ def parse_board(text: str) -> Board:
 def parse_camera(text: str) -> Camera:
     """A camera from ``FX,FY,CX,CY,WIDTH,HEIGHT`` (px) or a camera YAML file."""
     from relcal.errors import RelcalError
+    from relcal.numbers import parse_number
     from relcal.vision.camera import Camera
 
     parts = text.split(",")
     if len(parts) == 6:
         try:
-            fx, fy, cx, cy = (float(v) for v in parts[:4])
+            fx, fy, cx, cy = (parse_number(v) for v in parts[:4])
             return Camera(fx=fx, fy=fy, cx=cx, cy=cy, width=int(parts[4]), height=int(parts[5]))
         except ValueError as exc:
             raise RelcalError(f"--camera '{text}': {exc}") from None
@@ -110,9 +112,10 @@ def _floats(text: str, count: tuple[int, ...], what: str) -> list[float]:
     import numpy as np
 
     from relcal.errors import RelcalError
+    from relcal.numbers import parse_number
 
     try:
-        values = [float(v) for v in text.split(",")]
+        values = [parse_number(v) for v in text.split(",")]
     except ValueError:
         values = []
     if len(values) not in count or not all(np.isfinite(values)):
@@ -128,6 +131,7 @@ def parse_limits(text: str, model, unit: str) -> dict[str, tuple[float, float]]:
 
     from relcal.data.dataset import limits_from_unit
     from relcal.errors import RelcalError
+    from relcal.numbers import parse_number
 
     if Path(text).suffix in (".yaml", ".yml") or Path(text).is_file():
         from relcal.io import load_yaml
@@ -150,7 +154,7 @@ def parse_limits(text: str, model, unit: str) -> dict[str, tuple[float, float]]:
         try:
             if not (sep and sep2):
                 raise ValueError
-            limits[name.strip()] = (float(lo), float(hi))
+            limits[name.strip()] = (parse_number(lo), parse_number(hi))
         except ValueError:
             raise RelcalError(
                 f"--limits '{part}': expected NAME=LOWER:UPPER (e.g. elbow=-160:160, in "

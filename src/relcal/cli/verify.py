@@ -40,23 +40,29 @@ verdict and exit status:
 
 
 def run(args: argparse.Namespace) -> int:
+    from dataclasses import replace
+
     import numpy as np
 
-    from relcal.calibration.verify import NUISANCE, assess, session_kind, verify
+    from relcal.calibration.verify import (
+        NUISANCE,
+        assess,
+        check_session_inputs,
+        session_kind,
+        verify,
+    )
     from relcal.data.dataset import load_dataset
     from relcal.data.imaging import measure
     from relcal.errors import RelcalError
     from relcal.fleet.records import input_hashes
-    from relcal.fleet.registry import open_registry
+    from relcal.fleet.registry import open_for_writing
     from relcal.fleet.verification import resolve, verification_record
-    from relcal.io import write_json
-    from relcal.outputset import File, check
+    from relcal.io import json_text
+    from relcal.outputset import File, write_set
     from relcal.reporting.documents import verification_document
     from relcal.reporting.text import verification_text
 
-    if args.json:
-        check([File(args.json, b"", "--json")])  # refused before the work, not after it
-    registry = open_registry(args.registry)
+    registry = open_for_writing(args.registry)  # checked (and refused) before any work
     where = None if registry is None else registry.engine.url.render_as_string(hide_password=True)
     try:
         dataset = load_dataset(args.dataset)
@@ -70,6 +76,7 @@ def run(args: argparse.Namespace) -> int:
                 "relcal.calibration.verify.verify(..., tool_points=(calibrated, baseline))"
             )
         m = measure(dataset, workers=args.workers, progress=not args.quiet, max_rms=args.max_rms)
+        check_session_inputs(dataset, m)  # the gate of calibrate, on the session
         usable = np.flatnonzero(m.ok)
         ids = [dataset.ids[i] for i in usable]
         groups = None if dataset.groups is None else [dataset.groups[i] for i in usable]
@@ -89,6 +96,12 @@ def run(args: argparse.Namespace) -> int:
             )
             reference, why = source.reference_for(kind)
             a = assess(ver, reference, source.ranges, seed=args.seed)
+        if source.changed is not None:  # said first: the edit, not the robot, is the news
+            a = replace(a, warnings=(source.changed, *a.warnings))
+            why = why or (
+                "model.yaml was changed since the calibration: the held-out error results.json "
+                "records is of the file relcal wrote, not of this one"
+            )
         robot_id = args.robot_id or (source.run.robot_id if source.run else dataset.robot_id)
         session = dataset.root.resolve().name
         calibration = {
@@ -112,6 +125,7 @@ def run(args: argparse.Namespace) -> int:
         doc = verification_document(
             ver, a, calibration, session_doc, NUISANCE[kind], source.ranges_note
         )
+        journal = None
         if registry is not None:
             record = verification_record(
                 source,
@@ -122,13 +136,22 @@ def run(args: argparse.Namespace) -> int:
                 session,
                 input_hashes(dataset.root, dataset.images),
             )
-            doc["verification_id"] = registry.add_verification(record)
-            doc["registry"] = where
+            journal = registry.pending_verification(record)
+
+        def document() -> dict:
+            if journal is not None:  # its id is known once the record is prepared
+                doc["verification_id"] = journal.run_id
+                doc["registry"] = where
+            return doc
+
+        # the JSON and the record in one transaction: both written, or neither
+        items = [File(args.json, lambda: json_text(document()), "--json")] if args.json else []
+        if items or journal is not None:
+            write_set(*items, journal=journal)
+        document()
     finally:
         if registry is not None:
             registry.close()
-    if args.json:
-        write_json(args.json, doc)
     if not args.quiet:
         print(verification_text(doc, per_sample=not args.brief))
         if doc.get("verification_id") is not None:

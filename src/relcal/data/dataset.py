@@ -63,8 +63,9 @@ matched by name in any order), then what was measured, one of:
 
 from __future__ import annotations
 
+import difflib
 import re
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, Literal
@@ -74,10 +75,19 @@ import pydantic
 from scipy.spatial.transform import Rotation
 
 from relcal import geometry as tf
-from relcal.checks import check_instance, describe
+from relcal.checks import (
+    check_choice,
+    check_instance,
+    check_number,
+    check_path,
+    describe,
+    real_array,
+)
 from relcal.errors import ArgumentError, RelcalError, excerpt, printable
 from relcal.io import load_yaml, note_input, read_table, table_delimiter, validate
 from relcal.limits import check_input_size
+from relcal.numbers import NUMBER, NotANumber
+from relcal.numbers import parse_number as _parse_number
 from relcal.robot.loading import get_robot
 from relcal.robot.model import (
     RobotModel,
@@ -406,7 +416,9 @@ class Dataset:
 def _array(name: str, value, what: str) -> np.ndarray:
     """``value`` as a float array, or a RelcalError naming the argument."""
     try:
-        out = np.asarray(value, dtype=float)
+        out = real_array(value, name)
+    except ArgumentError:
+        raise
     except (TypeError, ValueError) as exc:
         raise ArgumentError(
             f"{name}: expected {what}, got {type(value).__name__} ({exc})"
@@ -473,17 +485,27 @@ def _from_arrays(
         )  # fmt: skip
         return replace(out, flange=logged)
     if isinstance(model, str | Path):
-        model = get_robot(model)
+        model = get_robot(check_path(model, "model", "a RobotModel or a robot name/file"))
     if not isinstance(model, RobotModel):
         raise ArgumentError(f"model: expected a RobotModel or a robot name/file, got {model!r}")
-    if hayati not in ("auto", "off"):
-        raise ArgumentError(f"hayati: {hayati!r}; use 'auto' or 'off'")
+    check_choice(hayati, "hayati", ("auto", "off"))
+    check_choice(mode, "mode", MODES)
+    check_choice(joint_unit, "joint_unit", ("rad", "deg"))
+    root = check_path(root, "root", "the folder the dataset stands for (relative paths)")
+    if robot_id is not None and (not isinstance(robot_id, str) or not robot_id.strip()):
+        raise ArgumentError(f"robot_id: expected a robot's name (a str), got {describe(robot_id)}")
+    tolerances = _check_tolerances(tolerances)
+    if ids is not None and (
+        isinstance(ids, str | bytes)
+        or not isinstance(ids, Sequence | np.ndarray)
+        or not all(isinstance(i, str | int | np.integer) and not isinstance(i, bool) for i in ids)
+    ):
+        raise ArgumentError(
+            f"ids: expected one id per sample (a list of str), got {describe(ids)}"
+            + ("; a single id is ['s1'], not 's1'" if isinstance(ids, str) else "")
+        )
     if hayati == "auto":
         model = auto_hayati(model)
-    if mode not in MODES:
-        raise ArgumentError(f"mode: {mode!r}; use 'eye_in_hand', 'eye_to_hand' or 'robot_world'")
-    if joint_unit not in ("rad", "deg"):
-        raise ArgumentError(f"joint_unit: {joint_unit!r}; use 'rad' or 'deg'")
     n = model.n_joints
     q = _array("q", q, f"joint values of shape (N, {n})")
     if q.ndim != 2 or q.shape[1] != n:
@@ -559,7 +581,7 @@ def _from_arrays(
         raise ArgumentError(f"ids: {len(ids)} ids for {len(q)} samples; each sample one unique id")
     logged = None if flange is None else _flange_array(flange, len(q))
     return cls(
-        Path(root),
+        root,
         model,
         mode,
         handeye,
@@ -570,11 +592,34 @@ def _from_arrays(
         board,
         camera,
         None,
-        dict(tolerances) if tolerances else None,
+        tolerances,
         measured,
         robot_id=robot_id,
         flange=logged,
     )
+
+
+def _check_tolerances(tolerances: Any) -> dict[str, float] | None:
+    """``tolerances`` as ``tolerances:`` of dataset.yaml takes them (names in mm, deg and
+    percent, each above 0): an unknown name or a value that is not a positive number is
+    refused here, naming it, not blamed on the data later."""
+    if tolerances is None:
+        return None
+    known = ", ".join(_Tolerances.model_fields)
+    if not isinstance(tolerances, Mapping):
+        raise ArgumentError(
+            f"tolerances: expected a mapping of thresholds ({known}), got {describe(tolerances)}"
+        )
+    for key, value in tolerances.items():
+        if key not in _Tolerances.model_fields:
+            hint = difflib.get_close_matches(str(key), list(_Tolerances.model_fields), n=1)
+            raise ArgumentError(
+                f"tolerances: unknown {describe(key)}"
+                + (f" (did you mean {hint[0]!r}?)" if hint else "")
+                + f"; expected one of {known}"
+            )
+        check_number(value, f"tolerances[{key!r}]", 0, low_open=True)
+    return {str(k): float(v) for k, v in tolerances.items()} or None
 
 
 def _resolve(root: Path, value: str | dict | None, loader, what: str, spec: Path):
@@ -614,8 +659,7 @@ def load_dataset(folder: str | Path) -> Dataset:
     >>> dataset.robot_id, dataset.measured, dataset.q.shape
     ('tiago-pro-right-arm', 'pose', (48, 8))
     """
-    check_instance(folder, str | Path, "folder", "a dataset folder path (str or Path)")
-    root = Path(folder)
+    root = check_path(folder, "folder", "a dataset folder path")
     spec_path = root / "dataset.yaml"
     if not root.is_dir():
         raise RelcalError(f"{root}: not a dataset folder (expected a folder with dataset.yaml)")
@@ -653,7 +697,7 @@ def load_dataset(folder: str | Path) -> Dataset:
         decimal=spec.decimal,
     )
     ids, q, images, poses = table.ids, table.q, table.images, table.poses
-    groups, distances = _coincidence_spec(spec, spec_path, table)
+    groups, distances = _coincidence_spec(spec, spec_path, table, model)
     board = camera = None
     if images is not None:
         from relcal.vision.boards import load_board
@@ -763,7 +807,7 @@ def _flange_dataset(root: Path, spec: _DatasetSpec, spec_path: Path) -> Dataset:
     )
 
 
-def _coincidence_spec(spec: _DatasetSpec, spec_path: Path, table: SampleTable):
+def _coincidence_spec(spec: _DatasetSpec, spec_path: Path, table: SampleTable, model):
     """The groups of coincidence samples and the known distances, checked against each other."""
     if table.measured != "coincidence":
         if spec.measurement == "coincidence":
@@ -801,7 +845,63 @@ def _coincidence_spec(spec: _DatasetSpec, spec_path: Path, table: SampleTable):
                 "are in metres (0.05 for 50 mm)"
             )
         distances.append((d.groups[0], d.groups[1], float(d.distance), float(d.std)))
+    _check_single_samples(spec, spec_path, table, distances)
+    _check_size(spec, spec_path, table, distances, model)
     return table.groups, tuple(distances)
+
+
+def _check_size(spec, spec_path: Path, table: SampleTable, distances: list, model) -> None:
+    """Refuse coincidence data too large to calibrate within the memory and time limits
+    (:func:`relcal.limits.check_coincidence_size`), before anything is computed: the robot's
+    largest candidate model counted (its geometry, a joint scale and a harmonic per joint)."""
+    from relcal.limits import check_coincidence_size
+    from relcal.robot.kinematics import make_layout
+
+    n_params = make_layout(model).size + 3 * model.n_joints
+    check_coincidence_size(
+        len(table.ids),
+        len(set(table.groups)),
+        len(distances),
+        n_params,
+        str(spec_path.parent / spec.samples),
+    )
+
+
+def _check_single_samples(spec, spec_path: Path, table: SampleTable, distances: list) -> None:
+    """Refuse a group with a single sample: its point is unknown, so the one sample is fitted
+    to it exactly and tells nothing about the kinematics but, through a distance, one number
+    (often a misspelt group name, or a socket visited once; with every group single, a group
+    column that holds sample ids). Named, with the closest other group and what to do."""
+    import difflib
+    from collections import Counter
+
+    counts = Counter(table.groups)
+    in_distance = {name for a, b, _, _ in distances for name in (a, b)}
+    single = [g for g, n in counts.items() if n == 1]
+    if not single:
+        return
+    group = single[0]
+    sid = table.ids[table.groups.index(group)]
+    others = [g for g in counts if g != group and counts[g] > 1]
+    names = {g.rpartition("/")[2] for g in others}
+    plausible = "/" in group and group.rpartition("/")[2] in names  # hole_1 of another placement
+    hint = [] if plausible else difflib.get_close_matches(group, others, n=1, cutoff=0.6)
+    more = f" ({len(single)} groups have a single sample: {', '.join(single[:5])}" + (
+        " ...)" if len(single) > 5 else ")"
+    )
+    raise RelcalError(
+        f"{spec_path.parent / spec.samples}: group '{printable(group, 60)}' has a single sample "
+        f"(id {printable(sid, 40)}){more if len(single) > 1 else ''}: its point is unknown, "
+        "so one sample is fitted to it exactly and tells nothing about the kinematics"
+        + (
+            " (its distance to another group, one number, hardly more)"
+            if group in in_distance
+            else ""
+        )
+        + (f"; a misspelt '{printable(hint[0], 60)}'?" if hint else "")
+        + "; record two or more samples in that group, or remove the row"
+        + (" and the distances: entries that name the group" if group in in_distance else "")
+    )
 
 
 def _robot(root: Path, value: str | dict, spec_path: Path, node) -> RobotModel:
@@ -1214,8 +1314,9 @@ def _no_repeated_samples(path: Path, ids, lines, q, measured) -> None:
 
 
 def parse_number(path: Path, line_no: int, column: str, text: str, decimal: str = ".") -> float:
-    """A finite float from a CSV cell, with ``decimal`` its decimal mark (``"."`` or ``","``);
-    errors name the file, the line and the column."""
+    """A finite float from a CSV cell, with ``decimal`` its decimal mark (``"."`` or ``","``),
+    read strictly (:mod:`relcal.numbers`: ``4_1.67`` is no number); errors name the file, the
+    line, the column and the likely cause."""
     cell = text.strip()
     if decimal == "," and "." in cell:
         raise RelcalError(
@@ -1225,20 +1326,15 @@ def parse_number(path: Path, line_no: int, column: str, text: str, decimal: str 
             "decimal: '.' if the whole table uses points)"
         )
     try:
-        value = float(cell.replace(",", ".") if decimal == "," else cell)
-    except ValueError:
-        hint = (
-            " (a decimal comma? declare decimal: ',' in dataset.yaml, with semicolons between "
-            "the columns)"
-            if "," in cell and decimal == "."
-            else ""
-        )
-        raise RelcalError(
-            f"{path} line {line_no}: {column}: expected a number, got {excerpt(cell)}{hint}"
-        ) from None
-    if not np.isfinite(value):
-        raise RelcalError(f"{path} line {line_no}: {column}: expected a finite number, got {text}")
-    return value
+        return _parse_number(cell.replace(",", ".") if decimal == "," else cell)
+    except NotANumber as exc:
+        if decimal == "." and "," in cell and NUMBER.fullmatch(cell.replace(",", ".", 1)):
+            raise RelcalError(
+                f"{path} line {line_no}: {column}: expected a number, got {excerpt(cell)} (a "
+                "decimal comma? declare decimal: ',' in dataset.yaml, with semicolons between "
+                "the columns)"
+            ) from None
+        raise RelcalError(f"{path} line {line_no}: {column}: {printable(exc)}") from None
 
 
 def _joint_values(path: Path, q: np.ndarray, model: RobotModel, unit: str) -> np.ndarray:

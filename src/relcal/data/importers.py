@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -11,6 +12,7 @@ import pydantic
 from relcal.data.dataset import POSE_COLUMNS
 from relcal.errors import RelcalError, excerpt
 from relcal.io import Folder, load_validated, write_set, yaml_text
+from relcal.numbers import NotANumber, parse_number
 
 POSITIONER_MODEL = """\
 name: ROS-Industrial rct 2-axis positioner
@@ -298,23 +300,31 @@ def _mukca_joints(path: Path, n_joints: int):
 
     note_input(path)
     rows = []
-    for line_no, line in enumerate(path.read_text(encoding="utf-8").splitlines(), start=1):
+    from relcal.limits import read_input
+
+    try:
+        text = read_input(path, "csv").decode("utf-8")
+    except UnicodeDecodeError:
+        raise RelcalError(f"{path}: not a text file (not UTF-8); expected joint values") from None
+    except OSError as exc:
+        raise RelcalError(f"{path}: cannot read: {exc.strerror or exc}") from None
+    for line_no, line in enumerate(text.splitlines(), start=1):
         if not line.strip():
             continue
-        cells = [c for c in line.replace(";", ",").split(",") if c.strip()]
+        cells = [c for c in re.split(r"[,;\t]", line) if c.strip()]
         if len(cells) != n_joints:
             raise RelcalError(
                 f"{path} line {line_no}: {len(cells)} values, expected {n_joints} joint angles "
                 "(rad) for the robot of --urdf"
             )
-        try:
-            values = [float(c) for c in cells]
-        except ValueError:
-            raise RelcalError(
-                f"{path} line {line_no}: expected numbers (joint angles in rad, no header)"
-            ) from None
-        if not all(np.isfinite(values)):
-            raise RelcalError(f"{path} line {line_no}: a joint angle is not finite")
+        values = []
+        for k, cell in enumerate(cells):
+            try:
+                values.append(parse_number(cell))
+            except NotANumber as exc:
+                raise RelcalError(
+                    f"{path} line {line_no}: joint {k + 1}: {exc} (joint angles in rad, no header)"
+                ) from None
         rows.append(values)
     if not rows:
         raise RelcalError(f"{path}: no joint configurations")

@@ -72,11 +72,27 @@ def inverse_condition(model: RobotModel, q: np.ndarray, length_scale: float) -> 
     return s[:, -1] / s[:, 0]
 
 
+CONSTRAINTS = (
+    "joint limits",
+    "board in view",
+    "distance",
+    "viewing angle",
+    "singularity",
+    "clearance",
+    "self-collision",
+    "cell collision",
+    "line of sight",
+)  # the masks of :func:`check`, in its order
+
+
 def check(
     model: RobotModel, cell: Cell, q: np.ndarray, constraints: Constraints
 ) -> dict[str, np.ndarray]:
-    """Per constraint, a mask ``(N,)`` of configurations ``(N, n)`` that satisfy it."""
-    q = np.atleast_2d(q)
+    """Per constraint, a mask ``(N,)`` of configurations ``(N, n)`` that satisfy it (``N`` may
+    be 0: every IK solution of a batch out of the limits)."""
+    q = np.asarray(q, dtype=float).reshape(-1, model.n_joints)
+    if not len(q):
+        return {name: np.zeros(0, dtype=bool) for name in CONSTRAINTS}
     cameras = camera_poses(model, cell, q)
     pix, depth = image_points(cell, cameras)
     cam, m = cell.camera, constraints.margin_px
@@ -310,9 +326,26 @@ def candidates(
     if len(out) == 0:
         raise RelcalError(
             "no feasible configuration found: the board may be out of reach or the constraints "
-            f"too tight (rejections: {rejected})"
+            f"too tight (rejections: {rejected}){_narrow_joints(model)}"
         )
     return out, rejected
+
+
+def _narrow_joints(model: RobotModel) -> str:
+    """A hint naming the joints whose limits leave them (almost) no motion."""
+    width = np.asarray(model.upper, float) - np.asarray(model.lower, float)
+    narrow = [
+        f"{name} ({w:.3g} m)" if model.prismatic[i] else f"{name} ({np.degrees(w):.3g} deg)"
+        for i, (name, w) in enumerate(zip(model.joint_names, width, strict=True))
+        if w < (1e-3 if model.prismatic[i] else np.radians(1.0))
+    ]
+    if not narrow:
+        return ""
+    return (
+        "; joints that can hardly move between their limits: "
+        + ", ".join(narrow)
+        + " (a zero-width or nearly zero-width limit, from --limits or the robot file: widen it)"
+    )
 
 
 def _batch_task(context, batch: int, seeds: list[np.random.SeedSequence]):

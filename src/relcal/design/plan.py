@@ -25,7 +25,7 @@ import numpy as np
 from relcal._renamed import UNSET
 from relcal.calibration.measurement import Formulation, Measure
 from relcal.calibration.noise import Noise
-from relcal.checks import check_choice, check_instance, check_number
+from relcal.checks import check_choice, check_instance, check_number, check_seed
 from relcal.design.cell import Cell
 from relcal.design.criteria import (
     CRITERIA,
@@ -114,7 +114,7 @@ def check_plan(
     check_number(n_candidates, "n_candidates", 1, integer=True)
     check_number(random_sets, "random_sets", 0, integer=True)
     check_number(n_validation, "n_validation", 0, integer=True)
-    check_number(seed, "seed", 0, integer=True)
+    check_seed(seed)
     check_choice(purpose, "purpose", PURPOSES)
     if purpose == "handeye" and (formulation, measure) != ("invariant", "pose"):
         from relcal.errors import ArgumentError

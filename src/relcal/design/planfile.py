@@ -27,7 +27,8 @@ from pathlib import Path
 import numpy as np
 
 from relcal.data.dataset import PLAN_COMMENT
-from relcal.errors import RelcalError
+from relcal.errors import RelcalError, printable
+from relcal.numbers import NotANumber, parse_number
 from relcal.robot.model import RobotModel, library_names
 
 COMMENT = PLAN_COMMENT
@@ -171,15 +172,17 @@ def read_plan(path: str | Path, model: RobotModel, joint_unit: str | None = None
     for no, line in data[1:]:
         cells = next(csv.reader([line]))
         if len(cells) != len(header):
-            raise RelcalError(f"{path} line {no}: {len(cells)} fields, expected {len(header)}")
+            tabs = "\t" in line or ";" in line
+            raise RelcalError(
+                f"{path} line {no}: {len(cells)} fields, expected {len(header)}"
+                + ("; separated by tabs or semicolons? a plan is comma-separated" if tabs else "")
+            )
         row = []
         for name, i in zip(columns, col, strict=True):
             try:
-                row.append(float(cells[i]))
-            except ValueError:
-                raise RelcalError(
-                    f"{path} line {no}: {name}: expected a number, got '{cells[i].strip()}'"
-                ) from None
+                row.append(parse_number(cells[i]))
+            except NotANumber as exc:
+                raise RelcalError(f"{path} line {no}: {name}: {printable(exc)}") from None
         ids.append(cells[header.index("id")].strip())
         values.append(row)
     q = np.array(values)
@@ -194,8 +197,10 @@ def read_plan(path: str | Path, model: RobotModel, joint_unit: str | None = None
 
 def _rows(path: Path) -> list[tuple[int, str]]:
     """The non-blank lines of a plan file with their numbers."""
+    from relcal.limits import read_input
+
     try:
-        text = path.read_text(encoding="utf-8-sig")
+        text = read_input(path, "csv").decode("utf-8-sig")
     except FileNotFoundError:
         raise RelcalError(f"{path}: plan file not found") from None
     except (OSError, UnicodeDecodeError) as exc:

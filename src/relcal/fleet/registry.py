@@ -8,8 +8,8 @@ cells at one server. The schema is versioned by the Alembic migrations shipped i
 Concurrent writers are safe: every record is one short ``INSERT`` transaction; SQLite runs in WAL
 mode with a busy timeout (readers never block the writer, writers queue), and a write that still
 finds the database locked is retried with a randomised back-off. Migrations of a SQLite file are
-serialised by a lock file beside it (``NAME.lock``, its only companion besides SQLite's own
-``-wal`` and ``-shm``).
+serialised by a lock file beside it (``NAME.lock``, present only while a migration runs: it is
+removed when the lock is released; besides it, SQLite's own ``-wal`` and ``-shm``).
 
 **Opening is checking.** :func:`open_for_writing` runs before any computation and refuses, with a
 message naming the registry, a path that is a folder, a device, a file this run reads (an input
@@ -253,21 +253,15 @@ def _retry(action: Callable[[], T], what: str) -> T:
 
 @contextlib.contextmanager
 def _file_lock(path: Path | None) -> Iterator[None]:
-    """An exclusive lock on ``path`` (POSIX ``flock``); a no-op without a path or ``fcntl``."""
+    """An exclusive lock on ``path`` (:func:`relcal.outputset.exclusive`: the file is removed
+    when the lock is released); a no-op without a path."""
     if path is None:
         yield
         return
-    try:
-        import fcntl
-    except ImportError:  # not POSIX: rely on the retries
+    from relcal.outputset import exclusive
+
+    with exclusive(path, f"registry {path.with_suffix('')} (migration lock)"):
         yield
-        return
-    with open(path, "a") as handle:
-        fcntl.flock(handle, fcntl.LOCK_EX)
-        try:
-            yield
-        finally:
-            fcntl.flock(handle, fcntl.LOCK_UN)
 
 
 def _alembic_config(connection: sa.Connection):
@@ -465,9 +459,13 @@ class PendingRecord:
     does not exist yet, ``prepare`` creates and migrates it under the migration lock (held until
     the end), and ``rollback`` removes it again."""
 
-    def __init__(self, registry: Registry, record: dict[str, Any]) -> None:
+    def __init__(
+        self, registry: Registry, record: dict[str, Any], table: sa.Table | None = None
+    ) -> None:
         self.registry = registry
-        self.row = _row(record)
+        self.table = calibrations if table is None else table
+        self.row = _row(record) if table is None else _verification_row(record)
+        self.what = "calibration" if table is None else "verification"
         self.run_id: int | None = None
         self._conn: sa.Connection | None = None
         self._txn = None
@@ -486,7 +484,7 @@ class PendingRecord:
             conn = reg.engine.connect()
             txn = conn.begin()
             try:
-                key = conn.execute(calibrations.insert().values(**self.row)).inserted_primary_key
+                key = conn.execute(self.table.insert().values(**self.row)).inserted_primary_key
             except BaseException:
                 txn.rollback()
                 conn.close()
@@ -494,7 +492,7 @@ class PendingRecord:
             self._conn, self._txn = conn, txn
             return int(key[0])
 
-        self.run_id = _retry(insert, f"recording the calibration of {self.row.get('robot_id')}")
+        self.run_id = _retry(insert, f"recording the {self.what} of {self.row.get('robot_id')}")
 
     def commit(self) -> None:
         try:
@@ -502,7 +500,7 @@ class PendingRecord:
         except sa.exc.DBAPIError as exc:
             self._close(remove=self._created)
             raise RelcalError(
-                f"registry {self.registry.name}: recording the calibration failed: {_reason(exc)}"
+                f"registry {self.registry.name}: recording the {self.what} failed: {_reason(exc)}"
             ) from None
         self._close()
         self.registry._create = False
@@ -530,7 +528,20 @@ class PendingRecord:
             self._lock = None
 
     def describe(self) -> str:
+        if self.what == "verification":
+            return f"registry {self.registry.name} verification {self.run_id}"
         return f"registry {self.registry.name} run {self.run_id}"
+
+
+def _verification_row(record: dict[str, Any]) -> dict[str, Any]:
+    """The table row of a verification record (``uid`` and ``created_at`` filled in)."""
+    row = dict(record)
+    row.setdefault("uid", uuid.uuid4().hex)
+    row.setdefault("created_at", datetime.now(UTC))
+    unknown = set(row) - set(verifications.c.keys())
+    if unknown:
+        raise ValueError(f"unknown verification fields: {sorted(unknown)}")
+    return row
 
 
 def _row(record: dict[str, Any]) -> dict[str, Any]:
@@ -561,8 +572,11 @@ class Registry:
         self.path = _sqlite_path(self.engine.url)
         self._create = False  # a SQLite file to create with the first record
         if self.path is not None:
+            from relcal.outputset import note_registry
+
             self.name = str(self.path)
             exists = check_sqlite_path(self.path, write)
+            note_registry(self.path)  # never an output of this run
             if not exists and write:
                 self._create = True
                 return
@@ -577,8 +591,8 @@ class Registry:
 
         SQLite's driver commits each DDL statement of a migration on its own, so a check beside
         another process's migration can see its tables before its revision and take the file
-        for another program's: a refusal is confirmed under the migration lock when a relcal
-        process has made one (the lock file exists), and none is created for a file refused."""
+        for another program's: a refusal is confirmed under the migration lock (whose file is
+        removed again when it is released)."""
 
         def check() -> None:
             with self.engine.connect() as conn:
@@ -592,7 +606,7 @@ class Registry:
                 check()
             except RelcalError:
                 lock = _lock_path(self.engine.url)
-                if locked or lock is None or not lock.exists():
+                if locked or lock is None:
                     raise
                 with _file_lock(lock):  # a migration may be under way: look once it is done
                     check()
@@ -659,15 +673,20 @@ class Registry:
             query = query.where(calibrations.c.robot_id == robot_id)
         return self._select(query)
 
+    def pending_verification(self, record: dict[str, Any]) -> PendingRecord:
+        """A verification record as a :class:`relcal.outputset.Journal` (see :meth:`pending`):
+        written in one transaction with the files that report it."""
+        return PendingRecord(self, record, verifications)
+
     def add_verification(self, record: dict[str, Any]) -> int:
         """Store one verification (the keys of :class:`VerificationRun` but ``id``; ``uid`` and
         ``created_at`` are filled in when missing); its id."""
-        row = dict(record)
-        row.setdefault("uid", uuid.uuid4().hex)
-        row.setdefault("created_at", datetime.now(UTC))
-        unknown = set(row) - set(verifications.c.keys())
-        if unknown:
-            raise ValueError(f"unknown verification fields: {sorted(unknown)}")
+        if self._create:  # a new SQLite file: created (and migrated) with its first record
+            pending = self.pending_verification(record)
+            pending.prepare()
+            pending.commit()
+            return int(pending.run_id)  # type: ignore[arg-type]
+        row = _verification_row(record)
 
         def insert() -> int:
             with self.engine.begin() as conn:
@@ -686,6 +705,9 @@ class Registry:
             query = query.where(verifications.c.robot_id == robot_id)
         if calibration_id is not None:
             query = query.where(verifications.c.calibration_id == calibration_id)
+
+        if self._create:  # not created yet: no verifications
+            return []
 
         def read() -> list[VerificationRun]:
             with self.engine.connect() as conn:

@@ -65,6 +65,16 @@ def history_text(
     if not runs:
         head = f"{robot_id}: no calibration in {where}"
         return "\n".join([head, *verifications_text(list(verifications))])
+    models = list(dict.fromkeys(r.model_name for r in runs))
+    if len(models) > 1:  # one id, several robots: each model's runs on their own
+        lines = [f"warning: {mixed_models(robot_id, runs)}"]
+        for model in models:
+            keep = [k for k, r in enumerate(runs) if r.model_name == model]
+            part = history_text(
+                robot_id, [runs[k] for k in keep], [comparisons[k] for k in keep], where
+            )
+            lines += ["", *part.splitlines()]
+        return "\n".join([*lines, *verifications_text(list(verifications))])
     lines = [f"{robot_id} ({runs[-1].model_name}): {len(runs)} calibration(s) in {where}", ""]
     rows = [["run", "time (UTC)", "session", "relcal", "held-out position RMS mm", "held out"]]
     rows[0].append("vs previous")
@@ -130,6 +140,26 @@ def history_text(
         )
     lines += verifications_text(list(verifications))
     return "\n".join(lines)
+
+
+def mixed_models(robot_id: str, runs: list[Run]) -> str | None:
+    """None when every run of ``robot_id`` calibrated one robot model; else, in words, which
+    models and runs, and what it means."""
+    models: dict[str, list[str]] = {}
+    for run in runs:
+        models.setdefault(run.model_name, []).append(str(run.id))
+    if len(models) < 2:
+        return None
+    listed = "; ".join(
+        f"{name} (run{'s' if len(ids) > 1 else ''} {', '.join(ids)})"
+        for name, ids in models.items()
+    )
+    return (
+        f"robot id {robot_id!r} has calibrations of {len(models)} robot models: {listed}; a robot "
+        "id names one physical robot, so one of them is recorded under the wrong id (a robot_id "
+        "copied into another dataset.yaml, or --robot-id mistyped?); each model's runs are "
+        "listed and compared on their own, never with the other's"
+    )
 
 
 def _test_name(c: Comparison) -> str:

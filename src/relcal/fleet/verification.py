@@ -46,6 +46,7 @@ class Source:
     ranges_note: str
     tool_points: tuple[np.ndarray, np.ndarray] | None = None
     notes: tuple[str, ...] = ()
+    changed: str | None = None  # why model.yaml is not the file the calibration validated
 
     @property
     def exported(self) -> str | None:
@@ -132,6 +133,7 @@ def _from_files(files: CalibrationFiles, run: Run | None, label: str) -> Source:
         ranges=ranges,
         ranges_note=note,
         tool_points=files.tool_points,
+        changed=files.changed,
     )
 
 

@@ -19,6 +19,7 @@ import numpy as np
 from matplotlib.figure import Figure
 
 from relcal import __version__
+from relcal.errors import printable
 
 DPI = 110  # pixels per inch of every embedded plot
 
@@ -46,8 +47,13 @@ class Html(str):
 
 
 def escape(value: object) -> str:
-    """``value`` as HTML text: :class:`Html` as is, anything else escaped."""
-    return value if isinstance(value, Html) else _html.escape(str(value))
+    """``value`` as HTML text: :class:`Html` as is, anything else escaped: ``<``, ``&`` and
+    quotes as entities, and control characters and Unicode bidirectional controls (which would
+    reorder the text a reader sees: a joint name that displays as another) as visible escapes
+    (``\\u202e``), as the terminal shows them (:func:`relcal.errors.printable`)."""
+    if isinstance(value, Html):
+        return value
+    return _html.escape(printable(str(value)))
 
 
 def table(head: Sequence[object], rows: Iterable[Sequence[object]], cls: str = "") -> Html:

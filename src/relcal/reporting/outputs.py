@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from relcal.calibration.artifacts import RUN_ID_PREFIX  # first line of model.yaml
 from relcal.calibration.outcome import Calibration
 from relcal.checks import check_instance, check_path
 from relcal.data.dataset import Dataset, joints_in_unit, write_samples
@@ -18,8 +19,6 @@ from relcal.outputset import File, Folder, Journal, new_run_id, write_set
 from relcal.reporting.documents import measurements_document, results_document
 from relcal.reporting.ros2 import LAUNCH_FILE
 from relcal.robot.export import parameter_csv
-
-RUN_ID_PREFIX = "# relcal run "  # first line of model.yaml: the run that wrote it
 
 
 def calibration_files(cal: Calibration, doc: dict, run_id: str) -> dict[str, str | bytes]:

@@ -201,15 +201,6 @@ def _changed(model: RobotModel) -> dict[str, np.ndarray]:
     }
 
 
-def _masked(data: bytes) -> bytes:
-    """``data`` with comments and CDATA blanked out (same length), so searches skip them."""
-
-    def blank(m: re.Match) -> bytes:
-        return re.sub(rb"[^\n]", b" ", m.group(0))
-
-    return re.sub(rb"<!--.*?-->|<!\[CDATA\[.*?\]\]>", blank, data, flags=re.S)
-
-
 def _number(v: float) -> str:
     return repr(float(v) + 0.0)  # shortest text that reads back as the same double; no "-0.0"
 
@@ -219,42 +210,105 @@ def _origin_attrs(origin: np.ndarray) -> tuple[bytes, bytes]:
     return (" ".join(_number(v) for v in xyz).encode(), " ".join(_number(v) for v in rpy).encode())
 
 
-def _set_attr(tag: bytes, name: bytes, value: bytes) -> bytes:
-    pattern = rb"(\s" + name + rb"\s*=\s*)([\"'])(.*?)\2"
-    if re.search(pattern, tag, flags=re.S):
-        return re.sub(pattern, lambda m: m.group(1) + m.group(2) + value + m.group(2), tag, count=1)
-    end = len(tag) - (2 if tag.endswith(b"/>") else 1)
-    return tag[:end].rstrip() + b" " + name + b'="' + value + b'"' + tag[end:]
+_ATTRIBUTE = re.compile(rb"""\s+([^\s=/>]+)\s*=\s*("[^"]*"|'[^']*')""")
+
+
+def _tag_end(data: bytes, start: int) -> int:
+    """The offset just past the start tag that begins at ``start`` (``>`` outside quotes)."""
+    quote = None
+    for k in range(start + 1, len(data)):
+        c = data[k : k + 1]
+        if quote:
+            if c == quote:
+                quote = None
+        elif c in (b'"', b"'"):
+            quote = c
+        elif c == b">":
+            return k + 1
+    raise RelcalError("unterminated tag")
+
+
+def _set_attrs(tag: bytes, values: dict[bytes, bytes]) -> bytes:
+    """The start tag ``tag`` with these attributes' values replaced (or added), every other
+    byte kept; the attributes are tokenised, so a value that quotes another attribute's name
+    is never mistaken for it."""
+    spans = {m.group(1): m.span(2) for m in _ATTRIBUTE.finditer(tag)}
+    out = tag
+    missing = [name for name in values if name not in spans]
+    for name, (a, b) in sorted(
+        ((n, spans[n]) for n in values if n in spans), key=lambda x: -x[1][0]
+    ):
+        quote = out[a : a + 1]
+        out = out[:a] + quote + values[name] + quote + out[b:]
+    if missing:
+        end = len(out) - (2 if out.endswith(b"/>") else 1)
+        added = b"".join(b" " + n + b'="' + values[n] + b'"' for n in missing)
+        out = out[:end].rstrip() + added + out[end:]
+    return out
+
+
+def _joint_elements(path: str, data: bytes) -> dict[str, list[tuple[int, int, int | None]]]:
+    """The ``<joint>`` elements of the URDF (children of ``<robot>`` with a ``type``), by their
+    name as the XML parser reads it (entities decoded: ``j2&apos;s`` is ``j2's``): for each,
+    the byte offsets of its start tag's start and end, and of its first ``<origin>`` child's
+    start (None without one)."""
+    from xml.parsers import expat
+
+    parser = expat.ParserCreate()
+    depth = 0
+    found: dict[str, list[list]] = {}
+    current: list | None = None
+
+    def start(tag, attrs):
+        nonlocal depth, current
+        index = parser.CurrentByteIndex
+        if depth == 1 and tag == "joint" and "type" in attrs:
+            current = [index, _tag_end(data, index), None]
+            found.setdefault(attrs.get("name", ""), []).append(current)
+        elif depth == 2 and tag == "origin" and current is not None and current[2] is None:
+            current[2] = index
+        depth += 1
+
+    def end(tag):
+        nonlocal depth, current
+        depth -= 1
+        if depth == 1:
+            current = None
+
+    parser.StartElementHandler, parser.EndElementHandler = start, end
+    try:
+        parser.Parse(data, True)
+    except expat.ExpatError as exc:
+        raise RelcalError(f"{path}: not well-formed XML: {exc}") from None
+    return {name: [tuple(e) for e in elements] for name, elements in found.items()}
 
 
 def _replace_origins(path: str, data: bytes, origins: dict[str, np.ndarray]) -> bytes:
-    """``data`` with only the ``xyz``/``rpy`` of these joints' ``<origin>`` elements rewritten."""
-    masked = _masked(data)
+    """``data`` with only the ``xyz``/``rpy`` of these joints' ``<origin>`` elements rewritten.
+
+    The joints are found through the XML parser (names compared as the parser reads them, so a
+    name with ``'`` or ``&`` written as an entity matches; comments and CDATA are skipped), and
+    only the bytes of the origin tags change: every other byte is the input's."""
+    joints = _joint_elements(path, data)
     edits: list[tuple[int, int, bytes]] = []
     for name, origin in origins.items():
-        starts = [
-            m
-            for m in re.finditer(rb"<joint\b[^>]*>", masked)
-            if re.search(rb"\sname\s*=\s*([\"'])" + re.escape(name.encode()) + rb"\1", m.group(0))
-            and re.search(rb"\stype\s*=", m.group(0))
-        ]
-        if len(starts) != 1:
+        elements = joints.get(name, [])
+        if len(elements) != 1:
             raise RelcalError(
-                f'{path}: found {len(starts)} <joint name="{name}"> elements, expected 1'
+                f"{path}: found {len(elements)} <joint> elements named {name!r}, expected 1"
             )
-        start = starts[0]
-        end = masked.find(b"</joint>", start.end())
-        end = start.end() if start.group(0).endswith(b"/>") or end < 0 else end
+        start, start_end, origin_at = elements[0]
         xyz, rpy = _origin_attrs(origin)
-        found = re.search(rb"<origin\b[^>]*>", masked[start.end() : end])
-        if found:
-            a, b = start.end() + found.start(), start.end() + found.end()
-            tag = _set_attr(_set_attr(data[a:b], b"xyz", xyz), b"rpy", rpy)
-            edits.append((a, b, tag))
+        if origin_at is not None:
+            b = _tag_end(data, origin_at)
+            tag = _set_attrs(data[origin_at:b], {b"xyz": xyz, b"rpy": rpy})
+            edits.append((origin_at, b, tag))
+        elif data[start:start_end].endswith(b"/>"):
+            raise RelcalError(f"{path}: joint {name!r} has no children (no parent, child, origin)")
         else:  # no <origin>: insert one, indented like the joint's first child
-            indent = re.match(rb"\s*", data[start.end() : end]).group(0) or b" "
+            indent = re.match(rb"\s*", data[start_end:]).group(0) or b" "
             tag = indent + b'<origin xyz="' + xyz + b'" rpy="' + rpy + b'"/>'
-            edits.append((start.end(), start.end(), tag))
+            edits.append((start_end, start_end, tag))
     out = data
     for a, b, tag in sorted(edits, reverse=True):
         out = out[:a] + tag + out[b:]

@@ -648,9 +648,10 @@ def fk(model: RobotModel, q: np.ndarray, backend: Backend = "numpy") -> np.ndarr
     >>> relcal.fk(model, np.zeros((5, 6))).shape
     (5, 4, 4)
     """
-    from relcal.checks import check_joints
+    from relcal.checks import check_choice, check_joints
 
     check_model(model)
+    check_choice(backend, "backend", ("numpy", "numba", "auto"))
     if np.ndim(q) == 1:  # one configuration: one pose (4, 4)
         return fk(model, np.asarray(q, dtype=float)[None], backend)[0]
     q = check_joints(q, model.n_joints, "q", model.name)

@@ -50,11 +50,10 @@ def get_robot(
     >>> relcal.get_robot("a465")
     <RobotModel 'Thermo CRS A465': 6 joints, standard DH>
     """
-    from relcal.checks import check_choice, check_instance
+    from relcal.checks import check_choice, check_path
 
-    check_instance(name_or_path, str | Path, "name_or_path", "a robot name or a file path")
+    name = str(check_path(name_or_path, "name_or_path", "a robot name or a file path"))
     check_choice(parametrisation, "parametrisation", ("minimal", "origins"))
-    name = str(name_or_path)
     if Path(name).suffix.lower() in (".urdf", ".xacro"):
         return load_urdf(name, root, tip, parametrisation)
     if root is not None or tip is not None:

@@ -805,10 +805,14 @@ def restrict_limits(
                 f"{', '.join(model.joint_names)} (or q1..q{model.n_joints})"
             )
         i = index[name]
+        unit, f = ("m", 1.0) if model.prismatic[i] else ("deg", np.degrees(1.0))
         if not lo < hi:
-            raise RelcalError(f"{source}: {name}: lower {lo:g} must be below upper {hi:g}")
+            raise RelcalError(
+                f"{source}: {name}: lower {lo * f:g} {unit} must be below upper {hi * f:g} "
+                f"{unit} (a joint that cannot move between its limits can be neither planned "
+                "for nor calibrated): give LO:HI with LO < HI"
+            )
         if lo < model.lower[i] - 1e-9 or hi > model.upper[i] + 1e-9:
-            unit, f = ("m", 1.0) if model.prismatic[i] else ("deg", np.degrees(1.0))
             raise RelcalError(
                 f"{source}: {name}: [{lo * f:g}, {hi * f:g}] {unit} goes beyond the robot's own "
                 f"limits [{model.lower[i] * f:g}, {model.upper[i] * f:g}] {unit}; a user limit "

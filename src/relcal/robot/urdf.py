@@ -31,8 +31,8 @@ from pathlib import Path
 import numpy as np
 
 from relcal import geometry as tf
-from relcal.checks import check_path
-from relcal.errors import RelcalError
+from relcal.checks import check_number, check_path, describe
+from relcal.errors import ArgumentError, RelcalError
 from relcal.robot.model import ChainJoint, Inertials, RobotModel, UrdfChain
 
 MOVABLE = ("revolute", "continuous", "prismatic")
@@ -466,7 +466,13 @@ def load_urdf(
         that are not in the tree or not one serial chain, or an unsupported joint type.
     """
     path = str(check_path(path, "path", "a URDF file"))
-    if parametrisation not in PARAMETRISATIONS:
+    for name, link in (("root", root), ("tip", tip)):
+        if link is not None and (not isinstance(link, str) or not link.strip()):
+            raise ArgumentError(
+                f"{name}: expected a link name of the URDF (a str) or None, got {describe(link)}"
+            )
+    check_number(parallel_tol_deg, "parallel_tol_deg", 0, 90, low_open=True)
+    if not isinstance(parametrisation, str) or parametrisation not in PARAMETRISATIONS:
         raise RelcalError(
             f"{path}: unknown parametrisation '{parametrisation}': use minimal or origins"
         )
@@ -475,11 +481,10 @@ def load_urdf(
             f"{path}: a xacro file: expand it to a URDF first (xacro {Path(path).name} > "
             f"{Path(path).stem.removesuffix('.urdf')}.urdf) and give that file"
         )
-    from relcal.limits import check_input_size
+    from relcal.limits import read_input
 
-    check_input_size(path, "urdf")
     try:
-        data = Path(path).read_bytes()
+        data = read_input(path, "urdf")
     except FileNotFoundError:
         raise RelcalError(f"{path}: file not found (expected a URDF file)") from None
     except OSError as exc:

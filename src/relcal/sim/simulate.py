@@ -166,7 +166,7 @@ def simulate(
     >>> bool(lengths < 1e-9 and angles < 1e-9)
     True
     """
-    from relcal.checks import check_choice, check_instance, check_number
+    from relcal.checks import check_choice, check_instance, check_number, check_seed
     from relcal.robot.model import check_model
 
     check_model(model)
@@ -176,12 +176,18 @@ def simulate(
     check_choice(method, "method", ("published", "lm"))
     check_choice(pairing, "pairing", PAIRINGS)
     if not isinstance(seed, np.random.Generator | np.random.SeedSequence):
-        check_number(seed, "seed", 0, integer=True)
+        check_seed(seed)
     check_instance(noise, Noise, "noise", "a Noise (relcal.Noise(position=, orientation=), m, rad)")
     if cell is not None:
         check_instance(cell, Cell, "cell", "a Cell (relcal.Cell()) or None")
     if options is not None:
         check_instance(options, SolverOptions, "options", "SolverOptions(method=..., loss=...)")
+    if errors is not None:
+        from relcal.checks import check_vector
+        from relcal.robot.kinematics import make_layout
+
+        layout = make_layout(model)
+        errors = check_vector(errors, "errors", layout.size, "make_layout(model).names (m, rad)")
     rng = np.random.default_rng(seed)
     scenario = make_scenario(
         model,

@@ -211,10 +211,22 @@ class MeasurementKind:
 
     # --- plausibility and validation ------------------------------------------------------------
 
-    def check_inputs(self, train: np.ndarray) -> dict | None:
-        """Refuse data that cannot be this robot's measurements (naming the likely cause) before
-        anything is fitted; what the checks measured, for the settings (None: nothing)."""
+    def check_data(self) -> dict | None:
+        """The input gate of every entry point (calibrate, verify, the Python API and the command
+        line): refuse data that cannot be this robot's measurements, naming the likely cause,
+        before anything is fitted, on every usable sample (held-out ones too): joint readings
+        against the model's limits, measured magnitudes, the chain against the measurements.
+        Returns what the checks measured, for the settings (None: nothing). This base checks the
+        joint readings alone (:func:`~relcal.calibration.plausibility.check_joint_dataset`)."""
+        from relcal.calibration.plausibility import check_joint_dataset
+
+        check_joint_dataset(self.dataset, self.measurements)
         return None
+
+    def check_inputs(self, train: np.ndarray) -> dict | None:
+        """:meth:`check_data` before a calibration on the samples ``train`` (a kind may check
+        more there, e.g. the memory the calibration needs)."""
+        return self.check_data()
 
     def check_result(self, training: Training, result: Result) -> None:
         """Refuse corrections too large to be a calibration."""

@@ -36,6 +36,7 @@ from relcal.calibration.identify import Result, identify_lm
 from relcal.calibration.kinds import Training
 from relcal.calibration.kinds.points import PointKind
 from relcal.calibration.measurement import Problem
+from relcal.calibration.plausibility import check_joint_dataset
 from relcal.calibration.validate import folds, held_out_placements
 from relcal.errors import RelcalError
 
@@ -112,15 +113,21 @@ class CoincidenceKind(PointKind):
 
     # --- plausibility and validation ------------------------------------------------------------
 
-    def check_inputs(self, train: np.ndarray) -> None:
-        """Refuse another robot's joints or a wrong distance, from the baseline fit (nominal
-        geometry, the tool point and the group points fitted to the training samples)."""
-        problem = self.problem_on(train)
+    def check_data(self, samples: np.ndarray | None = None) -> None:
+        """The joint readings against the model's limits (every usable sample), then another
+        robot's joints or a wrong distance refused from the baseline fit (nominal geometry, the
+        tool point and the group points fitted to ``samples``, default every usable one)."""
+        check_joint_dataset(self.dataset, self.measurements)
+        problem = self.problem_on(self.usable() if samples is None else samples)
         ident = analyse_problem(problem)
         nuisance = replace(ident, subset=nuisance_columns(problem))
         baseline = identify_lm(problem, 200, nuisance)
         check_plausible(problem, baseline.params, str(self.dataset.spec_path))
         return None
+
+    def check_inputs(self, train: np.ndarray) -> None:
+        """:meth:`check_data`, the baseline fitted to the training samples."""
+        return self.check_data(train)
 
     def validate(
         self,

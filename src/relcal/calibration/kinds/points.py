@@ -27,7 +27,7 @@ from relcal.calibration.kinds import MeasurementKind, NoiseModel, Training
 from relcal.calibration.measurement import Problem, pair_errors
 from relcal.calibration.noise import robust_sigma
 from relcal.calibration.outcome import ROBUST_SCALE, outlier_samples
-from relcal.calibration.plausibility import check_result
+from relcal.calibration.plausibility import check_point_dataset, check_result
 from relcal.calibration.selection import geometric_columns
 from relcal.calibration.validate import held_out
 from relcal.robot.kinematics import fk, make_layout
@@ -96,6 +96,12 @@ class PointKind(MeasurementKind):
 
     def weightings(self, requested) -> tuple[str, ...]:
         return ("plain",)
+
+    def check_data(self) -> dict:
+        """Joint limits, magnitudes, and the points against the commanded flange positions, a
+        wrong joint order or unit named
+        (:func:`~relcal.calibration.plausibility.check_point_dataset`)."""
+        return check_point_dataset(self.dataset, self.measurements)
 
     def check_result(self, training: Training, result: Result) -> None:
         """The link corrections (the nuisance frames are free by design); a refused parameter

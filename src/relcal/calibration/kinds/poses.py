@@ -94,7 +94,13 @@ class PoseKind(MeasurementKind):
         n_params = make_layout(ds.model).size + 6
         # all pairs are quadratic: refused before they are formed
         check_calibration_memory(len(ds.ids), self.strategy, n_params, str(ds.root), len(train))
-        return check_dataset(ds, self.measurements)  # a wrong unit, order or board
+        return self.check_data()
+
+    def check_data(self) -> dict:
+        """Joint limits, magnitudes, relative rotations and translations against the commanded
+        ones, a wrong unit, order or board named
+        (:func:`~relcal.calibration.plausibility.check_dataset`)."""
+        return check_dataset(self.dataset, self.measurements)
 
     def training(self, train: np.ndarray, previous: Training | None = None) -> Training:
         ds = self.dataset
