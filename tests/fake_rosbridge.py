@@ -3,7 +3,10 @@ JSON protocol over a WebSocket (``subscribe``/``unsubscribe``, ``publish`` of
 ``sensor_msgs/msg/JointState`` at 200 Hz, ``send_action_goal``/``cancel_action_goal`` with
 ``action_result`` replies for ``control_msgs/action/FollowJointTrajectory``), with a simulated
 arm behind it that follows a goal's trajectory linearly and then overshoots and rings down, as a
-controller's tracking error does. Its ROS clock is the wall clock shifted by ``ros_offset``."""
+controller's tracking error does. Its ROS clock is the wall clock shifted by ``ros_offset``.
+With ``tf`` (a function of the joints giving ``[(parent, child, (4, 4)), ...]``) it publishes
+``tf2_msgs/msg/TFMessage`` on ``/tf`` with the joint states, and ``tf_static`` once to each
+subscriber of ``/tf_static``, as robot_state_publisher does."""
 
 from __future__ import annotations
 
@@ -20,7 +23,9 @@ class FakeRosbridge:
     """Serve on ``127.0.0.1:port`` (a free port) in a thread of its own; use as a context
     manager."""
 
-    def __init__(self, joints, start, limits=None, ros_offset=1000.0, ring=0.004):
+    def __init__(
+        self, joints, start, limits=None, ros_offset=1000.0, ring=0.004, tf=None, tf_static=()
+    ):
         self.joints = list(joints)  # ROS names, the arm's order
         self.q = np.asarray(start, dtype=float).copy()
         self.limits = limits  # (lower, upper) arrays: goals outside are aborted
@@ -30,6 +35,8 @@ class FakeRosbridge:
         self.reject = False  # answer the next goals with result false
         self._motion = None  # (t0, q0, q1, duration, goal id, action)
         self._subscribers: set = set()
+        self.tf, self.tf_static = tf, list(tf_static)
+        self._tf_subscribers: set = set()
         self._loop = asyncio.new_event_loop()
         self._ready = threading.Event()
         self._thread = threading.Thread(target=self._run, daemon=True)
@@ -82,6 +89,13 @@ class FakeRosbridge:
                     await ws.send(text)
                 except websockets.ConnectionClosed:
                     self._subscribers.discard(ws)
+            if self.tf is not None:
+                text = json.dumps(tf_message("/tf", self.tf(q), msg["header"]["stamp"]))
+                for ws in list(self._tf_subscribers):
+                    try:
+                        await ws.send(text)
+                    except websockets.ConnectionClosed:
+                        self._tf_subscribers.discard(ws)
             await self._finish_motion(time.time())
             await asyncio.sleep(0.005)
 
@@ -101,8 +115,14 @@ class FakeRosbridge:
             op = message["op"]
             if op == "subscribe" and message["topic"] == "/joint_states":
                 self._subscribers.add(ws)
+            elif op == "subscribe" and message["topic"] == "/tf":
+                self._tf_subscribers.add(ws)
+            elif op == "subscribe" and message["topic"] == "/tf_static" and self.tf_static:
+                stamp = {"sec": 0, "nanosec": 0}
+                await ws.send(json.dumps(tf_message("/tf_static", self.tf_static, stamp)))
             elif op == "unsubscribe":
                 self._subscribers.discard(ws)
+                self._tf_subscribers.discard(ws)
             elif op == "send_action_goal":
                 await self._goal(ws, message)
             elif op == "cancel_action_goal":
@@ -156,3 +176,23 @@ def _result(goal_id: str, status: int, code: int, text: str) -> dict:
         "status": status,
         "result": True,
     }
+
+
+def tf_message(topic: str, transforms, stamp: dict) -> dict:
+    """A rosbridge ``publish`` of a ``tf2_msgs/msg/TFMessage`` of ``(parent, child, (4, 4))``."""
+    from scipy.spatial.transform import Rotation
+
+    out = []
+    for parent, child, t in transforms:
+        q = Rotation.from_matrix(np.asarray(t)[:3, :3]).as_quat()
+        out.append(
+            {
+                "header": {"stamp": stamp, "frame_id": parent},
+                "child_frame_id": child,
+                "transform": {
+                    "translation": dict(zip("xyz", map(float, np.asarray(t)[:3, 3]), strict=True)),
+                    "rotation": dict(zip("xyzw", map(float, q), strict=True)),
+                },
+            }
+        )
+    return {"op": "publish", "topic": topic, "msg": {"transforms": out}}

@@ -64,10 +64,14 @@ def write_flange_dataset(
     return folder
 
 
-def render_dataset(folder: Path, mode: str, n: int = 10, seed: int = 0):
+def render_dataset(
+    folder: Path, mode: str, n: int = 10, seed: int = 0, spread=(0.25, 0.25, 0.6), extra: str = ""
+):
     """Rendered board images (a small camera) of planted frames: eye-in-hand (camera on the
     flange, board on the table) or eye-to-hand (camera fixed below, looking up at the board on
-    the flange); a folder with flange poses and images, and the true ``X`` and ``W``."""
+    the flange), turned about random axes by ``spread`` (rad, about the camera's x, y, z: zeros
+    leave the others only); a folder with flange poses and images (``extra`` lines added to
+    dataset.yaml), and the true ``X`` and ``W``."""
     import cv2
 
     from relcal.io import yaml_text
@@ -79,7 +83,7 @@ def render_dataset(folder: Path, mode: str, n: int = 10, seed: int = 0):
     board = BoardSpec(type="chessboard", rows=7, columns=9, square=0.02).to_board()
     camera = Camera(320.0, 320.0, 199.5, 149.5, (0.05, -0.1, 0.0, 0.0, 0.0), 400, 300)
     centre = np.array([0.08, 0.06, 0.0])  # of the board's corners, board frame
-    turns = Rotation.from_rotvec(rng.normal(size=(n, 3)) * [0.25, 0.25, 0.6]).as_matrix()
+    turns = Rotation.from_rotvec(rng.normal(size=(n, 3)) * np.asarray(spread)).as_matrix()
     if mode == "eye_in_hand":
         x = tf.from_xyz_rpy(np.array([0.03, 0.05, 0.10]), np.radians([3.0, -4.0, 110.0]))
         base_board = tf.homogeneous(tf.rot_x(np.pi), np.array([0.45, -0.05, 0.0]))
@@ -119,6 +123,10 @@ def render_dataset(folder: Path, mode: str, n: int = 10, seed: int = 0):
     }
     (folder / "camera.yaml").write_text(yaml_text(cam))
     write_flange_dataset(
-        folder, flange, images=names, mode=mode, extra="board: board.yaml\ncamera: camera.yaml\n"
+        folder,
+        flange,
+        images=names,
+        mode=mode,
+        extra="board: board.yaml\ncamera: camera.yaml\n" + extra,
     )
     return folder, x, w

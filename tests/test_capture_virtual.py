@@ -211,7 +211,8 @@ def test_faults_interrupt_and_resume_leave_a_whole_correctly_paired_dataset(tmp_
 def test_the_camera_follows_the_true_model_with_its_nongeometric_terms():
     """The virtual camera's pose is relcal's forward kinematics of the true model, joint scale
     and harmonics included, at the true joints of the exposure; the robot reports only noisy
-    joints and the camera only stamped images."""
+    joints (and the flange pose its controller computes from them) and the camera only stamped
+    images."""
     from relcal.capture.virtual import make_cell
     from relcal.robot.kinematics import effective_joints
 
@@ -226,7 +227,9 @@ def test_the_camera_follows_the_true_model_with_its_nongeometric_terms():
     reading = cell.robot.read()
     frame = cell.camera.grab(1.0)
     assert frame.stamp <= cell.clock.now() and frame.image.dtype == np.uint8
-    assert set(vars(reading)) == {"q", "stamp", "dq"} and reading.dq is None  # positions only
+    assert set(vars(reading)) == {"q", "stamp", "dq", "flange"} and reading.dq is None
+    # the controller's flange pose: its kinematics (the true ones) at the joints it read
+    np.testing.assert_allclose(reading.flange, fk(truth.true_model, reading.q), atol=1e-15)
     assert set(vars(frame)) >= {"image", "stamp"}
     record = cell.frames[-1]
     q_true = np.array(record["q_true"])

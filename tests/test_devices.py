@@ -45,6 +45,7 @@ def test_manual_typed_joints():
     op = Operator("10, 20, 30", "", "1,2", "x", "-5;0;5", "s")
     robot = ManualRobot(joint_names=NAMES, clock=Clock(), ask=op.ask, tell=op.tell)
     assert isinstance(robot, Robot)
+    assert not robot.reports_flange
     with pytest.raises(CaptureError, match="no joint values yet"):
         robot.read()
     robot.move(np.radians([11.0, 21.0, 31.0]), timeout=1)
@@ -63,12 +64,13 @@ def test_manual_typed_joints():
 def test_manual_reads_joints_from_a_source_driver():
     class Source:
         joint_names = NAMES
+        reports_flange = True
 
         def __init__(self) -> None:
             self.stopped = False
 
         def read(self):
-            return JointReading(np.array([0.1, 0.2, 0.3]), 12.5)
+            return JointReading(np.array([0.1, 0.2, 0.3]), 12.5, flange=np.eye(4) * 2)
 
         def move(self, q, timeout):
             raise AssertionError("the manual driver never moves its source")
@@ -88,6 +90,7 @@ def test_manual_reads_joints_from_a_source_driver():
     robot.move(np.zeros(3), timeout=1)
     reading = robot.read()
     assert reading.stamp == 12.5 and reading.q.tolist() == [0.1, 0.2, 0.3]
+    assert robot.reports_flange and (reading.flange == np.eye(4) * 2).all()  # the source's
     assert op.shown[-1] == "read: j1 0.100, j2 0.200, j3 0.300"
     robot.stop()
     assert source.stopped

@@ -12,9 +12,11 @@ pytest.importorskip("websockets")
 
 from fake_rosbridge import FakeRosbridge  # noqa: E402
 
+from relcal import geometry as tf  # noqa: E402
 from relcal.capture.interfaces import CaptureError, MoveFailed, RealClock, Robot  # noqa: E402
 from relcal.capture.robots.ros import RosRobot  # noqa: E402
 from relcal.errors import RelcalError  # noqa: E402
+from relcal.robot.kinematics import fk  # noqa: E402
 from relcal.robot.loading import get_robot  # noqa: E402
 
 UR5E = get_robot("ur5e")
@@ -34,9 +36,21 @@ def connect(server, clock, **options):
     )
 
 
+FLIP = tf.homogeneous(tf.rot_z(np.pi), np.zeros(3))  # base_link -> base, as UR's description
+TOOL = tf.from_xyz_rpy(np.array([0.0, 0.0, 0.02]), np.radians([0.0, 0.0, 30.0]))
+
+
+def ur5e_tf(q):
+    """The dynamic edge base -> wrist_3_link of tf at joints ``q`` (the static ones: base_link ->
+    base and wrist_3_link -> tool0)."""
+    return [("base", "wrist_3_link", tf.invert(FLIP) @ fk(UR5E, q) @ tf.invert(TOOL))]
+
+
 @pytest.fixture
 def server():
-    with FakeRosbridge(ROS_NAMES, START, limits=(UR5E.lower, UR5E.upper)) as fake:
+    statics = [("base_link", "base", FLIP), ("wrist_3_link", "tool0", TOOL)]
+    with FakeRosbridge(ROS_NAMES, START, limits=(UR5E.lower, UR5E.upper), tf=ur5e_tf,
+                       tf_static=statics) as fake:  # fmt: skip
         yield fake
 
 
@@ -47,6 +61,10 @@ def test_joint_states_in_model_order_on_the_loop_clock(server):
         assert isinstance(robot, Robot)
         reading = robot.read()
         np.testing.assert_allclose(reading.q, START)  # reordered, gripper joint left out
+        # the flange pose: tf chained base_link -> base -> wrist_3_link -> tool0 (static and
+        # dynamic edges), the forward kinematics of the same joints
+        assert robot.reports_flange
+        np.testing.assert_allclose(reading.flange, fk(UR5E, START), atol=1e-6)
         # header stamps 1000 s ahead of the wall: mapped onto the loop's monotonic clock
         assert 0 <= clock.now() - reading.stamp < 0.05
     finally:
@@ -103,3 +121,27 @@ def test_wrong_names_and_no_server(server):
         RosRobot("127.0.0.1", server.port, joint_names=UR5E.joint_names, connect_timeout=1.0)
     with pytest.raises(RelcalError, match="5 names for the 6-joint"):
         RosRobot("127.0.0.1", server.port, joint_names=UR5E.joint_names, ros_joints="a,b,c,d,e")
+
+
+def test_no_tf_no_flange_pose_with_a_warning():
+    with FakeRosbridge(ROS_NAMES, START) as bare:
+        with pytest.warns(UserWarning, match="tf does not connect base_link to tool0"):
+            robot = connect(bare, RealClock(), tf_timeout=0.3)
+        try:
+            assert not robot.reports_flange and robot.read().flange is None
+        finally:
+            robot.close()
+
+
+def test_transform_tree_chains_and_refuses_unconnected_frames():
+    from fake_rosbridge import tf_message
+
+    from relcal.capture.robots.ros import TransformTree
+
+    a = tf.from_xyz_rpy(np.array([0.1, 0.2, 0.3]), np.radians([10, 20, 30]))
+    b = tf.from_xyz_rpy(np.array([-0.3, 0.0, 0.5]), np.radians([-40, 5, 90]))
+    tree = TransformTree()
+    tree.add(tf_message("/tf", [("world", "base", a), ("/world", "/camera", b)], {})["msg"])
+    np.testing.assert_allclose(tree.lookup("base", "camera"), tf.invert(a) @ b, atol=1e-12)
+    np.testing.assert_allclose(tree.lookup("world", "world"), np.eye(4))
+    assert tree.lookup("base", "elsewhere") is None

@@ -21,9 +21,17 @@ from relcal.robot.loading import get_robot  # noqa: E402
 
 UR5E = get_robot("ur5e")
 CONTROL = ("moveJ", "stopJ", "getAsyncOperationProgressEx", "isJointsWithinSafetyLimits",
-           "isConnected", "stopScript", "disconnect")  # fmt: skip
+           "isConnected", "stopScript", "disconnect", "getTCPOffset")  # fmt: skip
 RECEIVE = ("getActualQ", "getActualQd", "getTimestamp", "isProtectiveStopped", "isEmergencyStopped",
-           "isConnected", "disconnect")  # fmt: skip
+           "isConnected", "disconnect", "getActualTCPPose")  # fmt: skip
+TCP = np.array([0.0, 0.01, 0.15, 0.0, 0.0, 0.3])  # the controller's active TCP offset (m, rotvec)
+
+
+def ur_pose(t: np.ndarray) -> list[float]:
+    """A ``(4, 4)`` as a UR pose (x, y, z, rx, ry, rz)."""
+    from relcal import geometry as tf
+
+    return [*t[:3, 3], *tf.log_rotation(t[:3, :3])]
 
 
 class SimClock:
@@ -105,6 +113,9 @@ def doubles(arm: Arm):
         def stopScript(self):  # noqa: N802
             arm.calls.append(("stopScript",))
 
+        def getTCPOffset(self):  # noqa: N802
+            return TCP.tolist()
+
         def disconnect(self):
             arm.calls.append(("disconnect control",))
 
@@ -117,6 +128,14 @@ def doubles(arm: Arm):
 
         def getActualQd(self):  # noqa: N802
             return arm.dq().tolist()
+
+        def getActualTCPPose(self):  # noqa: N802
+            # the tool centre point by the controller's kinematics (here relcal's UR5e model)
+            from relcal import geometry as tf
+            from relcal.robot.kinematics import fk
+
+            offset = tf.homogeneous(tf.exp_rotation(TCP[3:]), TCP[:3])
+            return ur_pose(fk(UR5E, arm.q()) @ offset)
 
         def getTimestamp(self):  # noqa: N802
             # the newest RTDE packet of the 500 Hz stream, on the controller's clock
@@ -170,6 +189,11 @@ def test_move_and_read(ur):
     assert arm.calls[1] == ("moveJ", target.tolist(), 0.5, 0.8)
     reading = robot.read()
     np.testing.assert_allclose(reading.q, target)
+    # the flange pose: the controller's TCP pose with the TCP offset taken off
+    from relcal.robot.kinematics import fk
+
+    assert robot.reports_flange
+    np.testing.assert_allclose(reading.flange, fk(UR5E, target), atol=1e-12)
     # the controller's time (5000 s ahead) on the loop clock: the packet's time, which is up to
     # one 2 ms period before now
     assert clock.now() - 0.002 - 1e-9 <= reading.stamp <= clock.now() + 1e-9

@@ -13,6 +13,7 @@ from helpers_handeye import (
     render_dataset,
     write_flange_dataset,
 )
+from scipy.spatial.transform import Rotation
 
 import relcal
 from relcal import geometry as tf
@@ -26,6 +27,7 @@ from relcal.calibration.handeye_fit import fit_poses
 from relcal.calibration.handeye_job import handeye
 from relcal.data.flange import flange_chain
 from relcal.errors import RelcalError
+from relcal.reporting.handeye_report import title
 
 
 def _frame_error(estimate: np.ndarray, truth: np.ndarray) -> np.ndarray:
@@ -351,3 +353,216 @@ def test_real_robot_world_laser_tracker_set():
     best = min((m for m in METHODS if np.isfinite(val.rms(m))), key=val.rms)
     ratio = val.ratio(best)["position_mm"]
     assert ratio["ci95"][0] <= 1.0
+
+
+def test_image_fit_covariance_counts_each_images_pose_error():
+    """Board points seen from flange poses that carry their own errors (a settling arm, the
+    robot's repeatability: 30 um and 0.02 deg per image, unseen by the fit) beside 0.05 px of
+    pixel noise: over 25 data sets the refined X's errors have the spread the fit's covariance
+    predicts (Mahalanobis mean 1 per component; the pixels' noise alone: 41); the per-image
+    pose noise is found."""
+    from relcal.calibration.handeye_fit import Corners, fit_images
+    from relcal.vision.camera import Camera
+
+    rng = np.random.default_rng(21)
+    n = 12
+    grid = np.stack(np.meshgrid(np.arange(9), np.arange(7), indexing="ij"), -1).reshape(-1, 2)
+    points = np.c_[grid * 0.02, np.zeros(len(grid))]
+    camera = Camera(320.0, 320.0, 199.5, 149.5, (), 400, 300)
+    x = tf.from_xyz_rpy(np.array([0.03, 0.05, 0.10]), np.radians([3.0, -4.0, 110.0]))
+    base_board = tf.homogeneous(tf.rot_x(np.pi), np.array([0.45, -0.05, 0.0]))
+    w = tf.invert(base_board)
+    turns = Rotation.from_rotvec(rng.normal(size=(n, 3)) * [0.25, 0.25, 0.6]).as_matrix()
+    cam_rot = tf.rot_x(np.pi) @ turns
+    target = base_board[:3, :3] @ np.array([0.08, 0.06, 0.0]) + base_board[:3, 3]
+    pos = target - 0.35 * cam_rot[:, :, 2] + rng.normal(size=(n, 3)) * 0.02
+    flange = tf.homogeneous(cam_rot, pos) @ tf.invert(x)
+    sd = np.r_[np.full(3, 30e-6), np.full(3, np.radians(0.02))]
+    d2, pose_std = [], []
+    for seed in range(25):
+        r = np.random.default_rng(100 + seed)
+        moved = flange @ tf.from_vector(r.normal(size=(n, 6)) * sd)  # where the arm really was
+        board_in_camera = tf.invert(w @ moved @ x)
+        corners = []
+        for t in board_in_camera:
+            cam_pts = points @ t[:3, :3].T + t[:3, 3]
+            uv = cam_pts[:, :2] / cam_pts[:, 2:] * 320.0 + [199.5, 149.5]
+            corners.append(Corners(points, uv + r.normal(size=uv.shape) * 0.05))
+        start = x @ tf.from_vector(np.r_[0.001, -0.001, 0.002, 0.01, 0.01, -0.01])
+        fit = fit_images(flange, corners, camera, start, w, "eye_in_hand", reject=False)
+        err = _frame_error(fit.handeye, x)
+        d2.append(err @ np.linalg.solve(fit.covariance[:6, :6], err))
+        pose_std.append(np.sqrt(np.diag(fit.noise))[3:].mean())
+    spread = np.mean(d2) / 6  # 1 for a covariance that predicts the errors (sampling +-12 %)
+    assert 0.7 < spread < 1.35, spread
+    assert fit.pixel_sigma == pytest.approx(0.05, rel=0.1)
+    assert np.median(pose_std) > np.radians(0.01)  # the pose noise is found
+
+
+def test_logged_flange_poses_are_used_beside_a_robot_model():
+    """Joints with a robot model and the controller's flange poses (its calibrated kinematics:
+    the nominal model with planted errors), as ``relcal capture`` records them: the hand-eye uses
+    the logged poses and recovers X from noise-free data exactly, where the nominal model's
+    forward kinematics would not; the same with no model at all (``Dataset.from_arrays(None,
+    None, poses, flange=...)``)."""
+    from relcal.robot.kinematics import apply_errors, fk, make_layout
+    from relcal.sim.scenario import random_errors
+
+    model = relcal.get_robot("ur5e")
+    rng = np.random.default_rng(5)
+    q = np.radians([0, -90, 90, -90, -90, 0]) + rng.normal(0, 0.5, (16, 6))
+    layout = make_layout(model)
+    controller = apply_errors(model, layout, random_errors(layout, rng))
+    flange = fk(controller, q)
+    poses = W_TRUE @ flange @ X_TRUE
+    logged = handeye(relcal.Dataset.from_arrays(model, q, poses, flange=flange), folds=3)
+    assert logged.source == "the logged flange poses"
+    assert np.abs(logged.handeye - X_TRUE).max() < 1e-8
+    nominal = handeye(relcal.Dataset.from_arrays(model, q, poses), folds=3)
+    assert np.abs(nominal.handeye[:3, 3] - X_TRUE[:3, 3]).max() > 1e-4
+    alone = handeye(relcal.Dataset.from_arrays(None, None, poses, flange=flange), folds=3)
+    assert np.abs(alone.handeye - logged.handeye).max() < 1e-9
+
+
+@pytest.mark.parametrize(
+    "args, match",
+    [
+        ((None, None), "give both"),
+        (("ur5e", None), "give both"),
+    ],
+)
+def test_from_arrays_flange_is_checked(args, match):
+    from relcal.errors import ArgumentError
+
+    flange = flange_poses(6, seed=1)
+    poses = camera_poses(flange, cov=None)
+    with pytest.raises(ArgumentError, match=match):
+        relcal.Dataset.from_arrays(*args, poses)
+    mm = flange.copy()
+    mm[:, :3, 3] *= 1000.0
+    with pytest.raises(ArgumentError, match="millimetres given"):
+        relcal.Dataset.from_arrays(None, None, poses, flange=mm)
+    with pytest.raises(ArgumentError, match=r"flange: shape \(5, 4, 4\), expected \(6, 4, 4\)"):
+        q = np.zeros((6, 6)) + np.arange(6)[:, None] * 0.1
+        relcal.Dataset.from_arrays("ur5e", q, poses, flange=flange[:5])
+
+
+def test_images_about_one_axis_are_held_at_the_guess(tmp_path):
+    """Rendered images turning only about the camera's optical axis leave X's translation along
+    it free: refused without a guess, held at the ``handeye:`` guess of dataset.yaml (5 mm off
+    the truth along that axis) with the guess's standard deviation when one is given, as for
+    poses."""
+    folder, x, _ = render_dataset(tmp_path / "free", "eye_in_hand", spread=(0.0, 0.0, 0.6))
+    free = handeye(relcal.load_dataset(folder), folds=3)
+    assert free.exported is None and free.delivered[0].undetermined
+    axis = x[:3, 2]  # the optical axis in the flange frame
+    xyz, rpy = tf.to_xyz_rpy(x)
+    off = xyz + 0.005 * axis
+    guess = (
+        f"handeye: {{xyz: [{off[0]:.6f}, {off[1]:.6f}, {off[2]:.6f}], "
+        f"rpy: [{np.degrees(rpy[0]):.4f}, {np.degrees(rpy[1]):.4f}, {np.degrees(rpy[2]):.4f}]}}\n"
+    )
+    folder, x, _ = render_dataset(tmp_path / "held", "eye_in_hand", spread=(0.0, 0.0, 0.6),
+                                  extra=guess)  # fmt: skip
+    held = handeye(relcal.load_dataset(folder), folds=3)
+    he = held.delivered[0]
+    assert not he.undetermined and he.held and held.exported == "refined"
+    along = (held.handeye[:3, 3] - x[:3, 3]) @ axis
+    assert along == pytest.approx(0.005, abs=5e-4)  # the free direction sits at the guess
+    across = held.handeye[:3, 3] - x[:3, 3] - along * axis
+    assert np.linalg.norm(across) < 1e-3  # the determined ones stay the images'
+    std_along = np.sqrt(axis @ np.diag(he.xyz_std**2) @ axis)
+    assert std_along == pytest.approx(0.010, rel=0.3)
+    assert held.verdict.code == "collect more samples"
+
+
+def test_one_static_transform_writer_for_both_launch_files():
+    """relcal handeye's launch file and relcal calibrate's overlay write their static transform
+    with the same function, whose node gives back the transform to round-off."""
+    import inspect
+
+    from relcal.reporting import handeye_report, ros2
+    from relcal.reporting.ros2 import static_transform_node
+
+    t = tf.from_xyz_rpy(np.array([0.012, -0.34, 0.5]), np.radians([-170.0, 89.9, 33.0]))
+    text = static_transform_node(t, '"tool0"', '"camera"', "relcal_test", indent=4)
+    found = _launch_transforms(text.strip())
+    assert np.abs(found[("tool0", "camera")] - t).max() < 1e-15
+    for module in (handeye_report, ros2):  # neither spells the node out itself
+        source = inspect.getsource(module).replace(inspect.getsource(static_transform_node), "")
+        assert "static_transform_node(" in source
+        assert 'executable="static_transform_publisher"' not in source
+
+
+class _Tables:
+    """The tables of an HTML page, by the id of the section they are in: lists of rows of cell
+    texts (header row first)."""
+
+    def __init__(self, text: str) -> None:
+        from html.parser import HTMLParser
+
+        self.by_section: dict[str, list[list[list[str]]]] = {}
+        self.text = []
+        tables = self.by_section
+        owner = self
+
+        class Parser(HTMLParser):
+            section, row, cell = None, None, None
+
+            def handle_starttag(self, tag, attrs):
+                if tag == "section":
+                    self.section = dict(attrs).get("id")
+                elif tag == "table":
+                    tables.setdefault(self.section, []).append([])
+                elif tag == "tr":
+                    self.row = []
+                    tables[self.section][-1].append(self.row)
+                elif tag in ("td", "th"):
+                    self.cell = ""
+
+            def handle_endtag(self, tag):
+                if tag in ("td", "th"):
+                    self.row.append(self.cell.strip())
+                    self.cell = None
+
+            def handle_data(self, data):
+                owner.text.append(data)
+                if self.cell is not None:
+                    self.cell += data
+
+        Parser().feed(text)
+        self.text = " ".join(self.text)
+
+
+def test_report_shows_the_verdict_and_every_methods_held_out_errors(tmp_path):
+    import json
+
+    from relcal.cli import main
+
+    flange = flange_poses(14, seed=16)
+    folder = write_flange_dataset(tmp_path / "d", flange, camera_poses(flange, seed=17))
+    report, doc_path = tmp_path / "he.html", tmp_path / "he.json"
+    assert main(["handeye", str(folder), "--out", str(tmp_path / "out"), "--quiet",
+                 "--report", str(report), "--json", str(doc_path)]) in (0, 1)  # fmt: skip
+    doc = json.loads(doc_path.read_text())
+    page = _Tables(report.read_text())
+    assert doc["verdict"]["text"] in page.text
+    methods = page.by_section["held-out"][0]
+    assert methods[0][:3] == ["method", "position mm", "orientation deg"]
+    rows = {r[0].replace(" (favoured)", ""): r for r in methods[1:]}
+    val = doc["validation"]
+    assert len(rows) == len(val["methods"]) == 1 + len(METHODS)
+    for m in val["methods"]:
+        row = rows[m["title"]]
+        rms, (lo, hi) = m["position_mm"]["rms"], m["position_mm"]["ci95"]
+        assert row[1] == f"{rms:.3f} [{lo:.3f}, {hi:.3f}]"
+        if m["method"] != "refined":
+            ratio = m["refined_over_it"]["position_mm"]["after_over_before"]
+            assert row[3].startswith(f"{ratio:.3f} [")
+    favoured = next(r for r in methods[1:] if r[0].endswith("(favoured)"))
+    assert favoured[0].startswith(title(val["favoured"]))
+    samples = page.by_section["samples"][0]
+    assert len(samples) - 1 == val["n_samples"] == 14
+    assert {r[0] for r in samples[1:]} == {s["id"] for s in val["samples"]}
+    closed = page.by_section["closed-forms"][0]
+    assert len(closed) - 1 == len(METHODS)

@@ -67,9 +67,12 @@ class FrameFit:
     stopped : bool
         The solver's own stopping rule was met (see :attr:`converged`).
     noise : (6, 6) ndarray of float or None
-        The learned pose noise covariance (camera frame; m, rad), poses only.
+        The learned pose noise covariance (m, rad): of each measured pose (camera frame),
+        poses; of each image's pose beyond its pixels (the flange poses' own errors, a moving
+        arm; :func:`image_pose_noise`), images.
     pixel_sigma : float or None
-        The image noise per coordinate (px), images only.
+        The image noise per coordinate (px, measured with each image's pose freed), images
+        only.
     held : tuple of str
         Frame directions (:data:`FRAME_NAMES`) held at the start because the data do not
         determine them.
@@ -317,8 +320,10 @@ def fit_images(
     refine_intrinsics: bool = False,
     reject: bool = True,
     progress: bool = False,
+    prior: tuple[np.ndarray, np.ndarray, float] | None = None,
 ) -> FrameFit:
-    """The maximum-likelihood ``X`` and ``W`` (and intrinsics) of board images.
+    """The maximum-likelihood ``X`` and ``W`` (and intrinsics) of board images (maximum a
+    posteriori with ``prior``).
 
     Parameters
     ----------
@@ -339,12 +344,19 @@ def fit_images(
         reprojection RMS is beyond 3 times the median and 1 px.
     progress : bool
         A progress bar over the solver's evaluations.
+    prior : (guess, std, pixel_sigma), optional
+        ``X`` held near ``guess`` ``(4, 4)`` with standard deviations ``std`` ``(6,)`` (m, rad,
+        of ``guess^-1 X`` as a 6-vector): six residual rows ``pixel_sigma`` (px) times the
+        deviation over ``std``, weighed against the pixels as their noise is. What the images
+        determine stays theirs; what they leave free takes the guess.
 
     Returns
     -------
     FrameFit
-        The frames, their covariance (``s^2 (J^T J)^-1`` of the reprojection, ``s`` the pixel
-        noise from the residuals), the bad frames, the camera used.
+        The frames, their covariance (of the least-squares estimate when each image's pixel
+        errors are the pixel noise plus the image's pose error, both learned from the residuals:
+        :func:`image_pose_noise`; ``s^2 (J^T J)^-1`` when the poses carry no error), the bad
+        frames, the camera used.
     """
     from dataclasses import replace
 
@@ -361,9 +373,16 @@ def fit_images(
         intr = intr0 + p[12:] if n_intr else None
         return _camera_from_board(flange[keep], x, w, mode), intr
 
-    def fun(p: np.ndarray, keep: np.ndarray) -> np.ndarray:
+    def pixels(p: np.ndarray, keep: np.ndarray) -> np.ndarray:
         t, intr = unpack(p, keep)
         return _project(camera, t, [c for c, k in zip(corners, keep, strict=True) if k], intr)
+
+    def fun(p: np.ndarray, keep: np.ndarray) -> np.ndarray:
+        if prior is None:
+            return pixels(p, keep)
+        guess, std, scale = prior
+        held = tf.to_vector(tf.invert(guess) @ handeye @ tf.from_vector(p[:6]))
+        return np.r_[pixels(p, keep), held / np.asarray(std, float) * scale]
 
     keep = np.ones(n, dtype=bool)
     p = np.zeros(12 + n_intr)
@@ -381,7 +400,7 @@ def fit_images(
                 max_nfev=200,
             )
             p = sol.x
-            rms = _per_image_rms(fun(p, keep), corners)
+            rms = _per_image_rms(pixels(p, keep), corners)
             limit = max(3.0 * float(np.median(rms)), 1.0)
             bad = rms > limit
             if 0 < bad.sum() <= MAX_OUTLIER_SHARE * n:
@@ -405,16 +424,20 @@ def fit_images(
         bar.close()
     p = sol.x
     r, jac = sol.fun, sol.jac
-    dof = max(len(r) - len(p), 1)
-    sigma = float(np.sqrt(r @ r / dof))
     info = jac.T @ jac
     scale_cols = np.sqrt(np.maximum(np.diag(info), 1e-300))
     vals, vecs = np.linalg.eigh(info / np.outer(scale_cols, scale_cols))
     null = vecs[:, vals < 1e-10 * vals.max()] / scale_cols[:, None]
     null = null[:12] / np.maximum(np.linalg.norm(null[:12], axis=0), 1e-300)
-    cov_all = sigma**2 * np.linalg.pinv(info, rcond=1e-12)
     x = handeye @ tf.from_vector(p[:6])
     w = world @ tf.from_vector(p[6:12])
+    kept = [c for c, k in zip(corners, keep, strict=True) if k]
+    intr = intr0 + p[12:] if n_intr else None
+    n_pixels = sum(2 * len(c.image_points) for c in kept)
+    noise = image_pose_noise(
+        _camera_from_board(flange[keep], x, w, mode), kept, camera, intr, r[:n_pixels], mode
+    )
+    cov_all = _sandwich(jac, noise, kept)
     move = _reparametrise(handeye, world, x, w, p[:12])
     cov = move @ cov_all[:12, :12] @ move.T
     used_camera = camera
@@ -436,10 +459,99 @@ def fit_images(
         used=keep,
         outliers=outliers,
         stopped=converged,
-        pixel_sigma=sigma,
+        noise=noise.pose,
+        pixel_sigma=noise.pixel_sigma,
         camera=used_camera,
         null_space=move @ null,
     )
+
+
+@dataclass(frozen=True)
+class ImageNoise:
+    """The noise of an image fit: ``pixel_sigma`` (px per coordinate, measured after each image's
+    own pose is freed), ``pose`` ``(6, 6)`` the covariance of each image's pose error beyond the
+    pixels (m, rad, in the frame the chain's pose ends in: the camera's eye-in-hand, the
+    board's eye-to-hand): what the flange poses, the robot's repeatability or a moving arm add,
+    which the pixels of one image cannot show apart from the pose), and per image the pixel
+    Jacobian ``(2 M_k, 6)`` of that pose."""
+
+    pixel_sigma: float
+    pose: np.ndarray
+    pose_jacobians: tuple[np.ndarray, ...]
+
+
+def image_pose_noise(
+    transforms: np.ndarray,
+    corners: list[Corners],
+    camera,
+    intr: np.ndarray | None,
+    residuals: np.ndarray,
+    mode: str,
+) -> ImageNoise:
+    """The pixel noise and the per-image pose noise of a fit whose board-in-camera transforms
+    ``(N, 4, 4)`` left ``residuals`` ``(sum 2 M_k,)`` (px).
+
+    Each image's residuals are split by a Gauss-Newton step of its own pose ``C_k exp(d_k)``
+    (``C_k`` the chain's pose of the camera, eye-in-hand, or of the board, eye-to-hand): what
+    is left is pixel noise (``sigma^2`` over ``sum 2 M_k - 6 N`` degrees of freedom); the steps
+    ``d_k`` are pose errors plus the pose estimate's own noise ``sigma^2 (P_k^T P_k)^-1``, so
+    the pose noise is the mean of ``d_k d_k^T`` less that, times ``N / (N - 2)`` (the 12 frame
+    parameters fitted), projected on the positive semi-definite matrices."""
+    jacobians, steps, own, left, count = [], [], [], 0.0, 0
+    start = 0
+    for t, c in zip(transforms, corners, strict=True):
+        m2 = 2 * len(c.image_points)
+        r = residuals[start : start + m2]
+        start += m2
+        jac = np.empty((m2, 6))
+        h = np.r_[np.full(3, 1e-6), np.full(3, 1e-6)]
+        for i in range(6):
+            d = np.zeros(6)
+            d[i] = h[i]
+            plus = _project(camera, _moved(t, d, mode)[None], [c], intr)
+            minus = _project(camera, _moved(t, -d, mode)[None], [c], intr)
+            jac[:, i] = (plus - minus) / (2 * h[i])
+        normal = jac.T @ jac
+        step = -np.linalg.lstsq(jac, r, rcond=None)[0]
+        rest = r + jac @ step
+        left += float(rest @ rest)
+        count += m2 - 6
+        jacobians.append(jac)
+        steps.append(step)
+        own.append(np.linalg.pinv(normal))
+    n = len(transforms)
+    sigma2 = left / max(count, 1)
+    pose = np.zeros((6, 6))
+    if n > 2:
+        d = np.array(steps)
+        pose = (d.T @ d - sigma2 * np.sum(own, axis=0)) / (n - 2)
+        vals, vecs = np.linalg.eigh(0.5 * (pose + pose.T))
+        pose = (vecs * np.clip(vals, 0.0, None)) @ vecs.T
+    return ImageNoise(float(np.sqrt(sigma2)), pose, tuple(jacobians))
+
+
+def _moved(t: np.ndarray, d: np.ndarray, mode: str) -> np.ndarray:
+    """The board-in-camera transform ``t`` when the chain's pose ``C`` moves to ``C exp(d)``:
+    ``t = C`` eye-to-hand, ``t = C^-1`` otherwise."""
+    step = tf.from_vector(d)
+    return t @ step if mode == "eye_to_hand" else tf.invert(step) @ t
+
+
+def _sandwich(jac: np.ndarray, noise: ImageNoise, corners: list[Corners]) -> np.ndarray:
+    """The covariance of the least-squares estimate when each image's pixel errors have the
+    covariance ``sigma^2 I + P_k S P_k^T`` (:class:`ImageNoise`): ``A^+ B A^+`` with ``A = J^T J``
+    and ``B = sum_k J_k^T V_k J_k``."""
+    info = jac.T @ jac  # pixel rows, then prior rows (of the pixels' noise by construction)
+    a_inv = np.linalg.pinv(info, rcond=1e-12)
+    b = noise.pixel_sigma**2 * info
+    start = 0
+    for c, p in zip(corners, noise.pose_jacobians, strict=True):
+        m2 = 2 * len(c.image_points)
+        jk = jac[start : start + m2]
+        start += m2
+        g = jk.T @ p  # (params, 6)
+        b = b + g @ noise.pose @ g.T
+    return a_inv @ b @ a_inv
 
 
 def _per_image_rms(r: np.ndarray, corners: list[Corners]) -> np.ndarray:

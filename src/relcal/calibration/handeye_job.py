@@ -229,6 +229,10 @@ class HandEye:
         defaults, overridden by ``frames:`` of dataset.yaml).
     camera : Camera or None
         With images, the intrinsics used (refined ones when refined).
+    marker : Delivered or None
+        Eye-to-hand: ``X``, the board on the flange (parent the flange, child the board), a
+        by-product written to ``handeye.yaml`` (the guess ``relcal calibrate --handeye`` starts
+        from); None in the other modes (``X`` is the delivered transform).
     """
 
     mode: str
@@ -250,6 +254,7 @@ class HandEye:
     settings: dict = field(default_factory=dict)
     frames: dict = field(default_factory=dict)
     camera: Any = None
+    marker: Delivered | None = None
 
     def __repr__(self) -> str:
         from relcal._repr import short
@@ -356,6 +361,19 @@ def _direction(v: np.ndarray) -> str:
 # --- delivered transforms ------------------------------------------------------------------------
 
 
+def frame_names(dataset, mode: str | None = None) -> dict[str, str]:
+    """The frame names of the exports for ``dataset`` in ``mode`` (default its own): ``base``,
+    ``flange``, ``camera``, ``world``, ``marker``: relcal's defaults (a robot from a URDF: its
+    chain's root and tip links for the base and the flange), overridden by ``frames:`` of
+    dataset.yaml."""
+    mode = mode or dataset.mode
+    out = _frames_default(mode)
+    chain = getattr(getattr(dataset, "model", None), "urdf", None)
+    if chain is not None and getattr(dataset, "flange", None) is None:
+        out.update(base=chain.root, flange=chain.tip)
+    return {**out, **(getattr(dataset, "frames", None) or {})}
+
+
 def _frames_default(mode: str) -> dict[str, str]:
     return {
         "base": "base_link",
@@ -368,8 +386,13 @@ def _frames_default(mode: str) -> dict[str, str]:
     }
 
 
-def _deliverables(mode: str, frames: dict[str, str]) -> list[tuple[str, str, str, Any]]:
-    """``(key, parent, child, function of (X, W) giving the transform)`` per delivered one."""
+def _deliverables(
+    mode: str, frames: dict[str, str], by_product: bool = False
+) -> list[tuple[str, str, str, Any]]:
+    """``(key, parent, child, function of (X, W) giving the transform)`` per delivered one (with
+    ``by_product``, eye-to-hand: ``X``, the board on the flange)."""
+    if by_product:
+        return [("marker", frames["flange"], frames["marker"], lambda x, w: x)]
     if mode == "eye_to_hand":
         return [("handeye", frames["base"], frames["camera"], lambda x, w: tf.invert(w))]
     out = [("handeye", frames["flange"], frames["camera"], lambda x, w: x)]
@@ -419,10 +442,12 @@ def deliver(
     fit: FrameFit,
     frames: dict[str, str],
     held_by_guess: bool = False,
+    by_product: bool = False,
 ) -> tuple[Delivered, ...]:
-    """The transforms of ``mode`` with their standard deviations and undetermined directions."""
+    """The transforms of ``mode`` with their standard deviations and undetermined directions
+    (``by_product``: eye-to-hand's ``X``, the board on the flange)."""
     out = []
-    for key, parent, child, fn in _deliverables(mode, frames):
+    for key, parent, child, fn in _deliverables(mode, frames, by_product):
         t = fn(fit.handeye, fit.world)
         _, j_par = _jacobians(fn, fit.handeye, fit.world)
         par = _propagate(j_par, fit.covariance)
@@ -744,7 +769,12 @@ def handeye(
             f"{dataset.spec_path or 'dataset'}: {len(usable)} usable samples: a hand-eye needs at "
             f"least {MIN_SAMPLES} (many more to validate it)"
         )
-    flange_all = dataset.flange if dataset.flange is not None else fk(dataset.model, dataset.q)
+    model, q = dataset.model, dataset.q
+    if dataset.flange is not None:  # the logged poses, also beside joints and a robot model
+        from relcal.data.flange import flange_chain
+
+        model, q = flange_chain(dataset.flange)
+    flange_all = fk(model, q) if dataset.flange is None else dataset.flange
     order = usable[canonical_order(flange_all[usable], m.poses[usable])]
     images = dataset.measured == "image"
     refine = bool(dataset.camera == "calibrate") if refine_intrinsics is None else refine_intrinsics
@@ -752,8 +782,8 @@ def handeye(
         order=order,
         flange=flange_all[order],
         measured=m.poses[order],
-        model=dataset.model,
-        q=dataset.q[order],
+        model=model,
+        q=q[order],
         corners=_corners(dataset, m, order) if images else None,
         camera=m.camera,
     )
@@ -763,11 +793,14 @@ def handeye(
         data, rows, mode, methods, refine and images, reject, guess, progress
     )
     findings, _axis = motion_findings(data.flange)
-    frames = {**_frames_default(mode), **(getattr(dataset, "frames", None) or {})}
+    frames = frame_names(dataset, mode)
     delivered = deliver(mode, fit, frames)
     held = False
-    if any(d.undetermined for d in delivered) and guess is not None and not images:
-        fit = _hold_at_guess(data, rows, fit, guess)
+    if any(d.undetermined for d in delivered) and guess is not None:
+        if images:
+            fit = _hold_images_at_guess(data, rows, mode, fit, guess, refine and images)
+        else:
+            fit = _hold_at_guess(data, rows, fit, guess)
         delivered = deliver(mode, fit, frames, held_by_guess=True)
         held = True
     validation = None
@@ -796,6 +829,10 @@ def handeye(
             fit.camera,
         )
         delivered = deliver(mode, replaced, frames)
+    marker = None
+    if mode == "eye_to_hand":
+        chosen_fit = fit if exported in (None, REFINED) else replaced
+        marker = deliver(mode, chosen_fit, frames, held, by_product=True)[0]
     ids = dataset.ids
     verdict = handeye_verdict(validation, fit, exported, undetermined, held, guess is not None)
     return HandEye(
@@ -832,6 +869,7 @@ def handeye(
         },
         frames=frames,
         camera=fit.camera or m.camera,
+        marker=marker,
     )
 
 
@@ -893,6 +931,36 @@ def _hold_at_guess(data: _Data, rows: np.ndarray, fit: FrameFit, guess: np.ndarr
         covariance=cov,
         stopped=result.stopped,
         result=result,
+        held=("handeye.* (prior: the guess of dataset.yaml)",),
+    )
+
+
+def _hold_images_at_guess(
+    data: _Data, rows: np.ndarray, mode: str, fit: FrameFit, guess: np.ndarray, refine: bool
+) -> FrameFit:
+    """The image fit again on the images it kept, with ``X`` held near the guess of
+    dataset.yaml by a prior of :data:`GUESS_MM` and :data:`GUESS_DEG` (maximum a posteriori,
+    weighed against the pixels by the first fit's pixel noise)."""
+    from dataclasses import replace
+
+    keep = np.flatnonzero(fit.used)
+    sub = rows[keep]
+    std = np.r_[np.full(3, GUESS_MM * 1e-3), np.full(3, np.radians(GUESS_DEG))]
+    held = fit_images(
+        data.flange[sub],
+        [data.corners[i] for i in sub],
+        fit.camera or data.camera,
+        fit.handeye,
+        fit.world,
+        mode,
+        refine,
+        reject=False,
+        prior=(guess, std, max(fit.pixel_sigma or 0.0, 1e-3)),
+    )
+    return replace(
+        held,
+        used=fit.used,
+        outliers=fit.outliers,
         held=("handeye.* (prior: the guess of dataset.yaml)",),
     )
 

@@ -5,6 +5,12 @@ Every timestamp is in seconds on the clock the loop is given (:class:`Clock`); a
 device stamps on another clock converts to it, so that "this frame was exposed after the arm
 became still" is a comparison of two numbers. Joint values are in the robot model's units
 (rad for revolute joints, m for prismatic ones), in the order of ``joint_names``.
+
+A driver that reads the controller's flange pose (the flange in the robot's base frame, computed
+by the controller from the same joint measurement) says so with a class attribute
+``reports_flange = True`` and puts the pose in :attr:`JointReading.flange`; the loop then records
+it beside the joints (columns ``fx`` .. ``fqw``), so that ``relcal handeye`` needs no robot
+model. The attribute is optional: a driver without it reports none.
 """
 
 from __future__ import annotations
@@ -31,12 +37,15 @@ class MoveFailed(RelcalError):
 @dataclass(frozen=True)
 class JointReading:
     """One joint measurement: ``q`` ``(n,)`` (rad, m) stamped ``stamp`` (s, the loop's clock),
-    and the joint velocities ``dq`` ``(n,)`` (rad/s, m/s) where the controller reports them
-    (``None`` otherwise: the loop then judges stillness from positions alone)."""
+    the joint velocities ``dq`` ``(n,)`` (rad/s, m/s) where the controller reports them
+    (``None`` otherwise: the loop then judges stillness from positions alone), and the
+    controller's flange pose ``flange`` ``(4, 4)`` (the flange in the robot's base frame, m) at
+    the same instant where the driver reads it (``None`` otherwise)."""
 
     q: np.ndarray
     stamp: float
     dq: np.ndarray | None = None
+    flange: np.ndarray | None = None
 
 
 @dataclass(frozen=True)

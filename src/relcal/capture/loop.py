@@ -32,7 +32,9 @@ For each pose, in the plan's order (see :func:`capture`):
 6. **Detect and gate** with relcal's own detection (:func:`relcal.vision.detect.detect`): enough
    points, sharpness (variance of the Laplacian over the board's region) and, given intrinsics,
    the reprojection RMS of the pose (:func:`relcal.vision.detect.estimate_pose`).
-7. **Record** the joints as the mean over the still window with the frame, under the pose's id;
+7. **Record** the joints as the mean over the still window with the frame, under the pose's id
+   (with a driver that reads the controller's flange pose, ``flange=True``: the mean of the
+   window's flange poses too, :func:`mean_flange`; a window without them fails the attempt);
    a failed attempt is retried ``retries`` times (moving again to the same target), then the pose
    is skipped with every attempt's reason. An image is only ever stored with the joints read
    around its own exposure, under its own pose id.
@@ -163,6 +165,7 @@ class Sample:
     joint_std: np.ndarray  # (n,) standard deviation of the readings over the window
     returned_speed: float = float("nan")
     settle_seconds: float = float("nan")
+    flange: np.ndarray | None = None  # (4, 4) the controller's mean flange pose over the window
 
     def record(self) -> dict:
         """The capture log entry (plain types; angles as stored, rad and m)."""
@@ -421,7 +424,9 @@ def wait_until_still(
     while True:
         reading = robot.read()
         dq = None if reading.dq is None else np.asarray(reading.dq, float)
-        reading = JointReading(np.asarray(reading.q, float), float(reading.stamp), dq)
+        flange = getattr(reading, "flange", None)
+        flange = None if flange is None else np.asarray(flange, float)
+        reading = JointReading(np.asarray(reading.q, float), float(reading.stamp), dq, flange)
         history.append(reading)
         if len(first) < 2:
             first.append(reading)
@@ -450,6 +455,21 @@ def wait_until_still(
                 f"{settings.settle_threshold / DEG:.4f} deg{limits})"
             )
         clock.sleep(settings.poll)
+
+
+def mean_flange(window: Sequence[JointReading]) -> np.ndarray | None:
+    """The mean ``(4, 4)`` of the flange poses of a still window (positions averaged, rotations
+    by their chordal mean), or None when a reading lacks one."""
+    from relcal.data.flange import mean_rotation
+
+    poses = [r.flange for r in window]
+    if not poses or any(p is None for p in poses):
+        return None
+    poses = np.array(poses, dtype=float)
+    out = np.eye(4)
+    out[:3, :3] = mean_rotation(poses[:, :3, :3])
+    out[:3, 3] = poses[:, :3, 3].mean(axis=0)
+    return out
 
 
 def fresh_frame(
@@ -488,9 +508,10 @@ def attempt(
     settings: CaptureSettings,
     attempts: int,
     timing: dict,
+    flange: bool = False,
 ) -> Sample:
-    """One attempt at one pose (steps 2 to 6 of the module docstring); raises :class:`_Failed`
-    with the reason."""
+    """One attempt at one pose (steps 2 to 6 of the module docstring, and with ``flange`` the
+    mean flange pose of the still window); raises :class:`_Failed` with the reason."""
     try:
         robot.move(target, settings.move_timeout)
     except MoveFailed as exc:
@@ -505,6 +526,12 @@ def attempt(
         raise _Failed(
             f"joint error: {_joint_name(robot, worst)} settled {np.degrees(error[worst]):.4f} deg "
             f"from the target (tolerance {np.degrees(settings.joint_tolerance):.4f} deg)"
+        )
+    pose = mean_flange(window) if flange else None
+    if flange and pose is None:
+        raise _Failed(
+            "no flange pose: the driver reported none in the still window (is the controller's "
+            "tool pose published?)"
         )
     frame, discarded = fresh_frame(camera, clock, start, settings)
     after = np.asarray(robot.read().q, float)
@@ -534,6 +561,7 @@ def attempt(
         joint_std=values.std(axis=0),
         returned_speed=returned_speed,
         settle_seconds=window[-1].stamp - returned,
+        flange=pose,
     )
 
 
@@ -552,6 +580,7 @@ def capture(
     precheck: Callable[[np.ndarray], str | None] | None = None,
     progress: bool = True,
     skipped_before: frozenset[str] | set[str] = frozenset(),
+    flange: bool = False,
 ) -> CaptureSummary:
     """Visit every planned pose and record a sample at each (see the module docstring).
 
@@ -580,6 +609,10 @@ def capture(
         ``precheck(q) -> reason or None``: a further check before moving (collisions).
     progress : bool
         A tqdm bar on stderr with the pose count, the skips and the last reason.
+    flange : bool
+        Record the controller's flange pose with each sample (the mean over the still window of
+        :attr:`JointReading.flange`, which the driver must report: a driver whose class says
+        ``reports_flange = True``).
 
     Returns
     -------
@@ -620,7 +653,7 @@ def capture(
                     try:
                         sample = attempt(
                             k, pose_id, target, robot, camera, clock, board, intrinsics,
-                            settings, n, timing,
+                            settings, n, timing, flange,
                         )  # fmt: skip
                     except _Failed as exc:
                         outcome.reasons.append(str(exc))

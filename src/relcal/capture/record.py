@@ -8,7 +8,9 @@ Layout (relcal's dataset format, :mod:`relcal.data.dataset`)::
       board.yaml        the board
       camera.yaml       the intrinsics (absent with ``camera: calibrate``)
       robot.yaml        the robot model, when it is not a built-in name (robot.urdf: a URDF)
-      samples.csv       id, one column per joint (named as the robot names them), image
+      samples.csv       id, one column per joint (named as the robot names them), with a
+                        driver that reads the controller's flange pose fx, fy, fz (m), fqx,
+                        fqy, fqz, fqw (quaternion x first; relcal handeye reads them), image
       images/ID.png     one image per recorded pose, named by the pose id
       capture.json      the capture log: plan, devices, per pose the attempts, reasons, frame
                         stamp, still window, gate values; what --resume checks
@@ -146,6 +148,17 @@ def check_destination(root: str | Path, resume: bool) -> None:
             )
 
 
+def flange_cells(flange: np.ndarray | None, pose_id: str) -> list[str]:
+    """The cells ``fx, fy, fz, fqx, fqy, fqz, fqw`` (m, unit quaternion x first) of a flange pose
+    ``(4, 4)``."""
+    from scipy.spatial.transform import Rotation
+
+    if flange is None:
+        raise RelcalError(f"pose {pose_id}: no flange pose to record (the driver reported none)")
+    quat = Rotation.from_matrix(np.asarray(flange, float)[:3, :3]).as_quat()
+    return [f"{v:.12g}" for v in (*flange[:3, 3], *quat)]
+
+
 @contextmanager
 def claim(root: str | Path, resume: bool) -> Iterator[None]:
     """The dataset folder ``root`` for this run alone, for the block: checked
@@ -199,6 +212,9 @@ class DatasetWriter:
         of its recorded poses must match); without it an existing non-empty folder is refused.
     devices : dict
         Driver names and options, for the log.
+    flange : bool
+        Write the controller's flange pose of each sample (columns ``fx`` .. ``fqw``); on
+        resume the existing table decides (a capture started without them continues without).
     """
 
     def __init__(
@@ -216,8 +232,10 @@ class DatasetWriter:
         limits: dict[str, tuple[float, float]] | None = None,
         resume: bool = False,
         devices: dict | None = None,
+        flange: bool = False,
     ) -> None:
         self.root = Path(root)
+        self.flange = bool(flange)
         self.model = model
         self.board = board
         self.intrinsics = intrinsics
@@ -395,7 +413,8 @@ class DatasetWriter:
         except (OSError, UnicodeDecodeError) as exc:
             raise RelcalError(f"{path}: --resume: cannot read the samples: {exc}") from None
         header = lines[0].split(",") if lines else []
-        if header != ["id", *self.columns, "image"]:
+        self.flange = header == self._header(True)  # the table as started decides
+        if header != self._header(self.flange):
             raise RelcalError(f"{path} line 1: header {header} is not the one this capture writes")
         for line in lines[1:]:
             if line.strip():
@@ -418,9 +437,14 @@ class DatasetWriter:
     def image_name(self, pose_id: str) -> str:
         return f"{IMAGES}/{pose_id}.png"
 
+    def _header(self, flange: bool) -> list[str]:
+        from relcal.data.flange import FLANGE_COLUMNS
+
+        return ["id", *self.columns, *(FLANGE_COLUMNS if flange else ()), "image"]
+
     def _table(self) -> bytes:
         ordered = sorted(self.rows, key=lambda pid: self._order.get(pid, len(self._order)))
-        lines = [",".join(["id", *self.columns, "image"])]
+        lines = [",".join(self._header(self.flange))]
         lines += [self.rows[pid] for pid in ordered]
         return ("\n".join(lines) + "\n").encode()
 
@@ -434,7 +458,10 @@ class DatasetWriter:
             raise RelcalError(f"pose {pid} is already recorded in {self.root}")
         q = joints_in_unit(self.model, sample.q[None, :], self.joint_unit)[0]
         name = self.image_name(pid)
-        self.rows[pid] = ",".join([_csv_cell(pid), *(f"{v:.12g}" for v in q), name])
+        cells = [_csv_cell(pid), *(f"{v:.12g}" for v in q)]
+        if self.flange:
+            cells += flange_cells(sample.flange, pid)
+        self.rows[pid] = ",".join([*cells, name])
         entry = sample.record()
         entry["image"] = name
         entry["run"] = int(self.log.get("runs", 1))

@@ -51,7 +51,11 @@ What the devices report
     :mod:`relcal.capture.devices`: :class:`VirtualRobot`, :class:`VirtualCamera`) implement the
     interfaces of
     :mod:`relcal.capture.interfaces` and report only what real ones would: noisy joint readings
-    with stamps, frames with stamps and sequence numbers. The truth (planted errors, true joints
+    with stamps, frames with stamps and sequence numbers, and the controller's flange pose with
+    each reading, computed as a controller computes it, from the joints it read: by default
+    with the arm's true kinematics (a controller that carries its arm's factory calibration),
+    with ``flange_model="nominal"`` with the nominal model (a controller without one: the
+    planted errors then enter the logged flange poses). The truth (planted errors, true joints
     at every delivered frame's exposure) stays in the cell, for :meth:`VirtualCell.truth`, which
     the capture loop never reads.
 
@@ -522,6 +526,7 @@ class VirtualCell:
     lighting_gradient: float = 0.2
     board_pixels: str = "analytic"
     seed: int = 0
+    flange_model: str = "true"  # the controller's kinematics: "true" or "nominal"
     frames: list[dict] = field(default_factory=list)  # truth of every delivered frame
     moves: list[dict] = field(default_factory=list)  # truth of every move: still when it returned?
     render_seconds: float = 0.0  # wall time spent rendering
@@ -536,6 +541,13 @@ class VirtualCell:
         self._visits: dict[int, int] = {}
         self._occlusion: list[tuple[float, bool]] = [(-np.inf, False)]  # (from t, hidden)
         self._renderer: SceneRenderer | None = None
+        if self.flange_model not in ("true", "nominal"):
+            raise RelcalError(
+                f"virtual cell: flange_model '{self.flange_model}': expected true or nominal"
+            )
+        self.controller_model = (
+            self.truth.true_model if self.flange_model == "true" else self.truth.model
+        )
         self.robot = SimRobot(self)
         self.camera = SimCamera(self)
 
@@ -631,6 +643,7 @@ class VirtualCell:
             "joint_noise_deg": float(np.degrees(self.joint_noise)),
             "dynamics": {"omega_rad_s": self.dynamics.omega, "zeta": self.dynamics.zeta},
             "fps": self.fps,
+            "flange_model": self.flange_model,
             "faults": {
                 "hidden": list(self.faults.hidden),
                 "hidden_once": list(self.faults.hidden_once),
@@ -651,7 +664,11 @@ class VirtualCell:
 
 
 class SimRobot:
-    """The virtual arm, as a driver sees it (:class:`relcal.capture.interfaces.Robot`)."""
+    """The virtual arm, as a driver sees it (:class:`relcal.capture.interfaces.Robot`): noisy
+    joint readings and the controller's flange pose computed from them
+    (:attr:`VirtualCell.controller_model`)."""
+
+    reports_flange = True
 
     def __init__(self, cell: VirtualCell) -> None:
         self.cell = cell
@@ -661,7 +678,7 @@ class SimRobot:
         cell = self.cell
         now = cell.clock.now()
         q = cell.arm.at(now) + cell.rng.normal(0.0, cell.joint_noise, len(self.joint_names))
-        return JointReading(q, now)
+        return JointReading(q, now, flange=fk(cell.controller_model, q))
 
     def move(self, q: np.ndarray, timeout: float) -> None:
         cell = self.cell
@@ -891,7 +908,9 @@ class VirtualRobot(SimRobot):
     drawing X,Y,Z[,ROLL,PITCH,YAW] in m and deg, default 0,0.04,0.06 as ``relcal plan``);
     ``nongeometric`` (terms to plant too: scale,compliance,harmonic); ``errors`` (planted errors
     from a YAML file in ``relcal simulate --errors`` format instead of random ones);
-    ``joint_noise`` (deg per reading, default 0.001); ``board_pixels`` (analytic or mujoco).
+    ``joint_noise`` (deg per reading, default 0.001); ``board_pixels`` (analytic or mujoco);
+    ``flange_model`` (the kinematics the controller computes its flange pose with: ``true``, the
+    arm's own, as a factory-calibrated controller, default; or ``nominal``).
     """
 
     simulated = True
@@ -913,6 +932,7 @@ class VirtualRobot(SimRobot):
         errors: str | None = None,
         joint_noise: float = 0.001,
         board_pixels: str = "analytic",
+        flange_model: str = "true",
     ) -> None:
         if model is None:
             raise RelcalError("--robot-driver sim: the virtual cell needs the robot model")
@@ -923,6 +943,8 @@ class VirtualRobot(SimRobot):
             raise RelcalError(f"{flag} joint_noise: expected a standard deviation >= 0 deg")
         if board_pixels not in ("analytic", "mujoco"):
             raise RelcalError(f"{flag} board_pixels: expected analytic or mujoco")
+        if flange_model not in ("true", "nominal"):
+            raise RelcalError(f"{flag} flange_model: expected true or nominal")
         planted = None
         if errors is not None:
             from relcal.sim.scenario import load_errors
@@ -947,6 +969,7 @@ class VirtualRobot(SimRobot):
             targets=plan_targets,
             joint_noise=float(joint_noise) * DEG,
             board_pixels=board_pixels,
+            flange_model=flange_model,
         )
         super().__init__(cell)
         self.clock = cell.clock
@@ -1115,7 +1138,15 @@ class FollowingCamera:
         :meth:`VirtualCell.truth_document`, without the virtual arm's dynamics, moves and
         faults, which a followed driver does not have)."""
         doc = self.cell.truth_document()
-        for key in ("dynamics", "fps", "faults", "moves_note", "moves", "joint_noise_deg"):
+        for key in (
+            "dynamics",
+            "fps",
+            "faults",
+            "moves_note",
+            "moves",
+            "joint_noise_deg",
+            "flange_model",
+        ):
             doc.pop(key, None)
         doc["followed_driver"] = type(self.robot).__name__
         doc["frames_note"] = "joints (rad, m) the driver reported for each frame, taken as true"

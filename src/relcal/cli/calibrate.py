@@ -24,6 +24,7 @@ examples:
   relcal measure my_dataset --json measured.json   # camera poses and rejected frames
   relcal calibrate my_dataset --out results/       # model.yaml, robot.urdf, results.json, ...
   relcal calibrate my_dataset --holdout 0.3 --loss huber --report report.html --quiet --json r.json
+  relcal calibrate my_dataset --handeye my_dataset/handeye  # start from relcal handeye's X
 """
 
 
@@ -141,6 +142,12 @@ def run_calibrate(args: argparse.Namespace) -> int:
     from relcal.outputset import check
 
     dataset = load_dataset(args.dataset)
+    if args.handeye:  # a finished hand-eye as the starting guess of X
+        from dataclasses import replace
+
+        from relcal.calibration.handeye_file import handeye_guess
+
+        dataset = replace(dataset, handeye=handeye_guess(args.handeye, dataset))
     out = Path(args.out or Path(args.dataset) / "calibration")
     holdout_ids = _ids(args.holdout_ids) if args.holdout_ids else None
     destinations = _destinations(out, args.json, args.report)
@@ -398,6 +405,14 @@ def register(sub: argparse._SubParsersAction) -> None:
         metavar="FILE",
         type=output_file,
         help="write the HTML calibration report to FILE",
+    )
+    cp.add_argument(
+        "--handeye",
+        metavar="FOLDER|FILE",
+        help="start from a finished hand-eye: the handeye.yaml relcal handeye wrote (or its "
+        "folder) gives the starting guess of the hand-eye transform instead of handeye: of "
+        "dataset.yaml or the closed form (refused when its mode or frames are not the "
+        "dataset's)",
     )
     registry_arg(cp)
     json_arg(cp, "a copy of results.json (parameters, hand-eye, validation, calibrated model)")

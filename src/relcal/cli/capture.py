@@ -32,7 +32,10 @@ discarded), detect the board and check corners, sharpness and reprojection error
 image and the mean joints of the still window as one sample of the dataset. A pose that fails is
 tried again (--retries), then skipped with its reason. Samples are written whole as they are
 taken: an interrupted run (Ctrl-C) leaves a dataset relcal calibrate reads, and --resume
-continues it. --robot-driver and --camera name a device of relcal.capture.devices (below);
+continues it. Drivers that read the controller's flange pose (ur, franka, ros with the tf
+frames found, sim; manual through its source driver) record it beside the joints as columns fx,
+fy, fz, fqx, fqy, fqz, fqw, the mean over the still window, for relcal handeye. --robot-driver
+and --camera name a device of relcal.capture.devices (below);
 their settings are --robot-option / --camera-option KEY=VALUE (several per option, comma-
 separated).
 """
@@ -164,6 +167,7 @@ def _capture(args, model, plan, board, settings, intrinsics, handeye, limits) ->
             handeye=handeye,
             limits=limits,
             resume=args.resume,
+            flange=bool(getattr(robot, "reports_flange", False)),
             devices={
                 "robot_driver": args.robot_driver,
                 "robot_options": context_options(args.robot_option),
@@ -187,6 +191,7 @@ def _capture(args, model, plan, board, settings, intrinsics, handeye, limits) ->
                 done=writer.done,
                 skipped_before=skipped_before,
                 progress=not args.quiet,
+                flange=writer.flange,
             )
         except KeyboardInterrupt as exc:
             summary = getattr(exc, "capture_summary", None)
@@ -208,6 +213,11 @@ def _capture(args, model, plan, board, settings, intrinsics, handeye, limits) ->
             robot.close()
     if not args.quiet:
         print(format_capture(summary, args.out, str(args.plan)))
+        if writer.flange:
+            print(
+                "the controller's flange poses are recorded beside the joints (fx .. fqw): "
+                f"relcal handeye {args.out} uses them"
+            )
     return 0 if doc["recorded"] + doc["recorded_before"] > 0 else 1
 
 

@@ -40,6 +40,7 @@ examples:
 
   relcal plan --robot ur5e --limits elbow=-160:160,wrist3=-180:180 --out plan.csv
   relcal plan --robot ur5e --obstacle 0.2,-0.6,0,0.6,-0.3,0.5 --link-radius 0.05 --out plan.csv
+  relcal plan --robot ur5e --for handeye --poses 15 --out handeye-plan.csv
 
 output: a CSV, first line  # relcal plan: robot NAME, joint unit UNIT, second  # relcal robot:
 SPEC (how relcal capture loads the robot), then  id,<joint names>  (angles in --joint-unit,
@@ -242,6 +243,7 @@ def run(args: argparse.Namespace) -> int:
             seed=args.seed,
             client=client,
             max_move=np.radians(args.max_move),
+            purpose=args.purpose,
         )
     finally:
         if client is not None:
@@ -326,6 +328,16 @@ def register(sub: argparse._SubParsersAction) -> None:
         type=positive_int,
         default=2000,
         help="feasible candidates (default 2000; --candidates is its former name)",
+    )
+    p.add_argument(
+        "--for",
+        dest="purpose",
+        choices=("calibrate", "handeye"),
+        default="calibrate",
+        help="what the poses are for: calibrate (the kinematics and the hand-eye, default) or "
+        "handeye (the hand-eye transform alone, for relcal handeye: the criterion over its six "
+        "components with the kinematics known, rotation axes spread, no two poses turning near "
+        "180 deg from each other or barely moving)",
     )
     p.add_argument(
         "--index",

@@ -66,7 +66,7 @@ from __future__ import annotations
 import difflib
 import re
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, Literal
 
@@ -309,8 +309,8 @@ class Dataset:
     @classmethod
     def from_arrays(
         cls,
-        model: RobotModel | str,
-        q: np.ndarray,
+        model: RobotModel | str | None,
+        q: np.ndarray | None,
         poses: np.ndarray | None = None,
         mode: Literal["eye_in_hand", "eye_to_hand"] = "eye_in_hand",
         handeye: np.ndarray | None = None,
@@ -324,16 +324,20 @@ class Dataset:
         tolerances: dict[str, float] | None = None,
         robot_id: str | None = None,
         root: str | Path = ".",
+        flange: np.ndarray | None = None,
     ) -> Dataset:
         """A dataset from arrays in memory: what :func:`load_dataset` reads from a folder.
 
         Parameters
         ----------
-        model : RobotModel or str
+        model : RobotModel, str or None
             The nominal robot, or what :func:`relcal.get_robot` takes (a built-in name, a model
-            YAML or a URDF path).
-        q : array_like, shape (N, n)
-            Joint values, one row per sample, in ``joint_unit`` (prismatic joints in m).
+            YAML or a URDF path); None with ``flange`` (and ``q`` None): the flange poses stand
+            for the robot (a pose chain, :func:`relcal.data.flange.flange_chain`), for
+            :func:`relcal.handeye`.
+        q : array_like, shape (N, n), or None
+            Joint values, one row per sample, in ``joint_unit`` (prismatic joints in m); None
+            when ``model`` is None.
         poses : array_like, shape (N, 4, 4), (N, 7) or (N, 3), optional
             What was measured at each configuration. ``(N, 4, 4)`` homogeneous transforms (m) or
             ``(N, 7)`` rows ``x, y, z, qx, qy, qz, qw``: the camera in the board frame
@@ -362,6 +366,10 @@ class Dataset:
             Which physical robot, for the registry's history.
         root : str or Path
             Where the data came from (shown in results; default the working folder).
+        flange : array_like, shape (N, 4, 4), optional
+            The flange poses the controller logged (the flange in the robot's base frame, m),
+            as the columns ``fx`` .. ``fqw`` of a samples table: :func:`relcal.handeye` uses
+            them instead of the model's forward kinematics of ``q``.
 
         Returns
         -------
@@ -383,10 +391,12 @@ class Dataset:
         >>> poses = relcal.fk(model, q)  # stand-ins for measured camera poses
         >>> relcal.Dataset.from_arrays(model, q, poses)
         <Dataset '.': 8 samples, poses given, eye_in_hand, robot 'Thermo CRS A465' (6 joints)>
+        >>> relcal.Dataset.from_arrays(None, None, poses, flange=relcal.fk(model, q))
+        <Dataset '.': 8 samples, poses given, eye_in_hand, robot 'flange poses' (6 joints)>
         """
         return _from_arrays(
             cls, model, q, poses, mode, handeye, joint_unit, hayati, ids, images, board, camera,
-            tolerances, robot_id, root,
+            tolerances, robot_id, root, flange,
         )  # fmt: skip
 
     def __repr__(self) -> str:
@@ -435,11 +445,45 @@ def _rigid(name: str, transforms: np.ndarray) -> None:
         )
 
 
+def _flange_array(flange, n: int | None) -> np.ndarray:
+    """The ``flange=`` argument of :meth:`Dataset.from_arrays`, checked: ``(N, 4, 4)`` rigid
+    transforms in metres, one per sample."""
+    out = _array("flange", flange, "flange poses (N, 4, 4) in the robot's base frame, m")
+    if out.ndim != 3 or out.shape[1:] != (4, 4) or (n is not None and len(out) != n):
+        want = "(N, 4, 4)" if n is None else f"({n}, 4, 4), one per row of q"
+        raise ArgumentError(f"flange: shape {out.shape}, expected {want}")
+    _rigid("flange", out)
+    reach = np.abs(out[:, :3, 3]).max() if len(out) else 0.0
+    if reach > 20.0:
+        raise ArgumentError(
+            f"flange: positions reach {reach:.1f} from the robot's base: flange positions are in "
+            "metres (millimetres given?)"
+        )
+    return out
+
+
 def _from_arrays(
     cls, model, q, poses, mode, handeye, joint_unit, hayati, ids, images, board, camera,
-    tolerances, robot_id, root,
+    tolerances, robot_id, root, flange=None,
 ) -> Dataset:  # fmt: skip
     """:meth:`Dataset.from_arrays`, with the checks at the boundary."""
+    if model is None or q is None:
+        if flange is None or model is not None or q is not None:
+            raise ArgumentError(
+                "model and q: give both (a robot and its joint values), or neither with flange= "
+                "(the controller's flange poses stand for the robot)"
+            )
+        from relcal.data.flange import flange_chain
+
+        logged = _flange_array(flange, None)
+        if len(logged) < 4:
+            raise ArgumentError(f"flange: {len(logged)} samples; at least 4 are needed")
+        chain, q_chain = flange_chain(logged)
+        out = _from_arrays(
+            cls, chain, q_chain, poses, mode, handeye, "rad", "off", ids, images, board, camera,
+            tolerances, robot_id, root,
+        )  # fmt: skip
+        return replace(out, flange=logged)
     if isinstance(model, str | Path):
         model = get_robot(check_path(model, "model", "a RobotModel or a robot name/file"))
     if not isinstance(model, RobotModel):
@@ -535,6 +579,7 @@ def _from_arrays(
     ids = tuple(str(k) for k in range(len(q))) if ids is None else tuple(str(i) for i in ids)
     if len(ids) != len(q) or len(set(ids)) != len(ids):
         raise ArgumentError(f"ids: {len(ids)} ids for {len(q)} samples; each sample one unique id")
+    logged = None if flange is None else _flange_array(flange, len(q))
     return cls(
         root,
         model,
@@ -550,6 +595,7 @@ def _from_arrays(
         tolerances,
         measured,
         robot_id=robot_id,
+        flange=logged,
     )
 
 

@@ -40,6 +40,7 @@ from relcal.design.criteria import (
     selection_problem,
 )
 from relcal.design.feasibility import Constraints, candidates, check, feasible, inverse_condition
+from relcal.design.handeye import PURPOSES, MotionQuality, PairRule, handeye_problem, motion_quality
 from relcal.design.scoring import Scorer
 from relcal.design.search import bounded_moves, exchange, greedy
 from relcal.design.travel import MAX_MOVE, Route, travel_order
@@ -52,6 +53,7 @@ __all__ = [
     "Constraints",
     "Criterion",
     "Information",
+    "MotionQuality",
     "PlanResult",
     "Quality",
     "Route",
@@ -90,6 +92,7 @@ def check_plan(
     random_sets: Any,
     n_validation: Any,
     seed: Any,
+    purpose: Any = "calibrate",
 ) -> None:
     """The arguments of :func:`plan`, checked before any candidate is drawn."""
     check_model(model)
@@ -112,6 +115,14 @@ def check_plan(
     check_number(random_sets, "random_sets", 0, integer=True)
     check_number(n_validation, "n_validation", 0, integer=True)
     check_seed(seed)
+    check_choice(purpose, "purpose", PURPOSES)
+    if purpose == "handeye" and (formulation, measure) != ("invariant", "pose"):
+        from relcal.errors import ArgumentError
+
+        raise ArgumentError(
+            f"purpose 'handeye' plans for the hand-eye transform of camera poses: formulation "
+            f"'invariant' and measure 'pose' (got '{formulation}', '{measure}')"
+        )
 
 
 @dataclass(frozen=True)
@@ -132,6 +143,9 @@ class PlanResult:
     route: Route | None = None  # the plan's travel order and moves
     move_exchanges: int = 0  # poses exchanged to keep every move within the route's bound
     requested: int = 0  # poses asked for (``q`` has more when poses were added between moves)
+    purpose: str = "calibrate"  # or "handeye": the criterion is of the hand-eye X alone
+    motion: MotionQuality | None = None  # purpose "handeye": what the plan gives X
+    random_motion: MotionQuality | None = None  # the same of the median random set
 
     @property
     def random_median_worst(self) -> float:
@@ -160,6 +174,7 @@ def plan(
     client=None,
     *,
     max_move: float | None = MAX_MOVE,
+    purpose: str = "calibrate",
     k: int = UNSET,
 ) -> PlanResult:
     """Plan ``n_poses`` poses: candidates, selection, and the comparison with random sets.
@@ -208,6 +223,13 @@ def plan(
         None: no bound): the route keeps within it, and where no order can, a pose of a longer
         move is exchanged for the best candidate within the bound of its neighbours
         (:func:`relcal.design.search.bounded_moves`).
+    purpose : {"calibrate", "handeye"}
+        What the poses are for: a kinematic calibration (the criterion over the identifiable
+        geometric parameters and the hand-eye), or the hand-eye transform ``X`` alone
+        (:mod:`relcal.design.handeye`: the criterion over ``X``'s six components with the
+        kinematics known, and no two poses turning near 180 deg from each other or barely
+        moving); then :attr:`PlanResult.motion` holds ``X``'s predicted standard deviations
+        and the spread of the rotation axes.
     k : int
         Deprecated name of ``n_poses`` (a DeprecationWarning; removed in relcal 0.2).
 
@@ -243,7 +265,7 @@ def plan(
     k = renamed("plan", "k", k, "n_poses", n_poses, 30)
     check_plan(
         model, cell, k, constraints, criterion, algorithm, n_candidates, noise, formulation,
-        measure, random_sets, n_validation, seed,
+        measure, random_sets, n_validation, seed, purpose,
     )  # fmt: skip
     constraints = constraints or Constraints()
     start = time.perf_counter()
@@ -258,23 +280,45 @@ def plan(
             f"poses; relax the constraints or ask for fewer poses (rejections: {rejected})"
         )
     q_val, pool = pool[:n_validation], pool[n_validation:]
-    problem = selection_problem(model, cell, pool, formulation, measure)
+    rule = None
+    if purpose == "handeye":
+        problem = handeye_problem(model, pool, cell.handeye)
+        rule = PairRule.of(model, pool)
+    else:
+        problem = selection_problem(model, cell, pool, formulation, measure)
     info = information(problem, noise, constraints.length_scale)
+    if purpose == "handeye" and info.k < 6:
+        raise RelcalError(
+            f"the {len(pool)} feasible candidates determine only {info.k} of the hand-eye's 6 "
+            "components (their rotations turn about one axis): widen --max-angle or the joint "
+            "limits"
+        )
     with Scorer(info, client) as scorer:
-        chosen = greedy(info, k, criterion, scorer)
+        chosen = greedy(info, k, criterion, scorer, rule)
+        if len(chosen) < k:
+            raise RelcalError(
+                f"only {len(chosen)} of {len(pool)} feasible candidates for {k} poses form no "
+                "pair turning near 180 deg or barely moving; draw more candidates or ask for "
+                "fewer poses"
+            )
         swaps = 0
         if algorithm == "exchange":
-            chosen, swaps = exchange(info, chosen, criterion, scorer=scorer)
+            chosen, swaps = exchange(info, chosen, criterion, scorer=scorer, rule=rule)
         chosen, route, bridged = bounded_moves(
-            model, pool, info, chosen, criterion, max_move, scorer=scorer
+            model, pool, info, chosen, criterion, max_move, scorer=scorer, rule=rule
         )
     plan_quality = quality(info, chosen, problem, q_val)
     sets = [rng.choice(len(pool), len(chosen), replace=False) for _ in range(random_sets)]
     randoms = tuple(quality(info, idx, problem, q_val) for idx in sets)
-    random_q = None
+    random_q = motion = random_motion = None
     if sets:
-        middle = sets[int(np.argsort([r.worst[1] for r in randoms])[len(sets) // 2])]
-        random_q = travel_order(model, pool[middle], max_move).q
+        median = int(np.argsort([r.worst[1] for r in randoms])[len(sets) // 2])
+        random_q = travel_order(model, pool[sets[median]], max_move).q
+    if purpose == "handeye":
+        motion = motion_quality(model, route.q, cell.handeye, plan_quality.uncertainty.crb)
+        if sets:
+            crb = randoms[median].uncertainty.crb
+            random_motion = motion_quality(model, random_q, cell.handeye, crb)
     return PlanResult(
         q=route.q,
         criterion=criterion,
@@ -290,4 +334,7 @@ def plan(
         route=route,
         move_exchanges=bridged,
         requested=k,
+        purpose=purpose,
+        motion=motion,
+        random_motion=random_motion,
     )

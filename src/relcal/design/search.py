@@ -8,6 +8,7 @@ from dataclasses import replace
 import numpy as np
 
 from relcal.design.criteria import Information, criterion
+from relcal.design.handeye import PairRule, excluded
 from relcal.design.scoring import Scorer
 from relcal.design.travel import (
     MAX_MOVE,
@@ -21,13 +22,24 @@ from relcal.design.travel import (
 from relcal.robot.model import RobotModel
 
 
-def greedy(info: Information, k: int, name: str, scorer: Scorer | None = None) -> np.ndarray:
-    """Forward selection: add, one at a time, the candidate that maximises the criterion."""
+def greedy(
+    info: Information,
+    k: int,
+    name: str,
+    scorer: Scorer | None = None,
+    rule: PairRule | None = None,
+) -> np.ndarray:
+    """Forward selection: add, one at a time, the candidate that maximises the criterion (and,
+    with ``rule``, forms no pair it forbids with those chosen; fewer than ``k`` when none is
+    left)."""
     scorer = scorer or Scorer(info)
     chosen: list[int] = []
     total = np.zeros(info.rows.shape[-1:] * 2)
     while len(chosen) < k and len(chosen) < len(info.rows):
-        _, best = scorer.best(total, np.array(chosen, dtype=int), name, len(chosen) + 1)
+        banned = excluded(rule, np.array(chosen, dtype=int))
+        _, best = scorer.best(total, banned, name, len(chosen) + 1)
+        if best < 0:
+            break
         chosen.append(best)
         total = total + info.total([best])
     return np.array(chosen)
@@ -40,9 +52,11 @@ def exchange(
     max_passes: int = 20,
     tol: float = 1e-9,
     scorer: Scorer | None = None,
+    rule: PairRule | None = None,
 ) -> tuple[np.ndarray, int]:
     """Fedorov-style exchange: for each chosen pose, the swap with an unchosen candidate that
-    improves the criterion most; passes until none improves. Returns the set and the swaps made."""
+    improves the criterion most (with ``rule``: among those forming no pair it forbids with the
+    others); passes until none improves. Returns the set and the swaps made."""
     scorer = scorer or Scorer(info)
     chosen = np.array(chosen)
     k = len(chosen)
@@ -53,7 +67,8 @@ def exchange(
         improved = False
         for pos in range(k):
             base = total - info.total([chosen[pos]])
-            value, best = scorer.best(base, chosen, name, k)
+            banned = excluded(rule, chosen, np.delete(chosen, pos))
+            value, best = scorer.best(base, banned, name, k)
             if best < 0:
                 return chosen, swaps
             if value > current + tol * abs(current):
@@ -78,6 +93,7 @@ def bounded_moves(
     max_move: float | None = MAX_MOVE,
     scorer: Scorer | None = None,
     max_rounds: int | None = None,
+    rule: PairRule | None = None,
 ) -> tuple[np.ndarray, Route, int]:
     """The chosen poses in travel order, with no revolute joint moving more than ``max_move``
     (rad) between consecutive poses where the pool allows it.
@@ -87,9 +103,10 @@ def bounded_moves(
     of that pose's neighbours on the route that keeps the criterion ``name`` highest, and the
     route is made again (the exchange is kept only if the moves beyond the bound shrink). A move
     no exchange brings within the bound gets a candidate inserted between its poses, at most
-    ``len(chosen) // 5`` in all (the plan then has more poses than asked). Returns the chosen
-    indices in travel order (the route's ``order`` indexes them), the route and the number of
-    exchanges."""
+    ``len(chosen) // 5`` in all (the plan then has more poses than asked). With ``rule``, no
+    exchanged or inserted candidate forms a pair it forbids with the other poses. Returns the
+    chosen indices in travel order (the route's ``order`` indexes them), the route and the
+    number of exchanges."""
     scorer = scorer or Scorer(info)
     chosen = np.array(chosen)
     k = len(chosen)
@@ -120,10 +137,12 @@ def bounded_moves(
                 free = np.setdiff1d(np.flatnonzero(beyond < now - 1e-9), ordered)
                 allowed = np.zeros(len(pool), dtype=bool)
                 allowed[free[np.argsort(beyond[free], kind="stable")[:NEAREST]]] = True
-            excluded = np.union1d(ordered, np.flatnonzero(~allowed))
-            if len(excluded) >= len(pool):
+            banned = np.union1d(
+                excluded(rule, ordered, np.delete(ordered, pos)), np.flatnonzero(~allowed)
+            )
+            if len(banned) >= len(pool):
                 continue
-            value, best = scorer.best(base, excluded, name, k)
+            value, best = scorer.best(base, banned, name, k)
             if best >= 0:
                 options.append((value, pos, best))
         before = route_excess(model, route)
@@ -143,7 +162,7 @@ def bounded_moves(
             stuck.add((ordered[t], ordered[t + 1]))
     ordered = chosen[route.order]
     route = replace(route, order=np.arange(k))
-    ordered, route = _bridges(model, pool, ordered, route, max_move, max(1, k // 5))
+    ordered, route = _bridges(model, pool, ordered, route, max_move, max(1, k // 5), rule)
     return ordered, route, exchanges
 
 
@@ -154,9 +173,11 @@ def _bridges(
     route: Route,
     max_move: float,
     most: int,
+    rule: PairRule | None = None,
 ) -> tuple[np.ndarray, Route]:
     """Up to ``most`` candidates of ``pool`` inserted into moves still beyond the bound, each
-    the one nearest the bound from both ends (the plan then has more poses than asked)."""
+    the one nearest the bound from both ends (the plan then has more poses than asked; with
+    ``rule``, none forming a pair it forbids with the others)."""
     for _ in range(most):
         over = excess(model, route.moves, max_move)
         if not (over > 0).any():
@@ -164,7 +185,7 @@ def _bridges(
         t = int(np.argmax(over))
         travel = joint_travel(model, pool, pool[ordered[t : t + 2]])  # (P, 2, n)
         beyond = excess(model, travel, max_move).sum(axis=1)
-        beyond[ordered] = np.inf
+        beyond[excluded(rule, ordered)] = np.inf
         best = int(np.argmin(beyond))
         if not beyond[best] < over[t] - 1e-9:
             break

@@ -32,6 +32,7 @@ from relcal.data.imaging import Measurements
 from relcal.data.importers import Imported
 from relcal.data.order import natural, sample_digests
 from relcal.design.criteria import Quality
+from relcal.design.handeye import MotionQuality
 from relcal.design.observability import Report
 from relcal.design.plan import PlanResult
 from relcal.reporting.quantities import point_json, transform_json
@@ -665,6 +666,33 @@ def plan_document(res: PlanResult, model: RobotModel) -> dict:
         # no random sets (random_sets=0): nothing to compare with, null rather than NaN
         "random_median_worst_m": res.random_median_worst if res.random else None,
         "improvement": res.improvement if res.random else None,
+        "purpose": res.purpose,
+        "handeye": None
+        if res.motion is None
+        else {
+            "what": "predicted standard deviations of the hand-eye X (Cramer-Rao bound, "
+            "kinematics known, board pose eliminated) in the flange frame, and the spread of the "
+            "relative rotations of every pair of poses",
+            "plan": motion_document(res.motion),
+            "random_median": None
+            if res.random_motion is None
+            else motion_document(res.random_motion),
+        },
+    }
+
+
+def motion_document(m: MotionQuality) -> dict:
+    """What a set of poses gives the hand-eye (:class:`relcal.design.handeye.MotionQuality`):
+    standard deviations in mm and deg, rotations in deg."""
+    return {
+        "n_poses": m.n_poses,
+        "std_xyz_mm": [float(v) * 1e3 for v in m.xyz_std],
+        "std_rotation_deg": [float(np.degrees(v)) for v in m.rotation_std],
+        "frame": "the flange's (translation along, rotation about its x, y, z axes)",
+        "axis_spread": [float(v) for v in m.axis_spread],
+        "min_pair_rotation_deg": float(np.degrees(m.min_rotation)),
+        "max_pair_rotation_deg": float(np.degrees(m.max_rotation)),
+        "pairs_near_180_deg_or_still": m.bad_pairs,
     }
 
 

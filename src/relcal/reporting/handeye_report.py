@@ -129,7 +129,10 @@ def handeye_document(he: HandEye, dataset=None) -> dict:
         else {
             "std_position_mm": [float(v) for v in np.sqrt(np.diag(fit.noise))[:3] * 1e3],
             "std_orientation_deg": [float(v) for v in np.degrees(np.sqrt(np.diag(fit.noise))[3:])],
-            "frame": "the camera's (or marker's) own",
+            "frame": "the board's" if he.mode == "eye_to_hand" else "the camera's (or marker's)",
+            "what": "each image's pose error beyond its pixels (flange poses, repeatability)"
+            if fit.pixel_sigma is not None
+            else "each measured pose's error",
         },
         "pixel_sigma": fit.pixel_sigma,
         "held": list(fit.held),
@@ -279,7 +282,7 @@ def handeye_yaml(he: HandEye, doc: dict) -> str:
     ``quaternion`` (x, y, z, w) and ``rpy`` (rad, URDF's fixed-axis roll, pitch, yaw), its
     standard deviations, and the held-out error of the exported estimate."""
     data: dict = {"mode": he.mode, "estimate": title(he.exported or REFINED)}
-    for d in he.delivered:
+    for d in (*he.delivered, *((he.marker,) if he.marker is not None else ())):
         xyz, rpy = tf.to_xyz_rpy(d.transform)
         data[d.key] = {
             "parent": d.parent,
@@ -299,39 +302,35 @@ def handeye_yaml(he: HandEye, doc: dict) -> str:
         "# relcal handeye: the transform(s) below, child frame in parent frame; xyz in m,\n"
         "# quaternion x, y, z, w; rpy in rad (URDF: R = Rz(yaw) Ry(pitch) Rx(roll)).\n"
     )
+    if he.marker is not None:
+        head += (
+            "# marker: the board on the flange, a by-product of the eye-to-hand fit (the guess\n"
+            "# relcal calibrate --handeye starts from).\n"
+        )
     return head + yaml_text(data)
 
 
 def launch_file(he: HandEye) -> str:
     """A ROS 2 launch file (Python) publishing each delivered transform with tf2's
-    ``static_transform_publisher`` (``--x .. --qw --frame-id --child-frame-id``)."""
-    nodes = []
-    for d in he.delivered:
-        q = Rotation.from_matrix(d.transform[:3, :3]).as_quat()
-        t = d.transform[:3, 3]
-        args = []
-        for flag, value in zip(("--x", "--y", "--z", "--qx", "--qy", "--qz", "--qw"),
-                               (*t, *q), strict=True):  # fmt: skip
-            args += [flag, repr(float(value))]
-        args += ["--frame-id", d.parent, "--child-frame-id", d.child]
-        arg_text = ", ".join(f'"{a}"' for a in args)
-        nodes.append(
-            "        Node(\n"
-            '            package="tf2_ros",\n'
-            '            executable="static_transform_publisher",\n'
-            f'            name="relcal_{d.key}",\n'
-            f"            arguments=[{arg_text}],\n"
-            "        ),\n"
+    ``static_transform_publisher`` (:func:`relcal.reporting.ros2.static_transform_node`)."""
+    import json
+
+    from relcal.reporting.ros2 import static_transform_node
+
+    nodes = [
+        static_transform_node(
+            d.transform, json.dumps(d.parent), json.dumps(d.child), f"relcal_{d.key}", 12
         )
+        for d in he.delivered
+    ]
     return (
         '"""Publishes the hand-eye calibration of relcal handeye as static transforms (tf2)."""\n\n'
         "from launch import LaunchDescription\n"
         "from launch_ros.actions import Node\n\n\n"
         "def generate_launch_description():\n"
         "    return LaunchDescription(\n"
-        "        [\n" + "".join("    " + n.replace("\n", "\n    ").rstrip(" ") for n in nodes)
-        + "        ]\n    )\n"
-    )  # fmt: skip
+        "        [\n" + "".join(node + ",\n" for node in nodes) + "        ]\n    )\n"
+    )
 
 
 def urdf_snippet(he: HandEye) -> str:
@@ -406,18 +405,42 @@ def handeye_files(he: HandEye, doc: dict) -> dict[str, str]:
 
 
 def handeye_html(doc: dict) -> str:
-    """A self-contained HTML report of the document."""
-    from relcal.reporting.htmlkit import bullet_list, page, paragraph, section, table
+    """A self-contained HTML report of the document: the verdict, the delivered transform(s) with
+    what the motions leave weak, every method's held-out errors side by side (RMS with 95 %
+    intervals, the refined estimate over each, the method the data favour), each held-out
+    sample, every closed form's answer or why it failed, and the samples left out."""
+    from relcal.reporting.htmlkit import bullet_list, cards, page, paragraph, section
 
+    verdict = doc["verdict"]
+    val = doc["validation"]
+    px = val is not None and val["criterion"] == "px"
+    exported = title(doc["exported"]) if doc["exported"] else "nothing"
+    summary = [("verdict", verdict["code"], ""), ("exported", exported, "")]
+    if val:
+        summary.append(("the data favour", title(val["favoured"]), f"{val['n_folds']} folds"))
     sections = [
         section(
             "verdict",
             "Verdict",
-            paragraph(doc["verdict"]["text"]),
-            bullet_list(doc["verdict"]["warnings"], "no warnings"),
-        ),  # fmt: skip
+            cards(summary),
+            paragraph(verdict["text"]),
+            bullet_list(verdict["warnings"], "no warnings"),
+        ),
+        section("transform", "Transform", *_transform_parts(doc)),
     ]
-    rows = []
+    if val:
+        sections.append(section("held-out", "Held-out errors by method", *_method_parts(val, px)))
+        sections.append(section("samples", "Held-out samples", *_sample_parts(val, px)))
+    sections.append(section("closed-forms", "Closed forms", *_closed_parts(doc)))
+    meta = [("mode", doc["mode"]), ("dataset", str(doc["dataset"]))]
+    meta.append(("samples", str(doc["n_used"])))
+    return page("relcal hand-eye calibration", meta, sections)
+
+
+def _transform_parts(doc: dict) -> list:
+    from relcal.reporting.htmlkit import bullet_list, paragraph, table
+
+    rows, notes = [], []
     for key in ("handeye", "world"):
         d = doc.get(key)
         if not d:
@@ -432,37 +455,94 @@ def handeye_html(doc: dict) -> str:
                 " ".join(_fmt(v, ".4f") for v in d["std"]["rotation_deg"]),
             ]
         )
-    sections.append(
-        section(
-            "transform",
-            "Transform",
-            table(["frames", "xyz mm", "rpy deg", "std mm", "rotation std deg"], rows),
-            bullet_list(doc["findings"], "the motions determine every direction"),
+        notes += [f"not determined: {u}" for u in d["undetermined"]]
+        notes += [f"held at the guess of dataset.yaml: {u}" for u in d["held_at_guess"]]
+    head = ["frames", "xyz mm", "rpy deg", "std mm", "rotation std deg (about x y z)"]
+    return [
+        paragraph(f"Flange poses from {doc['flange_poses_from']}."),
+        table(head, rows),
+        bullet_list(
+            notes + [f"motions: {f}" for f in doc["findings"]],
+            "the motions determine every direction",
+        ),  # fmt: skip
+    ]
+
+
+def _method_parts(val: dict, px: bool) -> list:
+    from relcal.reporting.htmlkit import paragraph, table
+
+    key = "px" if px else "position_mm"
+    head = ["method", "position mm", "orientation deg", *(["reprojection px"] if px else [])]
+    head += [f"refined / it ({'px' if px else 'position'})", "samples", "failed folds"]
+    body = []
+    for m in val["methods"]:
+        cells = [m["title"] + (" (favoured)" if m["method"] == val["favoured"] else "")]
+        for k in ("position_mm", "orientation_deg", *(("px",) if px else ())):
+            s = m.get(k)
+            cells.append((_fmt(s["rms"]) + _interval(s.get("ci95"))) if s else "-")
+        r = (m.get("refined_over_it") or {}).get(key)
+        cells.append(f"{r['after_over_before']:.3f}{_interval(r['ci95'])}" if r else "-")
+        cells += [m["n_samples"], len(m["failures"])]
+        body.append(cells)
+    failures = [f"{m['title']}: {f}" for m in val["methods"] for f in m["failures"]]
+    parts = [
+        paragraph(val["what"] + "; RMS with 95 % bootstrap intervals, ranked by "
+                  + ("the reprojection error" if px else "the position error") + "."),
+        table(head, body, "num"),
+        paragraph(f"The data favour: {title(val['favoured'])}."),
+    ]  # fmt: skip
+    if failures:
+        from relcal.reporting.htmlkit import bullet_list
+
+        parts.append(bullet_list(failures, ""))
+    return parts
+
+
+def _sample_parts(val: dict, px: bool) -> list:
+    from relcal.reporting.htmlkit import paragraph, table
+
+    methods = [m["method"] for m in val["methods"]]
+    head = ["sample", "fold"] + [title(m) for m in methods]
+    unit = "px" if px else "position mm / orientation deg"
+    body = []
+    for s in val["samples"]:
+        row = [s["id"], s["fold"]]
+        for m in methods:
+            c = s[m]
+            if px:
+                row.append(_fmt(c.get("px")))
+            else:
+                row.append(f"{_fmt(c['position_mm'])} / {_fmt(c['orientation_deg'])}")
+        body.append(row)
+    return [paragraph(f"Each held-out sample's error ({unit}) under each method."),
+            table(head, body, "num")]  # fmt: skip
+
+
+def _closed_parts(doc: dict) -> list:
+    from relcal.reporting.htmlkit import bullet_list, paragraph, table
+
+    body = []
+    for c in doc["closed_forms"]:
+        x = c["handeye_X"]
+        body.append(
+            [
+                c["title"],
+                " ".join(f"{v * 1e3:.3f}" for v in x["xyz_m"]) if x else "-",
+                " ".join(f"{v:.4f}" for v in x["rpy_deg"]) if x else "-",
+                "ok" if c["ok"] else f"failed: {c['failure']}",
+            ]
         )
-    )
-    val = doc["validation"]
-    if val:
-        px = val["criterion"] == "px"
-        head = ["method", "position mm", "orientation deg"] + (["px"] if px else []) + ["n"]
-        body = []
-        for m in val["methods"]:
-            cells = [m["title"]]
-            for key in ("position_mm", "orientation_deg", *(("px",) if px else ())):
-                s = m.get(key)
-                cells.append((_fmt(s["rms"]) + _interval(s.get("ci95"))) if s else "-")
-            cells.append(m["n_samples"])
-            body.append(cells)
-        sections.append(
-            section(
-                "held-out",
-                "Held-out errors",
-                paragraph(val["what"]),
-                table(head, body, "num"),
-                paragraph(f"The data favour: {title(val['favoured'])}."),
-            )
-        )
-    return page(
-        "relcal hand-eye calibration",
-        [("mode", doc["mode"]), ("dataset", str(doc["dataset"])), ("samples", str(doc["n_used"]))],
-        sections,
-    )
+    left = doc["closed_form_samples"]["left_out"]
+    return [
+        paragraph(
+            f"OpenCV's closed forms on {doc['closed_form_samples']['used']} samples, all of "
+            "them (X: flange to camera or marker, xyz mm, rpy deg)."
+        ),
+        table(["method", "X xyz mm", "X rpy deg", "status"], body),
+        bullet_list([f"{x['id']}: {x['reason']}" for x in left], "no sample left out"),
+        bullet_list(
+            [f"bad frame {o['id']}: {o['reason']}" for o in doc["outliers"]]
+            + [f"not posed {o['id']}: {o['reason']}" for o in doc["rejected"]],
+            "no bad frame",
+        ),
+    ]

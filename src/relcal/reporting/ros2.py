@@ -13,6 +13,7 @@ package.
 from __future__ import annotations
 
 import hashlib
+import json
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -43,10 +44,8 @@ URDF = Path(__file__).resolve().parent.parent / "robot.urdf"
 URDF_SHA256 = "{sha256}"
 ROOT_LINK = "{root}"
 TIP_LINK = "{tip}"
-# The hand-eye transform the calibration estimated (None: none estimated): TIP_LINK -> the
-# child frame, translation in m, rotation as a unit quaternion x, y, z, w.
-HANDEYE_XYZ = {xyz}
-HANDEYE_QUATERNION = {quaternion}
+# The frame the hand-eye transform the calibration estimated is published to (TIP_LINK ->
+# it: translation in m, rotation as a unit quaternion x, y, z, w, below).
 HANDEYE_CHILD = "{child}"
 
 
@@ -75,23 +74,39 @@ def generate_launch_description() -> LaunchDescription:
             output="screen",
         ),
     ]
-    if HANDEYE_XYZ is not None:
-        numbers = [repr(v) for v in (*HANDEYE_XYZ, *HANDEYE_QUATERNION)]
-        keys = ("--x", "--y", "--z", "--qx", "--qy", "--qz", "--qw")
-        arguments = [part for pair in zip(keys, numbers) for part in pair]
-        arguments += ["--frame-id", TIP_LINK]
-        arguments += ["--child-frame-id", LaunchConfiguration("handeye_child_frame")]
-        actions.append(
-            Node(
-                package="tf2_ros",
-                executable="static_transform_publisher",
-                name="relcal_handeye",
-                arguments=arguments,
-                output="screen",
-            )
-        )
-    return LaunchDescription(actions)
+{handeye_action}    return LaunchDescription(actions)
 '''
+
+
+def static_transform_node(
+    transform: np.ndarray, parent: str, child: str, name: str, indent: int = 0
+) -> str:
+    """The source text of a ROS 2 launch ``Node`` running tf2's ``static_transform_publisher``
+    with ``transform`` ``(4, 4)`` (child in parent, m): ``--x --y --z`` (m) and ``--qx .. --qw``
+    (unit quaternion) as exact decimal strings, ``--frame-id parent --child-frame-id child``.
+    ``parent`` and ``child`` are Python expressions (a quoted name, ``json.dumps("tool0")``, or a
+    constant or ``LaunchConfiguration`` of the launch file); ``indent`` spaces before each line.
+    The one writer of a static transform for ``relcal calibrate``'s overlay and ``relcal
+    handeye``'s launch file."""
+    t = np.asarray(transform, dtype=float)
+    quat = Rotation.from_matrix(t[:3, :3]).as_quat()
+    keys = ("--x", "--y", "--z", "--qx", "--qy", "--qz", "--qw")
+    pairs = [f'"{k}", "{float(v)!r}"' for k, v in zip(keys, (*t[:3, 3], *quat), strict=True)]
+    pad = " " * indent
+    lines = [
+        "Node(",
+        '    package="tf2_ros",',
+        '    executable="static_transform_publisher",',
+        f"    name={json.dumps(name)},",
+        "    arguments=[",
+        *(f"        {pair}," for pair in pairs),
+        f'        "--frame-id", {parent},',
+        f'        "--child-frame-id", {child},',
+        "    ],",
+        '    output="screen",',
+        ")",
+    ]
+    return "\n".join(pad + line for line in lines)
 
 
 def launch_file(
@@ -111,12 +126,13 @@ def launch_file(
     otherwise (the child frame is then :data:`MEASURED_FRAME`)."""
     child = CHILD_FRAME.get(mode, "camera_optical_frame") if images else MEASURED_FRAME
     if handeye is None:
-        xyz = quaternion = "None"
+        handeye_action = ""
         handeye_doc = "."
     else:
-        xyz = repr(tuple(float(v) for v in handeye[:3, 3]))
-        quat = Rotation.from_matrix(handeye[:3, :3]).as_quat()
-        quaternion = repr(tuple(float(v) for v in quat))
+        node = static_transform_node(
+            handeye, "TIP_LINK", 'LaunchConfiguration("handeye_child_frame")', "relcal_handeye", 8
+        )
+        handeye_action = f"    actions.append(\n{node}\n    )\n"
         handeye_doc = (
             f",\nand tf2's static_transform_publisher with the hand-eye transform {tip} -> {child}."
         )
@@ -133,7 +149,6 @@ def launch_file(
         sha256=hashlib.sha256(urdf).hexdigest(),
         root=root,
         tip=tip,
-        xyz=xyz,
-        quaternion=quaternion,
         child=child,
+        handeye_action=handeye_action,
     )

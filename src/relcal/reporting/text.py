@@ -329,6 +329,33 @@ def _quality_row(label: str, q: Quality, labels: dict[str, str] | None = None) -
     )
 
 
+def format_motion(res: PlanResult) -> list[str]:
+    """A hand-eye plan (``--for handeye``): the predicted standard deviations of ``X`` in the
+    flange frame and the spread of the motions, for the plan and the median random set."""
+    lines = [
+        "hand-eye X (flange frame; Cramer-Rao bound, kinematics known, board pose eliminated):",
+        f"{'':<22s} {'std x y z mm':>26s} {'std about x y z deg':>26s} {'axis spread':>12s} "
+        f"{'pair turns deg':>15s} {'pairs':>6s}",
+    ]
+    rows = [("plan", res.motion)]
+    if res.random_motion is not None:
+        rows.append((f"random (median of {len(res.random)})", res.random_motion))
+    for label, m in rows:
+        xyz = " ".join(f"{v * 1e3:8.4f}" for v in m.xyz_std)
+        rot = " ".join(f"{np.degrees(v):8.5f}" for v in m.rotation_std)
+        spread = f"{m.axis_spread[1]:.2f} {m.axis_spread[2]:.2f}"
+        turns = f"{np.degrees(m.min_rotation):.1f}..{np.degrees(m.max_rotation):.1f}"
+        lines.append(
+            f"{label:<22s} {xyz:>26s} {rot:>26s} {spread:>12s} {turns:>15s} {m.bad_pairs:>6d}"
+        )
+    lines.append(
+        "axis spread: the second and third singular values of the pairs' rotation vectors over "
+        "the first (0: every motion turns about one or two axes); pairs: turning near 180 deg "
+        "or barely moving (the closed forms leave such samples out)"
+    )
+    return lines
+
+
 def format_travel(res: PlanResult, model=None) -> str:
     """One line: the route's longest single joint move and the sum of the largest joint moves
     (``model`` names the joints and tells prismatic ones)."""
@@ -376,7 +403,9 @@ def format_plan(res: PlanResult, length_scale: float, model=None) -> str:
         labels = parameter_labels(model, res.plan.uncertainty.names)
     lines = [
         f"{k} poses selected from {res.n_candidates} feasible candidates by {res.algorithm} "
-        f"({res.swaps} exchanges) maximising {res.criterion}, {res.seconds:.1f} s",
+        f"({res.swaps} exchanges) maximising {res.criterion}"
+        + (" of the hand-eye X alone" if res.purpose == "handeye" else "")
+        + f", {res.seconds:.1f} s",
         "rejected IK solutions: " + ", ".join(f"{n} {c}" for n, c in res.rejected.items()),
         "",
         f"predicted standard deviations (noise-weighted estimator, Cramer-Rao bound); angles "
@@ -402,6 +431,8 @@ def format_plan(res: PlanResult, length_scale: float, model=None) -> str:
         "predicted accuracy: RMS error of relative camera poses between validation poses "
         "caused by the parameter uncertainty alone",
     ]
+    if res.motion is not None:
+        lines += ["", *format_motion(res)]
     if res.route is not None and len(res.q) > 1:
         lines.append(format_travel(res, model))
     if res.random:

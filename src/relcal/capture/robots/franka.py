@@ -7,7 +7,10 @@ trajectory reaches the target, while the arm is still moving by a few mrad under
 impedance controller: the loop's settle check is what decides when it is still. Joint readings
 are ``RobotState.q`` and ``RobotState.dq`` (the velocities the settle check uses) stamped with
 ``RobotState.time`` (the controller's clock) mapped to the loop
-clock (:class:`~relcal.capture.timesync.ClockMap`).
+clock (:class:`~relcal.capture.timesync.ClockMap`). The flange pose of each reading is the
+controller's: ``RobotState.O_T_EE`` (the end effector in the base frame, from the same state's
+joints) with the end effector's offset from the flange, ``RobotState.F_T_EE`` (set in Desk for
+the hand, or none), taken off.
 """
 
 from __future__ import annotations
@@ -60,6 +63,7 @@ class FrankaRobot:
         if not 0 < dynamics <= 1:
             raise RelcalError(f"franka option dynamics: {dynamics}: expected a number in (0, 1]")
         self.joint_names = tuple(joint_names)
+        self.reports_flange = True
         self._clock = clock or RealClock()
         self._map = ClockMap(self._clock)
         config = franky.RealtimeConfig.Enforce if realtime else franky.RealtimeConfig.Ignore
@@ -75,13 +79,17 @@ class FrankaRobot:
 
     def read(self) -> JointReading:
         """The measured joint angles ``(7,)`` (rad) and velocities ``(7,)`` (rad/s), stamped with
-        the controller's time of that state."""
+        the controller's time of that state, and the flange pose ``(4, 4)`` (m, base frame)."""
         try:
             state = self._robot.state
         except self._franky.Exception as exc:
             raise CaptureError(f"franka: lost the robot state: {exc}") from None
         stamp = self._map.observe(state.time.to_sec())
-        return JointReading(np.array(state.q, dtype=float), stamp, np.array(state.dq, dtype=float))
+        ee = np.asarray(state.O_T_EE.matrix, dtype=float)
+        offset = np.asarray(state.F_T_EE.matrix, dtype=float)
+        flange = ee @ np.linalg.inv(offset)
+        q, dq = np.array(state.q, dtype=float), np.array(state.dq, dtype=float)
+        return JointReading(q, stamp, dq, flange)
 
     def move(self, q: np.ndarray, timeout: float) -> None:
         """Move to ``q`` ``(7,)`` (rad); returns when franky reports the motion finished.

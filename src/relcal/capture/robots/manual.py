@@ -66,6 +66,8 @@ class ManualRobot:
         self._prismatic = np.zeros(n, bool) if prismatic is None else np.asarray(prismatic, bool)
         self._ask, self._tell = ask, tell
         self._typed: np.ndarray | None = None
+        # the flange poses are those of the source driver (typed joints come without one)
+        self.reports_flange = bool(getattr(source, "reports_flange", False))
 
     def _to_unit(self, q: np.ndarray) -> np.ndarray:
         return np.where(self._prismatic, q, np.degrees(q)) if self._unit == "deg" else q
@@ -126,8 +128,8 @@ class ManualRobot:
             return
 
     def read(self) -> JointReading:
-        """The joints from the source driver, or those typed last, stamped now (the operator
-        vouches that the arm stands still)."""
+        """The joints (and the flange pose, where it reads one) from the source driver, or the
+        joints typed last, stamped now (the operator vouches that the arm stands still)."""
         if self._source is not None:
             return self._source.read()
         if self._typed is None:

@@ -11,6 +11,13 @@ be moving within those tolerances, so the loop's settle check decides when it is
 Joint states carry ``header.stamp`` on the ROS clock (the system clock, or ``/clock`` in a
 simulation); stamps are mapped to the loop clock by
 :class:`~relcal.capture.timesync.ClockMap` from the receipt times.
+
+The flange pose comes from tf: the driver subscribes to ``/tf`` and ``/tf_static``
+(``tf2_msgs/msg/TFMessage``, what robot_state_publisher and the controller's own broadcasters
+publish), keeps the newest transform of each parent-child edge, and chains the edges from
+``base_frame`` to ``flange_frame`` (``base_link`` and ``tool0`` by default, the ROS-Industrial
+names) at each reading. When the two frames are not connected within ``tf_timeout`` seconds of
+the connection, the readings carry no flange pose (a warning says why).
 """
 
 from __future__ import annotations
@@ -25,6 +32,7 @@ from relcal.capture.timesync import ClockMap, require
 from relcal.errors import RelcalError
 
 JOINT_STATE = "sensor_msgs/msg/JointState"
+TF_MESSAGE = "tf2_msgs/msg/TFMessage"
 FOLLOW = "control_msgs/action/FollowJointTrajectory"
 ERROR_CODES = {  # control_msgs/action/FollowJointTrajectory result codes
     0: "SUCCESSFUL",
@@ -42,6 +50,49 @@ def ros_time(stamp: dict) -> float:
     if "sec" in stamp:
         return stamp["sec"] + 1e-9 * stamp.get("nanosec", 0)
     return stamp["secs"] + 1e-9 * stamp.get("nsecs", 0)
+
+
+def transform_matrix(message: dict) -> np.ndarray:
+    """A ``geometry_msgs/Transform`` as a ``(4, 4)`` (m)."""
+    from scipy.spatial.transform import Rotation
+
+    t, r = message["translation"], message["rotation"]
+    out = np.eye(4)
+    out[:3, :3] = Rotation.from_quat([r["x"], r["y"], r["z"], r["w"]]).as_matrix()
+    out[:3, 3] = [t["x"], t["y"], t["z"]]
+    return out
+
+
+class TransformTree:
+    """The newest transform of each parent-child edge of tf, and chains through them."""
+
+    def __init__(self) -> None:
+        self.edges: dict[str, tuple[str, np.ndarray]] = {}  # child: (parent, parent_T_child)
+
+    def add(self, message: dict) -> None:
+        """Take the transforms of a ``TFMessage``."""
+        for item in message.get("transforms", []):
+            parent = item["header"]["frame_id"].lstrip("/")
+            child = item["child_frame_id"].lstrip("/")
+            self.edges[child] = (parent, transform_matrix(item["transform"]))
+
+    def _to_root(self, frame: str) -> tuple[str, np.ndarray]:
+        out, seen = np.eye(4), {frame}
+        while frame in self.edges:
+            frame, step = self.edges[frame]
+            out = step @ out
+            if frame in seen:  # a loop in the tree: no answer
+                break
+            seen.add(frame)
+        return frame, out
+
+    def lookup(self, parent: str, child: str) -> np.ndarray | None:
+        """``parent_T_child`` ``(4, 4)``, or None when the frames are not connected."""
+        root_a, a = self._to_root(parent)
+        root_b, b = self._to_root(child)
+        if root_a != root_b:
+            return None
+        return np.linalg.solve(a, b)
 
 
 def duration(seconds: float) -> dict:
@@ -77,6 +128,10 @@ class RosRobot:
         Shortest move, s.
     connect_timeout : float
         Seconds to wait for the connection and the first joint state.
+    base_frame, flange_frame : str
+        The tf frames of the robot's base and flange (``flange_frame`` empty: no flange pose).
+    tf_timeout : float
+        Seconds to wait after the first joint state for tf to connect the two frames.
     """
 
     def __init__(
@@ -92,6 +147,9 @@ class RosRobot:
         max_velocity: float = 0.3,
         min_duration: float = 1.0,
         connect_timeout: float = 10.0,
+        base_frame: str = "base_link",
+        flange_frame: str = "tool0",
+        tf_timeout: float = 3.0,
     ) -> None:
         roslibpy = self._roslibpy = require("roslibpy", "ros", "the ROS 2 driver")
         self.joint_names = tuple(joint_names)
@@ -114,6 +172,10 @@ class RosRobot:
         self._missing: set[str] = set()
         self._first = threading.Event()
         self._goal: str | None = None
+        self._tree = TransformTree()
+        self._frames = (base_frame.strip().lstrip("/"), flange_frame.strip().lstrip("/"))
+        self._tf_topics: list = []
+        self.reports_flange = False
         try:
             self._ros = roslibpy.Ros(host=host, port=int(port), transport="asyncio")
             self._ros.run(timeout=connect_timeout)
@@ -134,6 +196,37 @@ class RosRobot:
                 f"ros: no joint state with joints {', '.join(self.ros_joints)} on {joint_states} "
                 f"within {connect_timeout:g} s{extra}; check the topic and the ros_joints option"
             )
+        if self._frames[1]:
+            self._follow_tf(tf_timeout)
+
+    def _on_tf(self, message: dict) -> None:
+        with self._lock:
+            self._tree.add(message)
+
+    def _follow_tf(self, timeout: float) -> None:
+        """Subscribe to tf; the readings carry the flange pose once the frames connect."""
+        import warnings
+
+        for topic in ("/tf", "/tf_static"):
+            sub = self._roslibpy.Topic(self._ros, topic, TF_MESSAGE)
+            sub.subscribe(self._on_tf)
+            self._tf_topics.append(sub)
+        begin = self._clock.now()
+        while True:
+            with self._lock:
+                found = self._tree.lookup(*self._frames) is not None
+            if found:
+                self.reports_flange = True
+                return
+            if self._clock.now() - begin > timeout:
+                warnings.warn(
+                    f"ros: tf does not connect {self._frames[0]} to {self._frames[1]} within "
+                    f"{timeout:g} s (frames seen: {', '.join(sorted(self._tree.edges)) or 'none'})"
+                    "; the samples get no flange pose (options base_frame, flange_frame)",
+                    stacklevel=3,
+                )
+                return
+            self._clock.sleep(0.02)
 
     def _on_joint_state(self, message: dict) -> None:
         """Keep the newest state of the model's joints (a message may hold other joints, e.g. a
@@ -156,11 +249,16 @@ class RosRobot:
         self._first.set()
 
     def read(self) -> JointReading:
-        """The newest joint state of the model's joints (rad, m), stamped."""
+        """The newest joint state of the model's joints (rad, m), stamped, with the newest tf
+        flange pose ``(4, 4)`` (m, in ``base_frame``) where tf gives one."""
         if not self._ros.is_connected:
             raise CaptureError("ros: the rosbridge connection is lost")
         with self._lock:
-            return self._latest
+            latest = self._latest
+            if not self.reports_flange:
+                return latest
+            flange = self._tree.lookup(*self._frames)
+        return JointReading(latest.q, latest.stamp, latest.dq, flange)
 
     def goal(self, q: np.ndarray) -> dict:
         """The ``FollowJointTrajectory`` goal that moves from the current joints to ``q``."""
@@ -237,6 +335,8 @@ class RosRobot:
         self.stop()
         try:
             self._topic.unsubscribe()
+            for sub in self._tf_topics:
+                sub.unsubscribe()
         finally:
             self._ros.close()  # roslibpy's event loop thread stays, shared by the process
 

@@ -5,7 +5,12 @@ measured joints (``getActualQ``) and the controller's time of the same packet (`
 seconds since the controller started, mapped to the loop clock by
 :class:`~relcal.capture.timesync.ClockMap`), and :class:`rtde_control.RTDEControlInterface` for
 the moves: ``moveJ`` (linear in joint space) sent asynchronously, then polled until the
-controller reports the operation over, so that a timeout can stop the arm with ``stopJ``. The
+controller reports the operation over, so that a timeout can stop the arm with ``stopJ``.
+The flange pose of each reading is the controller's own: ``getActualTCPPose`` (the tool centre
+point in the base frame, computed by the controller with its calibrated kinematics from the same
+packet's joints) with the active TCP offset (``getTCPOffset``, read at connection) taken off;
+it is in the controller's base frame (``base`` in UR's ROS description, turned 180 deg about z
+from ``base_link``). The
 control interface uploads its own URScript: the robot must be in remote control mode (e-Series),
 and no other program may run on the teach pendant.
 """
@@ -24,8 +29,16 @@ N_JOINTS = 6
 POLL = 0.01  # s between two looks at the asynchronous move's status
 
 
+def pose_matrix(pose) -> np.ndarray:
+    """A UR pose ``(x, y, z, rx, ry, rz)`` (m, rotation vector in rad) as a ``(4, 4)``."""
+    from relcal import geometry as tf
+
+    pose = np.asarray(pose, dtype=float)
+    return tf.homogeneous(tf.exp_rotation(pose[3:]), pose[:3])
+
+
 class URRobot:
-    """A UR arm at ``host``.
+    """A UR arm at ``host`` (readings carry the controller's flange pose).
 
     Parameters
     ----------
@@ -64,6 +77,7 @@ class URRobot:
             if not 0 < value <= top:
                 raise RelcalError(f"ur option {name}: {value}: expected a number in (0, {top:g}]")
         self.joint_names = tuple(joint_names)
+        self.reports_flange = True
         self.speed, self.acceleration = float(speed), float(acceleration)
         self._clock = clock or RealClock()
         self._map = ClockMap(self._clock)
@@ -75,16 +89,20 @@ class URRobot:
                 f"ur: cannot connect to the controller at '{host}': {exc} (is the robot on, in "
                 "remote control mode, and the address right?)"
             ) from None
+        from relcal import geometry as tf
+
+        self._tool = tf.invert(pose_matrix(self._control.getTCPOffset()))  # TCP -> flange
 
     def read(self) -> JointReading:
         """The measured joint angles ``(6,)`` (rad) and velocities ``(6,)`` (rad/s), stamped with
-        the controller's time."""
+        the controller's time, and the controller's flange pose ``(4, 4)`` (m, base frame)."""
         if not self._receive.isConnected():
             raise CaptureError("ur: the RTDE receive connection is lost")
         device_time = float(self._receive.getTimestamp())
         q = np.array(self._receive.getActualQ(), dtype=float)
         dq = np.array(self._receive.getActualQd(), dtype=float)
-        return JointReading(q, self._map.observe(device_time), dq)
+        flange = pose_matrix(self._receive.getActualTCPPose()) @ self._tool
+        return JointReading(q, self._map.observe(device_time), dq, flange)
 
     def _check_safety(self) -> None:
         if self._receive.isProtectiveStopped() or self._receive.isEmergencyStopped():
