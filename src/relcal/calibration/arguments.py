@@ -78,6 +78,7 @@ def check_calibrate(
 
 MIN_TRAINING = 4  # samples a calibration trains on at the very least (kinds' usable minimum)
 ROWS = {"pose": 6, "image": 6, "position": 3}  # residual rows per measurement
+REDUNDANCY = 1.5  # training rows per parameter at the least: a residual to learn the noise from
 
 
 def training_minimum(
@@ -85,8 +86,9 @@ def training_minimum(
 ) -> tuple[int, int]:
     """``(samples, parameters)``: the fewest training samples whose residual rows cover the
     parameters of the largest candidate model and the frames (hand-eye, and the board for the
-    board formulation; instrument and marker for points): the fit's own minimum of one row per
-    parameter, never fewer than :data:`MIN_TRAINING`."""
+    board formulation; instrument and marker for points) :data:`REDUNDANCY` times: one row per
+    parameter fits, but leaves no residual to learn the noise from (the standard deviations are
+    then refused), never fewer than :data:`MIN_TRAINING`."""
     from relcal.calibration.selection import candidate_model
     from relcal.limits import pair_count, resolve_pairing
     from relcal.robot.kinematics import make_layout
@@ -100,7 +102,7 @@ def training_minimum(
         n_params = size + (12 if used == "board" else 6)
         measurements = lambda n: pair_count(n, used)  # noqa: E731
     least = MIN_TRAINING
-    while ROWS[kind] * measurements(least) < n_params and least < len(dataset.ids):
+    while ROWS[kind] * measurements(least) < REDUNDANCY * n_params and least < len(dataset.ids):
         least += 1
     return least, n_params
 

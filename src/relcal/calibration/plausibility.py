@@ -876,12 +876,13 @@ def check_inputs(
         raise RelcalError(f"{where}: " + "\n".join(problems))
     rx, scale = given.rx, given.scale  # type: ignore[union-attr]
     misfit = given.fit.misfit  # type: ignore[union-attr]
-    x = handeye
-    if x is None:
-        try:
-            x = solve_handeye(fk(q), poses)
-        except RelcalError:
-            x = None  # the motions fix no hand-eye transform: nothing to tell
+    # The step search linearises about X: the data's own hand-eye, not a guess from a drawing
+    # (a guess off by degrees bends the frames' scatter past the linear fit and passes for a
+    # step: 8 mm on clean synthetic data with the 12 deg guess of the tests' sets).
+    try:
+        x = solve_handeye(fk(q), poses)
+    except RelcalError:
+        x = handeye  # the motions fix no hand-eye transform: the guess, or nothing to tell
     moved = None if x is None else moved_frame(model, q, poses, x, fk)
     if moved is not None:
         raise RelcalError(f"{where}: {moved_message(ids, moved[0], moved[1], len(q), mode)}")
