@@ -86,23 +86,28 @@ def training_minimum(
 ) -> tuple[int, int]:
     """``(samples, parameters)``: the fewest training samples whose residual rows cover the
     parameters of the largest candidate model and the frames (hand-eye, and the board for the
-    board formulation; instrument and marker for points) :data:`REDUNDANCY` times: one row per
-    parameter fits, but leaves no residual to learn the noise from (the standard deviations are
-    then refused), never fewer than :data:`MIN_TRAINING`."""
+    board formulation; instrument and marker for points), and cover those of the geometry and
+    the frames :data:`REDUNDANCY` times (one row per parameter fits, but leaves no residual to
+    learn the noise from: the standard deviations are then refused; the non-geometric families
+    are dropped when the samples do not determine them), never fewer than
+    :data:`MIN_TRAINING`."""
     from relcal.calibration.selection import candidate_model
     from relcal.limits import pair_count, resolve_pairing
     from relcal.robot.kinematics import make_layout
 
     kind = getattr(dataset, "measured", "pose")
     size = make_layout(candidate_model(dataset.model, nongeometric)).size
+    geometric = int(make_layout(candidate_model(dataset.model, "none")).is_geometric().sum())
     if kind == "position":
-        n_params, measurements = size + 9, (lambda n: n)
+        frames, measurements = 9, (lambda n: n)
     else:
         used = resolve_pairing(pairing, len(dataset.ids))
-        n_params = size + (12 if used == "board" else 6)
+        frames = 12 if used == "board" else 6
         measurements = lambda n: pair_count(n, used)  # noqa: E731
+    n_params = size + frames
+    need = max(n_params, REDUNDANCY * (geometric + frames))
     least = MIN_TRAINING
-    while ROWS[kind] * measurements(least) < REDUNDANCY * n_params and least < len(dataset.ids):
+    while ROWS[kind] * measurements(least) < need and least < len(dataset.ids):
         least += 1
     return least, n_params
 
@@ -125,7 +130,8 @@ def check_training_share(
     each = "sample" if kind == "position" else "measurement"
     why = (
         f"a calibration needs at least {least} ({n_params} parameters of the largest candidate "
-        f"model and the frames, {ROWS[kind]} rows per {each})"
+        f"model and the frames, {ROWS[kind]} rows per {each}, and rows to spare to learn the "
+        "noise from)"
     )
     if holdout_ids is not None:
         held = len(set(holdout_ids) & set(ids))
