@@ -236,8 +236,9 @@ def test_calibration_report_renders_in_chromium(calibration, tmp_path):
     for combination in doc["identification"]["unidentifiable"]:
         assert combination.replace("'", "&#x27;") in text
     # rejected images with their reasons (escaped), the outlier, every setting
-    for k, reason in REJECTED.items():
-        assert cal.dataset.ids[k] in cells and reason in cells
+    for k, reason in REJECTED.items():  # the synthetic set's ids are s000, s001, ... by row
+        assert f"s{k:03d}" in cells and reason in cells
+        assert {"id": f"s{k:03d}", "reason": reason} in doc["rejected"]
     assert "&lt;script&gt;alert(1)&lt;/script&gt;" in text
     for name in doc["outliers"]:
         assert name in cells

@@ -78,7 +78,7 @@ def check_calibrate(
 
 MIN_TRAINING = 4  # samples a calibration trains on at the very least (kinds' usable minimum)
 ROWS = {"pose": 6, "image": 6, "position": 3}  # residual rows per measurement
-REDUNDANCY = 1.5  # training rows per parameter at the least: a residual to learn the noise from
+REDUNDANCY = 1.25  # training rows per parameter at the least: a residual to learn the noise from
 
 
 def training_minimum(
