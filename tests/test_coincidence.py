@@ -389,7 +389,9 @@ BEFORE_SKELETON = {
 }
 
 
-@pytest.mark.parametrize("name", list(ROBOTS))
+# (panda_2's nine placements: docs/tutorials/mukca.md runs the same 9-fold command, and the
+# README's table quotes its figures, checked by tests/test_docs_commands.py)
+@pytest.mark.parametrize("name", [n for n in ROBOTS if n != "panda_2"])
 def test_calibrate_command_holds_out_each_placement_as_the_kind_did(mukca_sets, name, tmp_path):
     ds = mukca_sets[name]
     k = len(dict.fromkeys(placement_of(g) for g in ds.groups))
