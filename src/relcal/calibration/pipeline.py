@@ -62,10 +62,10 @@ def cross_validate(
     samples; whole placements for coincidences); ``progress``: a progress bar over the folds."""
     from tqdm import tqdm
 
-    from relcal.checks import check_number
+    from relcal.checks import check_number, check_seed
 
     check_number(k, "k", 2, integer=True)
-    check_number(seed, "seed", integer=True)
+    check_seed(seed)
     dataset, measurements = in_canonical_order(dataset, measurements)
     if measurements is None:
         measurements = measure(dataset)
