@@ -698,20 +698,7 @@ def load_dataset(folder: str | Path) -> Dataset:
     )
     ids, q, images, poses = table.ids, table.q, table.images, table.poses
     groups, distances = _coincidence_spec(spec, spec_path, table, model)
-    board = camera = None
-    if images is not None:
-        from relcal.vision.boards import load_board
-        from relcal.vision.camera import load_camera
-
-        if spec.board is None:
-            raise RelcalError(f"{spec_path}: board: required when the samples have images")
-        board = _board(root, spec.board, spec_path, load_board)
-        if spec.camera is None:
-            raise RelcalError(
-                f"{spec_path}: camera: required when the samples have images (a file, a mapping "
-                "or 'calibrate')"
-            )
-        camera = _camera(root, spec.camera, spec_path, load_camera)
+    board, camera = _board_and_camera(root, spec, spec_path, images is not None)
     tolerances = spec.tolerances.model_dump(exclude_none=True) if spec.tolerances else None
     return Dataset(
         root,
@@ -770,20 +757,7 @@ def _flange_dataset(root: Path, spec: _DatasetSpec, spec_path: Path) -> Dataset:
     handeye = None
     if spec.handeye is not None:
         handeye = tf.from_xyz_rpy(np.array(spec.handeye.xyz), np.radians(spec.handeye.rpy))
-    board = camera = None
-    if table.images is not None:
-        from relcal.vision.boards import load_board
-        from relcal.vision.camera import load_camera
-
-        if spec.board is None:
-            raise RelcalError(f"{spec_path}: board: required when the samples have images")
-        board = _board(root, spec.board, spec_path, load_board)
-        if spec.camera is None:
-            raise RelcalError(
-                f"{spec_path}: camera: required when the samples have images (a file, a mapping "
-                "or 'calibrate')"
-            )
-        camera = _camera(root, spec.camera, spec_path, load_camera)
+    board, camera = _board_and_camera(root, spec, spec_path, table.images is not None)
     tolerances = spec.tolerances.model_dump(exclude_none=True) if spec.tolerances else None
     return Dataset(
         root,
@@ -967,6 +941,25 @@ def robot_from_file(
     if root is not None or tip is not None:
         raise RelcalError(f"{path}: a robot model file: --root and --tip apply to URDF robots only")
     return get_robot(path)
+
+
+def _board_and_camera(root: Path, spec: _DatasetSpec, spec_path: Path, images: bool):
+    """The board and the camera of ``dataset.yaml`` when the samples have ``images`` (both
+    required then), else ``(None, None)``."""
+    if not images:
+        return None, None
+    from relcal.vision.boards import load_board
+    from relcal.vision.camera import load_camera
+
+    if spec.board is None:
+        raise RelcalError(f"{spec_path}: board: required when the samples have images")
+    board = _board(root, spec.board, spec_path, load_board)
+    if spec.camera is None:
+        raise RelcalError(
+            f"{spec_path}: camera: required when the samples have images (a file, a mapping "
+            "or 'calibrate')"
+        )
+    return board, _camera(root, spec.camera, spec_path, load_camera)
 
 
 def _board(root: Path, value, spec_path: Path, load_board):
