@@ -1,11 +1,17 @@
 """Shared fixtures: robots, random configurations, and the real data folder."""
 
+import signal
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 from relcal.robot.loading import get_robot
+
+# A run started in the background by a shell without job control (`make test &` in a script)
+# inherits SIGINT ignored; the tests of interrupts need Python's own handler, as a terminal has.
+if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
+    signal.signal(signal.SIGINT, signal.default_int_handler)
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 

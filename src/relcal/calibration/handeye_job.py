@@ -12,7 +12,8 @@ on the same held-out samples.
 The flow (:func:`handeye`): the closed forms on the informative samples; the refined estimate
 (:mod:`relcal.calibration.handeye_fit`: reprojection error with images, the learned pose noise
 otherwise; bad frames left out) from the best of them; what the motions leave undetermined,
-named and held (at the ``handeye:`` guess of ``dataset.yaml``) or refused; then K-fold
+named and held (at the ``handeye:`` guess of ``dataset.yaml``) or refused, what noisy
+measurements leave only weak named and delivered with its standard deviation; then K-fold
 cross-validation by sample (configurations that repeat held out together), every method refitted
 on each fold's training samples and scored on its held-out ones: the predicted camera (or marker)
 pose ``W F_k X`` against the measured one (mm, deg) and, with images, the reprojection error
@@ -59,6 +60,13 @@ HOLD_DEG = 1.0
 # The guess of dataset.yaml (a mount drawing) holds what the data leave free, with this std:
 GUESS_MM = 10.0
 GUESS_DEG = 5.0
+# What the motions alone determine: a direction whose standard deviation would stay above HOLD_MM
+# (HOLD_DEG) even were each pose measured to NOMINAL_MM and NOMINAL_DEG (a camera seeing a board
+# well) is undetermined by the motions (rotations about parallel axes, rotations too small); one
+# they would determine but these measurements' noise leaves above it is weak: delivered with its
+# standard deviation, and the verdict asks for more samples.
+NOMINAL_MM = 1.0
+NOMINAL_DEG = 0.1
 TINY_DEG = 5.0  # the largest rotation between samples below this: rotations too small
 PARALLEL_RATIO = 0.05  # second over first singular value of the rotation axes: one axis
 REPEAT_M = 2e-4  # flange poses closer than this (and REPEAT_RAD) are one configuration, repeated
@@ -72,7 +80,10 @@ class Delivered:
     frame names, ``transform`` ``(4, 4)`` (child in parent, m), standard deviations of ``xyz``
     (m) and of the rotation about the parent's x, y, z axes (``rotation_std``, rad; roll,
     pitch and yaw themselves have no useful deviation near pitch = 90 deg) (NaN where not
-    determined), and the directions the data leave undetermined, in words."""
+    determined), the directions the motions leave undetermined (no value is given), those
+    held at the guess of ``dataset.yaml``, and the weak ones (the motions determine them, the
+    measurements' noise only to a standard deviation above :data:`HOLD_MM` or :data:`HOLD_DEG`),
+    in words."""
 
     key: str
     parent: str
@@ -82,6 +93,7 @@ class Delivered:
     rotation_std: np.ndarray
     undetermined: tuple[str, ...] = ()
     held: tuple[str, ...] = ()
+    weak: tuple[str, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -437,56 +449,97 @@ def _propagate(jac: np.ndarray, cov: np.ndarray) -> np.ndarray:
     return out
 
 
+def motion_covariance(
+    flange: np.ndarray, measured: np.ndarray, handeye: np.ndarray, world: np.ndarray
+) -> np.ndarray:
+    """``(12, 12)`` covariance of ``(xi, omega)`` (as :attr:`FrameFit.covariance`) that the
+    motions ``flange`` ``(N, 4, 4)`` would give were each pose measured to :data:`NOMINAL_MM`
+    and :data:`NOMINAL_DEG`: what the motions alone determine, whatever the measurements' noise.
+    Directions the motions leave free get a variance of 10^12 times the best determined one's."""
+    step = 1e-7
+    jac = np.empty((6 * len(flange), 12))
+    for i in range(12):
+        sides = []
+        for sign in (1.0, -1.0):
+            d = np.zeros(12)
+            d[i] = sign * step
+            moved = (handeye @ tf.from_vector(d[:6]), world @ tf.from_vector(d[6:]))
+            sides.append(sample_errors(flange, measured, *moved).ravel())
+        jac[:, i] = (sides[0] - sides[1]) / (2 * step)
+    weight = np.r_[np.full(3, 1e3 / NOMINAL_MM), np.full(3, 1.0 / np.radians(NOMINAL_DEG))]
+    jac *= np.tile(weight, len(flange))[:, None]
+    vals, vecs = np.linalg.eigh(jac.T @ jac)
+    floor = 1e-12 * max(float(vals.max()), 1e-300)
+    return (vecs / np.maximum(vals, floor)) @ vecs.T
+
+
 def deliver(
     mode: str,
     fit: FrameFit,
     frames: dict[str, str],
     held_by_guess: bool = False,
     by_product: bool = False,
+    motions: np.ndarray | None = None,
 ) -> tuple[Delivered, ...]:
-    """The transforms of ``mode`` with their standard deviations and undetermined directions
-    (``by_product``: eye-to-hand's ``X``, the board on the flange)."""
+    """The transforms of ``mode`` with their standard deviations and what is undetermined or
+    weak (``by_product``: eye-to-hand's ``X``, the board on the flange). ``motions``: the
+    covariance of :func:`motion_covariance`, which tells a direction the motions leave free
+    from a weak one; without it every direction above the limits is undetermined. A fit
+    without any covariance (a closed form's) is delivered with unknown standard deviations."""
     out = []
     for key, parent, child, fn in _deliverables(mode, frames, by_product):
         t = fn(fit.handeye, fit.world)
         _, j_par = _jacobians(fn, fit.handeye, fit.world)
         par = _propagate(j_par, fit.covariance)
         std = np.sqrt(np.abs(np.diag(par)))
-        weak = []
+        if not np.isfinite(fit.covariance).any():
+            out.append(Delivered(key, parent, child, t, std[:3], std[3:]))
+            continue
+        motion = None if motions is None else j_par @ motions @ j_par.T
+        free, weak = [], []
         for block, unit, limit, what in (
             (slice(0, 3), 1e3, HOLD_MM, "translation"),
             (slice(3, 6), np.degrees(1.0), HOLD_DEG, "rotation"),
         ):
             sub = par[block, block]
-            free = j_par[block] @ fit.null_space  # how the deliverable moves along the null space
-            if free.size and np.abs(free).max() > 1e-6:
-                u, sv, _ = np.linalg.svd(free, full_matrices=False)
+            about = "along" if what == "translation" else "about"
+            moved = j_par[block] @ fit.null_space  # how the deliverable moves along the null space
+            if moved.size and np.abs(moved).max() > 1e-6:
+                u, sv, _ = np.linalg.svd(moved, full_matrices=False)
                 for e in u[:, sv > 1e-6 * max(sv.max(), 1e-300)].T:
                     e = e * np.sign(e[np.argmax(np.abs(e))])
-                    about = "along" if what == "translation" else "about"
-                    weak.append(
+                    free.append(
                         f"{what} of {parent} -> {child} {about} {_direction(e)} ({parent} frame):"
                         " not determined at all by these data (it trades with the fixed frame's)"
                     )
                 continue
             if not np.all(np.isfinite(sub)):
-                weak.append(f"{what} of {parent} -> {child}: not determined by these data")
+                free.append(f"{what} of {parent} -> {child}: not determined by these data")
                 continue
             val, vec = np.linalg.eigh(sub)
             for v, e in zip(val[::-1], vec.T[::-1], strict=True):
                 sd = np.sqrt(max(v, 0.0)) * unit
-                if sd > limit:
-                    e = e * np.sign(e[np.argmax(np.abs(e))])
-                    u = "mm" if what == "translation" else "deg"
-                    about = "along" if what == "translation" else "about"
-                    weak.append(
-                        f"{what} of {parent} -> {child} {about} {_direction(e)} ({parent} frame):"
-                        f" std {sd:.3g} {u}, above {limit:g} {u}"
-                    )
-        if weak and held_by_guess:
-            out.append(Delivered(key, parent, child, t, std[:3], std[3:], (), tuple(weak)))
+                if sd <= limit:
+                    continue
+                e = e * np.sign(e[np.argmax(np.abs(e))])
+                u = "mm" if what == "translation" else "deg"
+                text = (
+                    f"{what} of {parent} -> {child} {about} {_direction(e)} ({parent} frame):"
+                    f" std {sd:.3g} {u}, above {limit:g} {u}"
+                )
+                motion_sd = np.inf if motion is None else np.sqrt(abs(e @ motion[block, block] @ e))
+                if motion_sd * unit <= limit:
+                    weak.append(f"{text} (the motions determine it; the measurements are noisy)")
+                else:
+                    free.append(text)
+        if free and held_by_guess:
+            out.append(
+                Delivered(key, parent, child, t, std[:3], std[3:], (), tuple(free), tuple(weak))
+            )
         else:
-            out.append(Delivered(key, parent, child, t, std[:3], std[3:], tuple(weak)))
+            out.append(
+                Delivered(key, parent, child, t, std[:3], std[3:], tuple(free), (), tuple(weak))
+            )
     return tuple(out)
 
 
@@ -794,14 +847,16 @@ def handeye(
     )
     findings, _axis = motion_findings(data.flange)
     frames = frame_names(dataset, mode)
-    delivered = deliver(mode, fit, frames)
+    used = fit.used
+    motions = motion_covariance(data.flange[used], data.measured[used], fit.handeye, fit.world)
+    delivered = deliver(mode, fit, frames, motions=motions)
     held = False
     if any(d.undetermined for d in delivered) and guess is not None:
         if images:
             fit = _hold_images_at_guess(data, rows, mode, fit, guess, refine and images)
         else:
             fit = _hold_at_guess(data, rows, fit, guess)
-        delivered = deliver(mode, fit, frames, held_by_guess=True)
+        delivered = deliver(mode, fit, frames, held_by_guess=True, motions=motions)
         held = True
     validation = None
     if len(order) >= MIN_VALIDATED:
@@ -810,6 +865,7 @@ def handeye(
         )
     exported: str | None = REFINED
     undetermined = [u for d in delivered for u in d.undetermined]
+    weak = [u for d in delivered for u in d.weak]
     if undetermined:
         exported = None
     elif validation is not None:
@@ -832,9 +888,11 @@ def handeye(
     marker = None
     if mode == "eye_to_hand":
         chosen_fit = fit if exported in (None, REFINED) else replaced
-        marker = deliver(mode, chosen_fit, frames, held, by_product=True)[0]
+        marker = deliver(mode, chosen_fit, frames, held, by_product=True, motions=motions)[0]
     ids = dataset.ids
-    verdict = handeye_verdict(validation, fit, exported, undetermined, held, guess is not None)
+    verdict = handeye_verdict(
+        validation, fit, exported, undetermined, held, guess is not None, weak
+    )
     return HandEye(
         mode=mode,
         handeye=fit.handeye,
@@ -972,9 +1030,11 @@ def handeye_verdict(
     undetermined: list[str],
     held: bool,
     has_guess: bool,
+    weak: list[str] | None = None,
 ) -> Verdict:
     """The verdict (codes as :func:`relcal.calibration.verdict.verdict`): against the best
-    closed form on the same held-out samples."""
+    closed form on the same held-out samples; ``collect more samples`` at best while directions
+    are ``weak`` (:class:`Delivered`)."""
     if exported is None:
         fix = (
             "add motions that turn about other axes and by more"
@@ -1042,13 +1102,19 @@ def handeye_verdict(
         f"{name}: held-out {mine:.3f} {unit} RMS on {n} samples against {validation.rms(best):.3f}"
         f" {unit} for the best closed form ({TITLES[best]}){span}"
     )
+    if weak:
+        warnings.insert(
+            0,
+            f"{len(weak)} direction(s) known only roughly ({weak[0]}): more samples, or "
+            "measurements less noisy (a board filling more of the view, flatter, closer)",
+        )
     if ours != REFINED:
-        code = "deploy" if n >= MIN_JUDGED else "collect more samples"
+        code = "deploy" if n >= MIN_JUDGED and not weak else "collect more samples"
         text = (
             f"{code}: the held-out samples favour {TITLES[ours]} over the refined estimate "
             f"({compare})"
         )
-    elif n < MIN_JUDGED or held or not fit.converged:
+    elif n < MIN_JUDGED or held or weak or not fit.converged:
         code = "collect more samples"
         text = f"collect more samples: {compare}"
     elif interval is not None and interval[1] < 1.0:

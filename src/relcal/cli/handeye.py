@@ -35,8 +35,9 @@ modes (mode: in dataset.yaml, or --mode):
 robot poses: joint angles with the dataset's robot model, or the controller's flange poses
 (columns fx, fy, fz, fqx, fqy, fqz, fqw: m, quaternion x first) with no robot at all.
 
-exit status: 0 written; 1 written but not good enough to deploy, or refused (directions the
-motions leave undetermined: only results.json is written); 2 bad input (nothing written).
+exit status: 0 written; 1 written but not good enough to deploy (directions only weakly
+determined: collect more samples), or refused (directions the motions leave undetermined: only
+results.json is written); 2 bad input (nothing written).
 """
 
 

@@ -53,6 +53,7 @@ def delivered_document(d: Delivered) -> dict:
     }
     out["undetermined"] = list(d.undetermined)
     out["held_at_guess"] = list(d.held)
+    out["weak"] = list(d.weak)
     return out
 
 
@@ -205,6 +206,8 @@ def handeye_text(doc: dict, per_sample: bool = False) -> str:
             lines.append(f"  not determined: {u}")
         for u in d["held_at_guess"]:
             lines.append(f"  held at the guess of dataset.yaml: {u}")
+        for u in d["weak"]:
+            lines.append(f"  weak: {u}")
     if doc["exported"] not in (None, REFINED):
         lines.append(f"exported: {title(doc['exported'])} (the held-out samples favour it)")
     for f in doc["findings"]:
@@ -297,6 +300,8 @@ def handeye_yaml(he: HandEye, doc: dict) -> str:
         }
         if d.held:
             data[d.key]["held_at_guess"] = list(d.held)
+        if d.weak:
+            data[d.key]["weak"] = list(d.weak)
     data["held_out"] = _held_out_line(doc)
     head = (
         "# relcal handeye: the transform(s) below, child frame in parent frame; xyz in m,\n"
@@ -457,6 +462,7 @@ def _transform_parts(doc: dict) -> list:
         )
         notes += [f"not determined: {u}" for u in d["undetermined"]]
         notes += [f"held at the guess of dataset.yaml: {u}" for u in d["held_at_guess"]]
+        notes += [f"weak: {u}" for u in d["weak"]]
     head = ["frames", "xyz mm", "rpy deg", "std mm", "rotation std deg (about x y z)"]
     return [
         paragraph(f"Flange poses from {doc['flange_poses_from']}."),
