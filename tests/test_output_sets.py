@@ -500,3 +500,19 @@ def test_a_signal_during_the_renames_is_delivered_after_them(tmp_path, monkeypat
         write_set(Folder(out, _set_files("new"), run_id="new"))
     assert whole_set(out) == "new" and whole_set(tmp_path / "cal.prev") == "old"
     assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+
+
+def test_a_reentrant_lock_released_late_by_the_garbage_collector_does_not_fail(tmp_path):
+    """A block re-entering a lock this thread holds, left open (a generator dropped mid-way) and
+    closed only after the outer block released the lock: it ends quietly, and the lock is free."""
+
+    def holder():
+        with outputset.exclusive(tmp_path / "x.lock", "--out x", wait=False):
+            yield
+
+    with outputset.exclusive(tmp_path / "x.lock", "--out x", wait=False):
+        inner = holder()
+        next(inner)
+    inner.close()  # GeneratorExit in the inner block, after the outer one ended
+    with outputset.exclusive(tmp_path / "x.lock", "--out x", wait=False):
+        pass

@@ -623,11 +623,12 @@ def exclusive(lock: str | Path, what: str, wait: bool = True) -> Iterator[None]:
     lock = Path(os.path.abspath(lock))
     key = (threading.get_ident(), lock)  # another thread waits, as another process does
     if key in _LOCKS:  # held by this thread already (re-entrant)
-        _LOCKS[key][1] += 1
+        entry = _LOCKS[key]  # (an inner block closed late, by the garbage collector, may end
+        entry[1] += 1  # after the outer one released the lock: it must not fail then)
         try:
             yield
         finally:
-            _LOCKS[key][1] -= 1
+            entry[1] -= 1
         return
     fd = _lock_fd(lock, what, wait)
     _LOCKS[key] = [fd, 1]
