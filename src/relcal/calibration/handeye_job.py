@@ -1050,6 +1050,12 @@ def handeye_verdict(
             None,
             0 if validation is None else len(validation.samples),
         )
+    warnings: list[str] = []
+    if weak:
+        warnings.append(
+            f"{len(weak)} direction(s) known only roughly ({weak[0]}): more samples, or "
+            "measurements less noisy (a board filling more of the view, flatter, closer)"
+        )
     if validation is None:
         return Verdict(
             "not validated",
@@ -1058,9 +1064,9 @@ def handeye_verdict(
             None,
             None,
             0,
+            tuple(warnings),
         )
     n = len(validation.samples)
-    warnings: list[str] = []
     if n < MIN_HELD_OUT:
         warnings.append(
             f"the validation rests on {n} held-out samples (fewer than {MIN_HELD_OUT}): its "
@@ -1102,12 +1108,6 @@ def handeye_verdict(
         f"{name}: held-out {mine:.3f} {unit} RMS on {n} samples against {validation.rms(best):.3f}"
         f" {unit} for the best closed form ({TITLES[best]}){span}"
     )
-    if weak:
-        warnings.insert(
-            0,
-            f"{len(weak)} direction(s) known only roughly ({weak[0]}): more samples, or "
-            "measurements less noisy (a board filling more of the view, flatter, closer)",
-        )
     if ours != REFINED:
         code = "deploy" if n >= MIN_JUDGED and not weak else "collect more samples"
         text = (
