@@ -41,7 +41,7 @@ examples:
   relcal plan --robot ur5e --limits elbow=-160:160,wrist3=-180:180 --out plan.csv
   relcal plan --robot ur5e --obstacle 0.2,-0.6,0,0.6,-0.3,0.5 --link-radius 0.05 --out plan.csv
   relcal plan --robot ur5e --for handeye --poses 15 --out handeye-plan.csv
-  relcal plan --robot ur5e --mode eye_to_hand --camera-pose 1.0,0.3,0.5,180,-60,150 \\
+  relcal plan --robot ur5e --mode eye_to_hand --camera-pose 1.0,0.4,0.5,-106.6,-21,129.8 \\
       --for handeye --poses 12 --out fixed-camera-plan.csv
 
 output: a CSV, first line  # relcal plan: robot NAME, joint unit UNIT, second  # relcal robot:
