@@ -204,7 +204,7 @@ class DatasetWriter:
     joint_unit : {"deg", "rad"}
         Of ``samples.csv`` (prismatic joints in m).
     handeye : ndarray (4, 4) or None
-        Flange-from-camera guess for ``dataset.yaml``.
+        Flange-from-camera guess for ``dataset.yaml`` (``eye_to_hand``: flange-from-board).
     limits : dict or None
         The cell's joint limits by joint name (rad, m), for ``dataset.yaml``'s ``joint_limits``.
     resume : bool
@@ -215,6 +215,9 @@ class DatasetWriter:
     flange : bool
         Write the controller's flange pose of each sample (columns ``fx`` .. ``fqw``); on
         resume the existing table decides (a capture started without them continues without).
+    mode : {"eye_in_hand", "eye_to_hand"}
+        Where the camera is, for ``dataset.yaml``'s ``mode``: on the flange, or fixed with the
+        board on the flange (the plan file's ``# relcal mode:`` line).
     """
 
     def __init__(
@@ -233,7 +236,11 @@ class DatasetWriter:
         resume: bool = False,
         devices: dict | None = None,
         flange: bool = False,
+        mode: str = "eye_in_hand",
     ) -> None:
+        if mode not in ("eye_in_hand", "eye_to_hand"):
+            raise ValueError(f"mode '{mode}': use eye_in_hand or eye_to_hand")
+        self.mode = mode
         self.root = Path(root)
         self.flange = bool(flange)
         self.model = model
@@ -305,7 +312,7 @@ class DatasetWriter:
         spec: dict[str, Any] = {
             "robot": named,
             "hayati": "auto",
-            "mode": "eye_in_hand",
+            "mode": self.mode,
             "board": "board.yaml",
             "camera": "camera.yaml" if self.intrinsics is not None else "calibrate",
             "joint_unit": self.joint_unit,

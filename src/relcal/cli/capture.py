@@ -37,7 +37,10 @@ frames found, sim; manual through its source driver) record it beside the joints
 fy, fz, fqx, fqy, fqz, fqw, the mean over the still window, for relcal handeye. --robot-driver
 and --camera name a device of relcal.capture.devices (below);
 their settings are --robot-option / --camera-option KEY=VALUE (several per option, comma-
-separated).
+separated). A plan for a fixed camera (relcal plan --mode eye_to_hand: its line
+# relcal mode: eye_to_hand) records mode: eye_to_hand in dataset.yaml (--handeye is then the
+flange-from-board guess); the virtual cell (--camera sim) has the camera on the flange and
+refuses such a plan.
 """
 
 
@@ -64,7 +67,7 @@ def run(args: argparse.Namespace) -> int:
     from relcal import geometry as tf
     from relcal.capture.record import check_destination, claim
     from relcal.cli.plan import parse_board
-    from relcal.design.planfile import read_plan
+    from relcal.design.planfile import plan_mode, read_plan
     from relcal.errors import RelcalError
     from relcal.io import File, note_input
     from relcal.outputset import check
@@ -80,6 +83,17 @@ def run(args: argparse.Namespace) -> int:
         model = restrict_limits(model, limits, f"--limits {args.limits}")
     note_input(args.plan)
     plan = read_plan(args.plan, model, args.joint_unit)
+    mode = plan_mode(args.plan)
+    if mode == "eye_to_hand":
+        from relcal.capture import devices
+
+        entry = devices.CAMERAS.get(args.camera)
+        if entry is not None and getattr(entry.load(), "simulated", False):
+            raise RelcalError(
+                f"--camera {args.camera}: the plan {args.plan} is for a fixed camera and the "
+                "board on the flange (eye_to_hand); the virtual cell has the camera on the flange "
+                "and the board fixed: capture this plan with a real camera"
+            )
     board = parse_board(args.board)
     settings = _settings(args)
     intrinsics = None
@@ -102,10 +116,10 @@ def run(args: argparse.Namespace) -> int:
     check_destination(args.out, args.resume)  # before any device is touched
     check_ids(args.plan, plan.ids)
     with claim(args.out, args.resume):  # this run's alone (another one writing it: refused)
-        return _capture(args, model, plan, board, settings, intrinsics, handeye, limits)
+        return _capture(args, model, plan, board, settings, intrinsics, handeye, limits, mode)
 
 
-def _capture(args, model, plan, board, settings, intrinsics, handeye, limits) -> int:
+def _capture(args, model, plan, board, settings, intrinsics, handeye, limits, mode) -> int:
     import sys
 
     from relcal.capture import devices
@@ -168,6 +182,7 @@ def _capture(args, model, plan, board, settings, intrinsics, handeye, limits) ->
             limits=limits,
             resume=args.resume,
             flange=bool(getattr(robot, "reports_flange", False)),
+            mode=mode,
             devices={
                 "robot_driver": args.robot_driver,
                 "robot_options": context_options(args.robot_option),

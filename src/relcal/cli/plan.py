@@ -41,6 +41,8 @@ examples:
   relcal plan --robot ur5e --limits elbow=-160:160,wrist3=-180:180 --out plan.csv
   relcal plan --robot ur5e --obstacle 0.2,-0.6,0,0.6,-0.3,0.5 --link-radius 0.05 --out plan.csv
   relcal plan --robot ur5e --for handeye --poses 15 --out handeye-plan.csv
+  relcal plan --robot ur5e --mode eye_to_hand --camera-pose 1.0,0.4,0.5,-106.6,-21,129.8 \\
+      --for handeye --poses 12 --out fixed-camera-plan.csv
 
 output: a CSV, first line  # relcal plan: robot NAME, joint unit UNIT, second  # relcal robot:
 SPEC (how relcal capture loads the robot), then  id,<joint names>  (angles in --joint-unit,
@@ -163,13 +165,33 @@ def parse_limits(text: str, model, unit: str) -> dict[str, tuple[float, float]]:
     return limits_from_unit(model, limits, unit)
 
 
+def _pose(values: list[float]) -> np.ndarray:
+    """``(4, 4)`` from X,Y,Z[,ROLL,PITCH,YAW] (m, deg)."""
+    import numpy as np
+
+    from relcal import geometry as tf
+
+    v = list(values) + [0.0, 0.0, 0.0]
+    return tf.from_xyz_rpy(np.array(v[:3]), np.radians(v[3:6]))
+
+
 def build_cell(args: argparse.Namespace):
-    """The cell from the command line (board, its centre, camera, hand-eye guess)."""
+    """The cell from the command line (board, its centre, camera, hand-eye guess); with
+    ``--mode eye_to_hand`` the fixed camera's cell (camera pose, board on the flange)."""
     import numpy as np
 
     from relcal import geometry as tf
     from relcal.design.cell import Cell
+    from relcal.errors import RelcalError
 
+    mode = getattr(args, "mode", "eye_in_hand")
+    if mode == "eye_to_hand":
+        return build_fixed_cell(args)
+    if getattr(args, "camera_pose", None) is not None:
+        raise RelcalError(
+            "--camera-pose: a fixed camera's pose; it needs --mode eye_to_hand (the default, "
+            "eye_in_hand, has the camera on the flange: give --handeye and --board-center)"
+        )
     cell = Cell(board=parse_board(args.board))
     if args.camera:
         cell = replace(cell, camera=parse_camera(args.camera))
@@ -179,6 +201,47 @@ def build_cell(args: argparse.Namespace):
         he = list(args.handeye) + [0.0, 0.0, 0.0]
         cell = replace(cell, handeye=tf.from_xyz_rpy(np.array(he[:3]), np.radians(he[3:6])))
     return cell
+
+
+def build_fixed_cell(args: argparse.Namespace):
+    """The eye-to-hand cell from the command line: the board (on the flange, at ``--handeye``,
+    flange-from-board, default 80 mm in front of it facing out), the camera's intrinsics and
+    its pose ``--camera-pose`` in the base frame."""
+    from relcal.design.cell import FixedCameraCell
+    from relcal.errors import RelcalError
+
+    if args.board_center:
+        raise RelcalError(
+            "--board-center: with --mode eye_to_hand the board is on the flange, not fixed in "
+            "the cell: give its mount as --handeye (flange-from-board) and the camera's place "
+            "as --camera-pose"
+        )
+    cell = FixedCameraCell(board=parse_board(args.board))
+    if args.camera:
+        cell = replace(cell, camera=parse_camera(args.camera))
+    if args.camera_pose:
+        cell = replace(cell, camera_pose=_pose(args.camera_pose))
+    if args.handeye:
+        cell = replace(cell, handeye=_pose(args.handeye))
+    return cell
+
+
+def cell_line(model_name: str, cell) -> str:
+    """The line the plan prints first: the robot, the board and where the board (eye-in-hand)
+    or the camera (eye-to-hand) is."""
+    import numpy as np
+
+    from relcal import geometry as tf
+
+    if cell.mode == "eye_to_hand":
+        xyz, rpy = tf.to_xyz_rpy(cell.camera_pose)
+        where = ",".join(f"{v:.4g}" for v in np.r_[xyz, np.degrees(rpy)])
+        return (
+            f"{model_name}: eye-to-hand, {cell.board.describe()} on the flange, fixed camera at "
+            f"{where} (m, deg)"
+        )
+    center = ",".join(f"{v:g}" for v in cell.center)
+    return f"{model_name}: {cell.board.describe()}, centre {center} m"
 
 
 def run(args: argparse.Namespace) -> int:
@@ -254,7 +317,7 @@ def run(args: argparse.Namespace) -> int:
     def joints_table(q: np.ndarray, out: str | None) -> str:
         where = None if out is None or is_stream(out) else Path(out).parent
         source = plan_robot(model, args.robot, where)
-        return plan_text(model, q, unit=args.joint_unit, source=source)
+        return plan_text(model, q, unit=args.joint_unit, source=source, mode=cell.mode)
 
     items = []
     if args.out:
@@ -267,8 +330,7 @@ def run(args: argparse.Namespace) -> int:
         items.append(File(args.json, json_text(plan_document(res, model)), "--json"))
     write_set(*items)
     if not args.quiet:
-        center = ",".join(f"{v:g}" for v in cell.center)
-        print(f"{model.name}: {cell.board.describe()}, centre {center} m")
+        print(cell_line(model.name, cell))
         print(format_plan(res, args.length_scale, model))
         if args.out:
             print(f"wrote {len(res.q)} joint configurations to {args.out}")
@@ -311,7 +373,24 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--handeye",
         type=numbers((3, 6), "X,Y,Z[,ROLL,PITCH,YAW] in m and deg", 360.0),
         help="flange-from-camera guess X,Y,Z[,ROLL,PITCH,YAW] (m, deg; default 0,0.04,0.06, the "
-        "simulation's mount)",
+        "simulation's mount); --mode eye_to_hand: flange-from-board (default: the pattern "
+        "centred 80 mm in front of the flange, printed face out along its z axis)",
+    )
+    p.add_argument(
+        "--mode",
+        choices=("eye_in_hand", "eye_to_hand"),
+        default="eye_in_hand",
+        help="eye_in_hand: the camera on the flange, the board fixed (default); eye_to_hand: the "
+        "camera fixed at --camera-pose, the board on the flange at --handeye (the plan file "
+        "says so, and relcal capture writes it into the dataset)",
+    )
+    p.add_argument(
+        "--camera-pose",
+        type=numbers((6,), "X,Y,Z,ROLL,PITCH,YAW in m and deg", 360.0),
+        metavar="X,Y,Z,ROLL,PITCH,YAW",
+        help="--mode eye_to_hand: the fixed camera's optical frame (z along the view) in the base "
+        "frame, m and deg, rotations as --handeye's (default 1.1,0,0.6,180,-66.8,180: 1.1 m out "
+        "and 0.6 m up, looking back at 0.4,0,0.3)",
     )
     p.add_argument(
         "--n-poses",

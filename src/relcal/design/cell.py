@@ -1,9 +1,16 @@
 """The cell: where the board is, the camera and how it is mounted on the flange, and the camera
-paths over the board that the simulation and the identifiability report use."""
+paths over the board that the simulation and the identifiability report use.
+
+Two kinds of cell: :class:`Cell`, a camera on the flange looking at a board fixed in the cell
+(eye-in-hand), and :class:`FixedCameraCell`, a camera fixed in the cell looking at a board the
+robot carries (eye-to-hand). Both state ``handeye``, the ``X`` of ``C_k = W F_k X`` on the
+flange (the camera, or the board), and ``mode``, as datasets do.
+"""
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
+from typing import ClassVar
 
 import numpy as np
 
@@ -66,6 +73,8 @@ class Cell:
         front of the flange).
     """
 
+    mode: ClassVar[str] = "eye_in_hand"
+
     board: Board = field(default_factory=default_board)
     center: np.ndarray = field(default_factory=lambda: np.array([0.45, 0.0, 0.0]))
     camera: Camera = field(default_factory=default_camera)
@@ -97,6 +106,89 @@ class Cell:
     def normal(self) -> np.ndarray:
         """Unit normal of the printed face, towards the camera (base frame)."""
         return -self.board_pose[:3, 2]
+
+
+def pattern_middle(board: Board) -> np.ndarray:
+    """The pattern's centre ``(3,)`` in the board frame, m."""
+    x0, y0, x1, y1 = pattern_extent(board)
+    return np.array([(x0 + x1) / 2, (y0 + y1) / 2, 0.0])
+
+
+BOARD_OFFSET = 0.08  # m: the default board's pattern centre in front of the flange
+
+
+def board_on_flange(board: Board, offset: float = BOARD_OFFSET) -> np.ndarray:
+    """Flange-from-board ``(4, 4)`` of a board carried by the robot: the pattern centred on the
+    flange's z axis ``offset`` (m) in front of it, printed face out along the flange's z, the
+    board's x along the flange's x."""
+    rot = np.diag([1.0, -1.0, -1.0])  # board z (into the print) back towards the flange
+    return tf.homogeneous(rot, np.array([0.0, 0.0, offset]) - rot @ pattern_middle(board))
+
+
+def default_camera_pose() -> np.ndarray:
+    """Base-from-camera ``(4, 4)`` of the default fixed camera: 1.1 m out along the base's x and
+    0.6 m up, looking back at the point 0.4 m out and 0.3 m up (a tripod beside a table-top
+    arm), image x along the base's -y."""
+    return look_at(np.array([1.1, 0.0, 0.6]), np.array([0.4, 0.0, 0.3]), 0.0)
+
+
+@dataclass(frozen=True)
+class FixedCameraCell:
+    """A fixed camera and the board the robot carries on its flange (eye-to-hand).
+
+    The measured pose is the board in the camera frame, ``C_k = W F_k X`` with ``W`` the
+    camera-from-base (the inverse of ``camera_pose``) and ``X`` = ``handeye`` the
+    flange-from-board, as in a dataset with ``mode: eye_to_hand``
+    (:mod:`relcal.calibration.handeye_closed`).
+
+    Parameters
+    ----------
+    board : Board
+        The calibration board on the flange (default: a chessboard of 7 x 10 squares of 20 mm).
+    camera : Camera
+        The fixed camera's intrinsics (default as :class:`Cell`'s).
+    camera_pose : (4, 4) ndarray of float
+        Base-from-camera: the camera's optical frame (z along the view, x along the image rows)
+        in the robot's base frame, m (default :func:`default_camera_pose`).
+    handeye : (4, 4) ndarray of float, optional
+        Flange-from-board ``X``, m (default :func:`board_on_flange`: the pattern centred 80 mm
+        in front of the flange, printed face out along its z axis).
+    """
+
+    mode: ClassVar[str] = "eye_to_hand"
+
+    board: Board = field(default_factory=default_board)
+    camera: Camera = field(default_factory=default_camera)
+    camera_pose: np.ndarray = field(default_factory=default_camera_pose)
+    handeye: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        """Arguments checked where the API is entered (an ArgumentError naming the field)."""
+        check_instance(
+            self.board, Board, "FixedCameraCell.board", "a Board (relcal.vision.boards.Board)"
+        )
+        check_instance(
+            self.camera, Camera, "FixedCameraCell.camera", "a Camera (relcal.vision.camera)"
+        )
+        pose = check_transform(self.camera_pose, "FixedCameraCell.camera_pose")
+        object.__setattr__(self, "camera_pose", pose)
+        x = board_on_flange(self.board) if self.handeye is None else self.handeye
+        object.__setattr__(self, "handeye", check_transform(x, "FixedCameraCell.handeye"))
+
+    @property
+    def corners(self) -> np.ndarray:
+        """The pattern's outer corners ``(4, 3)`` in the board frame (m)."""
+        x0, y0, x1, y1 = pattern_extent(self.board)
+        return np.array([[x0, y0, 0.0], [x1, y0, 0.0], [x1, y1, 0.0], [x0, y1, 0.0]])
+
+    @property
+    def board_center(self) -> np.ndarray:
+        """Flange-from-pattern-centre ``(4, 4)``: ``handeye`` moved to the pattern's centre
+        (where the collision checks put the board's sphere)."""
+        return self.handeye @ tf.homogeneous(np.eye(3), pattern_middle(self.board))
+
+
+AnyCell = Cell | FixedCameraCell
 
 
 def camera_pose(cell: Cell, k: int, n_poses: int, rng: np.random.Generator) -> np.ndarray:

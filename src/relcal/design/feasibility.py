@@ -18,7 +18,7 @@ import numpy as np
 
 from relcal import geometry as tf
 from relcal.cluster import prepare_worker
-from relcal.design.cell import Cell
+from relcal.design.cell import AnyCell, Cell
 from relcal.design.collision import cell_collision, self_collision
 from relcal.errors import RelcalError
 from relcal.geometry import look_at
@@ -86,13 +86,18 @@ CONSTRAINTS = (
 
 
 def check(
-    model: RobotModel, cell: Cell, q: np.ndarray, constraints: Constraints
+    model: RobotModel, cell: AnyCell, q: np.ndarray, constraints: Constraints
 ) -> dict[str, np.ndarray]:
     """Per constraint, a mask ``(N,)`` of configurations ``(N, n)`` that satisfy it (``N`` may
-    be 0: every IK solution of a batch out of the limits)."""
+    be 0: every IK solution of a batch out of the limits). A fixed camera's cell
+    (:class:`~relcal.design.cell.FixedCameraCell`): :func:`relcal.design.fixed.check`."""
     q = np.asarray(q, dtype=float).reshape(-1, model.n_joints)
     if not len(q):
         return {name: np.zeros(0, dtype=bool) for name in CONSTRAINTS}
+    if cell.mode == "eye_to_hand":
+        from relcal.design import fixed
+
+        return fixed.check(model, cell, q, constraints)
     cameras = camera_poses(model, cell, q)
     pix, depth = image_points(cell, cameras)
     cam, m = cell.camera, constraints.margin_px
@@ -204,7 +209,9 @@ def urdf_geometry(model: RobotModel):
     return _GEOMETRY[key]
 
 
-def feasible(model: RobotModel, cell: Cell, q: np.ndarray, constraints: Constraints) -> np.ndarray:
+def feasible(
+    model: RobotModel, cell: AnyCell, q: np.ndarray, constraints: Constraints
+) -> np.ndarray:
     """Mask ``(N,)`` of configurations that satisfy every constraint."""
     masks = check(model, cell, q, constraints)
     return np.logical_and.reduce(list(masks.values()))
@@ -251,16 +258,22 @@ def batch_seed(seed: int | np.random.SeedSequence, b: int) -> np.random.SeedSequ
 
 def candidate_batch(
     model: RobotModel,
-    cell: Cell,
+    cell: AnyCell,
     constraints: Constraints,
     batch: int,
     seed: np.random.SeedSequence,
 ) -> tuple[np.ndarray, dict[str, int]]:
-    """The feasible configurations ``(K, n)`` among ``batch`` sampled camera poses solved by IK
+    """The feasible configurations ``(K, n)`` among ``batch`` sampled camera poses (a fixed
+    camera's cell: board poses, :func:`relcal.design.fixed.sample_board_poses`) solved by IK
     from random starts drawn from ``seed``, and the rejections per constraint."""
     rng = np.random.default_rng(seed)
-    cams = sample_camera_poses(cell, constraints, batch, rng)
-    flange = cams @ tf.invert(cell.handeye)
+    if cell.mode == "eye_to_hand":
+        from relcal.design.fixed import sample_board_poses
+
+        flange = sample_board_poses(cell, constraints, batch, rng) @ tf.invert(cell.handeye)
+    else:
+        cams = sample_camera_poses(cell, constraints, batch, rng)
+        flange = cams @ tf.invert(cell.handeye)
     sol = solve(model, flange, q_near=random_joints(model, batch, rng))
     ok = np.asarray(sol.converged, dtype=bool)
     rejected = {"ik": int((~ok).sum())}
@@ -282,7 +295,7 @@ def max_batches(count: int, batch: int, max_rounds: int) -> int:
 
 def candidates(
     model: RobotModel,
-    cell: Cell,
+    cell: AnyCell,
     constraints: Constraints,
     count: int,
     seed: int | np.random.SeedSequence = 0,

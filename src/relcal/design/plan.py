@@ -26,7 +26,7 @@ from relcal._renamed import UNSET
 from relcal.calibration.measurement import Formulation, Measure
 from relcal.calibration.noise import Noise
 from relcal.checks import check_choice, check_instance, check_number, check_seed
-from relcal.design.cell import Cell
+from relcal.design.cell import AnyCell, Cell, FixedCameraCell
 from relcal.design.criteria import (
     CRITERIA,
     DEFAULT_NOISE,
@@ -96,7 +96,12 @@ def check_plan(
 ) -> None:
     """The arguments of :func:`plan`, checked before any candidate is drawn."""
     check_model(model)
-    check_instance(cell, Cell, "cell", "a Cell (relcal.Cell(), the board, camera and mount)")
+    check_instance(
+        cell,
+        (Cell, FixedCameraCell),
+        "cell",
+        "a Cell (relcal.Cell(), the board, camera and mount) or a FixedCameraCell (eye-to-hand)",
+    )
     if constraints is not None:
         check_instance(
             constraints,
@@ -146,6 +151,7 @@ class PlanResult:
     purpose: str = "calibrate"  # or "handeye": the criterion is of the hand-eye X alone
     motion: MotionQuality | None = None  # purpose "handeye": what the plan gives X
     random_motion: MotionQuality | None = None  # the same of the median random set
+    mode: str = "eye_in_hand"  # or "eye_to_hand": a fixed camera, the board on the flange
 
     @property
     def random_median_worst(self) -> float:
@@ -159,7 +165,7 @@ class PlanResult:
 
 def plan(
     model: RobotModel,
-    cell: Cell,
+    cell: AnyCell,
     n_poses: int = 30,
     constraints: Constraints | None = None,
     criterion: Criterion = "worst",
@@ -190,8 +196,12 @@ def plan(
     ----------
     model : RobotModel
         The nominal robot.
-    cell : Cell
-        The board, where it is, the camera and its mount.
+    cell : Cell or FixedCameraCell
+        The board, where it is, the camera and its mount (:class:`~relcal.design.cell.Cell`),
+        or the fixed camera, where it is, and the board on the flange
+        (:class:`~relcal.design.cell.FixedCameraCell`, eye-to-hand: candidates put the board in
+        front of the camera, and the criteria are of ``X``, the flange-from-board, and of the
+        board-in-camera poses ``C_k = W F_k X`` a calibration measures).
     n_poses : int
         Number of poses to plan.
     constraints : Constraints, optional
@@ -337,4 +347,5 @@ def plan(
         purpose=purpose,
         motion=motion,
         random_motion=random_motion,
+        mode=cell.mode,
     )

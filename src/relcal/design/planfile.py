@@ -11,6 +11,10 @@ travel order::
     p001,12.5,-95.1,101.7,-96.3,-88.0,30.2
     ...
 
+A plan for a fixed camera and the board on the flange has a third comment,
+``# relcal mode: eye_to_hand``, which ``relcal capture`` writes into the dataset's ``mode``
+(:func:`plan_mode`; without it a plan is for a camera on the flange, ``eye_in_hand``).
+
 Angles are in the stated unit (``deg`` or ``rad``), prismatic joints always in m. The files of
 older versions (``id,q1..qn`` in degrees, no comment line; no ``relcal robot`` line) are read
 too. :func:`read_plan` is the
@@ -32,6 +36,8 @@ from relcal.numbers import NotANumber, parse_number
 from relcal.robot.model import RobotModel, library_names
 
 COMMENT = PLAN_COMMENT
+MODE_LINE = re.compile(r"#\s*relcal mode:\s*(?P<mode>\S+)\s*$")
+PLAN_MODES = ("eye_in_hand", "eye_to_hand")
 ROBOT_LINE = re.compile(
     r"#\s*relcal robot:\s*(?P<robot>.+?)"
     r"(?:,\s*root\s+(?P<root>\S+))?(?:,\s*tip\s+(?P<tip>\S+))?\s*$"
@@ -93,18 +99,25 @@ def plan_text(
     ids=None,
     unit: str = "deg",
     source: PlanRobot | None = None,
+    mode: str = "eye_in_hand",
 ) -> str:
     """The plan file's text for configurations ``q`` ``(K, n)`` (rad, m) of ``model``, angles
     written in ``unit`` (``deg`` or ``rad``); ``ids`` default ``p001``, ``p002``, ...;
-    ``source`` how to load the robot (:func:`plan_robot`), written as the second comment."""
+    ``source`` how to load the robot (:func:`plan_robot`), written as the second comment;
+    ``mode`` ``eye_to_hand`` (a fixed camera, the board on the flange) written as the
+    ``# relcal mode:`` comment (``eye_in_hand``, the default, writes none)."""
     if unit not in ("deg", "rad"):
         raise ValueError(f"unit '{unit}': use deg or rad")
+    if mode not in PLAN_MODES:
+        raise ValueError(f"mode '{mode}': use one of {', '.join(PLAN_MODES)}")
     q = np.atleast_2d(q)
     ids = [f"p{k + 1:03d}" for k in range(len(q))] if ids is None else list(ids)
     values = np.where(model.prismatic, q, np.degrees(q)) if unit == "deg" else q
     lines = [f"# relcal plan: robot {model.name}, joint unit {unit}"]
     if source is not None:
         lines.append(source.line())
+    if mode != "eye_in_hand":
+        lines.append(f"# relcal mode: {mode}")
     lines.append(",".join(["id", *model.joint_names]))
     for sid, row in zip(ids, values, strict=True):
         lines.append(",".join([str(sid), *(f"{v:.12g}" for v in row)]))
@@ -229,3 +242,28 @@ def plan_header(path: str | Path) -> tuple[str | None, str | None, PlanRobot | N
                 spec = str(path.parent / spec)
             source = PlanRobot(spec, named["root"], named["tip"])
     return robot, unit, source
+
+
+def plan_mode(path: str | Path) -> str:
+    """Where the plan's camera is: ``eye_to_hand`` when its comment lines say ``# relcal mode:
+    eye_to_hand`` (a fixed camera, the board on the flange), else ``eye_in_hand``.
+
+    Raises
+    ------
+    RelcalError
+        The file is missing, or names a mode relcal does not plan for (the message names the
+        file and line).
+    """
+    path = Path(path)
+    for no, line in _rows(path):
+        if not line.lstrip().startswith("#"):
+            break
+        found = MODE_LINE.match(line.strip())
+        if found:
+            if found["mode"] not in PLAN_MODES:
+                raise RelcalError(
+                    f"{path} line {no}: mode '{found['mode']}': expected one of "
+                    f"{', '.join(PLAN_MODES)}"
+                )
+            return found["mode"]
+    return "eye_in_hand"

@@ -50,8 +50,8 @@ def sight_lines(
     ----------
     cameras : ndarray, shape (N, 4, 4)
         Camera poses in the base frame.
-    board_pose : ndarray, shape (4, 4)
-        Board frame in the base frame.
+    board_pose : ndarray, shape (4, 4) or (N, 4, 4)
+        Board frame in the base frame (one per camera pose: a board on the flange).
     corners : ndarray, shape (4, 3)
         The pattern's corners in the board frame (m), in order around it.
     grid : int
@@ -66,9 +66,13 @@ def sight_lines(
     u, v = u.ravel()[:, None], v.ravel()[:, None]
     c = np.asarray(corners, float)
     local = (1 - u) * (1 - v) * c[0] + u * (1 - v) * c[1] + u * v * c[2] + (1 - u) * v * c[3]
-    targets = local @ board_pose[:3, :3].T + board_pose[:3, 3]  # (R, 3)
+    board_pose = np.asarray(board_pose, float)
+    if board_pose.ndim == 3:  # (N, R, 3)
+        targets = local @ np.swapaxes(board_pose[:, :3, :3], 1, 2) + board_pose[:, None, :3, 3]
+    else:
+        targets = (local @ board_pose[:3, :3].T + board_pose[:3, 3])[None]  # (1, R, 3)
     eyes = np.asarray(cameras, float)[:, None, :3, 3]  # (N, 1, 3)
-    direction = targets[None] - eyes  # (N, R, 3)
+    direction = targets - eyes  # (N, R, 3)
     length = np.linalg.norm(direction, axis=-1, keepdims=True)
     unit = direction / np.maximum(length, 1e-12)
     start = eyes + near * unit

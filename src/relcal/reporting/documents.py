@@ -667,12 +667,19 @@ def plan_document(res: PlanResult, model: RobotModel) -> dict:
         "random_median_worst_m": res.random_median_worst if res.random else None,
         "improvement": res.improvement if res.random else None,
         "purpose": res.purpose,
+        "mode": res.mode,
         "handeye": None
         if res.motion is None
         else {
-            "what": "predicted standard deviations of the hand-eye X (Cramer-Rao bound, "
-            "kinematics known, board pose eliminated) in the flange frame, and the spread of the "
-            "relative rotations of every pair of poses",
+            "what": (
+                "predicted standard deviations of the hand-eye X, the board on the flange "
+                "(Cramer-Rao bound, kinematics known, camera pose eliminated)"
+                if res.mode == "eye_to_hand"
+                else "predicted standard deviations of the hand-eye X (Cramer-Rao bound, "
+                "kinematics known, board pose eliminated)"
+            )
+            + " in the flange frame, and the spread of the relative rotations of every pair of "
+            "poses",
             "plan": motion_document(res.motion),
             "random_median": None
             if res.random_motion is None

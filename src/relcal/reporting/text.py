@@ -332,8 +332,14 @@ def _quality_row(label: str, q: Quality, labels: dict[str, str] | None = None) -
 def format_motion(res: PlanResult) -> list[str]:
     """A hand-eye plan (``--for handeye``): the predicted standard deviations of ``X`` in the
     flange frame and the spread of the motions, for the plan and the median random set."""
+    head = (
+        "hand-eye X, the board on the flange (flange frame; Cramer-Rao bound, kinematics known, "
+        "camera pose eliminated):"
+        if res.mode == "eye_to_hand"
+        else "hand-eye X (flange frame; Cramer-Rao bound, kinematics known, board pose eliminated):"
+    )
     lines = [
-        "hand-eye X (flange frame; Cramer-Rao bound, kinematics known, board pose eliminated):",
+        head,
         f"{'':<22s} {'std x y z mm':>26s} {'std about x y z deg':>26s} {'axis spread':>12s} "
         f"{'pair turns deg':>15s} {'pairs':>6s}",
     ]
