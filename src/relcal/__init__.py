@@ -39,6 +39,7 @@ _API = {
     "Calibration": "relcal.calibration.outcome",
     "Cell": "relcal.design.cell",
     "Dataset": "relcal.data.dataset",
+    "FixedCameraCell": "relcal.design.cell",
     "Identifiability": "relcal.calibration.identifiability",
     "Layout": "relcal.robot.kinematics",
     "Measurements": "relcal.data.imaging",
@@ -77,6 +78,7 @@ __all__ = [
     "Calibration",
     "Cell",
     "Dataset",
+    "FixedCameraCell",
     "HandEye",
     "Identifiability",
     "Layout",
@@ -136,7 +138,7 @@ if TYPE_CHECKING:  # for type checkers and editors: the same names, imported eag
     from relcal.data.dataset import Dataset, load_dataset
     from relcal.data.imaging import Measurements, measure
     from relcal.data.rosbag import import_rosbag
-    from relcal.design.cell import Cell
+    from relcal.design.cell import Cell, FixedCameraCell
     from relcal.design.plan import plan
     from relcal.errors import RelcalError
     from relcal.reporting.outputs import write_calibration

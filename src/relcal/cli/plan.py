@@ -180,7 +180,6 @@ def build_cell(args: argparse.Namespace):
     ``--mode eye_to_hand`` the fixed camera's cell (camera pose, board on the flange)."""
     import numpy as np
 
-    from relcal import geometry as tf
     from relcal.design.cell import Cell
     from relcal.errors import RelcalError
 
@@ -198,8 +197,7 @@ def build_cell(args: argparse.Namespace):
     if args.board_center:
         cell = replace(cell, center=np.array(args.board_center))
     if args.handeye:
-        he = list(args.handeye) + [0.0, 0.0, 0.0]
-        cell = replace(cell, handeye=tf.from_xyz_rpy(np.array(he[:3]), np.radians(he[3:6])))
+        cell = replace(cell, handeye=_pose(args.handeye))
     return cell
 
 
