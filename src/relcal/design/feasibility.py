@@ -85,6 +85,18 @@ CONSTRAINTS = (
 )  # the masks of :func:`check`, in its order
 
 
+def in_image(camera, pix: np.ndarray, depth: np.ndarray, margin: float) -> np.ndarray:
+    """Mask ``(N,)``: every point of each row of ``pix`` ``(N, K, 2)`` (px) lies in front of the
+    camera (``depth`` ``(N, K)`` > 0) and at least ``margin`` px inside its image."""
+    return (
+        (depth > 0).all(axis=1)
+        & (pix[..., 0] >= margin).all(axis=1)
+        & (pix[..., 0] <= camera.width - 1 - margin).all(axis=1)
+        & (pix[..., 1] >= margin).all(axis=1)
+        & (pix[..., 1] <= camera.height - 1 - margin).all(axis=1)
+    )
+
+
 def check(
     model: RobotModel, cell: AnyCell, q: np.ndarray, constraints: Constraints
 ) -> dict[str, np.ndarray]:
@@ -100,14 +112,7 @@ def check(
         return fixed.check(model, cell, q, constraints)
     cameras = camera_poses(model, cell, q)
     pix, depth = image_points(cell, cameras)
-    cam, m = cell.camera, constraints.margin_px
-    inside = (
-        (depth > 0).all(axis=1)
-        & (pix[..., 0] >= m).all(axis=1)
-        & (pix[..., 0] <= cam.width - 1 - m).all(axis=1)
-        & (pix[..., 1] >= m).all(axis=1)
-        & (pix[..., 1] <= cam.height - 1 - m).all(axis=1)
-    )
+    inside = in_image(cell.camera, pix, depth, constraints.margin_px)
     sight = cameras[:, :3, 3] - cell.center
     distance = np.linalg.norm(sight, axis=1)
     angle = np.degrees(np.arccos(np.clip(sight @ cell.normal / distance, -1.0, 1.0)))

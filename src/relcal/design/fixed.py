@@ -114,18 +114,11 @@ def check(
 ) -> dict[str, np.ndarray]:
     """Per constraint of :data:`~relcal.design.feasibility.CONSTRAINTS`, a mask ``(N,)`` of the
     configurations ``q`` ``(N, n)`` (rad, m) that satisfy it (see the module docstring)."""
-    from relcal.design.feasibility import inverse_condition
+    from relcal.design.feasibility import in_image, inverse_condition
 
     boards = board_poses(model, cell, q)
     pix, depth = image_points(cell, boards)
-    cam, m = cell.camera, constraints.margin_px
-    inside = (
-        (depth > 0).all(axis=1)
-        & (pix[..., 0] >= m).all(axis=1)
-        & (pix[..., 0] <= cam.width - 1 - m).all(axis=1)
-        & (pix[..., 1] >= m).all(axis=1)
-        & (pix[..., 1] <= cam.height - 1 - m).all(axis=1)
-    )
+    inside = in_image(cell.camera, pix, depth, constraints.margin_px)
     centres = boards[:, :3, :3] @ pattern_middle(cell.board) + boards[:, :3, 3]
     sight = cell.camera_pose[:3, 3] - centres
     distance = np.linalg.norm(sight, axis=1)
