@@ -121,11 +121,12 @@ def test_refined_spread_over_200_seeds_is_the_cramer_rao_bound():
     info = jac.T @ np.kron(np.eye(n), np.linalg.inv(NOISE)) @ jac
     crb = np.linalg.inv(info)
     start = closed_forms(flange[:10], truth[:10], ("park",))[0][0]
-    est = []
+    est, std = [], []
     for seed in range(200):
         poses = camera_poses(flange, seed=100 + seed)
         fit = fit_poses(model, q, poses, start.handeye, start.world, reject=False)
         est.append(np.r_[_frame_error(fit.handeye, X_TRUE), _frame_error(fit.world, W_TRUE)])
+        std.append(np.sqrt(np.diag(fit.covariance)))
     est = np.array(est)
     # the spread in units of the bound: 1 for an efficient estimator (sampling error ~3 %)
     spread = np.mean(np.einsum("ni,ij,nj->n", est, info, est)) / 12
@@ -134,8 +135,9 @@ def test_refined_spread_over_200_seeds_is_the_cramer_rao_bound():
         np.mean(np.einsum("ni,ij,nj->n", est[:, :6], np.linalg.inv(crb[:6, :6]), est[:, :6])) / 6
     )
     assert abs(spread_x - 1.0) < 0.10, spread_x
-    # and the fit's own covariance predicts it
-    assert np.allclose(np.sqrt(np.diag(fit.covariance)), np.sqrt(np.diag(crb)), rtol=0.15)
+    # and the fit's own covariance predicts it (on average over the data sets: each learns its
+    # own noise)
+    assert np.allclose(np.mean(std, axis=0), np.sqrt(np.diag(crb)), rtol=0.10)
 
 
 @pytest.mark.parametrize("mode", ["eye_in_hand", "eye_to_hand"])
@@ -635,3 +637,24 @@ def test_report_shows_the_verdict_and_every_methods_held_out_errors(tmp_path):
     assert {r[0] for r in samples[1:]} == {s["id"] for s in val["samples"]}
     closed = page.by_section["closed-forms"][0]
     assert len(closed) - 1 == len(METHODS)
+
+
+def test_pose_fit_std_is_honest_with_few_samples():
+    """12 noisy poses, the noise learned from them (a full 6x6 matrix): the delivered camera pose
+    of eye-to-hand (W^-1) and X of eye-in-hand have the spread their standard deviations say
+    over 100 data sets (RMS of error over std per component; 1.7 to 2.1 without the small-sample
+    inflation of the learned weights, :func:`weight_inflation`)."""
+    from relcal.calibration.handeye_job import _frames_default, deliver
+
+    for mode, truth in (("eye_to_hand", tf.invert(W_TRUE)), ("eye_in_hand", X_TRUE)):
+        z = []
+        for seed in range(100):
+            flange = flange_poses(12, seed=1000 + seed)
+            model, q = flange_chain(flange)
+            fit = fit_poses(model, q, camera_poses(flange, seed=seed), X_TRUE, W_TRUE, reject=False)
+            d = deliver(mode, fit, _frames_default(mode))[0]
+            moved = d.transform[:3, 3] - truth[:3, 3]
+            turned = tf.log_rotation(d.transform[:3, :3] @ truth[:3, :3].T)
+            z.append(np.r_[moved / d.xyz_std, turned / d.rotation_std])
+        rms = np.sqrt(np.mean(np.square(z), axis=0))
+        assert np.all(rms < 1.35) and np.all(rms > 0.5), (mode, rms)
