@@ -178,7 +178,7 @@ SINGULAR = 0.02  # inverse condition number (translation over 0.5 m) below which
 
 def near_singular(model, q: np.ndarray) -> np.ndarray:
     """Inverse condition number ``(N,)`` of the joint Jacobian at ``q`` (0 at a singularity)."""
-    from relcal.design.feasibility import inverse_condition
+    from relcal.robot.ik import inverse_condition
 
     return inverse_condition(model, q, 0.5)
 

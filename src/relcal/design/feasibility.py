@@ -20,10 +20,12 @@ from relcal import geometry as tf
 from relcal.cluster import prepare_worker
 from relcal.design.cell import AnyCell, Cell
 from relcal.design.collision import cell_collision, self_collision
+from relcal.design.sight import in_image
+from relcal.design.urdf_collision import urdf_geometry
 from relcal.errors import RelcalError
 from relcal.geometry import look_at
-from relcal.robot.ik import joint_layout, solve
-from relcal.robot.kinematics import fk, forward_frames, pose_jacobian
+from relcal.robot.ik import inverse_condition, solve
+from relcal.robot.kinematics import fk, forward_frames
 from relcal.robot.model import RobotModel
 
 
@@ -62,16 +64,6 @@ def image_points(cell: Cell, cameras: np.ndarray) -> tuple[np.ndarray, np.ndarra
     return np.stack([u, v], axis=-1), z
 
 
-def inverse_condition(model: RobotModel, q: np.ndarray, length_scale: float) -> np.ndarray:
-    """``s_min / s_max`` ``(N,)`` of the joint Jacobian with translation rows over
-    ``length_scale`` (m): 0 at a singularity."""
-    _, jac = pose_jacobian(model, q, joint_layout(model))
-    jac = jac.copy()
-    jac[:, :3] /= length_scale
-    s = np.linalg.svd(jac, compute_uv=False)
-    return s[:, -1] / s[:, 0]
-
-
 CONSTRAINTS = (
     "joint limits",
     "board in view",
@@ -83,18 +75,6 @@ CONSTRAINTS = (
     "cell collision",
     "line of sight",
 )  # the masks of :func:`check`, in its order
-
-
-def in_image(camera, pix: np.ndarray, depth: np.ndarray, margin: float) -> np.ndarray:
-    """Mask ``(N,)``: every point of each row of ``pix`` ``(N, K, 2)`` (px) lies in front of the
-    camera (``depth`` ``(N, K)`` > 0) and at least ``margin`` px inside its image."""
-    return (
-        (depth > 0).all(axis=1)
-        & (pix[..., 0] >= margin).all(axis=1)
-        & (pix[..., 0] <= camera.width - 1 - margin).all(axis=1)
-        & (pix[..., 1] >= margin).all(axis=1)
-        & (pix[..., 1] <= camera.height - 1 - margin).all(axis=1)
-    )
 
 
 def check(
@@ -186,32 +166,6 @@ def collisions(
         "self-collision": free,
         "cell collision": cell_collision(model, q, cell.handeye, obstacles, *radii),
     }
-
-
-_GEOMETRY: dict[tuple, object] = {}
-
-
-def urdf_geometry(model: RobotModel):
-    """The :class:`~relcal.design.urdf_collision.UrdfCollision` of a URDF model whose chain has
-    collision geometry (built once per model), else ``None``. Without python-fcl installed it is
-    ``None`` too, with a warning: the capsules are used instead."""
-    if model.urdf is None:
-        return None
-    chain = model.urdf
-    key = (hash(chain.data), chain.root, chain.tip, model.lower.tobytes(), model.upper.tobytes())
-    if key not in _GEOMETRY:
-        from relcal.design.urdf_collision import UrdfCollision
-        from relcal.errors import RelcalError
-
-        try:
-            geometry = UrdfCollision(model)
-        except RelcalError as exc:
-            import warnings
-
-            warnings.warn(f"{exc}; checking capsules about the links instead", stacklevel=2)
-            geometry = None
-        _GEOMETRY[key] = geometry if geometry is not None and geometry.has_chain_geometry else None
-    return _GEOMETRY[key]
 
 
 def feasible(

@@ -29,6 +29,9 @@ import numpy as np
 from relcal import geometry as tf
 from relcal.design.cell import FixedCameraCell, pattern_middle
 from relcal.design.collision import cell_collision, segment_distance, self_collision, skeleton
+from relcal.design.sight import in_image, sight_lines, skeleton_sight_free, urdf_sight_free
+from relcal.design.urdf_collision import urdf_geometry
+from relcal.robot.ik import inverse_condition
 from relcal.robot.kinematics import fk
 from relcal.robot.model import RobotModel
 
@@ -114,8 +117,6 @@ def check(
 ) -> dict[str, np.ndarray]:
     """Per constraint of :data:`~relcal.design.feasibility.CONSTRAINTS`, a mask ``(N,)`` of the
     configurations ``q`` ``(N, n)`` (rad, m) that satisfy it (see the module docstring)."""
-    from relcal.design.feasibility import in_image, inverse_condition
-
     boards = board_poses(model, cell, q)
     pix, depth = image_points(cell, boards)
     inside = in_image(cell.camera, pix, depth, constraints.margin_px)
@@ -147,7 +148,6 @@ def collisions(
     """``self-collision`` and ``cell collision`` masks ``(N,)``: the URDF's collision geometry
     where the chain has some (checked where ``rest`` holds), else capsules about the skeleton,
     the board a sphere of ``camera_radius`` about the pattern's centre."""
-    from relcal.design.feasibility import urdf_geometry
 
     radii = (constraints.link_radius, constraints.camera_radius)
     obstacles = np.array(constraints.obstacles, dtype=float).reshape(-1, 6)
@@ -176,9 +176,6 @@ def line_of_sight(
 ) -> np.ndarray:
     """Mask ``(N,)``: the fixed camera sees the whole pattern of each board ``F(q) X`` past the
     robot's links (checked where ``rest`` holds, elsewhere True; True with ``sight_grid`` 0)."""
-    from relcal.design.feasibility import urdf_geometry
-    from relcal.design.sight import sight_lines, skeleton_sight_free, urdf_sight_free
-
     ok = np.ones(len(q), dtype=bool)
     idx = np.flatnonzero(rest)
     if constraints.sight_grid <= 0 or not len(idx):

@@ -39,12 +39,13 @@ from relcal.design.criteria import (
     quality,
     selection_problem,
 )
-from relcal.design.feasibility import Constraints, candidates, check, feasible, inverse_condition
+from relcal.design.feasibility import Constraints, candidates, check, feasible
 from relcal.design.handeye import PURPOSES, MotionQuality, PairRule, handeye_problem, motion_quality
 from relcal.design.scoring import Scorer
 from relcal.design.search import bounded_moves, exchange, greedy
 from relcal.design.travel import MAX_MOVE, Route, travel_order
 from relcal.errors import RelcalError
+from relcal.robot.ik import inverse_condition
 from relcal.robot.model import RobotModel, check_model
 
 __all__ = [

@@ -165,3 +165,15 @@ def _z_to(axis: np.ndarray) -> np.ndarray:
     if s < 1e-12:
         return np.eye(3) if c > 0 else np.diag([1.0, -1.0, -1.0])
     return tf.exp_rotation(v / s * np.arctan2(s, c))
+
+
+def in_image(camera, pix: np.ndarray, depth: np.ndarray, margin: float) -> np.ndarray:
+    """Mask ``(N,)``: every point of each row of ``pix`` ``(N, K, 2)`` (px) lies in front of the
+    camera (``depth`` ``(N, K)`` > 0) and at least ``margin`` px inside its image."""
+    return (
+        (depth > 0).all(axis=1)
+        & (pix[..., 0] >= margin).all(axis=1)
+        & (pix[..., 0] <= camera.width - 1 - margin).all(axis=1)
+        & (pix[..., 1] >= margin).all(axis=1)
+        & (pix[..., 1] <= camera.height - 1 - margin).all(axis=1)
+    )

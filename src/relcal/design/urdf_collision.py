@@ -230,3 +230,28 @@ class UrdfCollision:
                 fcl.collide(t, box, request, fcl.CollisionResult()) for t in things for box in boxes
             )
         return ok
+
+
+_GEOMETRY: dict[tuple, object] = {}
+
+
+def urdf_geometry(model: RobotModel):
+    """The :class:`~relcal.design.urdf_collision.UrdfCollision` of a URDF model whose chain has
+    collision geometry (built once per model), else ``None``. Without python-fcl installed it is
+    ``None`` too, with a warning: the capsules are used instead."""
+    if model.urdf is None:
+        return None
+    chain = model.urdf
+    key = (hash(chain.data), chain.root, chain.tip, model.lower.tobytes(), model.upper.tobytes())
+    if key not in _GEOMETRY:
+        from relcal.errors import RelcalError
+
+        try:
+            geometry = UrdfCollision(model)
+        except RelcalError as exc:
+            import warnings
+
+            warnings.warn(f"{exc}; checking capsules about the links instead", stacklevel=2)
+            geometry = None
+        _GEOMETRY[key] = geometry if geometry is not None and geometry.has_chain_geometry else None
+    return _GEOMETRY[key]

@@ -624,3 +624,13 @@ def solve(
         again = _refine(model, targets[retry], seeds, options)
         result = _replace_rows(result, retry, _nearest_converged(model, again, reference[retry]))
     return result._squeeze() if single else result
+
+
+def inverse_condition(model: RobotModel, q: np.ndarray, length_scale: float) -> np.ndarray:
+    """``s_min / s_max`` ``(N,)`` of the joint Jacobian with translation rows over
+    ``length_scale`` (m): 0 at a singularity."""
+    _, jac = pose_jacobian(model, q, joint_layout(model))
+    jac = jac.copy()
+    jac[:, :3] /= length_scale
+    s = np.linalg.svd(jac, compute_uv=False)
+    return s[:, -1] / s[:, 0]
