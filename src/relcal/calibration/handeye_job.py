@@ -532,14 +532,11 @@ def deliver(
                     weak.append(f"{text} (the motions determine it; the measurements are noisy)")
                 else:
                     free.append(text)
-        if free and held_by_guess:
-            out.append(
-                Delivered(key, parent, child, t, std[:3], std[3:], (), tuple(free), tuple(weak))
-            )
-        else:
-            out.append(
-                Delivered(key, parent, child, t, std[:3], std[3:], tuple(free), (), tuple(weak))
-            )
+        free_dirs = () if held_by_guess else tuple(free)
+        held_dirs = tuple(free) if held_by_guess else ()
+        out.append(
+            Delivered(key, parent, child, t, std[:3], std[3:], free_dirs, held_dirs, tuple(weak))
+        )
     return tuple(out)
 
 
