@@ -260,11 +260,11 @@ def test_noisy_poses_give_a_weak_transform_delivered_with_its_std(tmp_path):
     assert "weak: translation" in handeye_text(doc)
 
 
-def test_motion_covariance_tells_free_directions_from_weak_ones():
+def test_frames_covariance_tells_free_directions_from_weak_ones():
     """What the motions alone determine, at 1 mm and 0.1 deg per pose: rotations about one axis
     leave X's translation along it free (infinite variance); rotations of 0.15 deg leave it
     beyond 5 mm; motions about every axis determine it to well under a millimetre."""
-    from relcal.calibration.handeye_job import motion_covariance
+    from relcal.calibration.handeye_job import frames_covariance
 
     z = np.array([0.0, 0.0, 1.0])
     for spread, axis, lo, hi in (
@@ -273,7 +273,7 @@ def test_motion_covariance_tells_free_directions_from_weak_ones():
         (0.45, None, 0.0, 5e-4),
     ):
         flange = flange_poses(20, seed=9, spread=spread, axis=axis)
-        cov = motion_covariance(flange, camera_poses(flange, cov=None), X_TRUE, W_TRUE)
+        cov = frames_covariance(flange, camera_poses(flange, cov=None), X_TRUE, W_TRUE)
         worst = np.sqrt(np.max(np.linalg.eigvalsh(cov[:3, :3])))
         assert lo <= worst <= hi
 

@@ -449,13 +449,19 @@ def _propagate(jac: np.ndarray, cov: np.ndarray) -> np.ndarray:
     return out
 
 
-def motion_covariance(
-    flange: np.ndarray, measured: np.ndarray, handeye: np.ndarray, world: np.ndarray
+def frames_covariance(
+    flange: np.ndarray,
+    measured: np.ndarray,
+    handeye: np.ndarray,
+    world: np.ndarray,
+    noise: np.ndarray | None = None,
 ) -> np.ndarray:
     """``(12, 12)`` covariance of ``(xi, omega)`` (as :attr:`FrameFit.covariance`) that the
-    motions ``flange`` ``(N, 4, 4)`` would give were each pose measured to :data:`NOMINAL_MM`
-    and :data:`NOMINAL_DEG`: what the motions alone determine, whatever the measurements' noise.
-    Directions the motions leave free get a variance of 10^12 times the best determined one's."""
+    motions ``flange`` ``(N, 4, 4)`` give were each pose ``measured`` with the error covariance
+    ``noise`` ``(6, 6)`` (m, rad, in the camera's or marker's frame; default
+    :data:`NOMINAL_MM` and :data:`NOMINAL_DEG`: what the motions alone determine, whatever the
+    measurements' noise). Directions the motions leave free get a variance of 10^12 times the
+    best determined one's."""
     step = 1e-7
     jac = np.empty((6 * len(flange), 12))
     for i in range(12):
@@ -466,8 +472,11 @@ def motion_covariance(
             moved = (handeye @ tf.from_vector(d[:6]), world @ tf.from_vector(d[6:]))
             sides.append(sample_errors(flange, measured, *moved).ravel())
         jac[:, i] = (sides[0] - sides[1]) / (2 * step)
-    weight = np.r_[np.full(3, 1e3 / NOMINAL_MM), np.full(3, 1.0 / np.radians(NOMINAL_DEG))]
-    jac *= np.tile(weight, len(flange))[:, None]
+    if noise is None:
+        noise = np.diag(np.r_[np.full(3, NOMINAL_MM * 1e-3), np.full(3, np.radians(NOMINAL_DEG))])
+        noise = noise**2
+    whiten = np.linalg.cholesky(np.linalg.inv(noise)).T  # whiten.T @ whiten = noise^-1
+    jac = np.einsum("ij,njk->nik", whiten, jac.reshape(len(flange), 6, 12)).reshape(-1, 12)
     vals, vecs = np.linalg.eigh(jac.T @ jac)
     floor = 1e-12 * max(float(vals.max()), 1e-300)
     return (vecs / np.maximum(vals, floor)) @ vecs.T
@@ -483,8 +492,9 @@ def deliver(
 ) -> tuple[Delivered, ...]:
     """The transforms of ``mode`` with their standard deviations and what is undetermined or
     weak (``by_product``: eye-to-hand's ``X``, the board on the flange). ``motions``: the
-    covariance of :func:`motion_covariance`, which tells a direction the motions leave free
-    from a weak one; without it every direction above the limits is undetermined. A fit
+    covariance of :func:`frames_covariance` (its default noise), which tells a direction the
+    motions leave free from a weak one; without it every direction above the limits is
+    undetermined. A fit
     without any covariance (a closed form's) is delivered with unknown standard deviations."""
     out = []
     for key, parent, child, fn in _deliverables(mode, frames, by_product):
@@ -845,7 +855,7 @@ def handeye(
     findings, _axis = motion_findings(data.flange)
     frames = frame_names(dataset, mode)
     used = fit.used
-    motions = motion_covariance(data.flange[used], data.measured[used], fit.handeye, fit.world)
+    motions = frames_covariance(data.flange[used], data.measured[used], fit.handeye, fit.world)
     delivered = deliver(mode, fit, frames, motions=motions)
     held = False
     if any(d.undetermined for d in delivered) and guess is not None:

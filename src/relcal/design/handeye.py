@@ -120,6 +120,10 @@ class MotionQuality:
     bad_pairs : int
         Pairs breaking :class:`PairRule` (turning near 180 deg, or barely moving).
     n_poses : int
+    camera_std : tuple of two (3,) ndarray of float, optional
+        Eye-to-hand: what the job delivers, the fixed camera in the base frame, predicted
+        standard deviations of its position along the base's x, y, z (m) and of its rotation
+        about them (rad) (:func:`fixed_camera_std`); None for a camera on the flange.
     """
 
     xyz_std: np.ndarray
@@ -129,15 +133,54 @@ class MotionQuality:
     max_rotation: float
     bad_pairs: int
     n_poses: int
+    camera_std: tuple[np.ndarray, np.ndarray] | None = None
+
+
+def fixed_camera_std(
+    model: RobotModel,
+    q: np.ndarray,
+    handeye: np.ndarray,
+    camera_pose: np.ndarray,
+    noise: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Predicted standard deviations of a fixed camera's pose in the base frame (what an
+    eye-to-hand job delivers) from configurations ``q`` ``(K, n)`` (rad, m) with the board on the
+    flange at ``handeye`` (flange-from-board) and the camera at ``camera_pose`` (base-from-camera):
+    the Cramer-Rao bound of ``X`` and ``W`` (:func:`~relcal.calibration.handeye_job.
+    frames_covariance`, each board pose measured with the error covariance ``noise`` ``(6, 6)``,
+    m, rad) carried to ``W^-1``. Returns the position's along the base's x, y, z (m) and the
+    rotation's about them (rad)."""
+    from relcal.calibration.handeye_job import frames_covariance
+
+    world = tf.invert(camera_pose)
+    flange = fk(model, q)
+    cov = frames_covariance(flange, world @ flange @ handeye, handeye, world, noise)
+    step = 1e-7
+    jac = np.empty((6, 6))
+    for i in range(6):
+        d = np.zeros(6)
+        d[i] = step
+        plus, minus = (tf.invert(world @ tf.from_vector(s * d)) for s in (1.0, -1.0))
+        jac[:3, i] = (plus[:3, 3] - minus[:3, 3]) / (2 * step)
+        jac[3:, i] = tf.log_rotation(plus[:3, :3] @ minus[:3, :3].T) / (2 * step)
+    par = jac @ cov[6:, 6:] @ jac.T
+    std = np.sqrt(np.clip(np.diag(par), 0.0, None))
+    return std[:3], std[3:]
 
 
 def motion_quality(
-    model: RobotModel, q: np.ndarray, handeye: np.ndarray, covariance: np.ndarray
+    model: RobotModel,
+    q: np.ndarray,
+    handeye: np.ndarray,
+    covariance: np.ndarray,
+    fixed: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> MotionQuality:
     """The hand-eye quality of configurations ``q`` ``(K, n)`` (rad, m) given the predicted
     covariance ``(6, 6)`` of ``X exp(xi)`` (translation m, rotation rad, in the camera frame, the
     order of :func:`handeye_problem`'s columns): standard deviations carried to the flange frame
-    (``R_X`` applied to both halves), and the spread of the motions."""
+    (``R_X`` applied to both halves), and the spread of the motions. ``fixed``: ``(camera_pose,
+    noise)`` of a fixed camera (eye-to-hand), whose predicted pose is added
+    (:func:`fixed_camera_std`)."""
     rot = np.asarray(handeye, float)[:3, :3]
     turn = np.zeros((6, 6))
     turn[:3, :3] = turn[3:, 3:] = rot
@@ -160,4 +203,5 @@ def motion_quality(
         max_rotation=float(angles.max()) if len(angles) else 0.0,
         bad_pairs=int(np.triu(bad, 1).sum()),
         n_poses=len(q),
+        camera_std=None if fixed is None else fixed_camera_std(model, q, handeye, *fixed),
     )

@@ -326,10 +326,13 @@ def plan(
         median = int(np.argsort([r.worst[1] for r in randoms])[len(sets) // 2])
         random_q = travel_order(model, pool[sets[median]], max_move).q
     if purpose == "handeye":
-        motion = motion_quality(model, route.q, cell.handeye, plan_quality.uncertainty.crb)
+        fixed = None
+        if cell.mode == "eye_to_hand":
+            fixed = (cell.camera_pose, noise.pose_covariance())
+        motion = motion_quality(model, route.q, cell.handeye, plan_quality.uncertainty.crb, fixed)
         if sets:
             crb = randoms[median].uncertainty.crb
-            random_motion = motion_quality(model, random_q, cell.handeye, crb)
+            random_motion = motion_quality(model, random_q, cell.handeye, crb, fixed)
     return PlanResult(
         q=route.q,
         criterion=criterion,

@@ -700,6 +700,14 @@ def motion_document(m: MotionQuality) -> dict:
         "min_pair_rotation_deg": float(np.degrees(m.min_rotation)),
         "max_pair_rotation_deg": float(np.degrees(m.max_rotation)),
         "pairs_near_180_deg_or_still": m.bad_pairs,
+        "fixed_camera": None
+        if m.camera_std is None
+        else {
+            "what": "the fixed camera in the base frame, what eye-to-hand delivers",
+            "std_xyz_mm": [float(v) * 1e3 for v in m.camera_std[0]],
+            "std_rotation_deg": [float(np.degrees(v)) for v in m.camera_std[1]],
+            "frame": "the base's (translation along, rotation about its x, y, z axes)",
+        },
     }
 
 

@@ -359,6 +359,16 @@ def format_motion(res: PlanResult) -> list[str]:
         "the first (0: every motion turns about one or two axes); pairs: turning near 180 deg "
         "or barely moving (the closed forms leave such samples out)"
     )
+    fixed = [(label, m.camera_std) for label, m in rows if m.camera_std is not None]
+    if fixed:
+        lines += [
+            "what eye-to-hand delivers, the fixed camera in the base frame (Cramer-Rao bound):",
+            f"{'':<22s} {'std x y z mm':>26s} {'std about x y z deg':>26s}",
+        ]
+        for label, (xyz, rot) in fixed:
+            xyz_text = " ".join(f"{v * 1e3:8.4f}" for v in xyz)
+            rot_text = " ".join(f"{np.degrees(v):8.5f}" for v in rot)
+            lines.append(f"{label:<22s} {xyz_text:>26s} {rot_text:>26s}")
     return lines
 
 
