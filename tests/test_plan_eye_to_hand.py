@@ -190,3 +190,15 @@ def test_dataset_writer_records_the_mode(tmp_path):
 def test_bad_fixed_camera_options(run_cli, args, message):
     code, text = run_cli("plan", "--robot", "ur5e", "--n-candidates", "50", *args)
     assert code == 2 and message in text and "Traceback" not in text, text
+
+
+def test_a_camera_facing_away_from_the_arm_is_named(ur5e):
+    """A camera 1 m out looking up: the board poses in front of it are beyond the arm's reach,
+    and the refusal says where to look (the camera's pose, the board's mount)."""
+    from relcal.design.cell import FixedCameraCell
+    from relcal.design.feasibility import Constraints, candidates
+    from relcal.errors import RelcalError
+
+    cell = FixedCameraCell(camera_pose=tf.from_xyz_rpy(np.array([1.0, 0.0, 0.5]), np.zeros(3)))
+    with pytest.raises(RelcalError, match="move --camera-pose"):
+        candidates(ur5e, cell, Constraints(), 4, batch=50, max_rounds=1)

@@ -296,9 +296,15 @@ def candidates(
             close()  # cancels the batches still running on the cluster
     out = np.concatenate(kept)[:count] if total else np.zeros((0, model.n_joints))
     if len(out) == 0:
+        where = (
+            "the poses in front of the fixed camera (--distance from it) may be out of the arm's "
+            "reach (move --camera-pose, or check --handeye, the board on the flange)"
+            if cell.mode == "eye_to_hand"
+            else "the board may be out of reach"
+        )
         raise RelcalError(
-            "no feasible configuration found: the board may be out of reach or the constraints "
-            f"too tight (rejections: {rejected}){_narrow_joints(model)}"
+            f"no feasible configuration found: {where} or the constraints too tight "
+            f"(rejections: {rejected}){_narrow_joints(model)}"
         )
     return out, rejected
 
