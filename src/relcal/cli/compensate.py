@@ -99,6 +99,16 @@ def covered_ranges(model_path: Path):
         return None
 
 
+def _shown_unit(prismatic: bool, joint_unit: str) -> tuple[float, str]:
+    """The factor from SI and the unit a joint's value is shown in: m for a prismatic joint,
+    else ``joint_unit`` (deg or rad)."""
+    import math
+
+    if prismatic:
+        return 1.0, "m"
+    return (math.degrees(1.0), "deg") if joint_unit == "deg" else (1.0, "rad")
+
+
 def outside_warnings(ranges, ids, q: np.ndarray, joint_unit: str) -> list[str]:
     """One warning per target whose joints ``q`` ``(N, n)`` (rad, m) lie beyond the ranges the
     calibration covered (by more than their slack): its accuracy there was never validated."""
@@ -111,11 +121,7 @@ def outside_warnings(ranges, ids, q: np.ndarray, joint_unit: str) -> list[str]:
     for k in np.flatnonzero(outside.any(axis=1)):
         joints = []
         for j in np.flatnonzero(outside[k]):
-            conv, unit = (
-                (1.0, "m")
-                if ranges.prismatic[j]
-                else ((np.degrees(1.0), "deg") if joint_unit == "deg" else (1.0, "rad"))
-            )
+            conv, unit = _shown_unit(bool(ranges.prismatic[j]), joint_unit)
             joints.append(
                 f"{ranges.names[j]} = {q[k, j] * conv:.4g} {unit} (covered "
                 f"{ranges.lower[j] * conv:.4g} .. {ranges.upper[j] * conv:.4g})"
@@ -129,31 +135,21 @@ def outside_warnings(ranges, ids, q: np.ndarray, joint_unit: str) -> list[str]:
 
 def validated_error(model_path: Path) -> dict | None:
     """The held-out error that ``results.json`` beside a ``model.yaml`` of ``relcal calibrate``
-    records for that very file (``artifacts``, matched by the SHA-256 of its content after the
-    run's comment line): ``{"position_rms_mm", "n_samples", "matches"}``; ``matches`` False when
-    the file was changed since. None without such a record."""
-    import hashlib
+    records for that very file (:func:`relcal.calibration.verify.model_file_record`:
+    ``{"position_rms_mm", "n_samples", "matches"}``, ``matches`` False when the file was changed
+    since). None without such a record."""
     import json
 
-    from relcal.reporting.outputs import RUN_ID_PREFIX
+    from relcal.calibration.verify import model_file_record
 
     results = model_path.parent / "results.json"
     if model_path.name != "model.yaml" or not results.is_file():
         return None
     try:
         doc = json.loads(results.read_text(encoding="utf-8"))
-        entry = {f["file"]: f for f in doc["artifacts"]["files"]}["model.yaml"]
-    except (OSError, ValueError, KeyError, TypeError):
-        return None  # not a relcal calibration set (or an older one): nothing to say
-    data = model_path.read_bytes()
-    if data.startswith(RUN_ID_PREFIX.encode()):
-        data = data.split(b"\n", 1)[1] if b"\n" in data else b""
-    held = entry.get("held_out") or {}
-    return {
-        "position_rms_mm": held.get("position_rms_mm"),
-        "n_samples": held.get("n_samples"),
-        "matches": hashlib.sha256(data).hexdigest() == entry.get("sha256"),
-    }
+    except (OSError, ValueError):
+        return None  # not a relcal calibration set: nothing to say
+    return model_file_record(model_path, doc)
 
 
 def validation_note(model_path: Path, found: dict | None) -> str | None:
@@ -379,11 +375,7 @@ def gate_message(path, ids, comp, gate, bad, joint_unit, model, one: bool = Fals
     parts = []
     if dq is not None and (dq > gate.joint).any():
         j = int(np.argmax(dq / gate.joint))
-        f, unit = (
-            (1.0, "m")
-            if model.prismatic[j]
-            else ((np.degrees(1.0), "deg") if joint_unit == "deg" else (1.0, "rad"))
-        )
+        f, unit = _shown_unit(bool(model.prismatic[j]), joint_unit)
         parts.append(
             f"{model.joint_names[j]} corrected by {dq[j] * f:.4g} {unit} (at most "
             f"{gate.joint[j] * f:.3g} {unit} is plausible)"
