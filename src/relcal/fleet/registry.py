@@ -533,15 +533,20 @@ class PendingRecord:
         return f"registry {self.registry.name} run {self.run_id}"
 
 
-def _verification_row(record: dict[str, Any]) -> dict[str, Any]:
-    """The table row of a verification record (``uid`` and ``created_at`` filled in)."""
-    row = dict(record)
+def _filled(row: dict[str, Any], table, what: str) -> dict[str, Any]:
+    """``row`` with ``uid`` and ``created_at`` filled in when missing, checked against the
+    columns of ``table`` (an unknown key is a ``ValueError`` naming the ``what`` fields)."""
     row.setdefault("uid", uuid.uuid4().hex)
     row.setdefault("created_at", datetime.now(UTC))
-    unknown = set(row) - set(verifications.c.keys())
+    unknown = set(row) - set(table.c.keys())
     if unknown:
-        raise ValueError(f"unknown verification fields: {sorted(unknown)}")
+        raise ValueError(f"unknown {what} fields: {sorted(unknown)}")
     return row
+
+
+def _verification_row(record: dict[str, Any]) -> dict[str, Any]:
+    """The table row of a verification record (``uid`` and ``created_at`` filled in)."""
+    return _filled(dict(record), verifications, "verification")
 
 
 def _row(record: dict[str, Any]) -> dict[str, Any]:
@@ -549,12 +554,7 @@ def _row(record: dict[str, Any]) -> dict[str, Any]:
     ``created_at`` filled in when missing)."""
     row = {k: v for k, v in record.items() if k != "errors"}
     row.update(record.get("errors") or {})
-    row.setdefault("uid", uuid.uuid4().hex)
-    row.setdefault("created_at", datetime.now(UTC))
-    unknown = set(row) - set(calibrations.c.keys())
-    if unknown:
-        raise ValueError(f"unknown registry fields: {sorted(unknown)}")
-    return row
+    return _filled(row, calibrations, "registry")
 
 
 class Registry:
