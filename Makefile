@@ -60,7 +60,7 @@ mujoco-gl:
 test: $(DEV) chromium postgresql mujoco-gl
 	$(VENV)/bin/ruff check $(LINTED)
 	$(VENV)/bin/ruff format --check $(LINTED)
-	OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1 $(PY) -m pytest -n 2
+	OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1 $(PY) -m pytest -n 2 --dist worksteal
 
 bench: $(DEV)
 	$(PY) -m pip install -q -e '.[dev,bench]'
