@@ -3,6 +3,7 @@ arm, which frame it takes, what it records, how it retries and skips, and the da
 writes sample by sample (resume, refusals). No MuJoCo here: see test_capture_virtual.py."""
 
 import json
+import os
 import re
 
 import cv2
@@ -311,28 +312,20 @@ def test_an_interrupt_held_back_during_a_write_keeps_the_sample(tmp_path, board_
     original = DatasetWriter.record
 
     def record_then_signal(self, sample):
-        import relcal.capture.record as record
+        real = os.replace
+        calls = []
 
-        real = record._signals_held
+        def replace(*args, **kwargs):  # the first rename of the sample's files
+            if not calls:
+                calls.append(1)
+                signal.raise_signal(signal.SIGINT)  # arrives mid-write, held back
+            return real(*args, **kwargs)
 
-        def held():
-            context = real()
-
-            class Wrapped:
-                def __enter__(self):
-                    context.__enter__()
-                    signal.raise_signal(signal.SIGINT)  # arrives mid-write, held back
-
-                def __exit__(self, *exc):
-                    return context.__exit__(*exc)
-
-            return Wrapped()
-
-        record._signals_held = held
+        os.replace = replace
         try:
             original(self, sample)
         finally:
-            record._signals_held = real
+            os.replace = real
 
     writer.record = record_then_signal.__get__(writer)
     previous = signal.signal(signal.SIGINT, signal.default_int_handler)  # as in a shell
@@ -428,3 +421,32 @@ def test_reported_velocities_hold_the_window_until_the_arm_stops_moving(board_im
 def test_settle_velocity_is_checked():
     with pytest.raises(RelcalError, match="settle_velocity"):
         CaptureSettings(settle_velocity=-1.0)
+
+
+def test_an_interrupt_while_a_failed_write_cleans_up_leaves_no_temporary(tmp_path, monkeypatch):
+    """A sample's write fails (a full disk) and SIGINT arrives while its temporaries are being
+    removed: the removal ends first, nothing is left beside the dataset's files."""
+    import signal
+    from pathlib import Path
+
+    import relcal.capture.record as record
+
+    def full(tmp, data):
+        raise OSError(28, "No space left on device")
+
+    real_unlink = Path.unlink
+
+    def unlink(self, *args, **kwargs):
+        signal.raise_signal(signal.SIGINT)
+        return real_unlink(self, *args, **kwargs)
+
+    monkeypatch.setattr(record, "_fill", full)
+    monkeypatch.setattr(Path, "unlink", unlink)
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)  # as in a shell
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            record._commit([(tmp_path / "a.csv", b"x"), (tmp_path / "b.csv", b"y")])
+    finally:
+        signal.signal(signal.SIGINT, previous)
+        monkeypatch.undo()
+    assert list(tmp_path.iterdir()) == []

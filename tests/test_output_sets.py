@@ -502,6 +502,33 @@ def test_a_signal_during_the_renames_is_delivered_after_them(tmp_path, monkeypat
     assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
 
 
+@pytest.mark.parametrize("when", ["after the commit", "after a failure"])
+def test_a_signal_during_the_clean_up_leaves_no_temporaries(tmp_path, monkeypatch, when):
+    """SIGINT sent while the write removes its temporaries (the replaced set once the new one is
+    in place; the staged set once a step failed): the clean-up ends, then the interrupt arrives;
+    nothing is left beside the outputs."""
+    out = tmp_path / "cal"
+    write_set(Folder(out, _set_files("old"), run_id="old"))
+    write_set(Folder(out, _set_files("older"), run_id="older"))  # a .prev to replace
+    real_rmtree = outputset.shutil.rmtree
+
+    def interrupted_rmtree(path, *args, **kwargs):
+        signal.raise_signal(signal.SIGINT)
+        real_rmtree(path, *args, **kwargs)
+
+    monkeypatch.setattr(outputset.shutil, "rmtree", interrupted_rmtree)
+    if when == "after a failure":
+        monkeypatch.setattr(outputset, "_exchange", lambda a, b: _raise(OSError("disk gone")))
+    with pytest.raises((KeyboardInterrupt, RelcalError)):
+        write_set(Folder(out, _set_files("new"), run_id="new"))
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["cal", "cal.prev"]
+    assert whole_set(out) == ("new" if when == "after the commit" else "older")
+
+
+def _raise(exc: Exception):
+    raise exc
+
+
 def test_a_reentrant_lock_released_late_by_the_garbage_collector_does_not_fail(tmp_path):
     """A block re-entering a lock this thread holds, left open (a generator dropped mid-way) and
     closed only after the outer block released the lock: it ends quietly, and the lock is free."""

@@ -1055,28 +1055,29 @@ def write_set(*items: Folder | File, journal: Journal | None = None) -> list[Pat
             if journal is not None:
                 note_written(journal.describe())
             made, created = [], []
-    finally:
-        if committed:  # the oldest set and replaced files: no longer needed (even if a held
-            for old in trash:  # signal is being delivered)
-                if old.is_dir():
-                    shutil.rmtree(old, ignore_errors=True)
+    finally:  # held too: an interrupt in the middle of the clean-up would leave half-removed
+        with _signals_held():  # temporaries (delivered once it is done)
+            if committed:  # the oldest set and replaced files: no longer needed (even if a held
+                for old in trash:  # signal is being delivered)
+                    if old.is_dir():
+                        shutil.rmtree(old, ignore_errors=True)
+                    else:
+                        old.unlink(missing_ok=True)
+            if prepared and not committed:
+                try:
+                    journal.rollback()  # type: ignore[union-attr]
+                except Exception:  # noqa: BLE001 - the write's own error is the one to report
+                    pass
+            for tmp in made:
+                if tmp.is_dir() and not tmp.is_symlink():
+                    shutil.rmtree(tmp, ignore_errors=True)
                 else:
-                    old.unlink(missing_ok=True)
-        if prepared and not committed:
-            try:
-                journal.rollback()  # type: ignore[union-attr]
-            except Exception:  # noqa: BLE001 - the write's own error is the one to report
-                pass
-        for tmp in made:
-            if tmp.is_dir() and not tmp.is_symlink():
-                shutil.rmtree(tmp, ignore_errors=True)
-            else:
-                tmp.unlink(missing_ok=True)
-        for fd in holds:
-            _release(fd)
-        for folder in created:
-            try:
-                folder.rmdir()
-            except OSError:
-                pass
+                    tmp.unlink(missing_ok=True)
+            for fd in holds:
+                _release(fd)
+            for folder in created:
+                try:
+                    folder.rmdir()
+                except OSError:
+                    pass
     return [Path(i.path) for i in items]

@@ -66,32 +66,32 @@ def _fsync_dir(path: Path) -> None:
         os.close(fd)
 
 
-def _stage(path: Path, data: bytes) -> Path:
-    """``data`` written and flushed to a temporary sibling of ``path``."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as handle:
-            handle.write(data)
-            handle.flush()
-            os.fsync(handle.fileno())
-        mask = os.umask(0)
-        os.umask(mask)
-        os.chmod(tmp, 0o666 & ~mask)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-    return Path(tmp)
+def _fill(tmp: Path, data: bytes) -> None:
+    """``data`` written and flushed to the temporary ``tmp``, with the permissions of a new file."""
+    with open(tmp, "wb") as handle:
+        handle.write(data)
+        handle.flush()
+        os.fsync(handle.fileno())
+    mask = os.umask(0)
+    os.umask(mask)
+    os.chmod(tmp, 0o666 & ~mask)
 
 
 def _commit(pairs: Sequence[tuple[Path, bytes]], done: list | None = None) -> None:
     """Write several files, each atomically, renamed in order with signals held back; ``done``
     gets ``True`` appended once every rename is made (a signal held back meanwhile is raised
-    after that, so the caller can tell a write that happened from one that did not)."""
-    staged = []
+    after that, so the caller can tell a write that happened from one that did not). A
+    temporary is created and listed, and the temporaries removed, with signals held back too:
+    an interrupt never leaves one behind."""
+    staged: list[tuple[Path, Path]] = []
     try:
         for path, data in pairs:
-            staged.append((_stage(path, data), path))
+            path.parent.mkdir(parents=True, exist_ok=True)
+            with _signals_held():
+                fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+                os.close(fd)
+                staged.append((Path(tmp), path))
+            _fill(Path(tmp), data)
         with _signals_held():
             for tmp, path in staged:
                 os.replace(tmp, path)
@@ -101,8 +101,9 @@ def _commit(pairs: Sequence[tuple[Path, bytes]], done: list | None = None) -> No
             for folder in {path.parent for path, _ in pairs}:
                 _fsync_dir(folder)
     finally:
-        for tmp, _ in staged:
-            tmp.unlink(missing_ok=True)
+        with _signals_held():
+            for tmp, _ in staged:
+                tmp.unlink(missing_ok=True)
 
 
 def file_digest(path: Path) -> str:
