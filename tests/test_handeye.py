@@ -404,6 +404,108 @@ def test_command_refuses_bad_input_with_exit_2(tmp_path, capsys):
     assert not (folder / "handeye").exists()
 
 
+def _rewrite_columns(folder, change) -> None:
+    """``change(header, rows)`` applied to the samples table of ``folder`` (lists of cells)."""
+    lines = [line.split(",") for line in (folder / "samples.csv").read_text().splitlines()]
+    change(lines[0], lines[1:])
+    (folder / "samples.csv").write_text("\n".join(",".join(c) for c in lines) + "\n")
+
+
+def _w_first(columns):
+    def change(header, rows):
+        at = [header.index(c) for c in columns]
+        for row in rows:
+            values = [row[k] for k in at]
+            for k, v in zip(at, values[-1:] + values[:-1], strict=True):
+                row[k] = v  # x, y, z, w written as w, x, y, z under the same header
+
+    return change
+
+
+def _name_w_first(columns):
+    def change(header, rows):
+        at = [header.index(c) for c in columns]
+        for k, name in zip(at, columns[-1:] + columns[:-1], strict=True):
+            header[k] = name
+
+    return change
+
+
+def _shifted(header, rows):
+    """Each row's flange pose paired with the next row's measured pose."""
+    flange = [header.index(c) for c in ("fx", "fy", "fz", "fqx", "fqy", "fqz", "fqw")]
+    first = [rows[0][k] for k in flange]
+    for a, b in zip(rows, rows[1:], strict=False):
+        for k in flange:
+            a[k] = b[k]
+    for k, v in zip(flange, first, strict=True):
+        rows[-1][k] = v
+
+
+FLANGE_Q = ["fqx", "fqy", "fqz", "fqw"]
+POSE_Q = ["qx", "qy", "qz", "qw"]
+
+
+@pytest.mark.parametrize(
+    "case, expected, fix",
+    [
+        ("flange w-first", "flange quaternions look w-first", _name_w_first(FLANGE_Q)),
+        ("measured w-first", "quaternions look w-first", _name_w_first(POSE_Q)),
+        ("flange inverted", "flange poses look inverted", None),
+        ("measured inverted", "poses look inverted (board in camera given", None),
+        ("measured in mm", "poses look like millimetres", None),
+        ("rows shifted", "recorded together", None),
+    ],
+)
+def test_flange_pose_mix_ups_are_refused_naming_the_cause(tmp_path, capsys, case, expected, fix):
+    """Logged flange poses beside camera poses that cannot be what they say (a column order, a
+    pose direction, a unit, rows out of step): refused before anything is written, exit 2,
+    naming the reading that fits; following the fix it names gives the right transform."""
+    from relcal.cli import main
+
+    flange = flange_poses(20, seed=21)
+    poses = camera_poses(flange, seed=21)
+    if case == "flange inverted":
+        flange = tf.invert(flange)
+    elif case == "measured inverted":
+        poses = tf.invert(poses)
+    elif case == "measured in mm":
+        poses = poses.copy()
+        poses[:, :3, 3] *= 1000
+    folder = write_flange_dataset(tmp_path / "d", flange, poses)
+    if case == "flange w-first":
+        _rewrite_columns(folder, _w_first(FLANGE_Q))
+    elif case == "measured w-first":
+        _rewrite_columns(folder, _w_first(POSE_Q))
+    elif case == "rows shifted":
+        _rewrite_columns(folder, _shifted)
+    out = tmp_path / "he"
+    assert main(["handeye", str(folder), "--out", str(out), "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert expected in err and err.count("\n") == 1, err
+    assert not out.exists()
+    if fix is not None:
+        _rewrite_columns(folder, fix)
+        assert main(["handeye", str(folder), "--out", str(out), "--quiet"]) == 0
+        result = relcal.handeye(relcal.load_dataset(folder))
+        error = _frame_error(result.transform("handeye"), X_TRUE)
+        assert np.abs(error[:3]).max() < 2e-3 and np.abs(error[3:]).max() < np.radians(0.3)
+
+
+def test_joint_mix_ups_are_refused_as_calibrate_refuses_them(tmp_path):
+    """With joints and a robot model, the hand-eye job runs calibrate's checks: two joint
+    columns swapped are named, and so is a robot-world session whose poses are inverted."""
+    model = relcal.get_robot("ur5e")
+    rng = np.random.default_rng(3)
+    q = np.radians([0, -90, 90, -90, -90, 0]) + rng.normal(0, 0.4, (20, 6))
+    poses = W_TRUE @ relcal.fk(model, q) @ X_TRUE
+    with pytest.raises(RelcalError, match="joint columns q2 and q3 look swapped"):
+        handeye(relcal.Dataset.from_arrays(model, q[:, [0, 2, 1, 3, 4, 5]], poses))
+    inverted = relcal.Dataset.from_arrays(model, q, tf.invert(poses), mode="robot_world")
+    with pytest.raises(RelcalError, match="poses look inverted"):
+        handeye(inverted)
+
+
 # --- real data -----------------------------------------------------------------------------------
 
 

@@ -815,6 +815,7 @@ def handeye(
     >>> result.verdict.code, result.exported
     ('deploy', 'refined')
     """
+    from relcal.calibration.plausibility import check_handeye_dataset
     from relcal.data.imaging import measure
     from relcal.robot.kinematics import fk
 
@@ -847,6 +848,7 @@ def handeye(
         corners=_corners(dataset, m, order) if images else None,
         camera=m.camera,
     )
+    check_handeye_dataset(dataset, data.flange, data.measured, order, mode)
     rows = np.arange(len(order))
     guess = dataset.handeye
     answers, selection, fit = _fit_all(

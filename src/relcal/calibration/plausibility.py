@@ -433,7 +433,13 @@ def pose_readings(
     other = "board in camera" if mode == "eye_in_hand" else "camera in board"
     wanted = "camera in board" if mode == "eye_in_hand" else "board in camera"
     swapped = "eye_to_hand" if mode == "eye_in_hand" else "eye_in_hand"
-    if poses_given:
+    if mode == "robot_world":
+        inverted = (
+            "poses look inverted (the world in the camera or marker frame given, the camera or "
+            "marker in the world frame expected for robot_world; fix: give the camera or marker "
+            "pose in the world frame)"
+        )
+    elif poses_given:
         inverted = (
             f"poses look inverted ({other} given, {wanted} expected for {mode}; fix: give "
             f"{wanted}, or mode: {swapped} if that is the setup)"
@@ -703,6 +709,32 @@ def _key(value: float) -> float:
     return value if np.isfinite(value) else np.inf
 
 
+@dataclass(frozen=True)
+class Words:
+    """How :func:`diagnose_readings` names the robot's side of the comparison in its messages."""
+
+    motions: str  # the relative motions the measured ones are compared with
+    columns: str  # the robot's columns whose other readings were tried
+    check: str  # what to check when no reading fits the rotations
+    lengths: str  # the robot's lengths, for translations that do not fit
+
+
+JOINT_WORDS = Words(
+    "commanded ones",
+    "joint order, signs and unit",
+    "Check the robot model, and whether these samples belong to this robot",
+    "the robot model's link lengths",
+)
+FLANGE_WORDS = Words(
+    "logged flange motions",
+    "flange quaternion order and pose direction",
+    "Check that each row's flange pose and measured pose were recorded together (the same "
+    "moment, the same row), and the flange columns (fx .. fqw: the flange in the robot's base "
+    "frame)",
+    "the flange positions' unit",
+)
+
+
 def diagnose_readings(
     q: np.ndarray,
     poses: np.ndarray,
@@ -713,6 +745,7 @@ def diagnose_readings(
     pairs: np.ndarray,
     given_valid: bool = True,
     moving: np.ndarray | None = None,
+    words: Words | None = None,
 ) -> tuple[str | None, _Evaluation | None]:
     """``None`` and the evaluation of the data as given (``R_X``, the scale found, the samples
     whose pairs misfit far more than the others') when they agree with the model; else a message
@@ -729,7 +762,9 @@ def diagnose_readings(
     the tolerances, with a plausible scale: :meth:`_Fit.fits`) and 3 times better than the data
     as given; ``given_valid`` False (readings beyond the joint limits) lets any reading that
     fits be named. What the data cannot tell (too few pairs turn, ``R_X`` not determined) is
-    never a reason to refuse."""
+    never a reason to refuse. ``words``: what the messages call the robot's motions and what
+    they advise (:data:`JOINT_WORDS` by default)."""
+    words = words or JOINT_WORDS
     tol, tol_t = tolerances.rotation, tolerances.translation
     moving = np.ones(len(pairs), dtype=bool) if moving is None else np.asarray(moving, bool)
     flange = fk(q) if given_valid else None
@@ -778,7 +813,7 @@ def diagnose_readings(
             alike = sorted(alike, key=lambda label: label.count(" and "))[:3]
             return (
                 f"{' or '.join(alike)}: read that way the relative rotations agree with the "
-                f"commanded ones to {_deg(best.misfit)} and the relative translations to "
+                f"{words.motions} to {_deg(best.misfit)} and the relative translations to "
                 f"{best.translation * 1e3:.3g} mm (median); as given "
                 + (
                     "some joint readings are beyond their limits"
@@ -798,22 +833,21 @@ def diagnose_readings(
         turning = turning_pairs(_motions(flange, pairs), given_motions, moving, tol)
         a, b = relative(flange, pairs[turning]), relative(poses, pairs[turning])
         return (
-            f"measured relative rotations disagree with the commanded ones by a median "
+            f"measured relative rotations disagree with the {words.motions} by a median "
             f"{np.degrees(given.misfit):.1f} deg over the {turning.sum()} pairs that turn (their "
             f"rotation angles alone by {np.degrees(angle_misfit(a, b)):.1f} deg; expected < "
             f"{np.degrees(tol):.1f} deg for any hand-eye transform), and no other reading of the "
-            "columns (joint order, signs and unit; quaternion order; pose direction) fits. Check "
-            "the robot model, and whether these samples belong to this robot",
+            f"columns ({words.columns}; quaternion order; pose direction) fits. {words.check}",
             evaluation,
         )
     if given.translation > tol_t:
         return (
-            f"measured relative translations disagree with the commanded ones by a median "
+            f"measured relative translations disagree with the {words.motions} by a median "
             f"{given.translation * 1e3:.4g} mm after the best hand-eye transform (expected < "
             f"{tol_t * 1e3:.3g} mm, translation_mm in dataset.yaml tolerances), while the "
             f"rotations agree to {_deg(given.misfit)}, and no other reading of "
-            "the columns fits. Check the x, y, z columns (order, signs), the robot model's "
-            "link lengths, and whether the poses are of the flange-mounted camera",
+            f"the columns fits. Check the x, y, z columns (order, signs), {words.lengths}, and "
+            "whether the poses are of the flange-mounted camera",
             evaluation,
         )
     return None, evaluation
@@ -853,15 +887,7 @@ def check_inputs(
     problems = joint_problems(
         q, model.lower, model.upper, model.prismatic, model.joint_names, ids, tolerances.joint_limit
     )
-    units = position_problems(poses, ids)
-    if units:
-        raise RelcalError(f"{where}: " + "\n".join(units))
-    if handeye is not None and np.linalg.norm(handeye[:3, 3]) > 2.0:
-        xyz = np.array2string(handeye[:3, 3], precision=4)
-        raise RelcalError(
-            f"{spec}: handeye: xyz {xyz} m is {np.linalg.norm(handeye[:3, 3]):.4g} m from the "
-            "flange: looks like millimetres (give metres)"
-        )
+    _check_magnitudes(poses, ids, handeye, where, spec)
     pairs = check_pairs(len(q))
     moving = moving_pairs(q, pairs, model.prismatic)
     joints = joint_readings(model, q, tolerances.joint_limit, joint_unit)
@@ -874,8 +900,6 @@ def check_inputs(
         raise RelcalError(f"{where}: {message}")
     if problems:
         raise RelcalError(f"{where}: " + "\n".join(problems))
-    rx, scale = given.rx, given.scale  # type: ignore[union-attr]
-    misfit = given.fit.misfit  # type: ignore[union-attr]
     # The step search linearises about X: the data's own hand-eye, not a guess from a drawing
     # (a guess off by degrees bends the frames' scatter past the linear fit and passes for a
     # step: 8 mm on clean synthetic data with the 12 deg guess of the tests' sets).
@@ -886,17 +910,118 @@ def check_inputs(
     moved = None if x is None else moved_frame(model, q, poses, x, fk)
     if moved is not None:
         raise RelcalError(f"{where}: {moved_message(ids, moved[0], moved[1], len(q), mode)}")
+    return _check_scale_and_guess(given, handeye, board, poses_given, where, spec, tolerances)
+
+
+def _check_magnitudes(
+    poses: np.ndarray, ids: Sequence[str], handeye: np.ndarray | None, where: str, spec: str
+) -> None:
+    """Measured positions in millimetres or absurd, a hand-eye guess in millimetres."""
+    units = position_problems(poses, ids)
+    if units:
+        raise RelcalError(f"{where}: " + "\n".join(units))
+    if handeye is not None and np.linalg.norm(handeye[:3, 3]) > 2.0:
+        xyz = np.array2string(handeye[:3, 3], precision=4)
+        raise RelcalError(
+            f"{spec}: handeye: xyz {xyz} m is {np.linalg.norm(handeye[:3, 3]):.4g} m from the "
+            "flange: looks like millimetres (give metres)"
+        )
+
+
+def _check_scale_and_guess(
+    given: _Evaluation,
+    handeye: np.ndarray | None,
+    board,
+    poses_given: bool,
+    where: str,
+    spec: str,
+    tolerances: Tolerances,
+    model_word: str = "the robot model",
+) -> Scale:
+    """The data as given fit in rotation: their translation scale (a wrong unit or board size)
+    and the hand-eye guess against what they say; the scale found."""
+    rx, scale, misfit = given.rx, given.scale, given.fit.misfit
     if scale is None or not scale.determined:
         scale = scale or Scale(float("nan"), float("inf"), False)
         return replace(scale, rotation_misfit=misfit)
     if scale_problem(scale, tolerances):
-        raise RelcalError(f"{where}: {scale_message(scale.ratio, board, poses_given)}")
+        message = scale_message(scale.ratio, board, poses_given, model_word)
+        raise RelcalError(f"{where}: {message}")
     if handeye is not None:
         tx = scale.handeye_translation if scale.translation_known else None
         message = guess_problem(handeye, rx, tx)
         if message:
             raise RelcalError(f"{spec}: {message}")
     return replace(scale, rotation_misfit=misfit)
+
+
+SAME_FLANGE = 5e-5  # m: flange poses this close (and SAME_CONFIGURATION in rad) are one pose
+
+
+def flange_readings() -> list[Reading]:
+    """The mix-ups of logged flange poses worth trying: w-first quaternions, inverted poses (the
+    base in the flange frame), both."""
+    wfirst = (
+        "flange quaternions look w-first (fqx, fqy, fqz, fqw expected in x, y, z, w order; fix: "
+        "name the columns fqw, fqx, fqy, fqz in the header)"
+    )
+    inverted = (
+        "flange poses look inverted (the base in the flange frame given, the flange in the "
+        "robot's base frame expected; fix: export the flange pose in the base frame)"
+    )
+    return [
+        Reading(wfirst, joints=reorder_w_first),
+        Reading(inverted, joints=tf.invert),
+        Reading(f"{wfirst} and {inverted}", joints=lambda f: tf.invert(reorder_w_first(f))),
+    ]
+
+
+def check_flange_inputs(
+    flange: np.ndarray,
+    poses: np.ndarray,
+    ids: Sequence[str],
+    where: str,
+    *,
+    mode: str = "eye_in_hand",
+    handeye: np.ndarray | None = None,
+    board=None,
+    poses_given: bool = True,
+    spec: str | None = None,
+    tolerances: Tolerances = Tolerances(),
+    pose_angle_unit: str | None = None,
+) -> Scale:
+    """:func:`check_inputs` for flange poses logged by a controller (no robot model): the
+    measured poses ``(N, 4, 4)`` against the flange poses ``(N, 4, 4)`` (m) by the relations
+    that hold whatever the hand-eye transform, the same rotation angle and a common ``R_X`` for
+    every relative motion, and one translation scale. Readings of the flange poses
+    (:func:`flange_readings`) and of the measured ones (:func:`pose_readings`) are tried when
+    the data as given do not fit, and the one that fits is named with its fix. Give the samples
+    in an order of their own (the checks draw pairs by position beyond 63 samples). Returns
+    the translation scale found."""
+    spec = spec or where
+    _check_magnitudes(poses, ids, handeye, where, spec)
+    pairs = check_pairs(len(flange))
+    rel = relative(flange, pairs)
+    moving = (np.linalg.norm(rel[:, :3, 3], axis=1) > SAME_FLANGE) | (
+        np.linalg.norm(rotation_vectors(rel), axis=1) > SAME_CONFIGURATION
+    )
+    message, given = diagnose_readings(
+        flange,
+        poses,
+        lambda f: f,
+        flange_readings(),
+        pose_readings(mode, poses_given, pose_angle_unit),
+        tolerances,
+        pairs,
+        True,
+        moving,
+        FLANGE_WORDS,
+    )
+    if message:
+        raise RelcalError(f"{where}: {message}")
+    return _check_scale_and_guess(
+        given, handeye, board, poses_given, where, spec, tolerances, "the flange positions"
+    )
 
 
 def scale_problem(scale: Scale, tolerances: Tolerances = Tolerances()) -> bool:
@@ -1133,8 +1258,11 @@ def guess_problem(
     return None
 
 
-def scale_message(ratio: float, board, poses_given: bool) -> str:
-    """Name the likely cause of measured translations ``ratio`` times the modelled ones."""
+def scale_message(
+    ratio: float, board, poses_given: bool, model_word: str = "the robot model"
+) -> str:
+    """Name the likely cause of measured translations ``ratio`` times the modelled ones
+    (``model_word``: what gave the modelled ones)."""
     head = f"measured translations are {ratio:.4g}x the modelled ones"
     if 300 < ratio < 3000:
         return (
@@ -1143,8 +1271,8 @@ def scale_message(ratio: float, board, poses_given: bool) -> str:
         )
     if 0.0003 < ratio < 0.003:
         return (
-            f"the robot model looks like millimetres ({head}); give lengths in metres (fix: the "
-            "model's lengths divided by 1000)"
+            f"{model_word} looks like millimetres ({head}); give lengths in metres (fix: "
+            f"{model_word}' lengths divided by 1000)"
         )
     if board is not None and not poses_given:
         what = "square" if board.type in ("chessboard", "charuco") else "spacing"
@@ -1244,6 +1372,38 @@ def check_dataset(dataset, measurements) -> dict:
         if dataset.board is not None and dataset.poses is None:
             out["board_spacing_from_data_m"] = float(dataset.board.spacing / scale.ratio)
     return out
+
+
+def check_handeye_dataset(
+    dataset, flange: np.ndarray, poses: np.ndarray, order: np.ndarray, mode: str
+) -> None:
+    """The checks of :func:`check_dataset` for a hand-eye job, on its usable samples ``order``
+    (indices into the dataset, in an order of their own) with their flange poses ``(N, 4, 4)``
+    and measured poses ``(N, 4, 4)``: :func:`check_flange_inputs` for logged flange poses,
+    :func:`check_inputs` for joints and a robot model. Raises :class:`RelcalError` naming the
+    likely cause."""
+    from relcal.robot.kinematics import fk
+
+    where, spec = _where(dataset)
+    ids = [dataset.ids[i] for i in order]
+    common = {
+        "mode": mode,
+        "handeye": dataset.handeye,
+        "board": dataset.board,
+        "poses_given": dataset.poses is not None,
+        "spec": spec,
+        "tolerances": Tolerances.from_display(dataset.tolerances),
+        "pose_angle_unit": getattr(dataset, "pose_angle_unit", None),
+    }
+    if dataset.flange is not None:
+        check_flange_inputs(flange, poses, ids, where, **common)
+    else:
+        model = dataset.model
+        q = np.asarray(dataset.q)[order]
+        joint_unit = getattr(dataset, "joint_unit", None)
+        check_inputs(
+            model, q, poses, ids, where, fk=lambda v: fk(model, v), joint_unit=joint_unit, **common
+        )
 
 
 def _where(dataset) -> tuple[str, str]:
