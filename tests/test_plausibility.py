@@ -14,6 +14,7 @@ from scipy.spatial.transform import Rotation
 from relcal import geometry as tf
 from relcal.calibration import plausibility as pl
 from relcal.cli import main
+from relcal.errors import RelcalError
 from relcal.robot.kinematics import fk
 from relcal.robot.loading import get_robot
 from relcal.robot.model import dump_model
@@ -325,17 +326,11 @@ def test_right_tiago_mocap_poses_pass_and_inverted_ones_are_named():
     # the marker sits about 0.142 m along the gripper's z axis (data README)
     assert abs(scale.handeye_translation[2] - 0.142) < 0.02
 
-    def alternatives(poses):
-        return [
-            pl.Alternative("poses look inverted", lambda: flange, lambda: tf.invert(poses)),
-            pl.Alternative("w-first", lambda: flange, lambda: pl.reorder_w_first(poses)),
-        ]
-
-    tol = pl.Tolerances().rotation
-    assert pl.diagnose_rotations(flange, marker, alternatives(marker), tol, pairs)[0] is None
-    inverted = tf.invert(marker)
-    message, _ = pl.diagnose_rotations(flange, inverted, alternatives(inverted), tol, pairs)
-    assert message.startswith("poses look inverted"), message
+    ids = [str(k) for k in range(len(rows))]
+    pl.check_flange_inputs(flange, marker, ids, "mocap")  # passes
+    either = r"^mocap: flange poses look inverted .*, or poses look inverted"
+    with pytest.raises(RelcalError, match=either):
+        pl.check_flange_inputs(flange, tf.invert(marker), ids, "mocap")
 
 
 @pytest.mark.parametrize(

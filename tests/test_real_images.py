@@ -237,26 +237,18 @@ def test_charuco_hand_eye_is_consistent(charuco_results):
 
 
 def _plausibility(F, C, board, poses_given=False):
-    """What calibrate's plausibility check says of robot poses F and camera poses C: None when
-    they pass, else the message."""
+    """What the plausibility check of flange poses F and camera poses C says (the check of
+    ``relcal handeye`` with logged flange poses; calibrate's compares the same motions): None
+    when they pass, else the message."""
     from relcal.calibration import plausibility as pl
     from relcal.errors import RelcalError
 
-    pairs = pl.check_pairs(len(F))
-    alternatives = [
-        pl.Alternative("poses look inverted", lambda: F, lambda: tf.invert(C)),
-        pl.Alternative("quaternions look w-first", lambda: F, lambda: pl.reorder_w_first(C)),
-    ]
-    message, rx = pl.diagnose_rotations(F, C, alternatives, pl.Tolerances().rotation, pairs)
-    if message:
-        return message
-    scale = pl.translation_scale(pl.relative(F, pairs), pl.relative(C, pairs), rx)
+    ids = [str(k) for k in range(len(F))]
+    try:
+        scale = pl.check_flange_inputs(F, C, ids, "samples", board=board, poses_given=poses_given)
+    except RelcalError as exc:
+        return str(exc).removeprefix("samples: ")
     print(f"\nrotation check passed; scale {scale.ratio:.4f} +- {scale.std:.4f}")
-    if scale.determined and abs(scale.ratio - 1) > pl.Tolerances().scale:
-        try:
-            raise RelcalError(pl.scale_message(scale.ratio, board, poses_given))
-        except RelcalError as exc:
-            return str(exc)
     return None
 
 
@@ -271,7 +263,8 @@ def test_plausibility_of_the_real_sets(which, circle_results, charuco_results):
         C = tf.invert(C)  # eye to hand: the board pose in the camera frame is W F X
     assert _plausibility(F, C, board) is None  # the right data pass
     message = _plausibility(F, tf.invert(C), board)
-    assert message.startswith("poses look inverted"), message
+    assert message.startswith("flange poses look inverted"), message
+    assert "or the camera poses look inverted" in message
     # the board declared 0.8x its size: the check finds the size the data say
     # (PnP scales the camera translations with the declared size, test above)
     small = replace(board, spacing=0.8 * board.spacing)

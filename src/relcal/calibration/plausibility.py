@@ -264,62 +264,6 @@ def position_problems(poses: np.ndarray, ids: Sequence[str]) -> list[str]:
 # --- gathering: inputs and corrections -----------------------------------------------------------
 
 
-@dataclass(frozen=True)
-class Alternative:
-    """A reading of the data that might have been meant, and how to say it."""
-
-    label: str
-    flange: Callable[[], np.ndarray]
-    measured: Callable[[], np.ndarray]
-
-
-def diagnose_rotations(
-    flange: np.ndarray,
-    measured: np.ndarray,
-    alternatives: Sequence[Alternative],
-    tolerance: float,
-    pairs: np.ndarray,
-) -> tuple[str | None, np.ndarray]:
-    """``None`` and ``R_X`` if the relative rotations agree; else a message naming the
-    alternative reading that fits (or the size of the disagreement) and ``R_X``."""
-    a, b = relative(flange, pairs), relative(measured, pairs)
-    misfit, rx = rotation_misfit(a, b)
-    if misfit <= tolerance / 5:
-        return None, rx
-    angle = angle_misfit(a, b)
-    tried = []
-    for alt in alternatives:
-        fa, mb = relative(alt.flange(), pairs), relative(alt.measured(), pairs)
-        m, alt_rx = rotation_misfit(fa, mb)
-        # readings that fit the rotations equally (w-first quaternions of inverted poses differ
-        # from the right ones by a constant rotation) differ in the translations
-        rank = translation_scale(fa, mb, alt_rx).residual if m <= tolerance else np.inf
-        tried.append((m <= tolerance, rank, m, alt.label))
-    tried.sort(key=lambda t: (not t[0], t[1], t[2]))
-    better = bool(tried) and tried[0][0] and tried[0][2] < misfit / RATIO
-    if misfit <= tolerance and not better:
-        return None, rx
-    if better:
-        # readings the translations cannot tell apart either (rotations about one point) are
-        # named together
-        best = tried[0][1]
-        alike = [t[3] for t in tried if t[0] and t[1] <= 1.5 * best + 1e-12]
-        return (
-            f"{' or '.join(alike)}: read that way the relative rotations agree with the "
-            f"commanded ones to {np.degrees(tried[0][2]):.2f} deg; as given they disagree by a "
-            f"median {np.degrees(misfit):.1f} deg",
-            rx,
-        )
-    return (
-        f"measured relative rotations disagree with the commanded ones by a median "
-        f"{np.degrees(misfit):.1f} deg (their rotation angles alone by {np.degrees(angle):.1f} "
-        f"deg; expected < {np.degrees(tolerance):.1f} deg for any hand-eye transform). Check the "
-        "quaternion order (x, y, z, w), the pose direction, the joint order and unit, and the "
-        "robot model",
-        rx,
-    )
-
-
 def swap_xyz(poses: np.ndarray, i: int, j: int) -> np.ndarray:
     """Poses whose position columns ``i`` and ``j`` (0 x, 1 y, 2 z) were swapped, read back."""
     out = poses.copy()
@@ -958,22 +902,35 @@ def _check_scale_and_guess(
 SAME_FLANGE = 5e-5  # m: flange poses this close (and SAME_CONFIGURATION in rad) are one pose
 
 
-def flange_readings() -> list[Reading]:
-    """The mix-ups of logged flange poses worth trying: w-first quaternions, inverted poses (the
-    base in the flange frame), both."""
-    wfirst = (
-        "flange quaternions look w-first (fqx, fqy, fqz, fqw expected in x, y, z, w order; fix: "
-        "name the columns fqw, fqx, fqy, fqz in the header)"
+FLANGE_WFIRST = (
+    "flange quaternions look w-first (fqx, fqy, fqz, fqw expected in x, y, z, w order; fix: name "
+    "the columns fqw, fqx, fqy, fqz in the header)"
+)
+FLANGE_INVERTED = (
+    "flange poses look inverted (the base in the flange frame given, the flange in the robot's "
+    "base frame expected; fix: export the flange pose in the base frame)"
+)
+
+
+def _either_inverted(flange: np.ndarray, poses: np.ndarray, message: str, label: str) -> str:
+    """``message`` named the measured poses inverted (``label``): the flange poses inverted fit
+    exactly as well (``F^-1, C^-1`` is as consistent as ``F, C``, the roles of ``X`` and ``W``
+    swapped), so both are named, with the distance from the flange each puts the camera at."""
+
+    def distance(f: np.ndarray, c: np.ndarray) -> str:
+        try:
+            return f"{np.linalg.norm(solve_handeye(f, c)[:3, 3]):.3g} m"
+        except RelcalError:
+            return "not determined"
+
+    at = message.find(": read that way")
+    return (
+        f"{FLANGE_INVERTED}, or {label}: the relative motions fit either reading alike (read "
+        "the first way the camera or marker is "
+        f"{distance(tf.invert(flange), poses)} from the flange, the second way "
+        f"{distance(flange, tf.invert(poses))}); fix the one that is wrong"
+        + (message[at:] if at >= 0 else "")
     )
-    inverted = (
-        "flange poses look inverted (the base in the flange frame given, the flange in the "
-        "robot's base frame expected; fix: export the flange pose in the base frame)"
-    )
-    return [
-        Reading(wfirst, joints=reorder_w_first),
-        Reading(inverted, joints=tf.invert),
-        Reading(f"{wfirst} and {inverted}", joints=lambda f: tf.invert(reorder_w_first(f))),
-    ]
 
 
 def check_flange_inputs(
@@ -994,8 +951,9 @@ def check_flange_inputs(
     measured poses ``(N, 4, 4)`` against the flange poses ``(N, 4, 4)`` (m) by the relations
     that hold whatever the hand-eye transform, the same rotation angle and a common ``R_X`` for
     every relative motion, and one translation scale. Readings of the flange poses
-    (:func:`flange_readings`) and of the measured ones (:func:`pose_readings`) are tried when
-    the data as given do not fit, and the one that fits is named with its fix. Give the samples
+    (w-first quaternions) and of the measured ones (:func:`pose_readings`) are tried when
+    the data as given do not fit, and the one that fits is named with its fix (the flange poses
+    inverted fit exactly as the measured poses inverted: both are named). Give the samples
     in an order of their own (the checks draw pairs by position beyond 63 samples). Returns
     the translation scale found."""
     spec = spec or where
@@ -1005,18 +963,14 @@ def check_flange_inputs(
     moving = (np.linalg.norm(rel[:, :3, 3], axis=1) > SAME_FLANGE) | (
         np.linalg.norm(rotation_vectors(rel), axis=1) > SAME_CONFIGURATION
     )
+
+    measured = pose_readings(mode, poses_given, pose_angle_unit)
+    wfirst = [Reading(FLANGE_WFIRST, joints=reorder_w_first)]
     message, given = diagnose_readings(
-        flange,
-        poses,
-        lambda f: f,
-        flange_readings(),
-        pose_readings(mode, poses_given, pose_angle_unit),
-        tolerances,
-        pairs,
-        True,
-        moving,
-        FLANGE_WORDS,
+        flange, poses, lambda f: f, wfirst, measured, tolerances, pairs, True, moving, FLANGE_WORDS
     )
+    if message and message.startswith(measured[0].label):  # the measured poses inverted
+        message = _either_inverted(flange, poses, message, measured[0].label)
     if message:
         raise RelcalError(f"{where}: {message}")
     return _check_scale_and_guess(
