@@ -492,6 +492,21 @@ def test_flange_pose_mix_ups_are_refused_naming_the_cause(tmp_path, capsys, case
         assert np.abs(error[:3]).max() < 2e-3 and np.abs(error[3:]).max() < np.radians(0.3)
 
 
+@pytest.mark.parametrize(("rendered", "declared"), [("eye_to_hand", "eye_in_hand"),
+                                                   ("eye_to_hand", "robot_world")])  # fmt: skip
+def test_images_of_a_fixed_camera_declared_on_the_flange_are_refused(tmp_path, rendered, declared):
+    """Images of a fixed camera looking at the board on the flange, declared as a camera on the
+    flange: the camera poses the images give are inverted against the flange's motions, so the
+    job is refused naming mode: eye_to_hand; declared right, it runs."""
+    folder = render_dataset(tmp_path / "d", rendered, n=10, seed=3)[0]
+    spec = folder / "dataset.yaml"
+    spec.write_text(spec.read_text().replace(f"mode: {rendered}", f"mode: {declared}"))
+    with pytest.raises(RelcalError, match="mode: eye_to_hand"):
+        handeye(relcal.load_dataset(folder))
+    spec.write_text(spec.read_text().replace(f"mode: {declared}", f"mode: {rendered}"))
+    assert handeye(relcal.load_dataset(folder)).verdict.code == "deploy"
+
+
 def test_joint_mix_ups_are_refused_as_calibrate_refuses_them(tmp_path):
     """With joints and a robot model, the hand-eye job runs calibrate's checks: two joint
     columns swapped are named, and so is a robot-world session whose poses are inverted."""

@@ -377,7 +377,13 @@ def pose_readings(
     other = "board in camera" if mode == "eye_in_hand" else "camera in board"
     wanted = "camera in board" if mode == "eye_in_hand" else "board in camera"
     swapped = "eye_to_hand" if mode == "eye_in_hand" else "eye_in_hand"
-    if mode == "robot_world":
+    if mode == "robot_world" and not poses_given:
+        inverted = (
+            "the camera poses look inverted (robot_world with images measures the camera on the "
+            "flange against a fixed board; a fixed camera and the board on the flange is mode: "
+            "eye_to_hand)"
+        )
+    elif mode == "robot_world":
         inverted = (
             "poses look inverted (the world in the camera or marker frame given, the camera or "
             "marker in the world frame expected for robot_world; fix: give the camera or marker "
