@@ -797,7 +797,9 @@ def handeye(
     ArgumentError
         An argument of the wrong type or value (naming it).
     RelcalError
-        Samples that measure positions or coincidences, or fewer than 4 usable samples.
+        Samples that measure positions or coincidences, fewer than 4 usable samples, or samples
+        that cannot be what they say (a unit, a quaternion order, a pose direction, rows out of
+        step: :func:`~relcal.calibration.plausibility.check_handeye_dataset`, naming the fix).
 
     Examples
     --------
