@@ -507,6 +507,35 @@ def test_images_of_a_fixed_camera_declared_on_the_flange_are_refused(tmp_path, r
     assert handeye(relcal.load_dataset(folder)).verdict.code == "deploy"
 
 
+def test_a_board_moved_mid_session_is_refused_with_logged_flange_poses(tmp_path, capsys):
+    """Flange poses logged by the controller: the board moved by 20 mm and 1 deg after half the
+    samples is named (the samples, the step), exit 2, nothing written; sessions of a robot whose
+    true geometry is off its controller's by 1 mm and 0.1 deg per parameter raise no alarm."""
+    from relcal.calibration.plausibility import check_flange_inputs
+    from relcal.cli import main
+    from relcal.robot.kinematics import apply_errors, fk, make_layout
+
+    flange = flange_poses(30, seed=5)
+    poses = camera_poses(flange, seed=5)
+    step = tf.from_xyz_rpy(np.array([0.02, 0.0, 0.0]), np.radians([0.0, 0.0, 1.0]))
+    poses[15:] = camera_poses(flange[15:], w=step @ W_TRUE, seed=6)
+    folder = write_flange_dataset(tmp_path / "moved", flange, poses)
+    assert main(["handeye", str(folder), "--out", str(tmp_path / "he"), "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert "(15 of 30) see the board" in err and "it moved during the session" in err, err
+    assert not (tmp_path / "he").exists()
+    model = relcal.get_robot("ur5e")
+    layout = make_layout(model)
+    angles = np.array([n.split("[")[0] in ("theta_off", "alpha", "beta") for n in layout.names])
+    for seed in range(10):
+        rng = np.random.default_rng(seed)
+        q = np.radians([0, -90, 90, -90, -90, 0]) + rng.normal(0, 0.5, (25, 6))
+        errors = rng.normal(size=layout.size) * np.where(angles, np.radians(0.1), 1e-3)
+        true = fk(apply_errors(model, layout, errors * layout.is_geometric()), q)
+        measured = camera_poses(true, seed=seed)
+        check_flange_inputs(fk(model, q), measured, [str(k) for k in range(25)], "samples")
+
+
 def test_joint_mix_ups_are_refused_as_calibrate_refuses_them(tmp_path):
     """With joints and a robot model, the hand-eye job runs calibrate's checks: two joint
     columns swapped are named, and so is a robot-world session whose poses are inverted."""

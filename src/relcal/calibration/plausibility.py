@@ -956,7 +956,8 @@ def check_flange_inputs(
     """:func:`check_inputs` for flange poses logged by a controller (no robot model): the
     measured poses ``(N, 4, 4)`` against the flange poses ``(N, 4, 4)`` (m) by the relations
     that hold whatever the hand-eye transform, the same rotation angle and a common ``R_X`` for
-    every relative motion, and one translation scale. Readings of the flange poses
+    every relative motion, and one translation scale, and a fixed frame that moved mid-session
+    (:func:`moved_frame`, no geometry fitted). Readings of the flange poses
     (w-first quaternions) and of the measured ones (:func:`pose_readings`) are tried when
     the data as given do not fit, and the one that fits is named with its fix (the flange poses
     inverted fit exactly as the measured poses inverted: both are named). Give the samples
@@ -979,6 +980,16 @@ def check_flange_inputs(
         message = _either_inverted(flange, poses, message, measured[0].label)
     if message:
         raise RelcalError(f"{where}: {message}")
+    try:  # the step search linearises about the data's own X (see check_inputs)
+        x = solve_handeye(flange, poses)
+    except RelcalError:
+        x = handeye
+    if x is not None:
+        flat = flange.reshape(len(flange), 16)
+        moved = moved_frame(None, flat, poses, x, lambda v: v.reshape(-1, 4, 4))
+        if moved is not None:
+            text = moved_message(ids, moved[0], moved[1], len(flange), mode)
+            raise RelcalError(f"{where}: {text}")
     return _check_scale_and_guess(
         given, handeye, board, poses_given, where, spec, tolerances, "the flange positions"
     )
@@ -1014,7 +1025,8 @@ def _frame_design(model, q, poses, handeye, fk) -> tuple[np.ndarray, np.ndarray]
     """The deviations ``(N * 6,)`` of each sample's fixed frame ``W_k = C_k X^-1 F_k^-1`` from
     their centre, and their linearised dependence ``(N * 6, G + 12)`` on every geometric
     parameter (not the non-geometric candidates the model may carry) and on ``X`` (finite
-    differences of the nominal model), with one common frame."""
+    differences of the nominal model), with one common frame; ``model`` None: no geometric
+    parameters (logged flange poses, the controller's own kinematics)."""
     from relcal.robot.kinematics import apply_errors, make_layout
     from relcal.robot.kinematics import fk as model_fk
 
@@ -1025,10 +1037,11 @@ def _frame_design(model, q, poses, handeye, fk) -> tuple[np.ndarray, np.ndarray]
         Rotation.from_matrix(world[:, :3, :3]).mean().as_matrix(), np.median(world[:, :3, 3], 0)
     )
     dev = _frame_deviations(world, reference)
-    layout = make_layout(model)
+    layout = make_layout(model) if model is not None else None
+    geometric = np.flatnonzero(layout.is_geometric()) if layout is not None else []
     step = 1e-6
     columns = []
-    for j in np.flatnonzero(layout.is_geometric()):  # non-geometric candidates: not a smooth
+    for j in geometric:  # non-geometric candidates: not a smooth
         bump = np.zeros(layout.size)  # effect of the geometry, and the fit would follow a step
         bump[j] = step
         w = poses @ inv_x @ tf.invert(model_fk(apply_errors(model, layout, bump), q))
@@ -1117,7 +1130,9 @@ def moved_frame(
     :data:`MOVED_ANGLE`, :data:`MOVED_FIT` times the typical residual left, that makes the
     typical residual of the smaller group as many times smaller, with at least 3 samples on
     each side, is a moved frame. Fewer samples than :data:`MOVED_REDUNDANCY` rows per parameter
-    beyond the parameters tell nothing (the geometry fits any split of them)."""
+    beyond the parameters tell nothing (the geometry fits any split of them). ``model`` None:
+    flange poses logged by the controller, ``q`` ``(N, 16)`` their flattened matrices and ``fk``
+    what reshapes them, no geometric parameters fitted."""
     n = len(q)
     if n < 8:
         return None
