@@ -279,6 +279,9 @@ class Dataset:
     frames : dict of str to str or None
         ``frames:`` of dataset.yaml: the frame names ``relcal handeye`` exports with (``base``,
         ``flange``, ``camera``, ``world``, ``marker``).
+    samples_path : Path or None
+        The samples table as dataset.yaml names it (``samples:``), which messages about samples
+        name; None for :meth:`from_arrays`.
     """
 
     root: Path
@@ -305,6 +308,7 @@ class Dataset:
     distances: tuple[tuple[str, str, float, float], ...] = ()
     flange: np.ndarray | None = None  # (N, 4, 4) logged flange poses (fx .. fqw), when given
     frames: dict[str, str] | None = None  # relcal handeye: frame names of its exports
+    samples_path: Path | None = None  # the samples table dataset.yaml names (messages name it)
 
     @classmethod
     def from_arrays(
@@ -722,6 +726,7 @@ def load_dataset(folder: str | Path) -> Dataset:
         pose_angle_unit=spec.pose_angle_unit if table.rpy else None,
         flange=table.flange,
         frames=_frame_names(spec),
+        samples_path=root / spec.samples,
     )
 
 
@@ -778,6 +783,7 @@ def _flange_dataset(root: Path, spec: _DatasetSpec, spec_path: Path) -> Dataset:
         pose_angle_unit=spec.pose_angle_unit if table.rpy else None,
         flange=table.flange,
         frames=_frame_names(spec),
+        samples_path=root / spec.samples,
     )
 
 
