@@ -136,6 +136,15 @@ def read_table(path: str | Path, what: str) -> tuple[list[str], list[TableRow]]:
     return [h.strip() for h in rows[0]], rows[1:]
 
 
+def csv_line(cells: list[str]) -> str:
+    """One CSV line (no line end) of ``cells``, quoted where a cell needs it (a comma, a quote
+    or a line break, as in an id taken from a file: ``"a,b"``), so that :func:`read_table` reads
+    the same cells back."""
+    out = io.StringIO()
+    csv.writer(out, lineterminator="").writerow(cells)
+    return out.getvalue()
+
+
 def _check_separators(path: Path, rows: list[TableRow], delimiter: str) -> None:
     """Refuse a data row whose fields are separated by another character than the header's
     (a tab-separated row under a comma-separated header reads as one field holding them all),
