@@ -188,11 +188,14 @@ def test_the_gate_is_what_the_calibration_produces(a465, rng):
             "line 1: header: column(s) x appear twice",
         ),
         ("id,q1,q2,q3,q4,q5,q6,q1\na,1,2,3,4,5,6,9\n", "line 1: header: column(s) q1 appear twice"),
+        # a rotation vector in degrees (a controller writes radians, at most pi)
+        ("id,x,y,z,rx,ry,rz\na,0.5,0,0.4,3,0,0\nb,0.5,0,0.4,180,0,0\n", "line 3: rx, ry, rz is"),
     ],
 )
 def test_targets_with_ambiguous_rows_or_columns_are_refused(table, message, tmp_path, a465, capsys):
-    """Two targets under one id (the output cannot tell them apart), an empty id, and a column
-    named twice (one of them was read, the other ignored) were compensated, exit 0."""
+    """Two targets under one id (the output cannot tell them apart), an empty id, a column
+    named twice (one of them was read, the other ignored) and a rotation vector of 180 rad were
+    compensated, exit 0."""
     model_path = tmp_path / "cal.yaml"
     model_path.write_text(dump_model(a465))
     targets = tmp_path / "targets.csv"

@@ -1486,6 +1486,14 @@ def read_target_file(
                 rpy = np.radians(rpy)
             poses = tf.homogeneous(Rotation.from_euler("xyz", rpy).as_matrix(), values[:, :3])
         else:
+            angle = np.linalg.norm(values[:, 3:], axis=1)
+            far = np.flatnonzero(angle > 2 * np.pi + 0.1)
+            if far.size:  # a controller writes at most pi; degrees read as radians reach 180
+                raise RelcalError(
+                    f"{path} line {lines[far[0]]}: rx, ry, rz is a rotation of "
+                    f"{angle[far[0]]:.4g} rad ({np.degrees(angle[far[0]]):.4g} deg): a rotation "
+                    "vector is in radians (degrees given?)"
+                )
             poses = tf.homogeneous(Rotation.from_rotvec(values[:, 3:]).as_matrix(), values[:, :3])
         _check_reach(path, values[:, :3], lines)
         return Targets(ids, lines, poses, None, plan_robot, plan_unit)
