@@ -188,6 +188,12 @@ def test_the_gate_is_what_the_calibration_produces(a465, rng):
             "line 1: header: column(s) x appear twice",
         ),
         ("id,q1,q2,q3,q4,q5,q6,q1\na,1,2,3,4,5,6,9\n", "line 1: header: column(s) q1 appear twice"),
+        # decimal commas: a targets file has no dataset.yaml to declare them in
+        (
+            "id;q1;q2;q3;q4;q5;q6\na;1,5;2;3;4;5;6\n",
+            "line 2: q1: expected a number, got '1,5' (a "
+            "decimal comma? this table takes decimal points only: export it with points)",
+        ),
         # a rotation vector in degrees (a controller writes radians, at most pi)
         ("id,x,y,z,rx,ry,rz\na,0.5,0,0.4,3,0,0\nb,0.5,0,0.4,180,0,0\n", "line 3: rx, ry, rz is"),
     ],

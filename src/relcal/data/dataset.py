@@ -1298,10 +1298,23 @@ def _no_repeated_samples(path: Path, ids, lines, q, measured) -> None:
         )
 
 
-def parse_number(path: Path, line_no: int, column: str, text: str, decimal: str = ".") -> float:
+DECLARE_DECIMAL = "declare decimal: ',' in dataset.yaml, with semicolons between the columns"
+POINTS_ONLY = "this table takes decimal points only: export it with points"
+
+
+def parse_number(
+    path: Path,
+    line_no: int,
+    column: str,
+    text: str,
+    decimal: str = ".",
+    comma_fix: str = DECLARE_DECIMAL,
+) -> float:
     """A finite float from a CSV cell, with ``decimal`` its decimal mark (``"."`` or ``","``),
     read strictly (:mod:`relcal.numbers`: ``4_1.67`` is no number); errors name the file, the
-    line, the column and the likely cause."""
+    line, the column and the likely cause. ``comma_fix``: the fix named for a decimal comma in a
+    table read with points (a dataset's samples table declares its mark in dataset.yaml; a
+    table with no dataset.yaml, ``POINTS_ONLY``)."""
     cell = text.strip()
     if decimal == "," and "." in cell:
         raise RelcalError(
@@ -1316,8 +1329,7 @@ def parse_number(path: Path, line_no: int, column: str, text: str, decimal: str 
         if decimal == "." and "," in cell and NUMBER.fullmatch(cell.replace(",", ".", 1)):
             raise RelcalError(
                 f"{path} line {line_no}: {column}: expected a number, got {excerpt(cell)} (a "
-                "decimal comma? declare decimal: ',' in dataset.yaml, with semicolons between "
-                "the columns)"
+                f"decimal comma? {comma_fix})"
             ) from None
         raise RelcalError(f"{path} line {line_no}: {column}: {printable(exc)}") from None
 
@@ -1571,7 +1583,10 @@ def _read_columns(path: Path, header: list[str], data: list, columns) -> np.ndar
         if len(row) != len(header):
             raise RelcalError(f"{path} line {row.line}: {len(row)} fields, expected {len(header)}")
         values.append(
-            [parse_number(path, row.line, c, row[i]) for c, i in zip(columns, idx, strict=True)]
+            [
+                parse_number(path, row.line, c, row[i], comma_fix=POINTS_ONLY)
+                for c, i in zip(columns, idx, strict=True)
+            ]
         )
     return np.array(values, dtype=float).reshape(-1, len(idx))
 
