@@ -194,6 +194,11 @@ def test_the_gate_is_what_the_calibration_produces(a465, rng):
             "line 2: q1: expected a number, got '1,5' (a "
             "decimal comma? this table takes decimal points only: export it with points)",
         ),
+        # a quote left open: target a swallowed into b's id (one target compensated, exit 0)
+        (
+            'id,q1,q2,q3,q4,q5,q6\n"a,1,2,3,4,5,6\nb",2,3,4,5,6,7\n',
+            "line 2: a quoted field runs on to line 3 ('a,1,2,3,4,5,6 b'): a quote left open?",
+        ),
         # a rotation vector in degrees (a controller writes radians, at most pi)
         ("id,x,y,z,rx,ry,rz\na,0.5,0,0.4,3,0,0\nb,0.5,0,0.4,180,0,0\n", "line 3: rx, ry, rz is"),
     ],
