@@ -173,3 +173,63 @@ def test_the_gate_is_what_the_calibration_produces(a465, rng):
     cond = np.minimum(_inverse_condition(cal, flipped.q), _inverse_condition(cal, q_nom))
     regular = cond >= GATE_SINGULAR  # near a singularity joint corrections are warned, not gated
     assert regular.sum() >= 10 and implausible(flipped, gate, cal)[regular].all()
+
+
+@pytest.mark.parametrize(
+    "table, message",
+    [
+        (
+            "id,q1,q2,q3,q4,q5,q6\na,1,2,3,4,5,6\na,2,3,4,5,6,7\n",
+            "line 3: id 'a' duplicates line 2",
+        ),
+        ("id,q1,q2,q3,q4,q5,q6\n ,1,2,3,4,5,6\n", "line 2: id: empty; give every target an id"),
+        (
+            "id,x,y,z,x,rx,ry,rz\na,0.5,0,0.4,0.1,3,0,0\n",
+            "line 1: header: column(s) x appear twice",
+        ),
+        ("id,q1,q2,q3,q4,q5,q6,q1\na,1,2,3,4,5,6,9\n", "line 1: header: column(s) q1 appear twice"),
+        # decimal commas: a targets file has no dataset.yaml to declare them in
+        (
+            "id;q1;q2;q3;q4;q5;q6\na;1,5;2;3;4;5;6\n",
+            "line 2: q1: expected a number, got '1,5' (a "
+            "decimal comma? this table takes decimal points only: export it with points)",
+        ),
+        # a quote left open: target a swallowed into b's id (one target compensated, exit 0)
+        (
+            'id,q1,q2,q3,q4,q5,q6\n"a,1,2,3,4,5,6\nb",2,3,4,5,6,7\n',
+            "line 2: a quoted field runs on to line 3 ('a,1,2,3,4,5,6 b'): a quote left open?",
+        ),
+        # a rotation vector in degrees (a controller writes radians, at most pi)
+        ("id,x,y,z,rx,ry,rz\na,0.5,0,0.4,3,0,0\nb,0.5,0,0.4,180,0,0\n", "line 3: rx, ry, rz is"),
+    ],
+)
+def test_targets_with_ambiguous_rows_or_columns_are_refused(table, message, tmp_path, a465, capsys):
+    """Two targets under one id (the output cannot tell them apart), an empty id, a column
+    named twice (one of them was read, the other ignored) and a rotation vector of 180 rad were
+    compensated, exit 0."""
+    model_path = tmp_path / "cal.yaml"
+    model_path.write_text(dump_model(a465))
+    targets = tmp_path / "targets.csv"
+    targets.write_text(table)
+    argv = ["compensate", "--model", str(model_path), "--nominal", str(model_path)]
+    assert main([*argv, "--targets", str(targets), "--out", str(tmp_path / "j.csv")]) == 2
+    err = capsys.readouterr().err
+    assert f"{targets} {message}" in err and "Traceback" not in err
+    assert not (tmp_path / "j.csv").exists()
+
+
+def test_ids_with_commas_and_quotes_are_quoted_in_the_output(tmp_path, a465):
+    """An id read from a quoted cell (``"a,b"``) was written unquoted: the output row had one
+    field more than its header. Written quoted, the output reads back with the same ids."""
+    import csv
+
+    model_path = tmp_path / "cal.yaml"
+    model_path.write_text(dump_model(a465))
+    targets = tmp_path / "targets.csv"
+    targets.write_text('id,q1,q2,q3,q4,q5,q6\n"a,b",1,2,3,4,5,6\n"x""y",2,3,4,5,6,7\n')
+    out = tmp_path / "j.csv"
+    argv = ["compensate", "--model", str(model_path), "--nominal", str(model_path)]
+    assert main([*argv, "--targets", str(targets), "--out", str(out), "--quiet"]) == 0
+    rows = list(csv.reader(out.read_text().splitlines()))
+    assert [r[0] for r in rows[1:]] == ["a,b", 'x"y']
+    assert {len(r) for r in rows} == {len(rows[0])}

@@ -387,3 +387,17 @@ def test_importers_name_the_observation_at_fault(tmp_path, capsys, qw, joints, e
     for part in expect:
         assert part in err, err
     assert not (tmp_path / "o").exists()
+
+
+def test_a_diagnosis_names_the_samples_file_dataset_yaml_names(right, tmp_path, capsys):
+    """The file named in a refusal is the samples table of ``samples:`` (it named a
+    'samples.csv' that did not exist for every dataset whose table is called otherwise, the
+    shipped examples included)."""
+    t = Table(right.root)
+    millimetres(t)
+    root = t.write(tmp_path / "d")
+    (root / "samples.csv").rename(root / "tracker export.csv")
+    (root / "dataset.yaml").write_text(t.spec + "\nsamples: tracker export.csv\n")
+    code, err, _ = calibrate(root, capsys)
+    assert code == 2 and "divided by 1000" in err
+    assert f"{root / 'tracker export.csv'}:" in err and "samples.csv" not in err

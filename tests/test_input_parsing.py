@@ -8,6 +8,7 @@ from scipy.spatial.transform import Rotation
 from test_bad_input import run_bad, write_dataset
 
 from relcal.data.dataset import load_dataset
+from relcal.errors import RelcalError
 from relcal.io import read_table
 from relcal.robot.loading import get_robot
 from relcal.robot.model import load_model
@@ -57,10 +58,15 @@ def test_decimal_commas_are_named(capsys, tmp_path):
 
 def test_table_rows_keep_their_line_numbers(tmp_path):
     path = tmp_path / "t.csv"
-    path.write_text('\n\nid,a\n\n1,"x\ny"\n2,z\n')
+    path.write_text('\n\nid,a\n\n1,"x, y"\n\n2,z\n')
     header, rows = read_table(path, "row")
     assert header == ["id", "a"]
     assert [r.line for r in rows] == [5, 7]
+    # a field spanning lines is a quote left open (it swallowed the rows up to the next quote,
+    # silently: a target or sample fewer): refused with the lines it spans
+    path.write_text('\n\nid,a\n\n1,"x\ny"\n2,z\n')
+    with pytest.raises(RelcalError, match=r"line 5: a quoted field runs on to line 6 \('x y'\)"):
+        read_table(path, "row")
 
 
 @pytest.mark.parametrize(

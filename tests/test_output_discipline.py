@@ -94,6 +94,27 @@ def test_no_json_is_ever_written_over_a_registry(registry, tmp_path, capsys, tar
     assert json.loads((tmp_path / "history.json").read_text())["runs"]
 
 
+@pytest.mark.parametrize("member", ["model.yaml", "ros2/calibrated.launch.py"])
+def test_no_file_output_is_written_over_a_file_of_an_output_set(registry, tmp_path, capsys, member):
+    """``history --json cal/model.yaml`` wrote the history over the calibrated model (exit 0):
+    the set then held a file of another run (results.json's SHA-256 no longer its model).
+    Refused before any work, naming the set; a file of the user's beside the set's files (as
+    ``compensate --out cal/joints.csv`` writes) is still allowed."""
+    path, cal = registry
+    before = tree(cal)
+    with sqlite3.connect(path) as conn:
+        (robot,) = conn.execute("SELECT robot_id FROM calibrations").fetchone()
+    argv = ["history", robot, "--registry", path, "--quiet", "--json", cal / member]
+    refused(capsys, argv, f"is a file of the output set {cal.resolve()}", MARKER)
+    assert tree(cal) == before
+    with pytest.raises(RelcalError, match="is a file of the output set"):
+        write_set(File(cal / member, "{}"))  # the API alike
+    argv[-1] = cal / "history.json"  # not one of the set's files: the user's, kept with it
+    assert main([str(a) for a in argv]) == 0, capsys.readouterr().err
+    (cal / "history.json").unlink()
+    assert tree(cal) == before
+
+
 def test_verify_never_writes_over_its_registry_and_lists_the_record(
     registry, dataset, tmp_path, capsys
 ):

@@ -185,11 +185,34 @@ def test_dataset_writer_records_the_mode(tmp_path):
         (["--camera-pose", "1,0,0.5,0,0,0"], "--camera-pose"),
         (["--mode", "eye_to_hand", "--board-center", "0.4,0,0"], "--board-center"),
         (["--mode", "eye_to_hand", "--camera-pose", "1,0,0.5"], "--camera-pose"),
+        # millimetres for metres: named as such (were 'each within +-360' and 'no feasible
+        # configuration ... the board may be out of reach')
+        (
+            ["--mode", "eye_to_hand", "--camera-pose", "1000,400,500,-106.6,-21,129.8"],
+            "1187 m away, more than 20 m (millimetres given? 1, 0.4, 0.5 in m)",
+        ),
+        (["--handeye", "40,0,60"], "72.11 m away, more than 2 m (millimetres given? 0.04, 0, 0.06"),
+        (["--handeye", "0,0.04,0.06,0,400,0"], "angles in deg, within +-360"),
     ],
 )
 def test_bad_fixed_camera_options(run_cli, args, message):
     code, text = run_cli("plan", "--robot", "ur5e", "--n-candidates", "50", *args)
     assert code == 2 and message in text and "Traceback" not in text, text
+
+
+@pytest.mark.parametrize(
+    "value, message",
+    [
+        ("0,0_4,0", "an underscore inside a number"),  # float() read it as 0, 4, 0
+        ("0,40,60", "more than 2 m (millimetres given?"),
+        ("0,0.04", "expected 3 or 6 numbers"),
+    ],
+)
+def test_capture_reads_its_handeye_as_plan_does(run_cli, value, message):
+    """capture --handeye had its own float() reading: '0,0_4,0' was a camera 4 m off the
+    flange and 40 mm given as 40 m went into dataset.yaml."""
+    code, text = run_cli("capture", "plan.csv", "--out", "ds", "--handeye", value)
+    assert code == 2 and "--handeye" in text and message in text and "Traceback" not in text, text
 
 
 def test_a_camera_facing_away_from_the_arm_is_named(ur5e):

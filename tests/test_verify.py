@@ -319,3 +319,28 @@ def test_the_fleet_report_and_text_show_the_latest_verification(tmp_path):
     page = fleet_report(doc, entries)
     assert 'id="verifications"' in page and "degraded" in page
     assert f"{found[0]['calibrated_position_rms_mm']:.3f}" in page
+
+
+@pytest.mark.parametrize("entry", ["command", "api"])
+def test_the_calibrations_own_training_samples_are_refused(entry, tmp_path, capsys):
+    """Verifying on the dataset a calibration was fitted to says nothing of a new session: the
+    command refused it as verify_session does (it answered 'HOLDS', exit 0, on the TIAGo Pro's
+    own training poses), naming the session and its samples; a new session still holds."""
+    robot = make_robot("a465", "arm1", 8)
+    first = write_session(tmp_path / "s1", robot, 21)
+    second = write_session(tmp_path / "s2", robot, 22)
+    assert main(["calibrate", str(first), "--quiet"]) == 0
+    capsys.readouterr()
+    cal = first / "calibration"
+    if entry == "command":
+        assert main(["verify", str(cal), str(first), "--quiet", "--brief"]) == 2
+        err = capsys.readouterr().err
+        assert "the calibration's own training samples" in err and "Traceback" not in err
+        assert str(first / "dataset.yaml") in err and err.count("\n") == 1
+        assert main(["verify", str(cal), str(second), "--quiet", "--brief"]) in (0, 1)
+    else:
+        from relcal.data.dataset import load_dataset
+
+        with pytest.raises(vf.RelcalError, match="the calibration's own training samples"):
+            vf.verify_session(cal, load_dataset(first))
+        vf.verify_session(cal, load_dataset(second))

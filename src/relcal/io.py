@@ -116,6 +116,13 @@ def read_table(path: str | Path, what: str) -> tuple[list[str], list[TableRow]]:
                 line_num = reader.line_num
                 comment = not rows and cells and cells[0].lstrip().startswith("#")
                 if cells and any(c.strip() for c in cells) and not comment:
+                    spans = [c for c in cells if "\n" in c or "\r" in c]
+                    if spans:  # a quote left open swallows the rows up to the next quote
+                        raise RelcalError(
+                            f"{path} line {start}: a quoted field runs on to line "
+                            f"{reader.line_num} ({excerpt(spans[0])}): a quote left open? "
+                            "(a field never spans lines)"
+                        )
                     rows.append(TableRow(cells, start))  # (comments: a plan file's first line)
                 start = reader.line_num + 1
     except FileNotFoundError:
@@ -134,6 +141,15 @@ def read_table(path: str | Path, what: str) -> tuple[list[str], list[TableRow]]:
         raise RelcalError(f"{path}: no {what}s after the header line")
     _check_separators(path, rows, delimiter)
     return [h.strip() for h in rows[0]], rows[1:]
+
+
+def csv_line(cells: list[str]) -> str:
+    """One CSV line (no line end) of ``cells``, quoted where a cell needs it (a comma, a quote
+    or a line break, as in an id taken from a file: ``"a,b"``), so that :func:`read_table` reads
+    the same cells back."""
+    out = io.StringIO()
+    csv.writer(out, lineterminator="\n").writerow(cells)  # (a cell with "\n" is quoted)
+    return out.getvalue()[:-1]
 
 
 def _check_separators(path: Path, rows: list[TableRow], delimiter: str) -> None:

@@ -345,7 +345,30 @@ def check_file(item: File) -> None:
         raise RelcalError(f"{what}: is a folder; give a file name")
     if str(_real(path)).startswith(("/dev/", "/proc/")):
         raise RelcalError(f"{what}: no such device; relcal does not create files there")
+    owner = _set_holding(path)
+    if owner is not None:
+        raise RelcalError(
+            f"{what}: is a file of the output set {owner} (listed in its {MARKER}), which "
+            "relcal replaces only as a whole: writing over it would leave that set with a "
+            "file of another run; give another file name"
+        )
     check_parent(path, item.what)
+
+
+def _set_holding(path: Path) -> Path | None:
+    """The output set (a folder with a manifest, at any depth above ``path``) that lists the
+    existing file ``path`` as one of its own, else None."""
+    if not path.is_file():
+        return None
+    real = _real(path)
+    for folder in real.parents:
+        if _is_set(folder):
+            try:
+                owned = _manifest_files(folder)
+            except RelcalError:
+                return None  # an unreadable manifest is named when the set itself is written
+            return folder if str(real.relative_to(folder)) in owned else None
+    return None
 
 
 def _manifest_files(folder: Path) -> set[str]:

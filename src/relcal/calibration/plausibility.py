@@ -1385,7 +1385,8 @@ def _where(dataset) -> tuple[str, str]:
     """The file named in messages about samples (the samples file, dataset.yaml for images, the
     arrays of :meth:`Dataset.from_arrays`) and the dataset.yaml."""
     spec = dataset.spec_path or dataset.root / "dataset.yaml"
-    where = str(spec.parent / "samples.csv") if dataset.poses is not None else str(spec)
+    samples = getattr(dataset, "samples_path", None) or spec.parent / "samples.csv"
+    where = str(samples) if dataset.poses is not None else str(spec)
     if dataset.spec_path is None:  # Dataset.from_arrays: no file to name
         kind = {"position": "points", "coincidence": "joints"}.get(dataset.measured, "poses")
         where = f"{kind} (Dataset.from_arrays)" if dataset.poses is not None else "images"

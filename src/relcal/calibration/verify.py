@@ -993,10 +993,8 @@ def verify_session(
     files = files or load_calibration(calibration)
     if measurements is None:
         measurements = measure(dataset, progress=progress)
-    check_session_inputs(dataset, measurements)
+    usable, repeated = session_gate(files.results, dataset, measurements)
     kind = session_kind(dataset.measured)
-    usable = np.flatnonzero(measurements.ok)
-    repeated = check_new_session(files, dataset, measurements, usable)
     ver = verify(
         files.model,
         dataset.model,
@@ -1021,19 +1019,32 @@ def verify_session(
     return ver, assessment
 
 
+def session_gate(results: dict | None, dataset, measurements) -> tuple[np.ndarray, str | None]:
+    """Every check of a session before it is verified, for every entry point (the command,
+    :func:`verify_session`): the input gate of ``calibrate`` (:func:`check_session_inputs`),
+    then the calibration's own training samples refused (:func:`check_new_session`, with
+    ``results``, its results document; None for a calibration rebuilt from a registry record,
+    which records no samples). Returns the usable samples' indices and the warning about
+    repeated training configurations (None when there is none)."""
+    check_session_inputs(dataset, measurements)
+    usable = np.flatnonzero(measurements.ok)
+    return usable, check_new_session(results, dataset, measurements, usable)
+
+
 def check_new_session(
-    files: CalibrationFiles, dataset, measurements, usable: np.ndarray
+    results: dict | None, dataset, measurements, usable: np.ndarray
 ) -> str | None:
     """Refuse a session that holds samples of the calibration's own training set (its joints
     and measurement again: verifying on the data it was fitted to says nothing); return a
     warning when the session's configurations repeat training configurations (a new
-    measurement there shows the model only where it was fitted), else None."""
+    measurement there shows the model only where it was fitted), else None. ``results`` is the
+    calibration's results document (its ``training`` entry; None: nothing to compare)."""
     from scipy.spatial import cKDTree
 
     from relcal.calibration.coverage import SAME_M, SAME_RAD
     from relcal.data.order import sample_digests
 
-    training = files.results.get("training") or {}
+    training = (results or {}).get("training") or {}
     ids = [dataset.ids[i] for i in usable]
     digests = training.get("digests") or []
     if digests:
@@ -1042,8 +1053,10 @@ def check_new_session(
         own = np.isin(sample_digests(dataset.q[usable], poses, groups), digests)
         if own.any():
             named = ", ".join(ids[k] for k in np.flatnonzero(own)[:5])
+            where = dataset.spec_path or "the session"
             raise RelcalError(
-                f"{int(own.sum())} of the session's {len(ids)} samples are the calibration's own "
+                f"{where}: {int(own.sum())} of the session's {len(ids)} samples are the "
+                "calibration's own "
                 f"training samples (the same joints and measurement: {named}"
                 f"{', ...' if own.sum() > 5 else ''}): verifying on the data a model was fitted "
                 "to says nothing of a new session; verify on a session recorded after the "

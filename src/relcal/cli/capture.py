@@ -5,10 +5,12 @@ from __future__ import annotations
 import argparse
 
 from relcal.cli.common import (
+    HANDEYE_REACH_M,
     json_arg,
     load_robot,
     nonnegative_int,
     output_folder,
+    pose_numbers,
     positive_float,
     positive_int,
     robot_args,
@@ -102,14 +104,8 @@ def run(args: argparse.Namespace) -> int:
 
         intrinsics = load_camera(args.intrinsics)
     handeye = None
-    if args.handeye:
-        try:
-            he = [float(v) for v in args.handeye.split(",")]
-        except ValueError:
-            he = []
-        if len(he) not in (3, 6) or not np.all(np.isfinite(he)):
-            raise RelcalError(f"--handeye '{args.handeye}': expected X,Y,Z[,ROLL,PITCH,YAW]")
-        he = np.r_[he, 0.0, 0.0, 0.0][:6]
+    if args.handeye:  # (read strictly, in range, by pose_numbers)
+        he = np.r_[args.handeye, 0.0, 0.0, 0.0][:6]
         handeye = tf.from_xyz_rpy(he[:3], np.radians(he[3:]))
     if args.json:
         check([File(args.json, b"", "--json")])
@@ -343,6 +339,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument(
         "--handeye",
+        type=pose_numbers((3, 6), "X,Y,Z[,ROLL,PITCH,YAW] in m and deg", HANDEYE_REACH_M),
+        metavar="X,Y,Z[,ROLL,PITCH,YAW]",
         help="flange-from-camera guess X,Y,Z[,ROLL,PITCH,YAW] (m, deg) written to dataset.yaml "
         "(default: none; calibrate then solves hand-eye from the data)",
     )

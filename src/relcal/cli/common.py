@@ -248,6 +248,32 @@ def numbers(counts: tuple[int, ...], what: str, bound: float = 1e6) -> Callable[
     return parse
 
 
+HANDEYE_REACH_M = 2.0  # a camera, board or marker mounted further from the flange: not metres
+CELL_REACH_M = 20.0  # a camera placed further from the base: not metres (as compensate's targets)
+
+
+def pose_numbers(counts: tuple[int, ...], what: str, reach: float) -> Callable[[str], list]:
+    """``X,Y,Z[,ROLL,PITCH,YAW]`` (m, deg) as :func:`numbers` reads them, as many as one of
+    ``counts``: a position further than ``reach`` metres is refused as millimetres given for
+    metres, an angle beyond +-360 as not degrees."""
+    read = numbers(counts, what, math.inf)
+
+    def parse(text: str) -> list[float]:
+        values = read(text)
+        far = math.hypot(*values[:3])
+        if far > reach:
+            raise argparse.ArgumentTypeError(
+                f"'{text}': {what}: X,Y,Z is {far:.4g} m away, more than {reach:g} m "
+                f"(millimetres given? {', '.join(f'{v / 1000:g}' for v in values[:3])} in m)"
+            )
+        if any(abs(v) > 360.0 for v in values[3:]):
+            raise argparse.ArgumentTypeError(f"'{text}': {what}: angles in deg, within +-360")
+        return values
+
+    parse.__name__ = "pose_numbers"
+    return parse
+
+
 def noise_levels(text: str) -> str:
     """``POS_MM,ORI_DEG[,JOINT_DEG]`` non-negative standard deviations, or ``none``."""
     if text.strip().lower() == "none":

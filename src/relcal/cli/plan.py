@@ -8,6 +8,8 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from relcal.cli.common import (
+    CELL_REACH_M,
+    HANDEYE_REACH_M,
     fraction,
     int_at_least,
     interval,
@@ -17,6 +19,7 @@ from relcal.cli.common import (
     nonnegative_int,
     numbers,
     output_file,
+    pose_numbers,
     positive_float,
     positive_int,
     robot_args,
@@ -369,7 +372,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument(
         "--handeye",
-        type=numbers((3, 6), "X,Y,Z[,ROLL,PITCH,YAW] in m and deg", 360.0),
+        type=pose_numbers((3, 6), "X,Y,Z[,ROLL,PITCH,YAW] in m and deg", HANDEYE_REACH_M),
         help="flange-from-camera guess X,Y,Z[,ROLL,PITCH,YAW] (m, deg; default 0,0.04,0.06, the "
         "simulation's mount); --mode eye_to_hand: flange-from-board (default: the pattern "
         "centred 80 mm in front of the flange, printed face out along its z axis)",
@@ -384,7 +387,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument(
         "--camera-pose",
-        type=numbers((6,), "X,Y,Z,ROLL,PITCH,YAW in m and deg", 360.0),
+        type=pose_numbers((6,), "X,Y,Z,ROLL,PITCH,YAW in m and deg", CELL_REACH_M),
         metavar="X,Y,Z,ROLL,PITCH,YAW",
         help="--mode eye_to_hand: the fixed camera's optical frame (z along the view) in the base "
         "frame, m and deg, rotations as --handeye's (default 1.1,0,0.6,180,-66.8,180: 1.1 m out "

@@ -47,7 +47,7 @@ def run(args: argparse.Namespace) -> int:
     from relcal.calibration.verify import (
         NUISANCE,
         assess,
-        check_session_inputs,
+        session_gate,
         session_kind,
         verify,
     )
@@ -76,8 +76,8 @@ def run(args: argparse.Namespace) -> int:
                 "relcal.calibration.verify.verify(..., tool_points=(calibrated, baseline))"
             )
         m = measure(dataset, workers=args.workers, progress=not args.quiet, max_rms=args.max_rms)
-        check_session_inputs(dataset, m)  # the gate of calibrate, on the session
-        usable = np.flatnonzero(m.ok)
+        # the gate of calibrate on the session, and the calibration's own samples refused
+        usable, repeated = session_gate(source.results, dataset, m)
         ids = [dataset.ids[i] for i in usable]
         groups = None if dataset.groups is None else [dataset.groups[i] for i in usable]
         with np.errstate(all="ignore"):
@@ -102,6 +102,8 @@ def run(args: argparse.Namespace) -> int:
                 "model.yaml was changed since the calibration: the held-out error results.json "
                 "records is of the file relcal wrote, not of this one"
             )
+        if repeated:
+            a = replace(a, warnings=(*a.warnings, repeated))
         robot_id = args.robot_id or (source.run.robot_id if source.run else dataset.robot_id)
         session = dataset.root.resolve().name
         calibration = {

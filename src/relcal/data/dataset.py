@@ -84,7 +84,7 @@ from relcal.checks import (
     real_array,
 )
 from relcal.errors import ArgumentError, RelcalError, excerpt, printable
-from relcal.io import load_yaml, note_input, read_table, table_delimiter, validate
+from relcal.io import csv_line, load_yaml, note_input, read_table, table_delimiter, validate
 from relcal.limits import check_input_size
 from relcal.numbers import NUMBER, NotANumber
 from relcal.numbers import parse_number as _parse_number
@@ -279,6 +279,9 @@ class Dataset:
     frames : dict of str to str or None
         ``frames:`` of dataset.yaml: the frame names ``relcal handeye`` exports with (``base``,
         ``flange``, ``camera``, ``world``, ``marker``).
+    samples_path : Path or None
+        The samples table as dataset.yaml names it (``samples:``), which messages about samples
+        name; None for :meth:`from_arrays`.
     """
 
     root: Path
@@ -305,6 +308,7 @@ class Dataset:
     distances: tuple[tuple[str, str, float, float], ...] = ()
     flange: np.ndarray | None = None  # (N, 4, 4) logged flange poses (fx .. fqw), when given
     frames: dict[str, str] | None = None  # relcal handeye: frame names of its exports
+    samples_path: Path | None = None  # the samples table dataset.yaml names (messages name it)
 
     @classmethod
     def from_arrays(
@@ -722,6 +726,7 @@ def load_dataset(folder: str | Path) -> Dataset:
         pose_angle_unit=spec.pose_angle_unit if table.rpy else None,
         flange=table.flange,
         frames=_frame_names(spec),
+        samples_path=root / spec.samples,
     )
 
 
@@ -778,6 +783,7 @@ def _flange_dataset(root: Path, spec: _DatasetSpec, spec_path: Path) -> Dataset:
         pose_angle_unit=spec.pose_angle_unit if table.rpy else None,
         flange=table.flange,
         frames=_frame_names(spec),
+        samples_path=root / spec.samples,
     )
 
 
@@ -1119,9 +1125,7 @@ def read_sample_table(
     if "group" in header:
         return _coincidence_table(path, header, data, joints, model, joint_unit, decimal)
     measured, meas_cols = _measured_columns(path, header)
-    dupes = sorted({h for h in header if header.count(h) > 1})
-    if dupes:
-        raise RelcalError(f"{path} line 1: header: column(s) {', '.join(dupes)} appear twice")
+    _unique_columns(path, header, data)
     col = {h: i for i, h in enumerate(header)}
     has_id = "id" in col
     ids, q, images, values, seen = [], [], [], [], {}
@@ -1133,15 +1137,8 @@ def read_sample_table(
             raise RelcalError(
                 f"{path} line {line_no}: {len(row)} fields, expected {len(header)} as in the header"
             )
-        sid = row[col["id"]].strip() if has_id else str(number)  # no id column: rows 1..N
-        if has_id and not sid:
-            raise RelcalError(f"{path} line {line_no}: id: empty; give every sample an id")
-        if sid in seen:
-            raise RelcalError(
-                f"{path} line {line_no}: id {excerpt(sid)} duplicates line {seen[sid]}"
-            )
-        seen[sid] = line_no
-        ids.append(sid)
+        sid = row[col["id"]] if has_id else str(number)  # no id column: rows 1..N
+        ids.append(_row_id(path, line_no, sid, seen, "sample"))
         q.append(
             [parse_number(path, line_no, c, row[col[c]], decimal) for c in (*joints, *flange_cols)]
         )
@@ -1254,9 +1251,7 @@ def _coincidence_table(
             f"{path} line 1: header: a 'group' column (coincidence samples) with measured "
             f"column(s) {', '.join(measured)}: a table is either one or the other"
         )
-    dupes = sorted({h for h in header if header.count(h) > 1})
-    if dupes:
-        raise RelcalError(f"{path} line 1: header: column(s) {', '.join(dupes)} appear twice")
+    _unique_columns(path, header, data)
     col = {h: i for i, h in enumerate(header)}
     ids, q, groups, seen = [], [], [], {}
     for row in data:
@@ -1265,10 +1260,7 @@ def _coincidence_table(
             raise RelcalError(
                 f"{path} line {line_no}: {len(row)} fields, expected {len(header)} as in the header"
             )
-        sid = row[col["id"]].strip() if "id" in col else str(line_no)
-        if sid in seen:
-            raise RelcalError(f"{path} line {line_no}: id '{sid}' duplicates line {seen[sid]}")
-        seen[sid] = line_no
+        sid = _row_id(path, line_no, row[col["id"]] if "id" in col else str(line_no), seen)
         group = row[col["group"]].strip()
         if not group:
             raise RelcalError(f"{path} line {line_no}: group: empty; expected a group name")
@@ -1306,10 +1298,23 @@ def _no_repeated_samples(path: Path, ids, lines, q, measured) -> None:
         )
 
 
-def parse_number(path: Path, line_no: int, column: str, text: str, decimal: str = ".") -> float:
+DECLARE_DECIMAL = "declare decimal: ',' in dataset.yaml, with semicolons between the columns"
+POINTS_ONLY = "this table takes decimal points only: export it with points"
+
+
+def parse_number(
+    path: Path,
+    line_no: int,
+    column: str,
+    text: str,
+    decimal: str = ".",
+    comma_fix: str = DECLARE_DECIMAL,
+) -> float:
     """A finite float from a CSV cell, with ``decimal`` its decimal mark (``"."`` or ``","``),
     read strictly (:mod:`relcal.numbers`: ``4_1.67`` is no number); errors name the file, the
-    line, the column and the likely cause."""
+    line, the column and the likely cause. ``comma_fix``: the fix named for a decimal comma in a
+    table read with points (a dataset's samples table declares its mark in dataset.yaml; a
+    table with no dataset.yaml, ``POINTS_ONLY``)."""
     cell = text.strip()
     if decimal == "," and "." in cell:
         raise RelcalError(
@@ -1324,8 +1329,7 @@ def parse_number(path: Path, line_no: int, column: str, text: str, decimal: str 
         if decimal == "." and "," in cell and NUMBER.fullmatch(cell.replace(",", ".", 1)):
             raise RelcalError(
                 f"{path} line {line_no}: {column}: expected a number, got {excerpt(cell)} (a "
-                "decimal comma? declare decimal: ',' in dataset.yaml, with semicolons between "
-                "the columns)"
+                f"decimal comma? {comma_fix})"
             ) from None
         raise RelcalError(f"{path} line {line_no}: {column}: {printable(exc)}") from None
 
@@ -1450,6 +1454,13 @@ def read_target_file(
     header, data = read_table(path, "target")
     if "id" not in header:
         raise RelcalError(f"{path} line {data[0].line - 1 if data else 1}: header: no id column")
+    _unique_columns(path, header, data)
+    seen: dict[str, int] = {}
+    ids = []
+    for row in data:
+        if len(row) != len(header):
+            raise RelcalError(f"{path} line {row.line}: {len(row)} fields, expected {len(header)}")
+        ids.append(_row_id(path, row.line, row[header.index("id")], seen, "target"))
     fields = [h for h in header if h != "id"]
     lines = [row.line for row in data]
     named, numbered = list(model.joint_names), [f"q{i + 1}" for i in range(model.n_joints)]
@@ -1474,7 +1485,6 @@ def read_target_file(
                 f"a pose target is id, {', '.join(columns)}"
             )
         values = _read_columns(path, header, data, columns)
-        ids = [row[header.index("id")].strip() for row in data]
         if rotation[0] == "quaternion":
             poses = _poses(path, values, lines)
         elif rotation[0] == "rpy":
@@ -1488,6 +1498,14 @@ def read_target_file(
                 rpy = np.radians(rpy)
             poses = tf.homogeneous(Rotation.from_euler("xyz", rpy).as_matrix(), values[:, :3])
         else:
+            angle = np.linalg.norm(values[:, 3:], axis=1)
+            far = np.flatnonzero(angle > 2 * np.pi + 0.1)
+            if far.size:  # a controller writes at most pi; degrees read as radians reach 180
+                raise RelcalError(
+                    f"{path} line {lines[far[0]]}: rx, ry, rz is a rotation of "
+                    f"{angle[far[0]]:.4g} rad ({np.degrees(angle[far[0]]):.4g} deg): a rotation "
+                    "vector is in radians (degrees given?)"
+                )
             poses = tf.homogeneous(Rotation.from_rotvec(values[:, 3:]).as_matrix(), values[:, :3])
         _check_reach(path, values[:, :3], lines)
         return Targets(ids, lines, poses, None, plan_robot, plan_unit)
@@ -1511,9 +1529,32 @@ def read_target_file(
             )
         raise RelcalError(f"{path} line {header_line}: header: {why}")
     values = _read_columns(path, header, data, columns)
-    ids = [row[header.index("id")].strip() for row in data]
     q = joints_from_unit(model, values, unit)  # (the caller checks the joint limits)
     return Targets(ids, lines, None, q, plan_robot, plan_unit)
+
+
+def _unique_columns(path: Path, header: list[str], data: list) -> None:
+    """Refuse a header that names a column twice: one of the two would be read, the other
+    silently ignored."""
+    dupes = sorted({h for h in header if header.count(h) > 1})
+    if dupes:
+        line = data[0].line - 1 if data else 1
+        raise RelcalError(
+            f"{path} line {line}: header: column(s) {', '.join(map(printable, dupes))} appear "
+            "twice; keep one"
+        )
+
+
+def _row_id(path: Path, line: int, sid: str, seen: dict[str, int], what: str = "sample") -> str:
+    """The stripped id of a row, refused when empty or when an earlier row (``seen``: id to
+    line, updated here) has it: two rows under one id cannot be told apart in the outputs."""
+    sid = sid.strip()
+    if not sid:
+        raise RelcalError(f"{path} line {line}: id: empty; give every {what} an id")
+    if sid in seen:
+        raise RelcalError(f"{path} line {line}: id {excerpt(sid)} duplicates line {seen[sid]}")
+    seen[sid] = line
+    return sid
 
 
 def _check_reach(path: Path, xyz: np.ndarray, lines: list[int]) -> None:
@@ -1542,7 +1583,10 @@ def _read_columns(path: Path, header: list[str], data: list, columns) -> np.ndar
         if len(row) != len(header):
             raise RelcalError(f"{path} line {row.line}: {len(row)} fields, expected {len(header)}")
         values.append(
-            [parse_number(path, row.line, c, row[i]) for c, i in zip(columns, idx, strict=True)]
+            [
+                parse_number(path, row.line, c, row[i], comma_fix=POINTS_ONLY)
+                for c, i in zip(columns, idx, strict=True)
+            ]
         )
     return np.array(values, dtype=float).reshape(-1, len(idx))
 
@@ -1601,7 +1645,7 @@ def write_samples(
         header.append("image")
     elif poses is not None:
         header += list(POSITION_COLUMNS if positions_only else POSE_COLUMNS)
-    lines = [",".join(header)]
+    lines = [csv_line(header)]
     for k, sid in enumerate(ids):
         cells = [str(sid), *[f"{v:.12g}" for v in q_deg[k]]]
         if images is not None:
@@ -1611,7 +1655,7 @@ def write_samples(
         elif poses is not None:
             quat = Rotation.from_matrix(poses[k][:3, :3]).as_quat()
             cells += [f"{v:.12g}" for v in (*poses[k][:3, 3], *quat)]
-        lines.append(",".join(cells))
+        lines.append(csv_line(cells))
     return "\n".join(lines) + "\n"
 
 
@@ -1621,7 +1665,7 @@ def write_coincidence_samples(ids, groups, q: np.ndarray, digits: int = 17) -> s
     n = q.shape[1]
     lines = [",".join(["id", "group", *[f"q{i + 1}" for i in range(n)]])]
     for sid, group, row in zip(ids, groups, q, strict=True):
-        lines.append(",".join([str(sid), str(group), *[f"{v:.{digits}g}" for v in row]]))
+        lines.append(csv_line([str(sid), str(group), *[f"{v:.{digits}g}" for v in row]]))
     return "\n".join(lines) + "\n"
 
 

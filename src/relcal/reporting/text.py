@@ -14,6 +14,7 @@ from relcal.design.criteria import Quality
 from relcal.design.observability import Report
 from relcal.design.plan import PlanResult
 from relcal.geometry import DEG, MM
+from relcal.io import csv_line
 from relcal.reporting.documents import accuracy_document
 from relcal.robot.kinematics import DISPLAY_UNITS, Layout, parameter_labels, relabel
 from relcal.sim.simulate import Simulation
@@ -815,7 +816,7 @@ def compensation_csv(
         header += ["predicted_position_mm", "predicted_rotation_deg"]
     if status is not None:
         header.append("status")
-    lines = [",".join(header)]
+    lines = [csv_line(header)]
     for k, sid in enumerate(ids):
         cells = [sid, *[cell(v, ".10g") for v in q[k]], str(bool(comp.converged[k]))]
         if dq is not None:
@@ -826,7 +827,7 @@ def compensation_csv(
             ]
         if status is not None:
             cells.append(status[k])
-        lines.append(",".join(cells))
+        lines.append(csv_line(cells))
     return "\n".join(lines) + "\n"
 
 
