@@ -572,6 +572,31 @@ def test_real_robot_world_laser_tracker_set():
     assert ratio["ci95"][0] <= 1.0
 
 
+@pytest.mark.parametrize(
+    ("change", "named"),
+    [
+        (("euler: XYZ", "euler: xyz"), "look like the rotation sequence XYZ, not xyz"),
+        (("euler: XYZ", "euler: ZYX"), "look like the rotation sequence XYZ, not ZYX"),
+        (("position_unit: mm", "position_unit: m"), "poses look like millimetres"),
+    ],
+)
+def test_real_tracker_export_read_another_way_is_refused_naming_the_field(tmp_path, change, named):
+    """The IPA UR10 tracker export with its ``dataset.yaml`` declaring the wrong rotation
+    sequence or position unit (the rotations then agree to 5 deg: no check of the rotations
+    alone would see it; the translations disagree by 190 mm): refused, naming the field and the
+    value that fits."""
+    import pathlib
+
+    example = pathlib.Path(__file__).parent.parent / "examples" / "ipa-ur10-handeye"
+    spec = (example / "dataset.yaml").read_text()
+    samples = (example / "../../../shared/data/ipa_ur10/calibration_handeye.csv").resolve()
+    spec = spec.replace("../../../shared/data/ipa_ur10/calibration_handeye.csv", str(samples))
+    assert change[0] in spec
+    (tmp_path / "dataset.yaml").write_text(spec.replace(*change))
+    with pytest.raises(RelcalError, match=named):
+        handeye(relcal.load_dataset(tmp_path))
+
+
 def test_image_fit_covariance_counts_each_images_pose_error():
     """Board points seen from flange poses that carry their own errors (a settling arm, the
     robot's repeatability: 30 um and 0.02 deg per image, unseen by the fit) beside 0.05 px of

@@ -360,20 +360,32 @@ def joint_readings(
     return plausible
 
 
-def rpy_reread(poses: np.ndarray, factor: float) -> np.ndarray:
-    """Poses given as roll, pitch, yaw whose angle numbers were in another unit: the angles
-    recovered and multiplied by ``factor`` (exact for the small angles of radians read as
-    degrees, up to the Euler angles' own ambiguity otherwise)."""
-    rpy = Rotation.from_matrix(poses[:, :3, :3]).as_euler("xyz") * factor
-    return tf.homogeneous(Rotation.from_euler("xyz", rpy).as_matrix(), poses[:, :3, 3])
+def rpy_reread(
+    poses: np.ndarray, factor: float, euler: str = "xyz", meant: str | None = None
+) -> np.ndarray:
+    """Poses given as roll, pitch, yaw (rotation sequence ``euler``, SciPy's) whose angle numbers
+    were in another unit (times ``factor``) or of another sequence (``meant``): the angles
+    recovered and read that way (exact for the small angles of radians read as degrees and for
+    angles in the sequence's principal range, up to the Euler angles' own ambiguity otherwise)."""
+    rpy = Rotation.from_matrix(poses[:, :3, :3]).as_euler(euler) * factor
+    rotation = Rotation.from_euler(meant or euler, rpy).as_matrix()
+    return tf.homogeneous(rotation, poses[:, :3, 3])
+
+
+#: Rotation sequences a roll, pitch, yaw export may have meant (the Tait-Bryan ones, extrinsic
+#: lower case and intrinsic upper case, as SciPy's ``from_euler``)
+EULER_SEQUENCES = tuple(
+    s for order in ("xyz", "xzy", "yxz", "yzx", "zxy", "zyx") for s in (order, order.upper())
+)
 
 
 def pose_readings(
-    mode: str, poses_given: bool, pose_angle_unit: str | None = None
+    mode: str, poses_given: bool, pose_angle_unit: str | None = None, euler: str | None = None
 ) -> list[Reading]:
     """The measured-pose mix-ups worth trying: inverted poses (or the other mode), w-first
     quaternions, two position columns swapped (for poses given in a table), and roll, pitch,
-    yaw in the other angle unit than ``pose_angle_unit`` declares (for poses given so)."""
+    yaw in the other angle unit than ``pose_angle_unit`` declares or of another rotation
+    sequence than ``euler`` (for poses given so)."""
     other = "board in camera" if mode == "eye_in_hand" else "camera in board"
     wanted = "camera in board" if mode == "eye_in_hand" else "board in camera"
     swapped = "eye_to_hand" if mode == "eye_in_hand" else "eye_in_hand"
@@ -406,12 +418,13 @@ def pose_readings(
         out.append(
             Reading(f"{wfirst} and {inverted}", poses=lambda c: tf.invert(reorder_w_first(c)))
         )
+        seq = euler or "xyz"
         if pose_angle_unit == "deg":
             out.append(
                 Reading(
                     "roll, pitch, yaw look like radians declared as degrees (fix: "
                     "pose_angle_unit: rad in dataset.yaml)",
-                    poses=lambda c: rpy_reread(c, 180 / np.pi),
+                    poses=lambda c: rpy_reread(c, 180 / np.pi, seq),
                 )
             )
         elif pose_angle_unit == "rad":
@@ -419,8 +432,18 @@ def pose_readings(
                 Reading(
                     "roll, pitch, yaw look like degrees declared as radians (fix: "
                     "pose_angle_unit: deg in dataset.yaml)",
-                    poses=lambda c: rpy_reread(c, np.pi / 180),
+                    poses=lambda c: rpy_reread(c, np.pi / 180, seq),
                 )
+            )
+        if euler is not None:
+            out.extend(
+                Reading(
+                    f"roll, pitch, yaw look like the rotation sequence {meant}, not {euler} "
+                    f"(fix: euler: {meant} in dataset.yaml)",
+                    poses=lambda c, meant=meant: rpy_reread(c, 1.0, euler, meant),
+                )
+                for meant in EULER_SEQUENCES
+                if meant != euler
             )
         for i, j in ((0, 1), (0, 2), (1, 2)):
             out.append(
@@ -819,11 +842,13 @@ def check_inputs(
     tolerances: Tolerances = Tolerances(),
     joint_unit: str | None = None,
     pose_angle_unit: str | None = None,
+    euler: str | None = None,
 ) -> Scale:
     """Raise :class:`RelcalError` naming the likely cause when the samples cannot be what the
     model commands; return the translation scale found (``determined`` False if the motions
-    cannot tell). ``joint_unit`` and ``pose_angle_unit``: as dataset.yaml declares them (None:
-    not known, or no roll-pitch-yaw poses), for the unit mix-ups to name.
+    cannot tell). ``joint_unit``, ``pose_angle_unit`` and ``euler``: as dataset.yaml declares
+    them (None: not known, or no roll-pitch-yaw poses), for the unit and sequence mix-ups to
+    name.
 
     ``q`` ``(N, n)`` rad, ``poses`` ``(N, 4, 4)`` the measured ``C_k`` of usable samples, ``fk``
     the nominal forward kinematics, ``where`` the file named in messages about samples and
@@ -841,7 +866,7 @@ def check_inputs(
     pairs = check_pairs(len(q))
     moving = moving_pairs(q, pairs, model.prismatic)
     joints = joint_readings(model, q, tolerances.joint_limit, joint_unit)
-    measured = pose_readings(mode, poses_given, pose_angle_unit)
+    measured = pose_readings(mode, poses_given, pose_angle_unit, euler)
     few = bool(problems) and all("a mistyped reading" in p for p in problems)
     message, given = diagnose_readings(
         q, poses, fk, joints, measured, tolerances, pairs, not problems or few, moving
@@ -952,6 +977,7 @@ def check_flange_inputs(
     spec: str | None = None,
     tolerances: Tolerances = Tolerances(),
     pose_angle_unit: str | None = None,
+    euler: str | None = None,
 ) -> Scale:
     """:func:`check_inputs` for flange poses logged by a controller (no robot model): the
     measured poses ``(N, 4, 4)`` against the flange poses ``(N, 4, 4)`` (m) by the relations
@@ -971,7 +997,7 @@ def check_flange_inputs(
         np.linalg.norm(rotation_vectors(rel), axis=1) > SAME_CONFIGURATION
     )
 
-    measured = pose_readings(mode, poses_given, pose_angle_unit)
+    measured = pose_readings(mode, poses_given, pose_angle_unit, euler)
     wfirst = [Reading(FLANGE_WFIRST, joints=reorder_w_first)]
     message, given = diagnose_readings(
         flange, poses, lambda f: f, wfirst, measured, tolerances, pairs, True, moving, FLANGE_WORDS
@@ -1337,6 +1363,7 @@ def check_dataset(dataset, measurements) -> dict:
         tolerances=Tolerances.from_display(dataset.tolerances),
         joint_unit=getattr(dataset, "joint_unit", None),
         pose_angle_unit=getattr(dataset, "pose_angle_unit", None),
+        euler=getattr(dataset, "euler", None),
     )
     out: dict = {}
     if np.isfinite(scale.rotation_misfit):  # over the pairs that turn
@@ -1369,6 +1396,7 @@ def check_handeye_dataset(
         "spec": spec,
         "tolerances": Tolerances.from_display(dataset.tolerances),
         "pose_angle_unit": getattr(dataset, "pose_angle_unit", None),
+        "euler": getattr(dataset, "euler", None),
     }
     if dataset.flange is not None:
         check_flange_inputs(flange, poses, ids, where, **common)

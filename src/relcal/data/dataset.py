@@ -265,6 +265,9 @@ class Dataset:
         Which physical robot (the registry's history); the folder name when absent.
     joint_unit, pose_angle_unit : str or None
         The units as declared in ``dataset.yaml`` (the diagnoses name them).
+    euler : str or None
+        The rotation sequence of roll, pitch, yaw columns as declared (SciPy's ``from_euler``),
+        when the poses came so (the diagnoses try the others).
     groups : tuple of str or None
         Coincidence samples: each sample's group (a socket of a placement).
     tool_point : (3,) ndarray of float or None
@@ -300,6 +303,7 @@ class Dataset:
     robot_id: str | None = None  # ``robot_id`` of dataset.yaml (the folder name when absent)
     joint_unit: str | None = None  # as declared in dataset.yaml (the diagnoses name it)
     pose_angle_unit: str | None = None  # as declared, when the poses came as roll, pitch, yaw
+    euler: str | None = None  # their rotation sequence as declared (SciPy's), likewise
     # Coincidence samples (``measured == "coincidence"``): each sample's group, the tool point
     # guess (tip frame, m; None: solved from the data) and the known distances between groups as
     # ``(group_a, group_b, distance_m, std_m)``.
@@ -724,6 +728,7 @@ def load_dataset(folder: str | Path) -> Dataset:
         distances=distances,
         joint_unit=spec.joint_unit,
         pose_angle_unit=spec.pose_angle_unit if table.rpy else None,
+        euler=spec.euler if table.rpy else None,
         flange=table.flange,
         frames=_frame_names(spec),
         samples_path=root / spec.samples,
@@ -781,6 +786,7 @@ def _flange_dataset(root: Path, spec: _DatasetSpec, spec_path: Path) -> Dataset:
         robot_id=spec.robot_id or root.resolve().name,
         joint_unit=None,
         pose_angle_unit=spec.pose_angle_unit if table.rpy else None,
+        euler=spec.euler if table.rpy else None,
         flange=table.flange,
         frames=_frame_names(spec),
         samples_path=root / spec.samples,
@@ -1181,7 +1187,7 @@ def read_sample_table(
         tuple(images) if measured == "image" else None,
         pose_arr,
         measured,
-        meas_cols == RPY_COLUMNS,
+        rpy=meas_cols == RPY_COLUMNS,
         flange=flange,
     )
 
