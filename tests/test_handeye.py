@@ -184,6 +184,65 @@ def test_flange_columns_must_be_complete(tmp_path):
         relcal.load_dataset(folder)
 
 
+def _flange_rewritten(folder, columns, values, extra: str = "") -> None:
+    """The flange columns of ``folder``'s table replaced by ``columns`` holding ``values``
+    ``(N, k)``, and ``extra`` lines added to its dataset.yaml."""
+    lines = [line.split(",") for line in (folder / "samples.csv").read_text().splitlines()]
+    keep = [k for k, name in enumerate(lines[0]) if not name.startswith("f")]
+    out = [[lines[0][0], *columns, *(lines[0][k] for k in keep[1:])]]
+    for row, v in zip(lines[1:], values, strict=True):
+        out.append([row[0], *(f"{x:.15g}" for x in v), *(row[k] for k in keep[1:])])
+    (folder / "samples.csv").write_text("\n".join(",".join(r) for r in out) + "\n")
+    spec = folder / "dataset.yaml"
+    spec.write_text(spec.read_text() + extra)
+
+
+@pytest.mark.parametrize(
+    "form", ["rotation vector", "rotation vector in deg, mm", "ZYX angles in deg"]
+)
+def test_flange_poses_as_a_controller_logs_them(tmp_path, form):
+    """Flange poses as controllers log them (a UR's x, y, z, rx, ry, rz; millimetres and
+    degrees; three angles of a rotation sequence), declared in dataset.yaml, give the transform
+    of the same poses written as quaternions; undeclared, they are refused naming the field."""
+    from scipy.spatial.transform import Rotation
+
+    flange = flange_poses(16, seed=31)
+    poses = camera_poses(flange, seed=31)
+    reference = handeye(relcal.load_dataset(write_flange_dataset(tmp_path / "q", flange, poses)))
+    folder = write_flange_dataset(tmp_path / "d", flange, poses)
+    rotation = Rotation.from_matrix(flange[:, :3, :3])
+    position = flange[:, :3, 3]
+    if form == "rotation vector":
+        columns, values, extra = ("frx", "fry", "frz"), rotation.as_rotvec(), ""
+        refused = None
+    elif form == "rotation vector in deg, mm":
+        columns, values = ("frx", "fry", "frz"), np.degrees(rotation.as_rotvec())
+        position = position * 1000
+        extra, refused = "flange_unit: mm\nflange_angle_unit: deg\n", "flange_angle_unit: deg"
+    else:
+        columns, values = ("froll", "fpitch", "fyaw"), rotation.as_euler("ZYX", degrees=True)
+        extra, refused = "flange_angle_unit: deg\nflange_euler: ZYX\n", "flange_angle_unit: deg"
+    _flange_rewritten(folder, ("fx", "fy", "fz", *columns), np.c_[position, values])
+    if refused is not None:
+        with pytest.raises(RelcalError, match=refused):
+            relcal.load_dataset(folder)
+    spec = folder / "dataset.yaml"
+    spec.write_text(spec.read_text() + extra)
+    result = handeye(relcal.load_dataset(folder))
+    assert np.abs(result.transform("handeye") - reference.transform("handeye")).max() < 1e-9
+
+
+def test_a_flange_pose_of_two_rotations_or_none_is_refused(tmp_path):
+    flange = flange_poses(6, seed=8)
+    folder = write_flange_dataset(tmp_path / "d", flange, camera_poses(flange, cov=None))
+    text = (folder / "samples.csv").read_text().splitlines()
+    (folder / "samples.csv").write_text(
+        "\n".join([text[0] + ",frx,fry,frz", *(t + ",0,0,0" for t in text[1:])]) + "\n"
+    )
+    with pytest.raises(RelcalError, match="not one complete pose"):
+        relcal.load_dataset(folder)
+
+
 # --- degenerate motions: named, never a confident number -----------------------------------------
 
 

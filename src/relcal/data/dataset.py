@@ -83,6 +83,7 @@ from relcal.checks import (
     describe,
     real_array,
 )
+from relcal.data.flange import FlangeFormat
 from relcal.errors import ArgumentError, RelcalError, excerpt, printable
 from relcal.io import csv_line, load_yaml, note_input, read_table, table_delimiter, validate
 from relcal.limits import check_input_size
@@ -174,6 +175,9 @@ class _DatasetSpec(pydantic.BaseModel):
     pose_angle_unit: Literal["deg", "rad"] = "rad"
     euler: str = "xyz"
     position_unit: Literal["m", "mm"] = "m"
+    flange_unit: Literal["m", "mm"] = "m"
+    flange_angle_unit: Literal["deg", "rad"] = "rad"
+    flange_euler: str = "xyz"
     decimal: Literal[".", ","] = "."
     columns: dict[str, str] = {}
     samples: str = "samples.csv"
@@ -197,7 +201,7 @@ class _DatasetSpec(pydantic.BaseModel):
             return "auto"
         return value
 
-    @pydantic.field_validator("euler")
+    @pydantic.field_validator("euler", "flange_euler")
     @classmethod
     def _euler_sequence(cls, value: str) -> str:
         """A sequence SciPy's ``Rotation.from_euler`` takes: three axes of x, y, z, all lower
@@ -703,6 +707,7 @@ def load_dataset(folder: str | Path) -> Dataset:
         euler=spec.euler,
         position_unit=spec.position_unit,
         decimal=spec.decimal,
+        flange_format=_flange_format(spec),
     )
     ids, q, images, poses = table.ids, table.q, table.images, table.poses
     groups, distances = _coincidence_spec(spec, spec_path, table, model)
@@ -754,6 +759,7 @@ def _flange_dataset(root: Path, spec: _DatasetSpec, spec_path: Path) -> Dataset:
         euler=spec.euler,
         position_unit=spec.position_unit,
         decimal=spec.decimal,
+        flange_format=_flange_format(spec),
     )
     extra = [k for k in ("joint_limits", "tool", "measurement") if getattr(spec, k)]
     if spec.distances:
@@ -1020,9 +1026,9 @@ def _rename(
 ) -> list[str]:
     """The header with the file's names replaced by relcal's (``columns``: relcal name -> the
     file's name), each mapped name required."""
-    from relcal.data.flange import FLANGE_COLUMNS
+    from relcal.data.flange import FLANGE_NAMES
 
-    known = ["id", "image", *POSE_COLUMNS, *RPY_COLUMNS[3:], *COINCIDENCE_COLUMNS, *FLANGE_COLUMNS]
+    known = ["id", "image", *POSE_COLUMNS, *RPY_COLUMNS[3:], *COINCIDENCE_COLUMNS, *FLANGE_NAMES]
     if model is not None:
         known += [f"q{i + 1}" for i in range(model.n_joints)] + list(model.joint_names)
     unknown = [ours for ours in columns if ours not in known]
@@ -1031,7 +1037,7 @@ def _rename(
         raise RelcalError(
             f"{path}: dataset.yaml columns: unknown column name(s) {', '.join(unknown)}; relcal's "
             "names are id, image, x, y, z, qx, qy, qz, qw, roll, pitch, yaw, fx, fy, fz, fqx, "
-            f"fqy, fqz, fqw{joints}"
+            f"fqy, fqz, fqw, frx, fry, frz, froll, fpitch, fyaw{joints}"
         )
     inverse = {theirs.strip(): ours for ours, theirs in columns.items()}
     missing = [theirs for theirs in inverse if theirs not in header]
@@ -1100,6 +1106,10 @@ def _measured_columns(path: Path, header: list[str]) -> tuple[Measured, tuple[st
     return found[0]
 
 
+def _flange_format(spec: _DatasetSpec) -> FlangeFormat:
+    return FlangeFormat(spec.flange_unit, spec.flange_angle_unit, spec.flange_euler)
+
+
 def read_sample_table(
     path: Path,
     model: RobotModel | None,
@@ -1110,13 +1120,15 @@ def read_sample_table(
     euler: str = "xyz",
     position_unit: str = "m",
     decimal: str = ".",
+    flange_format: FlangeFormat | None = None,
 ) -> SampleTable:
     """Parse the samples table; errors name the file, the line and the column.
 
     ``euler``: the rotation sequence of roll, pitch, yaw columns (SciPy's ``from_euler``);
     ``position_unit``: ``"m"`` or ``"mm"`` for x, y, z; ``decimal``: the numbers' decimal mark.
-    ``model`` None: no robot, the flange poses (``fx`` .. ``fqw``, m) are required instead of
-    joint columns (``q`` of the table is then ``(N, 0)``).
+    ``model`` None: no robot, the flange poses (``fx, fy, fz`` and one rotation:
+    :data:`~relcal.data.flange.FLANGE_ROTATIONS`, written as ``flange_format`` says) are
+    required instead of joint columns (``q`` of the table is then ``(N, 0)``).
     """
     header, data = read_table(path, "sample")
     if decimal == "," and table_delimiter(path) == ",":
@@ -1158,7 +1170,9 @@ def read_sample_table(
     _no_repeated_samples(path, ids, lines, q, images if measured == "image" else values)
     q_arr, flange = np.array(q, dtype=float).reshape(len(q), -1), None
     if flange_cols:
-        q_arr, flange = q_arr[:, : len(joints)], _flange(path, q_arr[:, len(joints) :], lines)
+        logged = q_arr[:, len(joints) :]
+        flange = _flange(path, logged, lines, flange_format or FlangeFormat(), flange_cols)
+        q_arr = q_arr[:, : len(joints)]
     if model is not None:
         q_arr = _joint_values(path, q_arr, model, joint_unit)
     pose_arr = None
@@ -1193,51 +1207,83 @@ def read_sample_table(
 
 
 def _flange_columns(path: Path, header: list[str], required: bool) -> tuple[str, ...]:
-    """The flange-pose columns ``fx`` .. ``fqw`` when the header has them (all or none);
-    ``required``: the dataset names no robot, so they stand for it."""
-    from relcal.data.flange import FLANGE_COLUMNS
+    """The flange-pose columns when the header has them: ``fx, fy, fz`` and one rotation of
+    :data:`~relcal.data.flange.FLANGE_ROTATIONS` (all of one, none of another); ``required``:
+    the dataset names no robot, so they stand for it."""
+    from relcal.data.flange import FLANGE_NAMES, FLANGE_POSITION, FLANGE_ROTATIONS
 
-    present = [c for c in FLANGE_COLUMNS if c in header]
     if required and "group" in header:
         raise RelcalError(
             f"{path} line 1: header: coincidence samples (a 'group' column) need a robot: give "
             "robot: in dataset.yaml"
         )
-    if present and len(present) < len(FLANGE_COLUMNS) or required and not present:
-        missing = [c for c in FLANGE_COLUMNS if c not in header]
+    present = [c for c in FLANGE_NAMES if c in header]
+    if not present and not required:
+        return ()
+    rotations = [cols for cols in FLANGE_ROTATIONS.values() if set(cols) <= set(header)]
+    columns = (*FLANGE_POSITION, *rotations[0]) if len(rotations) == 1 else ()
+    if (
+        not columns
+        or any(c not in columns for c in present)
+        or not set(FLANGE_POSITION) <= set(header)
+    ):
         why = (
-            "dataset.yaml names no robot, so the samples must give the flange poses: "
+            "dataset.yaml names no robot, so the samples must give the flange poses"
             if required and not present
-            else "flange poses need all seven columns: "
+            else f"flange pose columns {', '.join(present)} are not one complete pose"
         )
         raise RelcalError(
-            f"{path} line 1: header: {why}{', '.join(FLANGE_COLUMNS)} (the flange in the robot's "
-            f"base frame, m, unit quaternion x first); missing {', '.join(missing)} (or give "
-            "robot: and joint columns in dataset.yaml)"
+            f"{path} line 1: header: {why}: fx, fy, fz (the flange in the robot's base frame) and "
+            "one rotation, fqx, fqy, fqz, fqw (unit quaternion, x first), frx, fry, frz "
+            "(rotation vector) or froll, fpitch, fyaw (flange_euler, flange_angle_unit in "
+            "dataset.yaml); or give robot: and joint columns in dataset.yaml"
         )
-    return FLANGE_COLUMNS if present else ()
+    return columns
 
 
-def _flange(path: Path, values: np.ndarray, lines: list[int]) -> np.ndarray:
-    """Flange poses ``(N, 4, 4)`` from rows ``fx .. fqw``; the quaternions must be unit ones and
-    the positions in metres."""
-    from relcal.data.flange import flange_poses
+def _flange(
+    path: Path, values: np.ndarray, lines: list[int], fmt: FlangeFormat, columns: tuple[str, ...]
+) -> np.ndarray:
+    """Flange poses ``(N, 4, 4)`` (m) from the rows ``(N, 6 or 7)`` of the ``columns`` of
+    :func:`_flange_columns`, written as ``fmt`` says: unit quaternions, rotation vectors within
+    a turn, angles in their unit, positions within 20 m of the base."""
+    from relcal.data.flange import FLANGE_ROTATIONS
 
-    norms = np.linalg.norm(values[:, 3:], axis=1)
-    bad = np.flatnonzero(np.abs(norms - 1) > 1e-3)
-    if bad.size:
-        raise RelcalError(
-            f"{path} line {lines[bad[0]]}: fqx, fqy, fqz, fqw: expected a unit quaternion (x "
-            f"first), the norm is {norms[bad[0]]:.4f}"
-        )
-    reach = np.abs(values[:, :3]).max() if len(values) else 0.0
+    positions = values[:, :3] * (1e-3 if fmt.unit == "mm" else 1.0)
+    if values.shape[1] == 7:
+        norms = np.linalg.norm(values[:, 3:], axis=1)
+        bad = np.flatnonzero(np.abs(norms - 1) > 1e-3)
+        if bad.size:
+            raise RelcalError(
+                f"{path} line {lines[bad[0]]}: fqx, fqy, fqz, fqw: expected a unit quaternion (x "
+                f"first), the norm is {norms[bad[0]]:.4f}"
+            )
+        rotation = Rotation.from_quat(values[:, 3:] / norms[:, None]).as_matrix()
+    elif columns[3:] == FLANGE_ROTATIONS["rpy"]:
+        angles = np.c_[positions, values[:, 3:]]
+        names = ", ".join(FLANGE_ROTATIONS["rpy"])
+        rotation = _rpy_poses(path, angles, fmt.angle_unit, fmt.euler, names, "flange_angle_unit")[
+            :, :3, :3
+        ]
+    else:
+        rotvec = values[:, 3:] * (np.pi / 180 if fmt.angle_unit == "deg" else 1.0)
+        angle = np.linalg.norm(rotvec, axis=1)
+        far = np.flatnonzero(angle > 2 * np.pi + 0.1)
+        if far.size:  # a controller writes at most pi; degrees read as radians reach 180
+            raise RelcalError(
+                f"{path} line {lines[far[0]]}: frx, fry, frz is a rotation of {angle[far[0]]:.4g} "
+                f"rad: a rotation vector in radians turns at most pi (degrees given? fix: "
+                "flange_angle_unit: deg in dataset.yaml)"
+            )
+        rotation = Rotation.from_rotvec(rotvec).as_matrix()
+    reach = np.abs(positions).max() if len(positions) else 0.0
     if reach > 20.0:
-        k = int(np.argmax(np.abs(values[:, :3]).max(axis=1)))
+        k = int(np.argmax(np.abs(positions).max(axis=1)))
         raise RelcalError(
-            f"{path} line {lines[k]}: fx, fy, fz: {reach:.1f} from the robot's base: flange "
-            "positions are in metres (millimetres given?)"
+            f"{path} line {lines[k]}: fx, fy, fz: {reach:.1f} m from the robot's base: "
+            "millimetres given as metres? (fix: flange_unit: mm in dataset.yaml)"
         )
-    return flange_poses(values)
+    return tf.homogeneous(rotation, positions)
 
 
 def _coincidence_table(
@@ -1619,20 +1665,27 @@ def _poses(path: Path, values: np.ndarray, lines: list[int]) -> np.ndarray:
     return tf.homogeneous(rot, values[:, :3])
 
 
-def _rpy_poses(path: Path, values: np.ndarray, unit: str, euler: str = "xyz") -> np.ndarray:
+def _rpy_poses(
+    path: Path,
+    values: np.ndarray,
+    unit: str,
+    euler: str = "xyz",
+    names: str = "roll, pitch, yaw",
+    field: str = "pose_angle_unit",
+) -> np.ndarray:
     """Poses from ``x, y, z, roll, pitch, yaw``: the three angles of the rotation sequence
-    ``euler`` (SciPy's ``from_euler``; ``xyz``: ``R = Rz(yaw) Ry(pitch) Rx(roll)``)."""
+    ``euler`` (SciPy's ``from_euler``; ``xyz``: ``R = Rz(yaw) Ry(pitch) Rx(roll)``); messages
+    name the columns ``names`` and the dataset.yaml ``field`` of their unit."""
     rpy = values[:, 3:]
     if unit == "rad" and len(rpy) and np.abs(rpy).max() > 2 * np.pi + 0.1:
         raise RelcalError(
-            f"{path}: roll, pitch, yaw reach {np.abs(rpy).max():.1f}, which looks like degrees, "
-            "but dataset.yaml declares pose_angle_unit: rad (the default; fix: "
-            "pose_angle_unit: deg)"
+            f"{path}: {names} reach {np.abs(rpy).max():.1f}, which looks like degrees, "
+            f"but dataset.yaml declares {field}: rad (the default; fix: {field}: deg)"
         )
     if unit == "deg" and len(rpy) >= 5 and np.abs(rpy).max() < np.pi + 0.05:
         raise RelcalError(
-            f"{path}: roll, pitch, yaw never exceed {np.abs(rpy).max():.2f}, which looks like "
-            "radians, but dataset.yaml declares pose_angle_unit: deg (fix: pose_angle_unit: rad)"
+            f"{path}: {names} never exceed {np.abs(rpy).max():.2f}, which looks like "
+            f"radians, but dataset.yaml declares {field}: deg (fix: {field}: rad)"
         )
     if unit == "deg":
         rpy = np.radians(rpy)

@@ -11,13 +11,16 @@ those at the chain's wrist singularity, where the split between the first and th
 arbitrary but the pose is exact. The chain's tool is turned so that the mean orientation sits in
 the middle of the wrist's range, far from that singularity.
 
-Columns of a samples table (``FLANGE_COLUMNS``): ``fx, fy, fz`` (m) and ``fqx, fqy, fqz, fqw``
-(unit quaternion, x first).
+Columns of a samples table: ``fx, fy, fz`` and one rotation (:data:`FLANGE_ROTATIONS`):
+``fqx, fqy, fqz, fqw`` (unit quaternion, x first: what relcal writes, ``FLANGE_COLUMNS``), ``frx,
+fry, frz`` (a rotation vector, as a UR controller logs its TCP pose) or ``froll, fpitch, fyaw``
+(angles of a rotation sequence), in the units :class:`FlangeFormat` says.
 """
 
 from __future__ import annotations
 
 import warnings
+from dataclasses import dataclass
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -26,7 +29,30 @@ from relcal import geometry as tf
 from relcal.errors import RelcalError
 from relcal.robot.model import RobotModel, model_from_dict
 
-FLANGE_COLUMNS = ("fx", "fy", "fz", "fqx", "fqy", "fqz", "fqw")
+FLANGE_COLUMNS = ("fx", "fy", "fz", "fqx", "fqy", "fqz", "fqw")  # as relcal writes them
+FLANGE_POSITION = FLANGE_COLUMNS[:3]
+#: The rotations a controller's flange pose may come with: a unit quaternion (x first), a
+#: rotation vector (a UR controller's rx, ry, rz) or three angles of a rotation sequence
+FLANGE_ROTATIONS = {
+    "quaternion": FLANGE_COLUMNS[3:],
+    "rotation vector": ("frx", "fry", "frz"),
+    "rpy": ("froll", "fpitch", "fyaw"),
+}
+FLANGE_NAMES = (*FLANGE_POSITION, *(c for cols in FLANGE_ROTATIONS.values() for c in cols))
+
+
+@dataclass(frozen=True)
+class FlangeFormat:
+    """How a table's flange poses are written (``dataset.yaml``: ``flange_unit``,
+    ``flange_angle_unit``, ``flange_euler``): the unit of ``fx, fy, fz`` (``m`` or ``mm``), the
+    angle unit of a rotation vector or of ``froll, fpitch, fyaw`` (``rad`` or ``deg``), and the
+    rotation sequence of the latter (SciPy's ``from_euler``)."""
+
+    unit: str = "m"
+    angle_unit: str = "rad"
+    euler: str = "xyz"
+
+
 REPRODUCED_TO = 1e-9  # m and rad: the chain's poses against the logged ones
 
 _CHAIN = {
@@ -106,11 +132,3 @@ def flange_chain(flange: np.ndarray) -> tuple[RobotModel, np.ndarray]:
             "not a rigid transform?"
         )
     return model, q
-
-
-def flange_poses(values: np.ndarray) -> np.ndarray:
-    """Flange poses ``(N, 4, 4)`` from rows ``fx, fy, fz, fqx, fqy, fqz, fqw`` ``(N, 7)`` (m, unit
-    quaternion x first; the caller checked the norms)."""
-    values = np.asarray(values, dtype=float)
-    quat = values[:, 3:] / np.linalg.norm(values[:, 3:], axis=1, keepdims=True)
-    return tf.homogeneous(Rotation.from_quat(quat).as_matrix(), values[:, :3])
