@@ -19,11 +19,15 @@ examples:
   relcal measure charuco/ --max-rms 1.5           # camera poses, intrinsics, rejected frames
   relcal import mukca mukca/data/panda_1 --urdf mukca/urdf/panda.urdf --tip ball_link \
       --distance 0.050 --out panda_1/               # ball-in-socket joints, 50 mm sockets
+  relcal import easy-handeye2 ~/.ros2/easy_handeye2/samples/cell.samples --mode eye_in_hand \
+      --out cell-handeye/ && relcal handeye cell-handeye/
 
 rct-images: a robot_cal_tools image set (cal_data.yaml, target.yaml, camera_intr*.yaml); the
 images are copied into the dataset; the recorded tool poses become the joints of a pose chain.
 mukca: a robot's folder of PLACEMENT/hole_*.csv joint files (MUKCa layout): a coincidence
 dataset, one group per socket file, the URDF copied in as robot.urdf.
+easy-handeye2: a session's saved samples (~/.ros2/easy_handeye2/samples/NAME.samples) with
+--mode: a dataset of flange and camera poses for relcal handeye (no robot model needed).
 Every dataset written holds no path outside its folder (robot files and images are copied): it
 still calibrates when moved.
 """
@@ -57,6 +61,16 @@ def run(args: argparse.Namespace) -> int:
             ],
             "skipped": list(done.skipped),
         }
+    elif args.format == "easy-handeye2":
+        from relcal.data.easy_handeye import import_easy_handeye2
+
+        if not args.mode:
+            raise RelcalError(
+                "relcal import easy-handeye2: --mode eye_in_hand or eye_to_hand (easy_handeye2's "
+                "eye_on_base) is required: the samples file does not say, and the other reading "
+                "fits the data as well, giving a wrong transform"
+            )
+        done = import_easy_handeye2(source, args.out, args.mode)
     elif args.format == "mukca":
         from relcal.data.importers import import_mukca
 
@@ -131,16 +145,18 @@ def name_list(text: str) -> list[str]:
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "import",
-        help="convert robot_cal_tools measurements or a ROS bag into a dataset folder",
+        help="convert robot_cal_tools measurements, a ROS bag, MUKCa joint files or "
+        "easy_handeye2 samples into a dataset folder",
         description="Convert ROS-Industrial robot_cal_tools' positioner kinematic measurements "
         "(joint angles + camera-to-target poses), or a ROS 1 / ROS 2 bag or MCAP file of a "
-        "calibration run (one sample per stop of the robot), into a relcal dataset folder.",
+        "calibration run (one sample per stop of the robot), MUKCa ball-in-socket joint files, "
+        "or easy_handeye2's saved samples, into a relcal dataset folder.",
         epilog=EPILOG,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument(
         "format",
-        choices=("rct-positioner", "rct-images", "rosbag", "mukca"),
+        choices=("rct-positioner", "rct-images", "rosbag", "mukca", "easy-handeye2"),
         help="input format",
     )
     p.add_argument(
@@ -154,11 +170,12 @@ def register(sub: argparse._SubParsersAction) -> None:
         type=output_folder,
         help="dataset folder to write (new or empty: an existing dataset is never replaced)",
     )
-    rct = p.add_argument_group("rct-images")
+    rct = p.add_argument_group("rct-images, easy-handeye2")
     rct.add_argument(
         "--mode",
         choices=("eye_in_hand", "eye_to_hand"),
-        help="camera on the wrist or fixed (default: from the folder name)",
+        help="camera on the wrist or fixed (rct-images default: from the folder name; "
+        "easy-handeye2: required, eye_to_hand for its eye_on_base)",
     )
     rct.add_argument(
         "--intrinsics",
