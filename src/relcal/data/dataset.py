@@ -1250,32 +1250,17 @@ def _flange(
     from relcal.data.flange import FLANGE_ROTATIONS
 
     positions = values[:, :3] * (1e-3 if fmt.unit == "mm" else 1.0)
-    if values.shape[1] == 7:
-        norms = np.linalg.norm(values[:, 3:], axis=1)
-        bad = np.flatnonzero(np.abs(norms - 1) > 1e-3)
-        if bad.size:
-            raise RelcalError(
-                f"{path} line {lines[bad[0]]}: fqx, fqy, fqz, fqw: expected a unit quaternion (x "
-                f"first), the norm is {norms[bad[0]]:.4f}"
-            )
-        rotation = Rotation.from_quat(values[:, 3:] / norms[:, None]).as_matrix()
+    rows = np.c_[positions, values[:, 3:]]
+    if columns[3:] == FLANGE_ROTATIONS["quaternion"]:
+        poses = _poses(path, rows, lines, "fqx, fqy, fqz, fqw")
     elif columns[3:] == FLANGE_ROTATIONS["rpy"]:
-        angles = np.c_[positions, values[:, 3:]]
         names = ", ".join(FLANGE_ROTATIONS["rpy"])
-        rotation = _rpy_poses(path, angles, fmt.angle_unit, fmt.euler, names, "flange_angle_unit")[
-            :, :3, :3
-        ]
+        poses = _rpy_poses(path, rows, fmt.angle_unit, fmt.euler, names, "flange_angle_unit")
     else:
-        rotvec = values[:, 3:] * (np.pi / 180 if fmt.angle_unit == "deg" else 1.0)
-        angle = np.linalg.norm(rotvec, axis=1)
-        far = np.flatnonzero(angle > 2 * np.pi + 0.1)
-        if far.size:  # a controller writes at most pi; degrees read as radians reach 180
-            raise RelcalError(
-                f"{path} line {lines[far[0]]}: frx, fry, frz is a rotation of {angle[far[0]]:.4g} "
-                f"rad: a rotation vector in radians turns at most pi (degrees given? fix: "
-                "flange_angle_unit: deg in dataset.yaml)"
-            )
-        rotation = Rotation.from_rotvec(rotvec).as_matrix()
+        if fmt.angle_unit == "deg":
+            rows[:, 3:] = np.radians(rows[:, 3:])
+        fix = "fix: flange_angle_unit: deg in dataset.yaml"
+        poses = _rotvec_poses(path, rows, lines, "frx, fry, frz", fix)
     reach = np.abs(positions).max() if len(positions) else 0.0
     if reach > 20.0:
         k = int(np.argmax(np.abs(positions).max(axis=1)))
@@ -1283,7 +1268,7 @@ def _flange(
             f"{path} line {lines[k]}: fx, fy, fz: {reach:.1f} m from the robot's base: "
             "millimetres given as metres? (fix: flange_unit: mm in dataset.yaml)"
         )
-    return tf.homogeneous(rotation, positions)
+    return poses
 
 
 def _coincidence_table(
@@ -1550,15 +1535,7 @@ def read_target_file(
                 rpy = np.radians(rpy)
             poses = tf.homogeneous(Rotation.from_euler("xyz", rpy).as_matrix(), values[:, :3])
         else:
-            angle = np.linalg.norm(values[:, 3:], axis=1)
-            far = np.flatnonzero(angle > 2 * np.pi + 0.1)
-            if far.size:  # a controller writes at most pi; degrees read as radians reach 180
-                raise RelcalError(
-                    f"{path} line {lines[far[0]]}: rx, ry, rz is a rotation of "
-                    f"{angle[far[0]]:.4g} rad ({np.degrees(angle[far[0]]):.4g} deg): a rotation "
-                    "vector is in radians (degrees given?)"
-                )
-            poses = tf.homogeneous(Rotation.from_rotvec(values[:, 3:]).as_matrix(), values[:, :3])
+            poses = _rotvec_poses(path, values, lines, "rx, ry, rz", "give radians")
         _check_reach(path, values[:, :3], lines)
         return Targets(ids, lines, poses, None, plan_robot, plan_unit)
     columns = named if set(named) <= set(fields) else numbered
@@ -1653,16 +1630,37 @@ def joints_in_unit(model: RobotModel, q: np.ndarray, unit: str) -> np.ndarray:
     return np.where(model.prismatic, q, np.degrees(q)) if unit == "deg" else q
 
 
-def _poses(path: Path, values: np.ndarray, lines: list[int]) -> np.ndarray:
+def _poses(
+    path: Path, values: np.ndarray, lines: list[int], names: str = "qx, qy, qz, qw"
+) -> np.ndarray:
+    """Poses from rows ``x, y, z`` and a quaternion (x first, the columns ``names``), which
+    must be a unit one."""
     norms = np.linalg.norm(values[:, 3:], axis=1)
     bad = np.flatnonzero(np.abs(norms - 1) > 1e-3)
     if bad.size:
         raise RelcalError(
-            f"{path} line {lines[bad[0]]}: qx, qy, qz, qw: expected a unit quaternion, "
+            f"{path} line {lines[bad[0]]}: {names}: expected a unit quaternion (x first), the "
             f"norm is {norms[bad[0]]:.4f}"
         )
     rot = Rotation.from_quat(values[:, 3:] / norms[:, None]).as_matrix()
     return tf.homogeneous(rot, values[:, :3])
+
+
+def _rotvec_poses(
+    path: Path, values: np.ndarray, lines: list[int], names: str, fix: str
+) -> np.ndarray:
+    """Poses from rows ``x, y, z`` and a rotation vector (rad, the columns ``names``), which
+    turns at most a turn: a controller writes at most pi, degrees read as radians reach 180
+    (``fix``: what to declare then)."""
+    angle = np.linalg.norm(values[:, 3:], axis=1)
+    far = np.flatnonzero(angle > 2 * np.pi + 0.1)
+    if far.size:
+        raise RelcalError(
+            f"{path} line {lines[far[0]]}: {names} is a rotation of {angle[far[0]]:.4g} rad "
+            f"({np.degrees(angle[far[0]]):.4g} deg): a rotation vector is in radians (degrees "
+            f"given? {fix})"
+        )
+    return tf.homogeneous(Rotation.from_rotvec(values[:, 3:]).as_matrix(), values[:, :3])
 
 
 def _rpy_poses(
