@@ -7,8 +7,13 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
+import yaml
+from conftest import DATA
 
 from relcal.cli import main
+
+MUKCA = DATA / "mukca"
+POSITIONER = DATA / "rct_positioner" / "positioner_kinematic_measurements.yaml"
 
 
 def refused(capsys, argv, *patterns) -> str:
@@ -42,3 +47,112 @@ def test_rosbag_that_is_not_a_bag(tmp_path, capsys, name, content, expect):
     argv = ["import", "rosbag", bag, "--joints", "/j", "--pose", "/p", "--out", out]
     refused(capsys, argv, str(bag), expect, "expected a ROS 1 .bag")
     assert not out.exists()
+
+
+def positioner_file(path: Path, names: list[str]) -> Path:
+    """The first observations of the real positioner file under other names (YAML keys)."""
+    data = yaml.safe_load(POSITIONER.read_text())
+    path.write_text(yaml.safe_dump(dict(zip(names, data.values(), strict=False))))
+    return path
+
+
+def test_positioner_without_observations(tmp_path, capsys):
+    source = tmp_path / "m.yaml"
+    source.write_text("{}\n")
+    out = tmp_path / "out"
+    refused(capsys, ["import", "rct-positioner", source, "--out", out], "0 observations")
+    assert not out.exists()
+
+
+@pytest.mark.parametrize(
+    ("bad", "expect"),
+    [(" ", "an empty name"), ("e\nf", "a line break inside the name 'e\\nf'"), ("a ", "one id")],
+)
+def test_positioner_ids_that_cannot_be_sample_ids(tmp_path, capsys, bad, expect):
+    source = positioner_file(tmp_path / "m.yaml", ["a", "b", "c", bad])
+    out = tmp_path / "out"
+    refused(capsys, ["import", "rct-positioner", source, "--out", out], expect)
+    assert not out.exists()
+
+
+def test_positioner_ids_with_commas_and_quotes_read_back(tmp_path):
+    from relcal import load_dataset
+
+    names = ["a,b", 'c"d', "x y", "g\u202eh", "5"]
+    source = positioner_file(tmp_path / "m.yaml", names)
+    assert main(["import", "rct-positioner", str(source), "--out", str(tmp_path / "d")]) == 0
+    assert sorted(load_dataset(tmp_path / "d").ids) == sorted(names)
+
+
+def mukca_robot(tmp_path: Path, hole_0: str | bytes, name: str = "A") -> Path:
+    """A robot folder of two placements (the real panda_1 front's sockets), placement ``name``'s
+    hole_0.csv replaced by ``hole_0``."""
+    root = tmp_path / "robot"
+    for place in (name, "B"):
+        (root / place).mkdir(parents=True)
+        for hole in ("hole_0.csv", "hole_1.csv"):
+            (root / place / hole).write_bytes((MUKCA / "data/panda_1/front" / hole).read_bytes())
+    target = root / name / "hole_0.csv"
+    (target.write_bytes if isinstance(hole_0, bytes) else target.write_text)(hole_0)
+    return root
+
+
+def front_rows() -> list[str]:
+    return (MUKCA / "data/panda_1/front/hole_0.csv").read_text().splitlines()
+
+
+def import_mukca(tmp_path, root) -> list:
+    urdf = MUKCA / "urdf" / "panda.urdf"
+    return ["import", "mukca", root, "--urdf", urdf, "--distance", "0.05", "--out", tmp_path / "o"]
+
+
+@pytest.mark.parametrize(
+    ("edit", "expect"),
+    [
+        (lambda r: r[:1], "one configuration; a socket needs two or more"),
+        (lambda r: [*r, r[0]], "line 31: repeats line 1"),
+        (
+            lambda r: [r[0], r[1].replace(",", ",,", 1), *r[2:]],
+            "line 2: joint 2: expected a number, got an empty field",
+        ),  # fmt: skip
+        (lambda r: [r[0].replace(",", ";").replace(".", ","), *r[1:]], "a decimal comma"),
+        (
+            lambda r: [r[0], r[1].replace(",", ";"), *r[2:]],
+            "line 2: fields separated by semicolons, but line 1 by commas",
+        ),  # fmt: skip
+        (
+            lambda r: [r[0], "1e300" + r[1][r[1].index(",") :], *r[2:]],
+            "line 2: a joint angle of 1e+300, beyond 2 pi; 1 of 30 lines: a mistyped value?",
+        ),  # fmt: skip
+        (
+            lambda r: [",".join(c.strip() for c in r[0].split(",")).replace(",", " "), *r[1:]],
+            "separated by tabs or spaces",
+        ),  # fmt: skip
+    ],
+)
+def test_mukca_socket_files(tmp_path, capsys, edit, expect):
+    root = mukca_robot(tmp_path, "\n".join(edit(front_rows())) + "\n")
+    refused(capsys, import_mukca(tmp_path, root), str(root / "A" / "hole_0.csv"), expect)
+    assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.parametrize(
+    "content",
+    [
+        b"\xef\xbb\xbf" + "\n".join(front_rows()).encode(),  # a byte-order mark
+        "\r\n".join(front_rows()).encode(),  # CRLF
+        "\n".join(r.replace(",", "\t") + "\t" for r in front_rows()).encode(),  # tabs, trailing
+    ],
+)
+def test_mukca_socket_files_read_as_written(tmp_path, content):
+    from relcal import load_dataset
+
+    root = mukca_robot(tmp_path, content)
+    assert main([str(a) for a in import_mukca(tmp_path, root)]) == 0
+    assert load_dataset(tmp_path / "o").q.shape == (124, 7)
+
+
+@pytest.mark.parametrize(("name", "expect"), [("a\nb", "a line break"), (" B", "one id")])
+def test_mukca_placement_names(tmp_path, capsys, name, expect):
+    root = mukca_robot(tmp_path, "\n".join(front_rows()), name)
+    refused(capsys, import_mukca(tmp_path, root), expect)
