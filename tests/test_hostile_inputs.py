@@ -156,3 +156,19 @@ def test_mukca_socket_files_read_as_written(tmp_path, content):
 def test_mukca_placement_names(tmp_path, capsys, name, expect):
     root = mukca_robot(tmp_path, "\n".join(front_rows()), name)
     refused(capsys, import_mukca(tmp_path, root), expect)
+
+
+def test_coincidence_samples_repeated(tmp_path, capsys):
+    root = mukca_robot(tmp_path, "\n".join(front_rows()))
+    assert main([str(a) for a in import_mukca(tmp_path, root)]) == 0
+    samples = tmp_path / "o" / "samples.csv"
+    rows = samples.read_text().splitlines()
+    copied = rows[5].split(",", 1)[1]  # the fifth sample under a new id
+    samples.write_text("\n".join([*rows, "copy," + copied]) + "\n")
+    out = tmp_path / "cal"
+    refused(
+        capsys,
+        ["calibrate", tmp_path / "o", "--out", out],
+        "line 126: sample 'copy' repeats line 6 (sample 'A/hole_0/004')",
+    )
+    assert not out.exists()

@@ -1270,6 +1270,8 @@ def _coincidence_table(
         ids.append(sid)
         groups.append(group)
         q.append([parse_number(path, line_no, c, row[col[c]], decimal) for c in joints])
+    lines = [row.line for row in data]
+    _no_repeated_samples(path, ids, lines, q, [(g,) for g in groups])  # (the group: its measure)
     q_arr = _joint_values(path, np.array(q, dtype=float), model, unit)
     poses = np.broadcast_to(np.eye(4), (len(ids), 4, 4)).copy()
     return SampleTable(tuple(ids), q_arr, None, poses, "coincidence", tuple(groups))
