@@ -172,3 +172,38 @@ def test_coincidence_samples_repeated(tmp_path, capsys):
         "line 126: sample 'copy' repeats line 6 (sample 'A/hole_0/004')",
     )
     assert not out.exists()
+
+
+UR5E_PLAN = "# relcal plan: robot Universal Robots UR5e, joint unit deg\n# relcal robot: ur5e\n"
+UR5E_JOINTS = "id,shoulder_pan,shoulder_lift,elbow,wrist1,wrist2,wrist3"
+
+
+@pytest.mark.parametrize(
+    ("rows", "expect"),
+    [
+        (
+            [UR5E_JOINTS + ",elbow", "p1,10,-90,90,-90,-90,0,45"],
+            "line 3: header: column(s) elbow appear twice",
+        ),  # fmt: skip
+        (
+            [UR5E_JOINTS, "p1,10,-90,90,-90,-90,0", " p1 ,20,-80,90,-90,-90,0"],
+            "line 5: id 'p1' duplicates line 4",
+        ),  # fmt: skip
+        ([UR5E_JOINTS, ",10,-90,90,-90,-90,0"], "line 4: id: empty; give every pose an id"),
+        (
+            [UR5E_JOINTS, *(f"p{k},0.{k},-1.5{k},1.4,-1.57,-1.57,0.{k}" for k in range(1, 7))],
+            "which looks like radians, but the plan is read in degrees",
+        ),  # fmt: skip
+        (
+            [UR5E_JOINTS, "P001,10,-90,90,-90,-90,0", "p001,20,-80,90,-90,-90,0"],
+            "'P001' and 'p001' differ only in case",
+        ),  # fmt: skip
+    ],
+)
+def test_capture_plan_files(tmp_path, capsys, rows, expect):
+    plan = tmp_path / "plan.csv"
+    plan.write_text(UR5E_PLAN + "\n".join(rows) + "\n")
+    out = tmp_path / "ds"
+    argv = ["capture", plan, "--robot-driver", "manual", "--camera", "folder", "--out", out]
+    refused(capsys, argv, str(plan), expect)
+    assert not out.exists()
