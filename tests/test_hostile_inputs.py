@@ -207,3 +207,20 @@ def test_capture_plan_files(tmp_path, capsys, rows, expect):
     argv = ["capture", plan, "--robot-driver", "manual", "--camera", "folder", "--out", out]
     refused(capsys, argv, str(plan), expect)
     assert not out.exists()
+
+
+@pytest.mark.parametrize(
+    ("text", "expect"),
+    [
+        ("1e308,1e308", "POS_MM: 1e+308 mm: expected a standard deviation from 0 to 1000 mm"),
+        ("0.05,0.01,200", "JOINT_DEG: 200 deg: expected a standard deviation from 0 to 180"),
+        ("4_1,0.01", "POS_MM: expected a number, got '4_1': an underscore"),
+        ("0.05", "2 or 3 numbers separated by commas, got 1"),
+    ],
+)
+def test_noise_levels_read_strictly_and_bounded(capsys, text, expect):
+    from relcal import Noise, RelcalError
+
+    refused(capsys, ["simulate", "--noise", text, "--quiet"], "--noise", expect)
+    with pytest.raises(RelcalError, match=expect.replace("+", r"\+")):
+        Noise.parse(text)

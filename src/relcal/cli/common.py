@@ -278,17 +278,14 @@ def noise_levels(text: str) -> str:
     """``POS_MM,ORI_DEG[,JOINT_DEG]`` non-negative standard deviations, or ``none``."""
     if text.strip().lower() == "none":
         return "none"
-    from relcal.numbers import parse_number
+    from relcal.numbers import NotANumber, noise_numbers
 
-    parts = text.split(",")
     try:
-        values = [parse_number(p) for p in parts]
-    except ValueError:
-        values = []
-    if not 2 <= len(values) <= 3 or any(not math.isfinite(v) or v < 0 for v in values):
+        noise_numbers(text)
+    except NotANumber as exc:
         raise argparse.ArgumentTypeError(
-            f"'{text}': expected POS_MM,ORI_DEG[,JOINT_DEG] as non-negative numbers"
-        )
+            f"'{text}': expected POS_MM,ORI_DEG[,JOINT_DEG] standard deviations: {exc}"
+        ) from None
     return text
 
 
