@@ -224,3 +224,59 @@ def test_noise_levels_read_strictly_and_bounded(capsys, text, expect):
     refused(capsys, ["simulate", "--noise", text, "--quiet"], "--noise", expect)
     with pytest.raises(RelcalError, match=expect.replace("+", r"\+")):
         Noise.parse(text)
+
+
+@pytest.mark.parametrize(
+    ("argv", "expect"),
+    [
+        (["simulate", "--n-poses", "10000000"], "from 3 to 10,000"),
+        (["study", "--poses", "-5"], "from 3 to 10,000"),
+        (["study", "--poses", "1_0"], "'1_0': not a file and not a number"),
+        (["observability", "--n-poses", "20000"], "from 3 to 10,000"),
+    ],
+)
+def test_simulated_pose_counts_bounded(capsys, argv, expect):
+    refused(capsys, argv, expect)
+
+
+def ur5e_rows(unit_line: str | None) -> str:
+    rows = [UR5E_JOINTS, *(f"p{k},0.{k},-1.5{k},1.{k},-1.57,-1.57,0.{k}" for k in range(1, 9))]
+    return (f"{unit_line}\n" if unit_line else "") + "\n".join(rows) + "\n"
+
+
+@pytest.mark.parametrize(
+    ("first", "options", "expect"),
+    [
+        (
+            "# relcal plan: robot Universal Robots UR5e, joint unit rad",
+            ["--joint-unit", "deg"],
+            "line 1: the file states joint unit rad, but --joint-unit deg was given",
+        ),  # fmt: skip
+        (
+            "# relcal plan: robot Universal Robots UR5e, joint unit deg",
+            [],
+            "which looks like radians, but the file's first line states deg",
+        ),  # fmt: skip
+        (
+            None,
+            [],
+            "which looks like radians, but they are read in deg (the default); give the "
+            "angles in deg, or --joint-unit rad",
+        ),  # fmt: skip
+    ],
+)
+def test_joint_files_read_in_their_unit(tmp_path, capsys, first, options, expect):
+    poses = tmp_path / "poses.csv"
+    poses.write_text(ur5e_rows(first))
+    argv = ["observability", "--robot", "ur5e", "--poses", poses, *options]
+    refused(capsys, argv, str(poses), expect)
+
+
+def test_joint_files_stating_radians_are_read_in_radians(tmp_path):
+    from relcal.data.dataset import read_joints
+    from relcal.robot.loading import get_robot
+
+    poses = tmp_path / "poses.csv"
+    poses.write_text(ur5e_rows("# relcal plan: robot Universal Robots UR5e, joint unit rad"))
+    q = read_joints(poses, get_robot("ur5e"), None)
+    assert q[0, 1] == pytest.approx(-1.51)

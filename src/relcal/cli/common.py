@@ -13,6 +13,7 @@ import argparse
 import importlib
 import math
 import os
+import re
 from collections.abc import Callable
 from pathlib import Path
 
@@ -153,6 +154,40 @@ def int_at_least(low: int) -> Callable[[str], int]:
 
 
 positive_int = int_at_least(1)
+MAX_SIMULATED_POSES = 10_000  # each is reached by inverse kinematics: about 20 ms, one at a time
+
+
+def simulated_poses(text: str) -> int:
+    """A number of simulated poses: a whole number from 3 (the fewest that determine anything)
+    to :data:`MAX_SIMULATED_POSES` (10,000 take minutes to reach; ten million took days)."""
+    value = _integer(text)
+    if not 3 <= value <= MAX_SIMULATED_POSES:
+        raise argparse.ArgumentTypeError(
+            f"'{text}': expected a whole number of simulated poses from 3 to "
+            f"{MAX_SIMULATED_POSES:,} (each is reached by inverse kinematics, about 20 ms)"
+        )
+    return value
+
+
+def poses_or_file(text: str) -> str | int:
+    """A CSV of joint configurations (an existing file) or a number of simulated poses
+    (:func:`simulated_poses`)."""
+    path = Path(text)
+    if path.is_dir():
+        raise argparse.ArgumentTypeError(f"{text}: is a folder, expected a CSV file or a number")
+    if path.exists():
+        return text
+    try:
+        return simulated_poses(text)
+    except argparse.ArgumentTypeError as exc:
+        if not re.fullmatch(r"\s*[-+]?\d+\s*", text):
+            raise argparse.ArgumentTypeError(
+                f"'{text}': not a file and not a number (a CSV of joint configurations, or a "
+                "whole number of simulated poses)"
+            ) from None
+        raise exc from None
+
+
 nonnegative_int = int_at_least(0)
 
 

@@ -30,7 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
-from relcal.data.dataset import PLAN_COMMENT, _row_id
+from relcal.data.dataset import PLAN_COMMENT, _row_id, unit_mixup
 from relcal.errors import RelcalError, printable
 from relcal.numbers import NotANumber, parse_number
 from relcal.robot.model import RobotModel, library_names
@@ -207,12 +207,10 @@ def read_plan(path: str | Path, model: RobotModel, joint_unit: str | None = None
     q = np.array(values)
     if not np.isfinite(q).all():
         raise RelcalError(f"{path}: joint values must be finite numbers")
-    revolute = ~model.prismatic
-    peak = np.abs(q[:, revolute]).max() if revolute.any() else 0.0
-    if unit == "deg" and len(q) >= 5 and peak < np.pi + 0.05 and np.abs(q).mean() > 1e-3:
-        raise RelcalError(  # (as a dataset's joint_unit is checked)
-            f"{path}: no joint angle exceeds {peak:.2f}, which looks like radians, but the plan "
-            "is read in degrees"
+    mixup = unit_mixup(q, model, unit) if unit == "deg" else None  # (rad: up to 4 pi below)
+    if mixup:
+        raise RelcalError(
+            f"{path}: {mixup}, but the plan is read in degrees"
             + (
                 " (its '# relcal plan:' line states joint unit deg); fix: joint unit rad there"
                 if robot is not None
