@@ -4,6 +4,7 @@ input is merely unusual, read right)."""
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import pytest
@@ -280,3 +281,31 @@ def test_joint_files_stating_radians_are_read_in_radians(tmp_path):
     poses.write_text(ur5e_rows("# relcal plan: robot Universal Robots UR5e, joint unit rad"))
     q = read_joints(poses, get_robot("ur5e"), None)
     assert q[0, 1] == pytest.approx(-1.51)
+
+
+@pytest.mark.parametrize(
+    ("call", "expect"),
+    [
+        (
+            lambda r: r.simulate(r.get_robot("a465"), n_poses=10**7),
+            "n_poses: expected a whole number in [3, 10000]",
+        ),  # fmt: skip
+        (lambda r: r.make_pairs(10**6, "all"), "make_pairs: n_poses=1,000,000 with pairing 'all'"),
+        (
+            lambda r: r.import_rosbag("x.bag", "out", "/j", pose="/p", options=stop_options(-1)),
+            "StopOptions.velocity: expected a number in (0, inf), got -1",
+        ),  # fmt: skip
+        (lambda r: stop_options(0.01, float("nan")), "StopOptions.settle: expected a finite"),
+    ],
+)
+def test_api_sizes_and_options_refused_before_any_work(call, expect):
+    import relcal
+
+    with pytest.raises(relcal.RelcalError, match=re.escape(expect)):
+        call(relcal)
+
+
+def stop_options(velocity: float, settle: float = 0.5):
+    from relcal.data.rosbag import StopOptions
+
+    return StopOptions(velocity=velocity, settle=settle)

@@ -27,6 +27,8 @@ from pathlib import Path
 
 from relcal.errors import RelcalError
 
+MAX_SIMULATED_POSES = 10_000  # each is reached by inverse kinematics: about 20 ms, one at a time
+
 MB = 1_000_000
 
 # the default cap per kind of input file, in MB; RELCAL_MAX_<KIND>_MB overrides

@@ -154,12 +154,14 @@ def int_at_least(low: int) -> Callable[[str], int]:
 
 
 positive_int = int_at_least(1)
-MAX_SIMULATED_POSES = 10_000  # each is reached by inverse kinematics: about 20 ms, one at a time
 
 
 def simulated_poses(text: str) -> int:
     """A number of simulated poses: a whole number from 3 (the fewest that determine anything)
-    to :data:`MAX_SIMULATED_POSES` (10,000 take minutes to reach; ten million took days)."""
+    to :data:`relcal.limits.MAX_SIMULATED_POSES` (10,000 take minutes to reach; ten million
+    took days)."""
+    from relcal.limits import MAX_SIMULATED_POSES
+
     value = _integer(text)
     if not 3 <= value <= MAX_SIMULATED_POSES:
         raise argparse.ArgumentTypeError(

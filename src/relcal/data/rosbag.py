@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from relcal.checks import check_instance, check_path
+from relcal.checks import check_instance, check_number, check_path
 from relcal.data.dataset import POSE_COLUMNS
 from relcal.data.importers import Imported, embedded_robot
 from relcal.errors import RelcalError, printable
@@ -37,6 +37,12 @@ class StopOptions:
 
     velocity: float = 0.01
     settle: float = 0.5
+
+    def __post_init__(self) -> None:
+        """Arguments checked where the API is entered: ``velocity`` above 0 (no joint is ever
+        slower than 0: no stop would be found), ``settle`` from 0, both finite."""
+        check_number(self.velocity, "StopOptions.velocity", 0, low_open=True)
+        check_number(self.settle, "StopOptions.settle", 0)
 
 
 @dataclass(frozen=True)
