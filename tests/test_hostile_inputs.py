@@ -309,3 +309,20 @@ def stop_options(velocity: float, settle: float = 0.5):
     from relcal.data.rosbag import StopOptions
 
     return StopOptions(velocity=velocity, settle=settle)
+
+
+@pytest.mark.parametrize("command", [["fleet", "calibrate", "plant", "--out", "cal"], ["study"]])
+def test_worker_processes_bounded(capsys, command):
+    from relcal.limits import max_workers
+
+    too_many = str(max_workers() + 1)
+    refused(capsys, [*command, "--workers", too_many], "--workers", "more than this machine")
+
+
+def test_local_cluster_bounded():
+    from relcal import RelcalError
+    from relcal.cluster import local_cluster
+    from relcal.limits import max_workers
+
+    with pytest.raises(RelcalError, match="workers: .* more than this machine can run"):
+        local_cluster(max_workers() + 1)

@@ -156,6 +156,17 @@ def int_at_least(low: int) -> Callable[[str], int]:
 positive_int = int_at_least(1)
 
 
+def worker_processes(text: str) -> int:
+    """A number of local worker processes: a whole number from 1 to
+    :func:`relcal.limits.max_workers` (4 per core, at least 8)."""
+    from relcal.limits import max_workers, workers_excess
+
+    value = positive_int(text)
+    if value > max_workers():
+        raise argparse.ArgumentTypeError(f"'{text}': {workers_excess(value)}")
+    return value
+
+
 def simulated_poses(text: str) -> int:
     """A number of simulated poses: a whole number from 3 (the fewest that determine anything)
     to :data:`relcal.limits.MAX_SIMULATED_POSES` (10,000 take minutes to reach; ten million

@@ -12,9 +12,9 @@ from relcal.cli.common import (
     pairing_arg,
     poses_or_file,
     positive_float,
-    positive_int,
     robot_args,
     seed,
+    worker_processes,
 )
 from relcal.cli.observability import add_noise_arg
 
@@ -135,7 +135,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     add_noise_arg(p)
     p.add_argument("--seed", type=seed, default=0)
-    p.add_argument("--workers", type=positive_int, default=2, help="worker processes (default 2)")
+    p.add_argument(
+        "--workers", type=worker_processes, default=2, help="worker processes (default 2)"
+    )
     p.add_argument(
         "--scheduler",
         metavar="tcp://HOST:8786",
