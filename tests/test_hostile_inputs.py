@@ -326,3 +326,29 @@ def test_local_cluster_bounded():
 
     with pytest.raises(RelcalError, match="workers: .* more than this machine can run"):
         local_cluster(max_workers() + 1)
+
+
+@pytest.mark.parametrize(
+    ("edit", "expect"),
+    [
+        (
+            lambda d: (d / "cal_data.yaml").write_text(
+                (d / "cal_data.yaml").read_text() + "- pose: poses/0.yaml\n  image: images/0.png\n"
+            ),
+            "entry 16: image 'images/0.png' is entry 1's too",
+        ),  # fmt: skip
+        (
+            lambda d: (d / "images" / "1.png").write_text("garbage\n"),
+            "1.png: not an image OpenCV can read",
+        ),
+    ],
+)
+def test_rct_image_sets(tmp_path, capsys, edit, expect):
+    import shutil
+
+    source = tmp_path / "set_eye_in_hand"
+    shutil.copytree(DATA / "rct_circle_grid_eye_in_hand", source)
+    edit(source)
+    out = tmp_path / "out"
+    refused(capsys, ["import", "rct-images", source, "--out", out], expect)
+    assert not out.exists()

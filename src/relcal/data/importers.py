@@ -271,10 +271,18 @@ def import_rct_images(
             f"{source / 'cal_data.yaml'}: {len(entries)} entries, at least {MIN_IMPORTED} needed"
         )
     images, poses = [], []
+    listed: dict[Path, int] = {}
     for k, e in enumerate(entries):
         image = (source / e.image).resolve()
         if not image.is_file():
             raise RelcalError(f"{source / 'cal_data.yaml'} entry {k + 1}: image not found: {image}")
+        if image in listed:
+            raise RelcalError(
+                f"{source / 'cal_data.yaml'} entry {k + 1}: image {excerpt(e.image)} is entry "
+                f"{listed[image] + 1}'s too: an entry listed twice would weigh twice in the fit "
+                "(and a held-out copy flatter the validation); remove the repeated entry"
+            )
+        listed[image] = k
         note_input(image)
         p = load_validated(_Pose, source / e.pose)
         _unit_quaternion(p, str(source / e.pose))
@@ -285,8 +293,12 @@ def import_rct_images(
     spec, q = pose_chain_joints(poses, poses[0])
     from relcal.limits import check_input_size
 
-    for image in images:
+    for k, image in enumerate(images):
         check_input_size(image, "image")
+        if not cv2.haveImageReader(str(image)):  # (its header: every image, not the first only)
+            raise RelcalError(
+                f"{source / 'cal_data.yaml'} entry {k + 1}: {image}: not an image OpenCV can read"
+            )
     first = cv2.imread(str(images[0]), cv2.IMREAD_UNCHANGED)
     if first is None:
         raise RelcalError(f"{images[0]}: not an image OpenCV can read")
