@@ -230,10 +230,10 @@ def test_noise_levels_read_strictly_and_bounded(capsys, text, expect):
 @pytest.mark.parametrize(
     ("argv", "expect"),
     [
-        (["simulate", "--n-poses", "10000000"], "from 3 to 10,000"),
-        (["study", "--poses", "-5"], "from 3 to 10,000"),
+        (["simulate", "--n-poses", "10000000"], "3 or more and at most 10,000"),
+        (["study", "--poses", "-5"], "3 or more and at most 10,000"),
         (["study", "--poses", "1_0"], "'1_0': not a file and not a number"),
-        (["observability", "--n-poses", "20000"], "from 3 to 10,000"),
+        (["observability", "--n-poses", "20000"], "3 or more and at most 10,000"),
     ],
 )
 def test_simulated_pose_counts_bounded(capsys, argv, expect):

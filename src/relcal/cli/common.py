@@ -176,7 +176,7 @@ def simulated_poses(text: str) -> int:
     value = _integer(text)
     if not 3 <= value <= MAX_SIMULATED_POSES:
         raise argparse.ArgumentTypeError(
-            f"'{text}': expected a whole number of simulated poses from 3 to "
+            f"'{text}': expected a whole number of simulated poses, 3 or more and at most "
             f"{MAX_SIMULATED_POSES:,} (each is reached by inverse kinematics, about 20 ms)"
         )
     return value
