@@ -248,12 +248,12 @@ def write_dataset(folder, samples: str, **spec):
     return folder
 
 
-Q = "0.1,-0.5,0.2,-2.0,0.1,1.6,0.3"
+Q = "0.1,-0.5,0.2,-2.0,0.1,1.6,0.3"  # + a digit per row: a repeated row is refused
 
 
 def test_a_placement_column_prefixes_the_group(tmp_path):
     pairs = [("a", "h0"), ("a", "h0"), ("b", "h0"), ("b", "h0")]  # two samples per group
-    rows = "\n".join(f"{k},{p},{g},{Q}" for k, (p, g) in enumerate(pairs))
+    rows = "\n".join(f"{k},{p},{g},{Q}{k}" for k, (p, g) in enumerate(pairs))
     folder = write_dataset(
         tmp_path / "d", f"id,placement,group,{','.join(f'q{i}' for i in range(1, 8))}\n{rows}\n"
     )
@@ -265,7 +265,7 @@ def test_a_group_with_a_single_sample_is_named_and_removing_it_works(tmp_path):
     a socket visited once): refused naming the group, the sample and the likely misspelling;
     doing what the message says (remove the row) loads."""
     groups = ["a/h0", "a/h0", "a/h1", "a/h1", "a/h_1"]
-    rows = [f"{k},{g},{Q}" for k, g in enumerate(groups)]
+    rows = [f"{k},{g},{Q}{k}" for k, g in enumerate(groups)]
     header = f"id,group,{','.join(f'q{i}' for i in range(1, 8))}"
     folder = write_dataset(tmp_path / "d", header + "\n" + "\n".join(rows) + "\n")
     with pytest.raises(RelcalError) as info:
@@ -293,7 +293,7 @@ def test_coincidence_datasets_refuse_what_does_not_fit(tmp_path, header, spec, m
     joints = ",".join(f"q{i}" for i in range(1, 8))
     cells = {"id": "{k}", "group": "{g}", "x": "0.1{k}", "y": "0.2", "z": "0.3"}  # rows differ
     row = ",".join(cells[h] for h in header.split(","))
-    lines = [row.format(k=k, g=g) + "," + Q for k, g in enumerate(["a/h0", "a/h1", "a/h1"])]
+    lines = [row.format(k=k, g=g) + f",{Q}{k}" for k, g in enumerate(["a/h0", "a/h1", "a/h1"])]
     folder = write_dataset(tmp_path / "d", f"{header},{joints}\n" + "\n".join(lines) + "\n", **spec)
     with pytest.raises(RelcalError, match=message):
         load_dataset(folder)

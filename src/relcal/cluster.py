@@ -75,8 +75,11 @@ def local_cluster(workers: int):
     import dask
     from distributed import LocalCluster
 
+    from relcal.limits import check_workers
+
     if workers < 1:
         raise RelcalError(f"workers={workers}: expected at least 1 worker process")
+    check_workers(workers)
     with dask.config.set({"distributed.worker.profile.enabled": False}):
         return LocalCluster(
             n_workers=workers,

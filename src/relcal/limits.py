@@ -27,6 +27,32 @@ from pathlib import Path
 
 from relcal.errors import RelcalError
 
+MAX_SIMULATED_POSES = 10_000  # each is reached by inverse kinematics: about 20 ms, one at a time
+
+
+def max_workers() -> int:
+    """The most local worker processes a run may start: 4 per core of this machine, at least 8
+    (each is a Python process of some 200 MB with NumPy and SciPy loaded; a thousand of them on
+    two cores is a machine brought to a halt, not a faster run)."""
+    return max(8, 4 * (os.cpu_count() or 1))
+
+
+def check_workers(workers: int, name: str = "workers") -> None:
+    """Refuse more local worker processes than :func:`max_workers`, naming ``name``."""
+    if workers > max_workers():
+        raise RelcalError(f"{name}: {workers_excess(workers)}")
+
+
+def workers_excess(workers: int) -> str:
+    """Why ``workers`` local processes are too many, with the most this machine takes."""
+    limit = max_workers()
+    return (
+        f"{workers} worker processes, more than this machine can run ({limit}: 4 per core, "
+        f"{os.cpu_count() or 1} cores; each a Python process of some 200 MB); give at most "
+        f"{limit}, or run on a Dask cluster (--scheduler) for more"
+    )
+
+
 MB = 1_000_000
 
 # the default cap per kind of input file, in MB; RELCAL_MAX_<KIND>_MB overrides

@@ -54,3 +54,32 @@ def why_not(text: str) -> str:
     if text.lower().lstrip("+-") in ("inf", "infinity", "nan"):
         return f"expected a finite number, got {shown}"
     return f"expected a number, got {shown}"
+
+
+NOISE_LIMITS = (1000.0, 180.0, 180.0)  # mm, deg, deg: beyond them no pose or joint means much
+
+
+def noise_numbers(text: str) -> list[float]:
+    """The levels of a ``POS_MM,ORI_DEG[,JOINT_DEG]`` noise text (standard deviations in mm and
+    degrees, the joints' 0 when not given), each read by :func:`parse_number`, else
+    :class:`NotANumber` naming the field and the likely cause: a negative level, or one beyond
+    1000 mm or 180 deg (metres in micrometres? a level in the wrong field?)."""
+    parts = text.split(",")
+    if not 2 <= len(parts) <= 3:
+        raise NotANumber(f"2 or 3 numbers separated by commas, got {len(parts)}")
+    values = []
+    for name, part, limit, unit in zip(
+        ("POS_MM", "ORI_DEG", "JOINT_DEG"), parts, NOISE_LIMITS, ("mm", "deg", "deg"), strict=False
+    ):
+        try:
+            value = parse_number(part)
+        except NotANumber as exc:
+            raise NotANumber(f"{name}: {exc}") from None
+        if not 0 <= value <= limit:
+            raise NotANumber(
+                f"{name}: {value:.4g} {unit}: expected a standard deviation from 0 to {limit:g} "
+                f"{unit}"
+                + (" (a noise level cannot be negative)" if value < 0 else "; a wrong unit?")
+            )
+        values.append(value)
+    return values + [0.0] * (3 - len(values))

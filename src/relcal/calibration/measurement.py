@@ -189,6 +189,9 @@ def make_pairs(
     ------
     ArgumentError
         ``n_poses`` negative or not whole, ``reference`` out of range, an unknown pairing.
+    RelcalError
+        All pairs of so many poses that they would not fit the memory limit
+        (``RELCAL_MAX_MEMORY_MB``, :mod:`relcal.limits`).
 
     Examples
     --------
@@ -213,6 +216,15 @@ def make_pairs(
         others = idx[idx != reference]
         return np.stack([np.full_like(others, reference), others], axis=1)
     if strategy == "all":
+        from relcal.limits import check_memory
+
+        pairs = n_poses * (n_poses - 1) // 2
+        check_memory(  # the upper-triangle mask (1 byte per entry) and two copies of the pairs
+            n_poses**2 + 32.0 * pairs,
+            f"make_pairs: n_poses={n_poses:,} with pairing 'all' ({pairs:,} pairs)",
+            "use pairing 'board' (one measurement per pose, the information of all pairs) or "
+            "'consecutive'",
+        )
         i, j = np.triu_indices(n_poses, k=1)
         return np.stack([i, j], axis=1)
     if strategy == "board":

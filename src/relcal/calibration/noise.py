@@ -16,8 +16,8 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.sparse
 
-from relcal.checks import check_array, check_number, describe
-from relcal.errors import ArgumentError, RelcalError
+from relcal.checks import check_array, check_instance, check_number, describe
+from relcal.errors import ArgumentError, RelcalError, excerpt
 from relcal.geometry import DEG, MM
 
 
@@ -95,18 +95,19 @@ class Noise:
         Raises
         ------
         RelcalError
-            Not two or three non-negative finite numbers.
+            Not two or three numbers (read strictly, :func:`relcal.numbers.parse_number`), or
+            a level below 0 or beyond 1000 mm or 180 deg.
         """
+        from relcal.numbers import NotANumber, noise_numbers
+
+        check_instance(text, str, "text", "noise levels such as '0.05,0.01' (mm, degrees)")
         try:
-            values = [float(v) for v in text.split(",")]
-        except ValueError:
-            values = []
-        if not 2 <= len(values) <= 3 or any(not np.isfinite(v) or v < 0 for v in values):
+            values = noise_numbers(text)
+        except NotANumber as exc:
             raise RelcalError(
-                f"noise levels '{text}': expected POS_MM,ORI_DEG[,JOINT_DEG] as non-negative "
-                "numbers"
-            )
-        values += [0.0] * (3 - len(values))
+                f"noise levels {excerpt(text)}: expected POS_MM,ORI_DEG[,JOINT_DEG] standard "
+                f"deviations: {exc}"
+            ) from None
         return cls(values[0] * MM, values[1] * DEG, values[2] * DEG)
 
 

@@ -14,9 +14,9 @@ from relcal.cli.common import (
     output_folder,
     pairing_arg,
     positive_float,
-    positive_int,
     registry_arg,
     seed,
+    worker_processes,
 )
 
 EPILOG = """\
@@ -299,7 +299,7 @@ def _common(p: argparse.ArgumentParser) -> None:
         help="output folder, written as one set; an earlier relcal set there is kept as OUT.prev/",
     )
     p.add_argument(
-        "--workers", type=positive_int, default=2, help="processes for image measurement"
+        "--workers", type=worker_processes, default=2, help="processes for image measurement"
     )
     p.add_argument(
         "--max-rms",

@@ -272,12 +272,14 @@ def context_options(pairs: list[str] | None) -> list[str]:
 
 
 def check_ids(path: str, ids) -> None:
-    """Pose ids name image files: unique, and letters, digits, ``_``, ``-`` and ``.`` only."""
+    """Pose ids name image files: unique (also ignoring case: a file system may), and letters,
+    digits, ``_``, ``-`` and ``.`` only."""
     import re
 
     from relcal.errors import RelcalError
 
     seen: set[str] = set()
+    folded: dict[str, str] = {}
     for pid in ids:
         if not re.fullmatch(r"[A-Za-z0-9_.-]+", pid) or pid in (".", ".."):
             raise RelcalError(
@@ -287,6 +289,13 @@ def check_ids(path: str, ids) -> None:
         if pid in seen:
             raise RelcalError(f"{path}: pose id '{pid}' appears twice; ids must be unique")
         seen.add(pid)
+        other = folded.setdefault(pid.casefold(), pid)
+        if other != pid:
+            raise RelcalError(
+                f"{path}: pose ids '{other}' and '{pid}' differ only in case: their image files "
+                "would be one file on Windows and macOS (one image written over the other); "
+                "rename one"
+            )
 
 
 def _describe() -> str:

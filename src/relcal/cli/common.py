@@ -13,6 +13,7 @@ import argparse
 import importlib
 import math
 import os
+import re
 from collections.abc import Callable
 from pathlib import Path
 
@@ -153,6 +154,53 @@ def int_at_least(low: int) -> Callable[[str], int]:
 
 
 positive_int = int_at_least(1)
+
+
+def worker_processes(text: str) -> int:
+    """A number of local worker processes: a whole number from 1 to
+    :func:`relcal.limits.max_workers` (4 per core, at least 8)."""
+    from relcal.limits import max_workers, workers_excess
+
+    value = positive_int(text)
+    if value > max_workers():
+        raise argparse.ArgumentTypeError(f"'{text}': {workers_excess(value)}")
+    return value
+
+
+def simulated_poses(text: str) -> int:
+    """A number of simulated poses: a whole number from 3 (the fewest that determine anything)
+    to :data:`relcal.limits.MAX_SIMULATED_POSES` (10,000 take minutes to reach; ten million
+    took days)."""
+    from relcal.limits import MAX_SIMULATED_POSES
+
+    value = _integer(text)
+    if not 3 <= value <= MAX_SIMULATED_POSES:
+        raise argparse.ArgumentTypeError(
+            f"'{text}': expected a whole number of simulated poses, 3 or more and at most "
+            f"{MAX_SIMULATED_POSES:,} (each is reached by inverse kinematics, about 20 ms)"
+        )
+    return value
+
+
+def poses_or_file(text: str) -> str | int:
+    """A CSV of joint configurations (an existing file) or a number of simulated poses
+    (:func:`simulated_poses`)."""
+    path = Path(text)
+    if path.is_dir():
+        raise argparse.ArgumentTypeError(f"{text}: is a folder, expected a CSV file or a number")
+    if path.exists():
+        return text
+    try:
+        return simulated_poses(text)
+    except argparse.ArgumentTypeError as exc:
+        if not re.fullmatch(r"\s*[-+]?\d+\s*", text):
+            raise argparse.ArgumentTypeError(
+                f"'{text}': not a file and not a number (a CSV of joint configurations, or a "
+                "whole number of simulated poses)"
+            ) from None
+        raise exc from None
+
+
 nonnegative_int = int_at_least(0)
 
 
@@ -278,17 +326,14 @@ def noise_levels(text: str) -> str:
     """``POS_MM,ORI_DEG[,JOINT_DEG]`` non-negative standard deviations, or ``none``."""
     if text.strip().lower() == "none":
         return "none"
-    from relcal.numbers import parse_number
+    from relcal.numbers import NotANumber, noise_numbers
 
-    parts = text.split(",")
     try:
-        values = [parse_number(p) for p in parts]
-    except ValueError:
-        values = []
-    if not 2 <= len(values) <= 3 or any(not math.isfinite(v) or v < 0 for v in values):
+        noise_numbers(text)
+    except NotANumber as exc:
         raise argparse.ArgumentTypeError(
-            f"'{text}': expected POS_MM,ORI_DEG[,JOINT_DEG] as non-negative numbers"
-        )
+            f"'{text}': expected POS_MM,ORI_DEG[,JOINT_DEG] standard deviations: {exc}"
+        ) from None
     return text
 
 

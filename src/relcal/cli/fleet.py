@@ -15,9 +15,9 @@ from relcal.cli.common import (
     output_folder,
     pairing_arg,
     positive_float,
-    positive_int,
     registry_arg,
     seed,
+    worker_processes,
 )
 from relcal.fleet import ALPHA as DRIFT_ALPHA
 
@@ -209,7 +209,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         "written into the input tree)",
     )
     cp.add_argument(
-        "--workers", type=positive_int, default=2, help="local worker processes (default 2)"
+        "--workers", type=worker_processes, default=2, help="local worker processes (default 2)"
     )
     cp.add_argument(
         "--scheduler", metavar="tcp://HOST:8786", help="use a running Dask cluster instead"

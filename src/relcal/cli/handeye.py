@@ -12,9 +12,9 @@ from relcal.cli.common import (
     output_file,
     output_folder,
     positive_float,
-    positive_int,
     registry_arg,
     seed,
+    worker_processes,
 )
 
 DEFAULT_FOLDS = 5  # relcal.calibration.handeye_job.DEFAULT_FOLDS (the parser stays light)
@@ -170,7 +170,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--keep-outliers", action="store_true", help="keep bad frames in the refined fit"
     )
     p.add_argument(
-        "--workers", type=positive_int, default=2, help="processes for image measurement"
+        "--workers", type=worker_processes, default=2, help="processes for image measurement"
     )
     p.add_argument(
         "--max-rms",

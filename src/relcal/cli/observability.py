@@ -9,7 +9,6 @@ from typing import TYPE_CHECKING
 from relcal.cli.common import (
     existing_file,
     fraction,
-    int_at_least,
     json_arg,
     load_robot,
     noise_levels,
@@ -17,6 +16,7 @@ from relcal.cli.common import (
     pairing_arg,
     robot_args,
     seed,
+    simulated_poses,
 )
 
 if TYPE_CHECKING:
@@ -50,7 +50,9 @@ def joint_source(args: argparse.Namespace, model) -> tuple[np.ndarray, str]:
     from relcal.sim.scenario import simulated_joints
 
     if args.poses:
-        return read_joints(Path(args.poses), model, args.joint_unit), f"poses from {args.poses}"
+        return read_joints(
+            Path(args.poses), model, args.joint_unit, "--joint-unit"
+        ), f"poses from {args.poses}"
     q = simulated_joints(model, args.n_poses, args.seed)
     return q, f"{len(q)} simulated poses over the board (seed {args.seed})"
 
@@ -124,9 +126,14 @@ def register(sub: argparse._SubParsersAction) -> None:
         type=existing_file,
         help="CSV of joint configurations (default: simulated poses)",
     )
-    p.add_argument("--joint-unit", choices=("deg", "rad"), default="deg")
     p.add_argument(
-        "--n-poses", type=int_at_least(3), default=40, help="simulated poses (default 40)"
+        "--joint-unit",
+        choices=("deg", "rad"),
+        help="the unit of a --poses file's angles (default: the unit a relcal plan states, else "
+        "deg)",
+    )
+    p.add_argument(
+        "--n-poses", type=simulated_poses, default=40, help="simulated poses (default 40)"
     )
     p.add_argument("--seed", type=seed, default=0)
     p.add_argument("--formulation", choices=("invariant", "published"), default="invariant")

@@ -24,6 +24,7 @@ from relcal.cli.common import (
     positive_int,
     robot_args,
     seed,
+    worker_processes,
 )
 from relcal.cli.observability import add_noise_arg
 
@@ -498,7 +499,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     where = p.add_mutually_exclusive_group()
     where.add_argument(
         "--workers",
-        type=positive_int,
+        type=worker_processes,
         help="generate and score the candidates on a local Dask cluster of this many worker "
         "processes (default: in this process)",
     )

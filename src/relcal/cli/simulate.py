@@ -17,6 +17,7 @@ from relcal.cli.common import (
     positive_float,
     robot_args,
     seed,
+    simulated_poses,
 )
 
 EPILOG_SIMULATE = """\
@@ -233,7 +234,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--n-poses",
         "--poses",
         dest="poses",
-        type=int_at_least(3),
+        type=simulated_poses,
         default=60,
         help="number of poses (default 60; --poses is its former name)",
     )

@@ -10,10 +10,11 @@ from relcal.cli.common import (
     json_arg,
     load_robot,
     pairing_arg,
+    poses_or_file,
     positive_float,
-    positive_int,
     robot_args,
     seed,
+    worker_processes,
 )
 from relcal.cli.observability import add_noise_arg
 
@@ -47,15 +48,11 @@ def run(args: argparse.Namespace) -> int:
     from relcal.sim.study import study
 
     model = load_robot(args)
-    if args.poses and Path(args.poses).exists():
-        q = read_joints(Path(args.poses), model, args.joint_unit)
+    if isinstance(args.poses, str):  # (poses_or_file: an existing file, else a number)
+        q = read_joints(Path(args.poses), model, args.joint_unit, "--joint-unit")
         source = f"poses from {args.poses}"
     else:
-        try:
-            n = int(args.poses) if args.poses else 30
-        except ValueError:
-            raise RelcalError(f"--poses '{args.poses}': not a file and not a number") from None
-        q = simulated_joints(model, n, args.seed)
+        q = simulated_joints(model, args.poses, args.seed)
         source = f"{len(q)} simulated poses over the board"
     if args.json:
         from relcal.outputset import File, check
@@ -119,9 +116,17 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     robot_args(p)
     p.add_argument(
-        "--poses", help="CSV of joint configurations, or a number of simulated poses (default 30)"
+        "--poses",
+        type=poses_or_file,
+        default=30,
+        help="CSV of joint configurations, or a number of simulated poses (default 30)",
     )
-    p.add_argument("--joint-unit", choices=("deg", "rad"), default="deg")
+    p.add_argument(
+        "--joint-unit",
+        choices=("deg", "rad"),
+        help="the unit of a --poses file's angles (default: the unit a relcal plan states, "
+        "else deg)",
+    )
     p.add_argument(
         "--trials",
         type=int_at_least(2),
@@ -130,7 +135,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     add_noise_arg(p)
     p.add_argument("--seed", type=seed, default=0)
-    p.add_argument("--workers", type=positive_int, default=2, help="worker processes (default 2)")
+    p.add_argument(
+        "--workers", type=worker_processes, default=2, help="worker processes (default 2)"
+    )
     p.add_argument(
         "--scheduler",
         metavar="tcp://HOST:8786",

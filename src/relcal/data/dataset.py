@@ -1307,6 +1307,8 @@ def _coincidence_table(
         ids.append(sid)
         groups.append(group)
         q.append([parse_number(path, line_no, c, row[col[c]], decimal) for c in joints])
+    lines = [row.line for row in data]
+    _no_repeated_samples(path, ids, lines, q, [(g,) for g in groups])  # (the group: its measure)
     q_arr = _joint_values(path, np.array(q, dtype=float), model, unit)
     poses = np.broadcast_to(np.eye(4), (len(ids), 4, 4)).copy()
     return SampleTable(tuple(ids), q_arr, None, poses, "coincidence", tuple(groups))
@@ -1371,21 +1373,30 @@ def parse_number(
         raise RelcalError(f"{path} line {line_no}: {column}: {printable(exc)}") from None
 
 
-def _joint_values(path: Path, q: np.ndarray, model: RobotModel, unit: str) -> np.ndarray:
-    """Convert to radians and catch the two classic unit mistakes."""
+def unit_mixup(q: np.ndarray, model: RobotModel, unit: str) -> str | None:
+    """The classic unit mistakes of joint values ``q`` ``(N, n)`` read in ``unit``: a message
+    part naming the unit they look like (``"joint angles reach 57.3, which looks like
+    degrees"``), or None when they fit ``unit``. Angles above 2 pi are not radians; five or more
+    configurations none of whose angles exceeds pi are not degrees."""
     revolute = ~model.prismatic
     if q.size and revolute.any():
         peak = np.abs(q[:, revolute]).max()
         if unit == "rad" and peak > 2 * np.pi + 0.1:
-            raise RelcalError(
-                f"{path}: joint angles reach {peak:.1f}, which looks like degrees, but "
-                "dataset.yaml declares joint_unit: rad (fix: joint_unit: deg)"
-            )
+            return f"joint angles reach {peak:.1f}, which looks like degrees"
         if unit == "deg" and len(q) >= 5 and peak < np.pi + 0.05 and np.abs(q).mean() > 1e-3:
-            raise RelcalError(
-                f"{path}: no joint angle exceeds {peak:.2f}, which looks like radians, but "
-                "dataset.yaml declares joint_unit: deg (fix: joint_unit: rad)"
-            )
+            return f"no joint angle exceeds {peak:.2f}, which looks like radians"
+    return None
+
+
+def _joint_values(path: Path, q: np.ndarray, model: RobotModel, unit: str) -> np.ndarray:
+    """Convert to radians and catch the two classic unit mistakes."""
+    mixup = unit_mixup(q, model, unit)
+    if mixup:
+        other = "deg" if unit == "rad" else "rad"
+        raise RelcalError(
+            f"{path}: {mixup}, but dataset.yaml declares joint_unit: {unit} (fix: joint_unit: "
+            f"{other})"
+        )
     return joints_from_unit(model, q, unit)
 
 
@@ -1404,14 +1415,49 @@ def limits_from_unit(
     return out
 
 
-def read_joints(path: str | Path, model: RobotModel, joint_unit: str = "deg") -> np.ndarray:
+def read_joints(
+    path: str | Path, model: RobotModel, joint_unit: str | None = "deg", option: str = "joint_unit"
+) -> np.ndarray:
     """Joint values ``(N, n)`` (rad, m) from any CSV whose header names the joints (``q1..qn``
     or the joint names; other columns are ignored, so a plan or a dataset's samples.csv both
-    work); angles in ``joint_unit``, prismatic joints in m."""
+    work); prismatic joints in m, angles in the unit a relcal plan's first line states, else in
+    ``joint_unit`` (None: degrees). A ``joint_unit`` other than the one the plan states, or
+    angles that look like the other unit, are refused (``option`` names where the unit was
+    given, as ``--joint-unit``)."""
     path = Path(path)
     header, data = read_table(path, "pose")
     joints = _joint_columns(path, header, model)
-    return joints_from_unit(model, _read_columns(path, header, data, joints), joint_unit)
+    q = _read_columns(path, header, data, joints)
+    stated = _stated_unit(path)
+    if stated is not None and joint_unit is not None and joint_unit != stated:
+        raise RelcalError(
+            f"{path} line 1: the file states joint unit {stated}, but {option} {joint_unit} was "
+            f"given; drop {option} (the file's own unit is used) or fix the file's first line"
+        )
+    unit = stated or joint_unit or "deg"
+    mixup = unit_mixup(q, model, unit)
+    if mixup:
+        if stated:
+            given, fix = f"the file's first line states {unit}", "fix the file's first line"
+        else:
+            given = (
+                f"{option} is {unit}" if joint_unit else f"they are read in {unit} (the default)"
+            )
+            fix = f"{option} {'rad' if unit == 'deg' else 'deg'}"
+        raise RelcalError(f"{path}: {mixup}, but {given}; give the angles in {unit}, or {fix}")
+    return joints_from_unit(model, q, unit)
+
+
+def _stated_unit(path: Path) -> str | None:
+    """The joint unit a relcal plan's first line states (``# relcal plan: robot ..., joint unit
+    deg``), or None."""
+    with open(path, encoding="utf-8-sig", errors="replace") as handle:
+        for line in handle:
+            if line.strip():
+                found = PLAN_COMMENT.match(line.strip())
+                unit = found["unit"] if found else None
+                return unit if unit in ("deg", "rad") else None
+    return None
 
 
 PLAN_COMMENT = re.compile(

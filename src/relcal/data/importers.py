@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import re
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -10,8 +9,8 @@ from pathlib import Path
 import pydantic
 
 from relcal.data.dataset import POSE_COLUMNS
-from relcal.errors import RelcalError, excerpt
-from relcal.io import Folder, load_validated, write_set, yaml_text
+from relcal.errors import RelcalError, excerpt, printable
+from relcal.io import Folder, csv_line, load_validated, note_input, write_set, yaml_text
 from relcal.numbers import NotANumber, parse_number
 
 POSITIONER_MODEL = """\
@@ -27,6 +26,9 @@ joints:
   - {name: positioner_2, theta_off: -90, d: -0.475, a: 0.0, alpha: 0}
 base: {xyz: [2.2, 0.0, 1.6], rpy: [90, 0, 0]}
 """
+
+
+MIN_IMPORTED = 4  # samples an importer needs to write a dataset (one pair per held-out sample)
 
 
 class _Pose(pydantic.BaseModel):
@@ -89,6 +91,32 @@ def embedded_robot(
     return "robot.yaml", {"robot.yaml": data}
 
 
+def imported_id(where: str, name: str, seen: dict[str, str]) -> str:
+    """``name`` (an observation key, a folder's name) as a sample id or group of the written
+    ``samples.csv``: refused when it is empty, holds a line break (a CSV field never spans
+    lines) or is another name's once its surrounding spaces are stripped (as the samples table
+    reads ids: the two would be one id); ``seen`` maps the stripped names so far to the names
+    given, updated here. Commas and quotes are kept (the writer quotes the cell)."""
+    sid = name.strip()
+    if not sid:
+        raise RelcalError(
+            f"{where}: an empty name ({excerpt(name)}); a sample id needs a character"
+        )
+    if len(sid.splitlines()) > 1:
+        shown = printable(repr(name)[1:-1])
+        raise RelcalError(
+            f"{where}: a line break inside the name '{shown}': a sample id is one line of "
+            "samples.csv; rename it"
+        )
+    if sid in seen:
+        raise RelcalError(
+            f"{where}: {excerpt(name)} and {excerpt(seen[sid])} are one id once their spaces "
+            "are stripped; rename one"
+        )
+    seen[sid] = name
+    return sid
+
+
 @dataclass(frozen=True)
 class Imported:
     """A dataset folder written by an importer."""
@@ -104,11 +132,18 @@ def import_rct_positioner(source: str | Path, out: str | Path) -> Imported:
     The folder is written as one set and must not exist yet (or be empty): an existing dataset
     is never replaced."""
     data = load_validated(_RctMeasurements, source).root
+    if len(data) < MIN_IMPORTED:
+        raise RelcalError(
+            f"{source}: {len(data)} observations, at least {MIN_IMPORTED} needed (expected a "
+            "mapping of observations, each with target_joints and pose)"
+        )
     out = Path(out)
     lines = [",".join(["id", "q1", "q2", *POSE_COLUMNS])]
+    seen: dict[str, str] = {}
     for key, obs in data.items():
         p = obs.pose
         where = f"{source}: observation {excerpt(key)}"
+        sid = imported_id(where, key, seen)
         _unit_quaternion(p, where)
         if len(obs.target_joints) != 2:
             raise RelcalError(
@@ -116,7 +151,7 @@ def import_rct_positioner(source: str | Path, out: str | Path) -> Imported:
                 "has 2 (a file of another robot_cal_tools problem?)"
             )
         values = [*obs.target_joints, p.x, p.y, p.z, p.qx, p.qy, p.qz, p.qw]
-        lines.append(",".join([key, *(f"{v:.17g}" for v in values)]))
+        lines.append(csv_line([sid, *(f"{v:.17g}" for v in values)]))
     spec = {
         "robot": "positioner.yaml",
         "hayati": "auto",
@@ -231,13 +266,23 @@ def import_rct_images(
         if mode is None:
             raise RelcalError(f"{source}: give --mode eye_in_hand or eye_to_hand")
     entries = load_validated(_RctCalData, source / "cal_data.yaml").root
-    if len(entries) < 4:
-        raise RelcalError(f"{source / 'cal_data.yaml'}: {len(entries)} entries, at least 4 needed")
+    if len(entries) < MIN_IMPORTED:
+        raise RelcalError(
+            f"{source / 'cal_data.yaml'}: {len(entries)} entries, at least {MIN_IMPORTED} needed"
+        )
     images, poses = [], []
+    listed: dict[Path, int] = {}
     for k, e in enumerate(entries):
         image = (source / e.image).resolve()
         if not image.is_file():
             raise RelcalError(f"{source / 'cal_data.yaml'} entry {k + 1}: image not found: {image}")
+        if image in listed:
+            raise RelcalError(
+                f"{source / 'cal_data.yaml'} entry {k + 1}: image {excerpt(e.image)} is entry "
+                f"{listed[image] + 1}'s too: an entry listed twice would weigh twice in the fit "
+                "(and a held-out copy flatter the validation); remove the repeated entry"
+            )
+        listed[image] = k
         note_input(image)
         p = load_validated(_Pose, source / e.pose)
         _unit_quaternion(p, str(source / e.pose))
@@ -248,8 +293,12 @@ def import_rct_images(
     spec, q = pose_chain_joints(poses, poses[0])
     from relcal.limits import check_input_size
 
-    for image in images:
+    for k, image in enumerate(images):
         check_input_size(image, "image")
+        if not cv2.haveImageReader(str(image)):  # (its header: every image, not the first only)
+            raise RelcalError(
+                f"{source / 'cal_data.yaml'} entry {k + 1}: {image}: not an image OpenCV can read"
+            )
     first = cv2.imread(str(images[0]), cv2.IMREAD_UNCHANGED)
     if first is None:
         raise RelcalError(f"{images[0]}: not an image OpenCV can read")
@@ -292,46 +341,89 @@ MUKCA_SOCKET = "hole_*.csv"
 
 def _mukca_joints(path: Path, n_joints: int):
     """Joint angles ``(N, n)`` (rad) of one MUKCa socket file: no header, one configuration per
-    row, comma-separated; errors name the file and the line."""
+    row, separated by commas (or semicolons, tabs or vertical bars: one of them throughout the
+    file, as :func:`relcal.io.read_table` reads tables); errors name the file and the line.
+
+    A UTF-8 byte-order mark is skipped; an empty field is refused (it would shift the joints
+    after it), as is a row that repeats an earlier one (a configuration recorded or copied
+    twice weighs twice in the fit) and a file of fewer than two configurations (its socket's
+    point would be fitted to one sample exactly: it tells nothing about the kinematics)."""
     import numpy as np
 
     from relcal.errors import RelcalError
-    from relcal.io import note_input
-
-    note_input(path)
-    rows = []
+    from relcal.io import DELIMITERS
     from relcal.limits import read_input
 
+    note_input(path)
     try:
-        text = read_input(path, "csv").decode("utf-8")
+        text = read_input(path, "csv").decode("utf-8-sig")
     except UnicodeDecodeError:
         raise RelcalError(f"{path}: not a text file (not UTF-8); expected joint values") from None
     except OSError as exc:
         raise RelcalError(f"{path}: cannot read: {exc.strerror or exc}") from None
-    for line_no, line in enumerate(text.splitlines(), start=1):
-        if not line.strip():
-            continue
-        cells = [c for c in re.split(r"[,;\t]", line) if c.strip()]
-        if len(cells) != n_joints:
+    lines = [(no, line) for no, line in enumerate(text.splitlines(), start=1) if line.strip()]
+    if not lines:
+        raise RelcalError(f"{path}: empty; expected one configuration per line (rad, no header)")
+    first = lines[0][1]
+    counts = {d: first.count(d) for d in DELIMITERS}
+    fits = sorted(  # n fields, else n and a trailing separator (0,5;1,2: ';')
+        (d for d in DELIMITERS if counts[d] in (n_joints - 1, n_joints)),
+        key=lambda d: counts[d] != n_joints - 1,
+    )
+    delimiter = fits[0] if fits else max(counts, key=lambda d: (counts[d], d == ","))
+    rows, first_seen = [], {}
+    for line_no, line in lines:
+        cells = line.split(delimiter)
+        other = [d for d in DELIMITERS if d != delimiter and len(line.split(d)) == n_joints]
+        if len(cells) == 1 and other:
             raise RelcalError(
-                f"{path} line {line_no}: {len(cells)} values, expected {n_joints} joint angles "
-                "(rad) for the robot of --urdf"
+                f"{path} line {line_no}: fields separated by {DELIMITERS[other[0]]}, but line "
+                f"{lines[0][0]} by {DELIMITERS[delimiter]}; use one separator throughout the file"
             )
+        if len(cells) == n_joints + 1 and not cells[-1].strip():
+            cells = cells[:-1]  # a trailing separator
         values = []
         for k, cell in enumerate(cells):
             try:
                 values.append(parse_number(cell))
             except NotANumber as exc:
                 raise RelcalError(
-                    f"{path} line {line_no}: joint {k + 1}: {exc} (joint angles in rad, no header)"
+                    f"{path} line {line_no}: joint {k + 1}: {exc} (joint angles in rad, "
+                    f"separated by {DELIMITERS[delimiter]}, no header)"
                 ) from None
+        if len(values) != n_joints:
+            raise RelcalError(
+                f"{path} line {line_no}: {len(values)} values, expected {n_joints} joint angles "
+                "(rad) for the robot of --urdf"
+            )
+        key = tuple(values)
+        if key in first_seen:
+            raise RelcalError(
+                f"{path} line {line_no}: repeats line {first_seen[key]}: the same configuration "
+                "twice (a configuration recorded or copied twice counts twice in the fit; fix: "
+                "remove the repeated line)"
+            )
+        first_seen[key] = line_no
         rows.append(values)
-    if not rows:
-        raise RelcalError(f"{path}: no joint configurations")
     q = np.array(rows)
-    if np.abs(q).max() > 2 * np.pi + 0.1:
+    peak = np.abs(q).max(axis=1)
+    worst = int(np.argmax(peak))
+    if peak[worst] > 2 * np.pi + 0.1:
+        line_no = lines[worst][0]
+        many = int((peak > 2 * np.pi + 0.1).sum())
         raise RelcalError(
-            f"{path}: joint angles reach {np.abs(q).max():.1f}: degrees? MUKCa files hold radians"
+            f"{path} line {line_no}: a joint angle of {peak[worst]:.4g}, beyond 2 pi; "
+            + (
+                "degrees? MUKCa files hold radians"
+                if many > 1 and peak[worst] < 400
+                else f"{many} of {len(q)} lines: a mistyped value? fix or remove the line"
+            )
+        )
+    if len(q) < 2:
+        raise RelcalError(
+            f"{path}: one configuration; a socket needs two or more (its point is unknown: one "
+            "sample is fitted to it exactly and tells nothing about the kinematics); record more "
+            "or leave the file out of the placement folder"
         )
     return q
 
@@ -387,10 +479,12 @@ def import_mukca(
         found = [(name, files) for name, files in found if name in set(placements)]
     ids, groups, blocks = [], [], []
     distances = []
+    seen: dict[str, str] = {}
     for place, files in found:
+        imported_id(f"{source}: placement folder", place, {})
         for f in files:
             q = _mukca_joints(f, model.n_joints)
-            group = f"{place}/{f.stem}"
+            group = imported_id(f"{f}: its group", f"{place}/{f.stem}", seen)
             ids += [f"{group}/{k:03d}" for k in range(len(q))]
             groups += [group] * len(q)
             blocks.append(q)

@@ -12,15 +12,16 @@ Bags are read with the ``rosbags`` library (pure Python, no ROS install): ``pip 
 
 from __future__ import annotations
 
+import contextlib
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from relcal.checks import check_instance, check_path
+from relcal.checks import check_instance, check_number, check_path
 from relcal.data.dataset import POSE_COLUMNS
 from relcal.data.importers import Imported, embedded_robot
-from relcal.errors import RelcalError
+from relcal.errors import RelcalError, printable
 from relcal.io import Folder, write_set, yaml_text
 
 JOINT_TYPES = ("sensor_msgs/msg/JointState",)
@@ -36,6 +37,12 @@ class StopOptions:
 
     velocity: float = 0.01
     settle: float = 0.5
+
+    def __post_init__(self) -> None:
+        """Arguments checked where the API is entered: ``velocity`` above 0 (no joint is ever
+        slower than 0: no stop would be found), ``settle`` from 0, both finite."""
+        check_number(self.velocity, "StopOptions.velocity", 0, low_open=True)
+        check_number(self.settle, "StopOptions.settle", 0)
 
 
 @dataclass(frozen=True)
@@ -104,6 +111,29 @@ def _open(bag: Path):
             "folder, or an .mcap/.db3 file)"
         )
     return AnyReader([bag], default_typestore=get_typestore(Stores.ROS2_HUMBLE))
+
+
+@contextlib.contextmanager
+def _reading(bag: Path):
+    """Open ``bag`` for the block; what rosbags cannot read (a file that is not a bag, an empty
+    or truncated one, a folder without ``metadata.yaml``) is a :class:`RelcalError` naming the
+    bag and what was expected, never rosbags' own exception."""
+    from rosbags.highlevel import AnyReaderError
+
+    expected = "expected a ROS 1 .bag, a ROS 2 bag folder (with metadata.yaml), or an .mcap/.db3"
+    try:
+        with _open(bag) as reader:
+            yield reader
+    except AnyReaderError as exc:
+        raise RelcalError(
+            f"{bag}: not a bag rosbags can read ({printable(exc)}); {expected}"
+        ) from None
+    except FileNotFoundError as exc:  # a folder without metadata.yaml, a bag file gone
+        if not bag.is_dir():
+            raise
+        raise RelcalError(
+            f"{bag}: a folder without a ROS 2 bag's metadata.yaml ({printable(exc)}); {expected}"
+        ) from None
 
 
 def _connections(reader, bag: Path, topic: str, types: tuple[str, ...], option: str):
@@ -307,7 +337,7 @@ def import_rosbag(
         raise RelcalError("relcal import rosbag: give exactly one of --image TOPIC or --pose TOPIC")
     if robot:
         embedded_robot(robot)  # a robot that cannot be copied in is refused before the work
-    with _open(bag) as reader:
+    with _reading(bag) as reader:
         track = read_joint_track(reader, bag, joints)
         stops = find_stops(track, options)
         if not stops:

@@ -30,7 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
-from relcal.data.dataset import PLAN_COMMENT
+from relcal.data.dataset import PLAN_COMMENT, _row_id, unit_mixup
 from relcal.errors import RelcalError, printable
 from relcal.numbers import NotANumber, parse_number
 from relcal.robot.model import RobotModel, library_names
@@ -164,6 +164,12 @@ def read_plan(path: str | Path, model: RobotModel, joint_unit: str | None = None
     if len(data) < 2:
         raise RelcalError(f"{path}: expected a header line and one line per pose")
     header = [h.strip() for h in next(csv.reader([data[0][1]]))]
+    dupes = sorted({h for h in header if header.count(h) > 1})
+    if dupes:  # one of the two would be read, the other silently ignored
+        raise RelcalError(
+            f"{path} line {data[0][0]}: header: column(s) {', '.join(map(printable, dupes))} "
+            "appear twice; keep one"
+        )
     named, numbered = list(model.joint_names), [f"q{i + 1}" for i in range(model.n_joints)]
     columns = named if set(named) <= set(header) else numbered
     missing = [c for c in columns if c not in header]
@@ -181,7 +187,7 @@ def read_plan(path: str | Path, model: RobotModel, joint_unit: str | None = None
             "robot?"
         )
     col = [header.index(c) for c in columns]
-    ids, values = [], []
+    ids, values, seen = [], [], {}
     for no, line in data[1:]:
         cells = next(csv.reader([line]))
         if len(cells) != len(header):
@@ -196,11 +202,21 @@ def read_plan(path: str | Path, model: RobotModel, joint_unit: str | None = None
                 row.append(parse_number(cells[i]))
             except NotANumber as exc:
                 raise RelcalError(f"{path} line {no}: {name}: {printable(exc)}") from None
-        ids.append(cells[header.index("id")].strip())
+        ids.append(_row_id(path, no, cells[header.index("id")], seen, "pose"))
         values.append(row)
     q = np.array(values)
     if not np.isfinite(q).all():
         raise RelcalError(f"{path}: joint values must be finite numbers")
+    mixup = unit_mixup(q, model, unit) if unit == "deg" else None  # (rad: up to 4 pi below)
+    if mixup:
+        raise RelcalError(
+            f"{path}: {mixup}, but the plan is read in degrees"
+            + (
+                " (its '# relcal plan:' line states joint unit deg); fix: joint unit rad there"
+                if robot is not None
+                else " (an older plan without the '# relcal plan:' line); fix: --joint-unit rad"
+            )
+        )
     if unit == "deg":
         q = np.where(model.prismatic, q, np.radians(q))
     elif (~model.prismatic).any() and np.abs(q[:, ~model.prismatic]).max() > 4 * np.pi + 0.1:
