@@ -21,6 +21,9 @@
                                #   Rotation.from_euler: xyz (default, URDF: Rz(yaw) Ry(pitch)
                                #   Rx(roll)), XYZ intrinsic (R = Rx Ry Rz), ZYX, ...
     position_unit: m           # m | mm: unit of the x, y, z columns (default m)
+    flange_unit: m             # m | mm: of logged flange poses fx, fy, fz (relcal handeye)
+    flange_angle_unit: rad     # rad | deg: of their frx, fry, frz or froll, fpitch, fyaw
+    flange_euler: xyz          # the sequence of froll, fpitch, fyaw (as euler)
     decimal: "."               # "." | ",": the decimal mark of the table's numbers (a decimal
                                #   comma needs semicolons or tabs between the columns)
     columns: {x: x1, roll: phix1}   # relcal column name: the file's header, for other layouts
