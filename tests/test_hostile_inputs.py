@@ -352,3 +352,21 @@ def test_rct_image_sets(tmp_path, capsys, edit, expect):
     out = tmp_path / "out"
     refused(capsys, ["import", "rct-images", source, "--out", out], expect)
     assert not out.exists()
+
+
+@pytest.mark.parametrize("inside", ["front/x", "."])
+def test_an_import_never_writes_into_its_input_folder(tmp_path, capsys, inside):
+    """``relcal import mukca DATA --out DATA/front/x`` wrote the dataset into the folder it read;
+    every importer now refuses an --out inside its input folder, as fleet does."""
+    from relcal.cli import main
+
+    source = tmp_path / "panda"
+    (source / "front").mkdir(parents=True)
+    (source / "front" / "hole_0.csv").write_text("1,2,3,4,5,6,7\n")
+    out = source / inside
+    code = main(["import", "mukca", str(source), "--urdf", str(tmp_path / "r.urdf"),
+                 "--out", str(out)])  # fmt: skip
+    assert code == 2
+    err = capsys.readouterr().err
+    assert "inside the mukca input folder" in err or "which this run reads" in err, err
+    assert sorted(p.name for p in source.rglob("*")) == ["front", "hole_0.csv"]

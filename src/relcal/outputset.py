@@ -478,6 +478,17 @@ def declared() -> list[Folder | File]:
     return list(_DECLARED)
 
 
+def check_outside(path: str | Path, what: str, source: str | Path, source_what: str) -> None:
+    """Refuse the output ``path`` (the option ``what``) inside the input folder ``source``
+    (``source_what`` names it): outputs go where they are asked, never into the input tree."""
+    source = Path(source)
+    if source.is_dir() and _real(path).is_relative_to(_real(source)):
+        raise RelcalError(
+            f"{what} {path}: inside {source_what} {source}: the outputs would land in the input "
+            "tree; give a folder outside it"
+        )
+
+
 def check_apart(path: str | Path, what: str, items: Iterable[Folder | File]) -> None:
     """Refuse ``path`` (another file the run writes, such as its registry) when it is one of the
     output ``items``, or inside an output folder or its ``.prev`` (replaced as a whole)."""

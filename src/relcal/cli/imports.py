@@ -36,7 +36,7 @@ still calibrates when moved.
 def run(args: argparse.Namespace) -> int:
     from relcal.errors import RelcalError
     from relcal.io import File, Folder, write_json
-    from relcal.outputset import check, note_input
+    from relcal.outputset import check, check_outside, note_input
 
     source = Path(args.file)
     if not source.exists():
@@ -46,6 +46,7 @@ def run(args: argparse.Namespace) -> int:
         want = "a folder (the image set)" if folder else "a file"
         raise RelcalError(f"{source}: expected {want} for {args.format}")
     note_input(source)
+    check_outside(args.out, "--out", source, f"the {args.format} input folder")
     items = [Folder(args.out, what="--out", replace="refuse")]
     check(items + ([File(args.json, b"", "--json")] if args.json else []))
     extra: dict = {}

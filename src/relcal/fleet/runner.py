@@ -79,12 +79,9 @@ def outputs_folder(session: Session, out_root: str | Path | None) -> Path:
 def check_out_root(root: str | Path, out_root: str | Path) -> None:
     """``out_root`` must not lie inside the fleet's input folder ``root`` (its outputs would
     land in the input tree)."""
-    inside = Path(out_root).resolve().is_relative_to(Path(root).resolve())
-    if inside:
-        raise RelcalError(
-            f"--out {out_root}: inside the fleet's input folder {root}: the outputs would land "
-            "in the input tree; give a folder outside it"
-        )
+    from relcal.outputset import check_outside
+
+    check_outside(out_root, "--out", root, "the fleet's input folder")
 
 
 def calibrate_session(
