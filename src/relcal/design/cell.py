@@ -99,13 +99,18 @@ class Cell:
     @property
     def corners(self) -> np.ndarray:
         """The pattern's outer corners ``(4, 3)`` in the board frame (m)."""
-        x0, y0, x1, y1 = pattern_extent(self.board)
-        return np.array([[x0, y0, 0.0], [x1, y0, 0.0], [x1, y1, 0.0], [x0, y1, 0.0]])
+        return pattern_corners(self.board)
 
     @property
     def normal(self) -> np.ndarray:
         """Unit normal of the printed face, towards the camera (base frame)."""
         return -self.board_pose[:3, 2]
+
+
+def pattern_corners(board: Board) -> np.ndarray:
+    """The pattern's outer corners ``(4, 3)`` in the board frame, m."""
+    x0, y0, x1, y1 = pattern_extent(board)
+    return np.array([[x0, y0, 0.0], [x1, y0, 0.0], [x1, y1, 0.0], [x0, y1, 0.0]])
 
 
 def pattern_middle(board: Board) -> np.ndarray:
@@ -178,8 +183,7 @@ class FixedCameraCell:
     @property
     def corners(self) -> np.ndarray:
         """The pattern's outer corners ``(4, 3)`` in the board frame (m)."""
-        x0, y0, x1, y1 = pattern_extent(self.board)
-        return np.array([[x0, y0, 0.0], [x1, y0, 0.0], [x1, y1, 0.0], [x0, y1, 0.0]])
+        return pattern_corners(self.board)
 
     @property
     def board_center(self) -> np.ndarray:
