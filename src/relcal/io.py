@@ -152,22 +152,30 @@ def csv_line(cells: list[str]) -> str:
     return out.getvalue()[:-1]
 
 
+def other_separator(line: str, delimiter: str, width: int) -> str | None:
+    """The separator other than ``delimiter`` that splits ``line`` into ``width`` fields, when
+    ``delimiter`` does not split it at all (a tab-separated row in a comma-separated file reads
+    as one field holding them all); else None."""
+    if width == 1 or len(line.split(delimiter)) != 1:
+        return None
+    return next((d for d in DELIMITERS if d != delimiter and len(line.split(d)) == width), None)
+
+
 def _check_separators(path: Path, rows: list[TableRow], delimiter: str) -> None:
-    """Refuse a data row whose fields are separated by another character than the header's
-    (a tab-separated row under a comma-separated header reads as one field holding them all),
-    naming both separators; any other miscount is left to the reader's own message."""
+    """Refuse a data row whose fields are separated by another character than the header's,
+    naming both separators (:func:`other_separator`); any other miscount is left to the
+    reader's own message."""
     width = len(rows[0])
     for row in rows[1:]:
-        if len(row) != 1 or width == 1:  # (a row the header's separator splits at all: its own)
+        if len(row) != 1:  # (a row the header's separator splits at all: its own)
             continue
-        line = delimiter.join(row)
-        for other, name in DELIMITERS.items():
-            if other != delimiter and len(line.split(other)) == width:
-                raise RelcalError(
-                    f"{path} line {row.line}: fields separated by {name}, but the header (line "
-                    f"{rows[0].line}) by {DELIMITERS[delimiter]}; use one separator throughout "
-                    "the file"
-                )
+        other = other_separator(delimiter.join(row), delimiter, width)
+        if other is not None:
+            raise RelcalError(
+                f"{path} line {row.line}: fields separated by {DELIMITERS[other]}, but the "
+                f"header (line {rows[0].line}) by {DELIMITERS[delimiter]}; use one separator "
+                "throughout the file"
+            )
 
 
 class _Loader(getattr(yaml, "CSafeLoader", yaml.SafeLoader)):  # libyaml's parser when built

@@ -351,7 +351,7 @@ def _mukca_joints(path: Path, n_joints: int):
     import numpy as np
 
     from relcal.errors import RelcalError
-    from relcal.io import DELIMITERS
+    from relcal.io import DELIMITERS, other_separator
     from relcal.limits import read_input
 
     note_input(path)
@@ -374,10 +374,10 @@ def _mukca_joints(path: Path, n_joints: int):
     rows, first_seen = [], {}
     for line_no, line in lines:
         cells = line.split(delimiter)
-        other = [d for d in DELIMITERS if d != delimiter and len(line.split(d)) == n_joints]
-        if len(cells) == 1 and other:
+        other = other_separator(line, delimiter, n_joints)
+        if other is not None:
             raise RelcalError(
-                f"{path} line {line_no}: fields separated by {DELIMITERS[other[0]]}, but line "
+                f"{path} line {line_no}: fields separated by {DELIMITERS[other]}, but line "
                 f"{lines[0][0]} by {DELIMITERS[delimiter]}; use one separator throughout the file"
             )
         if len(cells) == n_joints + 1 and not cells[-1].strip():
