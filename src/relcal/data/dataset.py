@@ -1611,12 +1611,15 @@ def read_target_file(
     return Targets(ids, lines, None, q, plan_robot, plan_unit)
 
 
-def _unique_columns(path: Path, header: list[str], data: list) -> None:
+def _unique_columns(
+    path: Path, header: list[str], data: list = (), line: int | None = None
+) -> None:
     """Refuse a header that names a column twice: one of the two would be read, the other
-    silently ignored."""
+    silently ignored. The header's ``line``, else the line before the first row of ``data``."""
     dupes = sorted({h for h in header if header.count(h) > 1})
     if dupes:
-        line = data[0].line - 1 if data else 1
+        if line is None:
+            line = data[0].line - 1 if data else 1
         raise RelcalError(
             f"{path} line {line}: header: column(s) {', '.join(map(printable, dupes))} appear "
             "twice; keep one"

@@ -30,7 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
-from relcal.data.dataset import PLAN_COMMENT, _row_id, unit_mixup
+from relcal.data.dataset import PLAN_COMMENT, _row_id, _unique_columns, unit_mixup
 from relcal.errors import RelcalError, printable
 from relcal.numbers import NotANumber, parse_number
 from relcal.robot.model import RobotModel, library_names
@@ -164,12 +164,7 @@ def read_plan(path: str | Path, model: RobotModel, joint_unit: str | None = None
     if len(data) < 2:
         raise RelcalError(f"{path}: expected a header line and one line per pose")
     header = [h.strip() for h in next(csv.reader([data[0][1]]))]
-    dupes = sorted({h for h in header if header.count(h) > 1})
-    if dupes:  # one of the two would be read, the other silently ignored
-        raise RelcalError(
-            f"{path} line {data[0][0]}: header: column(s) {', '.join(map(printable, dupes))} "
-            "appear twice; keep one"
-        )
+    _unique_columns(path, header, line=data[0][0])
     named, numbered = list(model.joint_names), [f"q{i + 1}" for i in range(model.n_joints)]
     columns = named if set(named) <= set(header) else numbered
     missing = [c for c in columns if c not in header]
